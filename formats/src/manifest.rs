@@ -1,0 +1,215 @@
+//! The manifest: everything about an asset that is not a tile. Self-describing
+//! JSON, so that fields can be added without a format version bump (readers
+//! ignore fields they do not know; every field added later has a default).
+
+use serde::{Deserialize, Serialize};
+
+use crate::layout::{Codec, ElemType};
+
+/// Name of the height layer that ingest writes; every stage reads it.
+pub const HEIGHT_LAYER: &str = "height";
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Manifest {
+    pub format_version: u32,
+    /// DEM shape in posts (samples): columns and rows.
+    pub width: u32,
+    pub height: u32,
+    /// Tile edge in elements for every layer of this asset (a power of two).
+    pub tile_size: u32,
+    pub cell_size: CellSize,
+    /// `None` when the source carried no georeferencing.
+    pub georef: Option<Georef>,
+    pub vertical: Vertical,
+    pub nodata: Nodata,
+    /// Range of the valid heights; `None` when every post is nodata.
+    pub height_range: Option<HeightRange>,
+    pub provenance: Provenance,
+    pub layers: Vec<LayerEntry>,
+}
+
+/// Horizontal post spacing in metres.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CellSize {
+    pub dx: f64,
+    pub dy: f64,
+    /// How dx and dy were found: `given` (command line), `projected` (pixel
+    /// scale of a metric CRS), `geographic-centre` (pixel scale in degrees,
+    /// converted at the DEM's centre latitude on the WGS84 ellipsoid; the
+    /// spacing changes with latitude, see `Georef`), or `assumed` (1 m).
+    pub source: String,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CrsKind {
+    Geographic,
+    Projected,
+    Unknown,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RasterType {
+    /// A value stands for the area of its pixel (GeoTIFF's PixelIsArea).
+    Area,
+    /// A value stands for a point at the pixel's corner (PixelIsPoint).
+    Point,
+}
+
+/// Georeferencing as the source gave it, kept so that exports round-trip.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Georef {
+    pub crs_kind: CrsKind,
+    /// EPSG code of the CRS when the source named one.
+    pub epsg: Option<u32>,
+    /// GDAL-style geotransform of the pixel grid, in CRS units:
+    /// `x = t[0] + col * t[1] + row * t[2]`, `y = t[3] + col * t[4] + row * t[5]`
+    /// for the pixel's top-left corner; post (col, row) lies at the pixel's
+    /// centre `(col + 0.5, row + 0.5)` when `raster_type` is `area`, and at
+    /// `(col, row)` when it is `point`.
+    pub geotransform: [f64; 6],
+    pub raster_type: RasterType,
+    /// The GeoTIFF GeoKeyDirectory, GeoDoubleParams and GeoAsciiParams tags,
+    /// verbatim (empty when the source was not a GeoTIFF).
+    #[serde(default)]
+    pub geo_key_directory: Vec<u16>,
+    #[serde(default)]
+    pub geo_double_params: Vec<f64>,
+    #[serde(default)]
+    pub geo_ascii_params: String,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Vertical {
+    pub units: String,
+    /// Heights in the asset are `source * scale + offset`.
+    pub scale: f64,
+    pub offset: f64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Nodata {
+    /// The source's nodata value as text (GDAL's convention: "-32767", "nan").
+    pub source_value: Option<String>,
+    /// Posts that are nodata in the asset: the source's nodata, NaN and
+    /// infinities. In f32 layers they are stored as NaN.
+    pub count: u64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct HeightRange {
+    pub min: f32,
+    pub max: f32,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Provenance {
+    /// The source file as given on the command line.
+    pub source: String,
+    pub source_len: u64,
+    /// Source format, e.g. `geotiff`, `hgt`, `raw`, `png`, `exr`.
+    pub source_format: String,
+    /// `terrabake <version>` of the tool that created the asset.
+    pub tool: String,
+    /// Every stage that wrote layers, in order, with its parameters.
+    pub stages: Vec<StageRecord>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StageRecord {
+    pub stage: String,
+    pub params: serde_json::Value,
+    pub tool: String,
+    /// Seconds since the Unix epoch when the stage finished.
+    pub finished_unix: u64,
+    /// `name@level` of every layer the stage wrote.
+    pub outputs: Vec<String>,
+}
+
+/// One layer: where its file is and what it holds.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LayerEntry {
+    pub name: String,
+    pub level: u32,
+    pub elem: ElemType,
+    pub bands: u32,
+    pub width: u32,
+    pub height: u32,
+    pub tile_size: u32,
+    /// The codec asked for; `raw` tiles may still be deduplicated constants.
+    pub codec: Codec,
+    /// File name inside the asset directory.
+    pub file: String,
+    pub file_len: u64,
+    /// The layer footer's `index_xxh3`, as 16 hex digits: binds this entry to
+    /// exactly one file version.
+    pub index_xxh3: String,
+    pub chunks: u64,
+    /// Chunks that are constant and share one stored copy per value.
+    pub constant_chunks: u64,
+    /// Bytes of chunk data on disk, after deduplication and compression.
+    pub stored_bytes: u64,
+    /// The stage that wrote the layer.
+    pub stage: String,
+    /// What the values mean (units, encoding); free text for people.
+    #[serde(default)]
+    pub description: String,
+}
+
+impl LayerEntry {
+    pub fn key(&self) -> String {
+        format!("{}@{}", self.name, self.level)
+    }
+}
+
+impl Manifest {
+    pub fn layer(&self, name: &str, level: u32) -> Option<&LayerEntry> {
+        self.layers
+            .iter()
+            .find(|l| l.name == name && l.level == level)
+    }
+
+    /// Replaces the entry with the same name and level, or appends.
+    pub fn upsert_layer(&mut self, entry: LayerEntry) {
+        match self
+            .layers
+            .iter_mut()
+            .find(|l| l.name == entry.name && l.level == entry.level)
+        {
+            Some(slot) => *slot = entry,
+            None => self.layers.push(entry),
+        }
+    }
+}
+
+impl Georef {
+    /// The offset, in pixels, from a pixel's top-left corner to its post.
+    fn post_offset(&self) -> f64 {
+        match self.raster_type {
+            RasterType::Area => 0.5,
+            RasterType::Point => 0.0,
+        }
+    }
+
+    /// CRS coordinates of post `(col, row)` (fractional posts allowed).
+    pub fn post_to_world(&self, col: f64, row: f64) -> (f64, f64) {
+        let t = &self.geotransform;
+        let (c, r) = (col + self.post_offset(), row + self.post_offset());
+        (t[0] + c * t[1] + r * t[2], t[3] + c * t[4] + r * t[5])
+    }
+
+    /// Grid coordinates (in posts) of the CRS point `(x, y)`; `None` when the
+    /// geotransform is singular.
+    pub fn world_to_post(&self, x: f64, y: f64) -> Option<(f64, f64)> {
+        let t = &self.geotransform;
+        let det = t[1] * t[5] - t[2] * t[4];
+        if det == 0.0 || !det.is_finite() {
+            return None;
+        }
+        let (dx, dy) = (x - t[0], y - t[3]);
+        let col = (t[5] * dx - t[2] * dy) / det;
+        let row = (t[1] * dy - t[4] * dx) / det;
+        Some((col - self.post_offset(), row - self.post_offset()))
+    }
+}

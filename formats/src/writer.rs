@@ -1,0 +1,400 @@
+//! Writing layers and committing manifests, so that a crash at any point
+//! leaves the asset as it was before or as it is after, never in between.
+//!
+//! A layer is written to `<file>.tmp`, fsynced, and renamed to a file name
+//! that no earlier version used (it carries a generation number). Only then is
+//! the manifest rewritten, the same way, to point at it: the manifest's rename
+//! is the commit point. Files that no manifest names any more are removed
+//! afterwards by [`remove_unreferenced`]. One writer at a time per asset.
+
+use std::collections::HashMap;
+use std::fs::{self, File};
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+use zerocopy::IntoBytes;
+
+use crate::error::{Error, Location, Result};
+use crate::layout::{
+    align_up, tiles_for, xxh3, ChunkEntry, Codec, ElemType, LayerFooter, LayerHeader,
+    ManifestHeader, FOOTER_MAGIC, FORMAT_VERSION, HEADER_LEN, LAYER_MAGIC, MANIFEST_FILE,
+    MANIFEST_MAGIC,
+};
+use crate::manifest::{LayerEntry, Manifest};
+
+/// What a layer holds; the writer derives the tiling from it.
+#[derive(Debug, Clone)]
+pub struct LayerSpec {
+    pub name: String,
+    pub level: u32,
+    pub elem: ElemType,
+    pub bands: u32,
+    pub width: u32,
+    pub height: u32,
+    pub tile_size: u32,
+    pub codec: Codec,
+    /// Bits of the padding value past the grid's edge (NaN's bits for f32).
+    pub fill_bits: u64,
+    pub stage: String,
+    pub description: String,
+}
+
+impl LayerSpec {
+    pub fn tiles_x(&self) -> u32 {
+        tiles_for(self.width, self.tile_size)
+    }
+    pub fn tiles_y(&self) -> u32 {
+        tiles_for(self.height, self.tile_size)
+    }
+    pub fn chunk_count(&self) -> u64 {
+        u64::from(self.bands) * u64::from(self.tiles_x()) * u64::from(self.tiles_y())
+    }
+    pub fn tile_bytes(&self) -> usize {
+        self.tile_size as usize * self.tile_size as usize * self.elem.size()
+    }
+    fn validate(&self) -> Result<()> {
+        let bad = |what: String| Err(Error::Spec(format!("layer {}: {what}", self.name)));
+        if !self.tile_size.is_power_of_two() || !(16..=4096).contains(&self.tile_size) {
+            return bad(format!(
+                "tile size {} is not a power of two in 16..=4096",
+                self.tile_size
+            ));
+        }
+        if self.width == 0 || self.height == 0 || self.bands == 0 {
+            return bad(format!(
+                "empty grid {} x {} x {} bands",
+                self.width, self.height, self.bands
+            ));
+        }
+        if self.name.is_empty()
+            || !self
+                .name
+                .bytes()
+                .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
+        {
+            return bad("names use only letters, digits, '_' and '-'".into());
+        }
+        Ok(())
+    }
+}
+
+/// A tile ready to append: checksummed and possibly compressed. Made by
+/// [`encode_tile`], which is pure, so callers can encode tiles in parallel.
+#[derive(Debug, Clone)]
+pub struct EncodedTile {
+    pub codec: Codec,
+    pub bytes: Vec<u8>,
+    pub raw_len: u32,
+    pub xxh3: u64,
+    /// `Some(bits)` when every element has these bits: stored once per value.
+    pub constant: Option<u64>,
+}
+
+/// Encodes one tile's bytes (`tile_size²` elements of `elem_size` bytes).
+/// A zstd tile that would not be smaller than raw is stored raw.
+pub fn encode_tile(raw: &[u8], elem_size: usize, codec: Codec, zstd_level: i32) -> EncodedTile {
+    let constant = constant_bits(raw, elem_size);
+    let bytes = match codec {
+        Codec::Raw => None,
+        Codec::Zstd => zstd::bulk::compress(raw, zstd_level)
+            .ok()
+            .filter(|c| c.len() < raw.len()),
+    };
+    let (codec, bytes) = match bytes {
+        Some(c) => (Codec::Zstd, c),
+        None => (Codec::Raw, raw.to_vec()),
+    };
+    EncodedTile {
+        codec,
+        xxh3: xxh3(&bytes),
+        bytes,
+        raw_len: raw.len() as u32,
+        constant,
+    }
+}
+
+fn constant_bits(raw: &[u8], elem_size: usize) -> Option<u64> {
+    let first = raw.get(..elem_size)?;
+    raw.chunks_exact(elem_size).all(|e| e == first).then(|| {
+        let mut bits = [0u8; 8];
+        bits[..elem_size].copy_from_slice(first);
+        u64::from_le_bytes(bits)
+    })
+}
+
+/// Appends tiles to a new layer file; [`LayerWriter::finish`] makes it durable.
+/// Dropping an unfinished writer removes its temporary file.
+#[derive(Debug)]
+pub struct LayerWriter {
+    spec: LayerSpec,
+    dir: PathBuf,
+    file_name: String,
+    tmp_path: PathBuf,
+    out: Option<BufWriter<File>>,
+    pos: u64,
+    index: Vec<ChunkEntry>,
+    /// (constant bits, codec) -> the entry that already stores it.
+    constants: HashMap<u64, ChunkEntry>,
+    constant_chunks: u64,
+    stored_bytes: u64,
+    header: LayerHeader,
+}
+
+impl LayerWriter {
+    /// Starts `spec` in the asset directory `dir` (which must exist).
+    pub fn create(dir: &Path, spec: LayerSpec) -> Result<Self> {
+        spec.validate()?;
+        let file_name = fresh_layer_file_name(dir, &spec.name, spec.level);
+        let tmp_path = dir.join(format!("{file_name}.tmp"));
+        let io_err = |source| Error::Io {
+            at: Location::layer(&tmp_path, format!("{}@{}", spec.name, spec.level)),
+            source,
+        };
+        let file = File::create(&tmp_path).map_err(io_err)?;
+        let mut header = LayerHeader {
+            magic: LAYER_MAGIC,
+            version: FORMAT_VERSION.into(),
+            elem_type: (spec.elem as u16).into(),
+            reserved0: 0.into(),
+            width: spec.width.into(),
+            height: spec.height.into(),
+            tile_size: spec.tile_size.into(),
+            bands: spec.bands.into(),
+            level: spec.level.into(),
+            tiles_x: spec.tiles_x().into(),
+            tiles_y: spec.tiles_y().into(),
+            reserved1: 0.into(),
+            fill_bits: spec.fill_bits.into(),
+            header_xxh3: 0.into(),
+        };
+        header.header_xxh3 = header.compute_xxh3().into();
+        let mut out = BufWriter::with_capacity(1 << 20, file);
+        out.write_all(header.as_bytes()).map_err(io_err)?;
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            file_name,
+            out: Some(out),
+            pos: HEADER_LEN as u64,
+            index: Vec::with_capacity(spec.chunk_count() as usize),
+            constants: HashMap::new(),
+            constant_chunks: 0,
+            stored_bytes: 0,
+            header,
+            tmp_path,
+            spec,
+        })
+    }
+
+    pub fn spec(&self) -> &LayerSpec {
+        &self.spec
+    }
+
+    /// Chunks appended so far; the next one appended gets this index.
+    pub fn chunks_written(&self) -> u64 {
+        self.index.len() as u64
+    }
+
+    fn at(&self) -> Location {
+        Location::layer(
+            &self.tmp_path,
+            format!("{}@{}", self.spec.name, self.spec.level),
+        )
+    }
+
+    /// Appends the next chunk in index order (band, tile row, tile column).
+    pub fn push(&mut self, tile: EncodedTile) -> Result<()> {
+        if self.index.len() as u64 >= self.spec.chunk_count() {
+            return Err(Error::Spec(format!(
+                "layer {}: more than {} chunks pushed",
+                self.spec.name,
+                self.spec.chunk_count()
+            )));
+        }
+        if tile.raw_len as usize != self.spec.tile_bytes() {
+            return Err(Error::Spec(format!(
+                "layer {}: tile of {} bytes, expected {}",
+                self.spec.name,
+                tile.raw_len,
+                self.spec.tile_bytes()
+            )));
+        }
+        if let Some(entry) = tile.constant.and_then(|bits| self.constants.get(&bits)) {
+            self.index.push(*entry);
+            self.constant_chunks += 1;
+            return Ok(());
+        }
+        let offset = align_up(self.pos);
+        let pad = (offset - self.pos) as usize;
+        let out = self.out.as_mut().expect("writer used after finish");
+        let result = out
+            .write_all(&[0u8; 64][..pad])
+            .and_then(|()| out.write_all(&tile.bytes));
+        result.map_err(|source| Error::Io {
+            at: self.at(),
+            source,
+        })?;
+        let entry = ChunkEntry {
+            offset: offset.into(),
+            stored_len: (tile.bytes.len() as u64).into(),
+            raw_len: tile.raw_len.into(),
+            codec: tile.codec as u8,
+            reserved: [0; 3],
+            xxh3: tile.xxh3.into(),
+        };
+        self.pos = offset + tile.bytes.len() as u64;
+        self.stored_bytes += tile.bytes.len() as u64;
+        if let Some(bits) = tile.constant {
+            self.constants.insert(bits, entry);
+            self.constant_chunks += 1;
+        }
+        self.index.push(entry);
+        Ok(())
+    }
+
+    /// Writes the index and footer, fsyncs and renames the file into place.
+    /// The returned entry is not yet visible: commit it with a manifest.
+    pub fn finish(mut self) -> Result<LayerEntry> {
+        if self.index.len() as u64 != self.spec.chunk_count() {
+            return Err(Error::Spec(format!(
+                "layer {}: {} of {} chunks pushed",
+                self.spec.name,
+                self.index.len(),
+                self.spec.chunk_count()
+            )));
+        }
+        let index_offset = align_up(self.pos);
+        let index_bytes = self.index.as_bytes();
+        let index_xxh3 = xxh3(index_bytes);
+        let footer = LayerFooter {
+            index_offset: index_offset.into(),
+            chunk_count: (self.index.len() as u64).into(),
+            index_xxh3: index_xxh3.into(),
+            header_xxh3: self.header.header_xxh3,
+            version: FORMAT_VERSION.into(),
+            reserved: [0; 20],
+            magic: FOOTER_MAGIC,
+        };
+        let at = self.at();
+        let mut out = self.out.take().expect("writer used after finish");
+        let pad = (index_offset - self.pos) as usize;
+        let write = || -> std::io::Result<File> {
+            out.write_all(&[0u8; 64][..pad])?;
+            out.write_all(index_bytes)?;
+            out.write_all(footer.as_bytes())?;
+            let file = out.into_inner().map_err(|e| e.into_error())?;
+            file.sync_all()?;
+            Ok(file)
+        };
+        let file = write().map_err(|source| Error::Io {
+            at: at.clone(),
+            source,
+        })?;
+        let file_len = file.metadata().map(|m| m.len()).unwrap_or(0);
+        drop(file);
+        let final_path = self.dir.join(&self.file_name);
+        fs::rename(&self.tmp_path, &final_path).map_err(|source| Error::Io { at, source })?;
+        Ok(LayerEntry {
+            name: self.spec.name.clone(),
+            level: self.spec.level,
+            elem: self.spec.elem,
+            bands: self.spec.bands,
+            width: self.spec.width,
+            height: self.spec.height,
+            tile_size: self.spec.tile_size,
+            codec: self.spec.codec,
+            file: self.file_name.clone(),
+            file_len,
+            index_xxh3: format!("{index_xxh3:016x}"),
+            chunks: self.index.len() as u64,
+            constant_chunks: self.constant_chunks,
+            stored_bytes: self.stored_bytes,
+            stage: self.spec.stage.clone(),
+            description: self.spec.description.clone(),
+        })
+    }
+}
+
+impl Drop for LayerWriter {
+    fn drop(&mut self) {
+        if self.out.is_some() {
+            // Unfinished: the temporary file is garbage.
+            self.out = None;
+            let _ = fs::remove_file(&self.tmp_path);
+        }
+    }
+}
+
+/// `name.L<level>.g<generation>.tbl`, with a generation no file in `dir` has.
+fn fresh_layer_file_name(dir: &Path, name: &str, level: u32) -> String {
+    let prefix = format!("{name}.L{level}.g");
+    let highest = fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter_map(|e| {
+            let file = e.file_name().into_string().ok()?;
+            let rest = file.strip_prefix(&prefix)?;
+            rest.split('.').next()?.parse::<u64>().ok()
+        })
+        .max();
+    format!("{prefix}{}.tbl", highest.map_or(0, |g| g + 1))
+}
+
+/// Writes the manifest atomically: temporary file, fsync, rename, fsync of
+/// the directory. This is the commit point of every change to an asset.
+pub fn commit_manifest(dir: &Path, manifest: &Manifest) -> Result<()> {
+    let path = dir.join(MANIFEST_FILE);
+    let tmp = dir.join(format!("{MANIFEST_FILE}.tmp"));
+    let json = serde_json::to_vec_pretty(manifest).map_err(|source| Error::Manifest {
+        at: Location::file(&path),
+        source,
+    })?;
+    let header = ManifestHeader {
+        magic: MANIFEST_MAGIC,
+        version: FORMAT_VERSION.into(),
+        reserved: 0.into(),
+        json_len: (json.len() as u64).into(),
+        json_xxh3: xxh3(&json).into(),
+    };
+    let write = || -> std::io::Result<()> {
+        let mut file = File::create(&tmp)?;
+        file.write_all(header.as_bytes())?;
+        file.write_all(&json)?;
+        file.sync_all()?;
+        drop(file);
+        fs::rename(&tmp, &path)?;
+        // The rename itself must reach the disk before we report success.
+        File::open(dir)?.sync_all()
+    };
+    write().map_err(|source| {
+        let _ = fs::remove_file(&tmp);
+        Error::Io {
+            at: Location::file(&path),
+            source,
+        }
+    })
+}
+
+/// Removes layer files (and stale temporaries) that `manifest` does not name.
+/// Returns the names removed.
+pub fn remove_unreferenced(dir: &Path, manifest: &Manifest) -> Result<Vec<String>> {
+    let entries = fs::read_dir(dir).map_err(|source| Error::Io {
+        at: Location::file(dir),
+        source,
+    })?;
+    let mut removed = Vec::new();
+    for entry in entries.flatten() {
+        let Ok(name) = entry.file_name().into_string() else {
+            continue;
+        };
+        let ours = name.ends_with(".tbl") || name.ends_with(".tbl.tmp");
+        if ours && !manifest.layers.iter().any(|l| l.file == name) {
+            fs::remove_file(entry.path()).map_err(|source| Error::Io {
+                at: Location::file(entry.path()),
+                source,
+            })?;
+            removed.push(name);
+        }
+    }
+    Ok(removed)
+}

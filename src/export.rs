@@ -1,0 +1,374 @@
+//! Layers out of an asset: GeoTIFF (georeferencing and nodata kept, so GDAL
+//! and QGIS read back the same geotransform), OpenEXR (float, for engines),
+//! and PNG previews for people.
+//!
+//! Every writer here writes to `<out>.tmp` and renames on success, so a
+//! failed export never leaves a half-written file where a good one stood.
+
+use std::fs::{self, File};
+use std::io::{BufWriter, Seek, Write};
+use std::path::{Path, PathBuf};
+
+use anyhow::{anyhow, bail, Context, Result};
+use terrabake_format::manifest::Georef;
+use terrabake_format::{Asset, Layer, Mmap};
+use tiff::encoder::{colortype, TiffEncoder, TiffKind, TiffKindBig, TiffKindStandard};
+use tiff::tags::Tag;
+
+use crate::progress::Progress;
+
+/// Writes `path` through `<path>.tmp`: `write` fills the temporary file,
+/// which is then fsynced and renamed into place; on error it is removed.
+pub fn write_atomically(
+    path: &Path,
+    write: impl FnOnce(&mut BufWriter<File>) -> Result<()>,
+) -> Result<()> {
+    let tmp = PathBuf::from(format!("{}.tmp", path.display()));
+    let result = (|| -> Result<()> {
+        let file =
+            File::create(&tmp).with_context(|| format!("{}: cannot create", tmp.display()))?;
+        let mut out = BufWriter::with_capacity(1 << 20, file);
+        write(&mut out)?;
+        let file = out.into_inner().map_err(|e| e.into_error())?;
+        file.sync_all()?;
+        fs::rename(&tmp, path)
+            .with_context(|| format!("{}: cannot rename into place", path.display()))
+    })();
+    if result.is_err() {
+        let _ = fs::remove_file(&tmp);
+    }
+    result
+}
+
+/// The GeoTIFF tags of a grid: georeferencing (scaled to a pyramid level's
+/// coarser posts) and GDAL_NODATA.
+#[derive(Debug, Clone, Default)]
+pub struct GeoTags {
+    pub georef: Option<Georef>,
+    pub nodata: Option<String>,
+}
+
+impl GeoTags {
+    /// Tags for a layer at `level`: each post of level L covers 2^L posts.
+    pub fn for_level(georef: Option<&Georef>, nodata: Option<String>, level: u32) -> Self {
+        let georef = georef.map(|g| {
+            let mut g = g.clone();
+            let f = f64::from(1u32 << level.min(30));
+            for i in [1, 2, 4, 5] {
+                g.geotransform[i] *= f;
+            }
+            g
+        });
+        Self { georef, nodata }
+    }
+}
+
+/// Writes a float32 GeoTIFF of `width x height`, strip by strip: `fill`
+/// gets the first row and a buffer of whole rows to fill (NaN = nodata, which
+/// is written as `tags.nodata` when that is set). BigTIFF past 4 GB.
+pub fn write_geotiff_f32(
+    path: &Path,
+    width: u32,
+    height: u32,
+    tags: &GeoTags,
+    mut fill: impl FnMut(u32, &mut [f32]) -> Result<()>,
+) -> Result<()> {
+    let nodata_value = tags
+        .nodata
+        .as_deref()
+        .and_then(crate::source::parse_nodata)
+        .map(|v| v as f32);
+    write_atomically(path, |out| {
+        let big = u64::from(width) * u64::from(height) * 4 > 3_900_000_000;
+        let fill = |y0: u32, rows: &mut [f32]| -> Result<()> {
+            fill(y0, rows)?;
+            if let Some(nd) = nodata_value {
+                rows.iter_mut().filter(|z| z.is_nan()).for_each(|z| *z = nd);
+            }
+            Ok(())
+        };
+        if big {
+            write_tiff::<_, TiffKindBig>(out, width, height, tags, fill)
+        } else {
+            write_tiff::<_, TiffKindStandard>(out, width, height, tags, fill)
+        }
+    })
+}
+
+fn write_tiff<W: Write + Seek, K: TiffKind>(
+    out: W,
+    width: u32,
+    height: u32,
+    tags: &GeoTags,
+    mut fill: impl FnMut(u32, &mut [f32]) -> Result<()>,
+) -> Result<()> {
+    let tiff_err = |e: tiff::TiffError| anyhow!("writing TIFF: {e}");
+    let mut encoder = TiffEncoder::<W, K>::new_generic(out).map_err(tiff_err)?;
+    let mut image = encoder
+        .new_image::<colortype::Gray32Float>(width, height)
+        .map_err(tiff_err)?;
+    // Strips of about 1 MiB: small enough to stream, large enough to be fast.
+    let rows_per_strip = ((1u32 << 18) / width.max(1)).clamp(1, height);
+    image.rows_per_strip(rows_per_strip).map_err(tiff_err)?;
+    if let Some(g) = &tags.georef {
+        let t = g.geotransform;
+        let dir = image.encoder();
+        if t[2] == 0.0 && t[4] == 0.0 {
+            dir.write_tag(Tag::ModelPixelScaleTag, &[t[1], -t[5], 0.0][..])
+                .map_err(tiff_err)?;
+            dir.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, t[0], t[3], 0.0][..])
+                .map_err(tiff_err)?;
+        } else {
+            let m = [
+                t[1], t[2], 0.0, t[0], t[4], t[5], 0.0, t[3], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                1.0,
+            ];
+            dir.write_tag(Tag::ModelTransformationTag, &m[..])
+                .map_err(tiff_err)?;
+        }
+        if !g.geo_key_directory.is_empty() {
+            dir.write_tag(Tag::GeoKeyDirectoryTag, &g.geo_key_directory[..])
+                .map_err(tiff_err)?;
+        }
+        if !g.geo_double_params.is_empty() {
+            dir.write_tag(Tag::GeoDoubleParamsTag, &g.geo_double_params[..])
+                .map_err(tiff_err)?;
+        }
+        if !g.geo_ascii_params.is_empty() {
+            dir.write_tag(Tag::GeoAsciiParamsTag, g.geo_ascii_params.as_str())
+                .map_err(tiff_err)?;
+        }
+    }
+    if let Some(nd) = &tags.nodata {
+        image
+            .encoder()
+            .write_tag(Tag::GdalNodata, nd.as_str())
+            .map_err(tiff_err)?;
+    }
+    let mut strip = vec![0f32; (rows_per_strip * width) as usize];
+    let mut y0 = 0;
+    while y0 < height {
+        let rows = rows_per_strip.min(height - y0);
+        let buf = &mut strip[..(rows * width) as usize];
+        fill(y0, buf)?;
+        image.write_strip(buf).map_err(tiff_err)?;
+        y0 += rows;
+    }
+    image.finish().map_err(tiff_err)
+}
+
+/// Output kinds, by file extension.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ExportKind {
+    GeoTiff,
+    Exr,
+    Png,
+}
+
+impl ExportKind {
+    pub fn from_path(path: &Path) -> Result<Self> {
+        match path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase)
+            .as_deref()
+        {
+            Some("tif" | "tiff") => Ok(Self::GeoTiff),
+            Some("exr") => Ok(Self::Exr),
+            Some("png") => Ok(Self::Png),
+            _ => bail!("{}: export writes .tif, .exr or .png", path.display()),
+        }
+    }
+}
+
+/// How a PNG preview colours heights.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum PngStyle {
+    /// Heights from min (black) to max (white), 16-bit.
+    Gray,
+    /// Hypsometric tint (green lowlands to brown and white peaks) times a
+    /// hillshade lit from the north-west at 45 degrees; nodata is transparent.
+    Relief,
+}
+
+/// Exports band 0 of `layer` (f32 layers) to `out`.
+pub fn export_layer(
+    asset: &Asset<Mmap>,
+    layer: &Layer<Mmap>,
+    out: &Path,
+    style: PngStyle,
+    progress: Progress,
+) -> Result<()> {
+    let (w, h) = (layer.width(), layer.height());
+    if layer.entry().elem != terrabake_format::ElemType::F32 {
+        bail!(
+            "layer {} holds {:?}; export handles f32 layers",
+            layer.entry().key(),
+            layer.entry().elem
+        );
+    }
+    let manifest = asset.manifest();
+    let read = |y0: u32, rows: &mut [f32]| -> Result<()> {
+        let n = (rows.len() / w as usize) as u32;
+        layer.read_window(0, 0, y0, w, n, rows).map_err(Into::into)
+    };
+    match ExportKind::from_path(out)? {
+        ExportKind::GeoTiff => {
+            let nodata = Some(
+                manifest
+                    .nodata
+                    .source_value
+                    .clone()
+                    .unwrap_or_else(|| "nan".into()),
+            );
+            let tags = GeoTags::for_level(manifest.georef.as_ref(), nodata, layer.entry().level);
+            let bar = progress.bar(u64::from(h), "export", "rows");
+            write_geotiff_f32(out, w, h, &tags, |y0, rows| {
+                read(y0, rows)?;
+                bar.set_position(u64::from(y0));
+                Ok(())
+            })?;
+            bar.finish_and_clear();
+            Ok(())
+        }
+        ExportKind::Exr => {
+            // The exr crate encodes whole images: bound what we hold.
+            if u64::from(w) * u64::from(h) > 1 << 28 {
+                bail!("layer {} is {w} x {h}: EXR export holds the whole layer and is limited to 2^28 posts; export GeoTIFF instead", layer.entry().key());
+            }
+            let mut all = vec![0f32; w as usize * h as usize];
+            read(0, &mut all)?;
+            write_atomically(out, |file| {
+                use exr::prelude::*;
+                let channel = AnyChannel::new("Y", FlatSamples::F32(all));
+                let image = Image::from_channels(
+                    (w as usize, h as usize),
+                    AnyChannels::sort(SmallVec::from_vec(vec![channel])),
+                );
+                image
+                    .write()
+                    .to_buffered(file)
+                    .map_err(|e| anyhow!("writing EXR: {e}"))
+            })
+        }
+        ExportKind::Png => write_png_preview(out, layer, manifest, style),
+    }
+}
+
+/// Largest side of a PNG preview; larger layers are subsampled.
+pub const PREVIEW_MAX_SIDE: u32 = 4096;
+
+fn write_png_preview(
+    out: &Path,
+    layer: &Layer<Mmap>,
+    manifest: &terrabake_format::Manifest,
+    style: PngStyle,
+) -> Result<()> {
+    let (w, h) = (layer.width(), layer.height());
+    let step = w.max(h).div_ceil(PREVIEW_MAX_SIDE).max(1);
+    let (pw, ph) = (w.div_ceil(step), h.div_ceil(step));
+    let range = manifest.height_range.map_or((0.0, 1.0), |r| (r.min, r.max));
+    let span = (range.1 - range.0).max(1e-6);
+    // Metres per preview pixel, for the hillshade's slopes.
+    let (dx, dy) = (
+        manifest.cell_size.dx * f64::from(step),
+        manifest.cell_size.dy * f64::from(step),
+    );
+    let row_at = |y: u32| -> Result<Vec<f32>> {
+        let mut full = vec![0f32; w as usize];
+        layer.read_window(0, 0, y.min(h - 1), w, 1, &mut full)?;
+        Ok((0..pw).map(|x| full[(x * step) as usize]).collect())
+    };
+    write_atomically(out, |file| {
+        let mut enc = png::Encoder::new(file, pw, ph);
+        match style {
+            PngStyle::Gray => {
+                enc.set_color(png::ColorType::Grayscale);
+                enc.set_depth(png::BitDepth::Sixteen);
+            }
+            PngStyle::Relief => {
+                enc.set_color(png::ColorType::Rgba);
+                enc.set_depth(png::BitDepth::Eight);
+            }
+        }
+        let mut header = enc.write_header()?;
+        let mut writer = header.stream_writer()?;
+        let (mut above, mut here) = (row_at(0)?, row_at(0)?);
+        for py in 0..ph {
+            let below = row_at(((py + 1) * step).min(h - 1))?;
+            let mut bytes = Vec::with_capacity(pw as usize * 4);
+            for px in 0..pw as usize {
+                let z = here[px];
+                match style {
+                    PngStyle::Gray => {
+                        let v = if z.is_nan() {
+                            0
+                        } else {
+                            (((z - range.0) / span) * 65535.0).round() as u16
+                        };
+                        bytes.extend_from_slice(&v.to_be_bytes());
+                    }
+                    PngStyle::Relief => {
+                        if z.is_nan() {
+                            bytes.extend_from_slice(&[0, 0, 0, 0]);
+                            continue;
+                        }
+                        let pick = |v: f32| if v.is_nan() { z } else { v };
+                        let left = pick(here[px.saturating_sub(1)]);
+                        let right = pick(here[(px + 1).min(pw as usize - 1)]);
+                        let (up, down) = (pick(above[px]), pick(below[px]));
+                        let shade = hillshade(
+                            f64::from(right - left) / (2.0 * dx),
+                            f64::from(down - up) / (2.0 * dy),
+                        );
+                        let [r, g, b] = hypsometric((z - range.0) / span);
+                        let s = 0.35 + 0.65 * shade;
+                        bytes.extend_from_slice(&[
+                            (r * s) as u8,
+                            (g * s) as u8,
+                            (b * s) as u8,
+                            255,
+                        ]);
+                    }
+                }
+            }
+            writer.write_all(&bytes)?;
+            above = std::mem::replace(&mut here, below);
+        }
+        writer.finish()?;
+        header.finish()?;
+        Ok(())
+    })
+}
+
+/// Lambert shading of a surface with slopes dz/dx (east) and dz/dy (south),
+/// lit from azimuth 315 degrees (north-west) at 45 degrees elevation.
+fn hillshade(dzdx: f64, dzdy: f64) -> f32 {
+    let normal = [-dzdx, dzdy, 1.0];
+    let len = (normal[0] * normal[0] + normal[1] * normal[1] + 1.0).sqrt();
+    let (az, el) = (315f64.to_radians(), 45f64.to_radians());
+    // x east, y north, z up.
+    let light = [az.sin() * el.cos(), az.cos() * el.cos(), el.sin()];
+    let d = (normal[0] * light[0] + normal[1] * light[1] + normal[2] * light[2]) / len;
+    d.clamp(0.0, 1.0) as f32
+}
+
+/// A hypsometric tint for t in 0..1 (lowland green, upland tan, peaks white).
+fn hypsometric(t: f32) -> [f32; 3] {
+    const STOPS: [(f32, [f32; 3]); 5] = [
+        (0.0, [62.0, 128.0, 72.0]),
+        (0.3, [150.0, 180.0, 100.0]),
+        (0.6, [200.0, 170.0, 120.0]),
+        (0.85, [150.0, 120.0, 100.0]),
+        (1.0, [250.0, 250.0, 250.0]),
+    ];
+    let t = t.clamp(0.0, 1.0);
+    for pair in STOPS.windows(2) {
+        let ((t0, c0), (t1, c1)) = (pair[0], pair[1]);
+        if t <= t1 {
+            let f = (t - t0) / (t1 - t0);
+            return [0, 1, 2].map(|i| c0[i] + f * (c1[i] - c0[i]));
+        }
+    }
+    STOPS[4].1
+}

@@ -1,0 +1,161 @@
+//! Georeferencing: the GeoTIFF GeoKey directory (OGC GeoTIFF 1.1, sec. 7)
+//! read for what terrabake needs, and the metric post spacing of a grid.
+
+use terrabake_format::manifest::{CellSize, CrsKind, Georef, RasterType};
+
+pub const GT_MODEL_TYPE: u16 = 1024;
+pub const GT_RASTER_TYPE: u16 = 1025;
+pub const GEOGRAPHIC_TYPE: u16 = 2048;
+pub const PROJECTED_CS_TYPE: u16 = 3072;
+pub const PROJ_LINEAR_UNITS: u16 = 3076;
+
+/// WGS84 semi-major axis and first eccentricity squared.
+const WGS84_A: f64 = 6_378_137.0;
+const WGS84_E2: f64 = 6.694_379_990_14e-3;
+
+/// One key's SHORT value from a GeoKeyDirectory (values stored in other tags
+/// are not SHORT and are ignored here).
+pub fn geo_key(dir: &[u16], key: u16) -> Option<u16> {
+    let count = usize::from(*dir.get(3)?);
+    dir.get(4..4 + 4 * count)?
+        .chunks_exact(4)
+        .find(|k| k[0] == key && k[1] == 0 && k[2] == 1)
+        .map(|k| k[3])
+}
+
+/// Builds a `Georef` from a GeoKey directory and a raster-to-model transform.
+pub fn georef_from_keys(
+    dir: Vec<u16>,
+    doubles: Vec<f64>,
+    ascii: String,
+    geotransform: [f64; 6],
+) -> Georef {
+    let crs_kind = match geo_key(&dir, GT_MODEL_TYPE) {
+        Some(1) => CrsKind::Projected,
+        Some(2) => CrsKind::Geographic,
+        _ => CrsKind::Unknown,
+    };
+    let raster_type = match geo_key(&dir, GT_RASTER_TYPE) {
+        Some(2) => RasterType::Point,
+        _ => RasterType::Area,
+    };
+    let code = match crs_kind {
+        CrsKind::Projected => geo_key(&dir, PROJECTED_CS_TYPE),
+        CrsKind::Geographic => geo_key(&dir, GEOGRAPHIC_TYPE),
+        CrsKind::Unknown => None,
+    };
+    // 32767 is "user-defined" and 0 "undefined": no EPSG code.
+    let epsg = code.filter(|&c| c != 0 && c != 32767).map(u32::from);
+    Georef {
+        crs_kind,
+        epsg,
+        geotransform,
+        raster_type,
+        geo_key_directory: dir,
+        geo_double_params: doubles,
+        geo_ascii_params: ascii,
+    }
+}
+
+/// Metres per unit of a projected CRS's ProjLinearUnitsGeoKey (EPSG codes).
+pub fn linear_unit_metres(dir: &[u16]) -> f64 {
+    match geo_key(dir, PROJ_LINEAR_UNITS) {
+        Some(9002) => 0.3048,
+        Some(9003) => 1200.0 / 3937.0,
+        _ => 1.0,
+    }
+}
+
+/// Metric post spacing (dx, dy) of a georeferenced grid of `height` rows.
+/// Geographic grids are measured at the centre row on the WGS84 ellipsoid:
+/// the spacing varies with latitude, and stages that care (horizons) take it
+/// per row from the geotransform.
+pub fn cell_size(georef: &Georef, height: u32, linear_unit_m: f64) -> CellSize {
+    let t = &georef.geotransform;
+    let (sx, sy) = (t[1].hypot(t[4]), t[2].hypot(t[5]));
+    match georef.crs_kind {
+        CrsKind::Geographic => {
+            let (_, lat) = georef.post_to_world(0.0, f64::from(height) / 2.0);
+            let phi = lat.to_radians();
+            let w = (1.0 - WGS84_E2 * phi.sin().powi(2)).sqrt();
+            let prime_vertical = WGS84_A / w;
+            let meridional = WGS84_A * (1.0 - WGS84_E2) / (w * w * w);
+            CellSize {
+                dx: sx.to_radians() * prime_vertical * phi.cos(),
+                dy: sy.to_radians() * meridional,
+                source: "geographic-centre".into(),
+            }
+        }
+        _ => CellSize {
+            dx: sx * linear_unit_m,
+            dy: sy * linear_unit_m,
+            source: "projected".into(),
+        },
+    }
+}
+
+/// A GeoKey directory for a local metric grid with no named CRS (synthetic
+/// terrains): projected, user-defined, metres.
+pub fn local_metric_keys(raster_type: RasterType) -> Vec<u16> {
+    let rt = match raster_type {
+        RasterType::Area => 1,
+        RasterType::Point => 2,
+    };
+    vec![
+        1,
+        1,
+        0,
+        4, //
+        GT_MODEL_TYPE,
+        0,
+        1,
+        1, //
+        GT_RASTER_TYPE,
+        0,
+        1,
+        rt, //
+        PROJECTED_CS_TYPE,
+        0,
+        1,
+        32767, //
+        PROJ_LINEAR_UNITS,
+        0,
+        1,
+        9001,
+    ]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn geographic_spacing_at_equator_and_60_degrees() {
+        let mut g = georef_from_keys(
+            vec![1, 1, 0, 1, GT_MODEL_TYPE, 0, 1, 2],
+            vec![],
+            String::new(),
+            [0.0, 1.0 / 1200.0, 0.0, 0.5, 0.0, -1.0 / 1200.0],
+        );
+        // 1200 rows of 1/1200 degree from 0.5 N: centre row at 0.0 N.
+        let c = cell_size(&g, 1200, 1.0);
+        assert!((c.dx - 92.77).abs() < 0.05, "{}", c.dx);
+        assert!((c.dy - 92.13).abs() < 0.05, "{}", c.dy);
+        g.geotransform[3] = 60.5;
+        let c = cell_size(&g, 1200, 1.0);
+        assert!((c.dx - 46.50).abs() < 0.05, "{}", c.dx);
+    }
+
+    #[test]
+    fn keys_are_read_back() {
+        let keys = local_metric_keys(RasterType::Point);
+        assert_eq!(geo_key(&keys, GT_RASTER_TYPE), Some(2));
+        assert_eq!(geo_key(&keys, PROJ_LINEAR_UNITS), Some(9001));
+        assert_eq!(geo_key(&keys, 9999), None);
+        assert_eq!(
+            geo_key(&[1, 1, 0, 9], GT_MODEL_TYPE),
+            None,
+            "truncated directory"
+        );
+    }
+}

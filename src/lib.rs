@@ -1,0 +1,27 @@
+//! # terrabake
+//!
+//! The pipeline that turns DEMs into terrabake assets. The asset format and
+//! its reader live in `terrabake-format`; this crate reads sources, runs the
+//! bake stages and writes their layers, and hosts the CLI (`src/main.rs`).
+//!
+//! - [`source`]: DEM readers (GeoTIFF, SRTM .hgt, raw, PNG, OpenEXR), row
+//!   band by row band, never holding a whole DEM.
+//! - [`ingest`]: the first stage: a source becomes the asset's `height` layer.
+//! - [`stage`]: the stage interface (layers in, layers out, recorded in the
+//!   manifest) and recipes, which `bake` runs in order, resumably.
+//! - [`synth`]: synthetic terrains for tests and benchmarks.
+//! - [`export`]: layers out as GeoTIFF, OpenEXR or a PNG preview.
+
+pub mod export;
+pub mod geo;
+pub mod ingest;
+pub mod progress;
+pub mod source;
+pub mod stage;
+pub mod synth;
+pub mod tiling;
+
+/// `terrabake <version>`, recorded in every manifest.
+pub fn tool_version() -> String {
+    format!("terrabake {}", env!("CARGO_PKG_VERSION"))
+}

@@ -1,0 +1,434 @@
+//! The `terrabake` command line: argument parsing and printing only; the
+//! work is in the library.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::{bail, Context, Result};
+use clap::{Parser, Subcommand};
+use terrabake::export::{export_layer, PngStyle};
+use terrabake::ingest::{ingest, IngestOptions, DEFAULT_TILE};
+use terrabake::progress::Progress;
+use terrabake::source::{ByteOrder, RawSampleType, RawSpec};
+use terrabake::stage::{bake, Recipe};
+use terrabake::synth::SynthKind;
+use terrabake_format::{Asset, Codec};
+
+/// Exit status when `verify` finds problems (1 is any other error, 2 a usage error).
+const EXIT_VERIFY_FAILED: u8 = 3;
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "terrabake",
+    version,
+    about = "Bake terrain height fields (DEMs) into chunked, memory-mapped assets for renderers.",
+    long_about = "Bake terrain height fields (DEMs) into chunked, memory-mapped assets for renderers.\n\n\
+An asset is a directory: a manifest (manifest.tba) and one file per layer, each cut into tiles that a \
+renderer maps and reads in place (docs/FORMAT.md). `ingest` makes an asset from a DEM; later stages add \
+layers to it; `bake` runs a recipe of stages, skipping those already done.\n\n\
+Exit status: 0 success, 1 error (the message names the file and the problem), 2 bad usage, \
+3 `verify` found problems.",
+    after_help = "Examples:\n  terrabake ingest dem.tif -o dem.tbake\n  terrabake info dem.tbake --json\n  \
+terrabake export dem.tbake --layer height -o preview.png\n  terrabake synth fractal --size 4096x4096 -o fractal.tif\n  \
+terrabake bake dem.tif -o dem.tbake --recipe pipelines/demo.toml"
+)]
+struct Cli {
+    /// No progress bars and no summary lines on stderr.
+    #[arg(long, short, global = true)]
+    quiet: bool,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Read a DEM (GeoTIFF, SRTM .hgt, raw, 16-bit PNG, OpenEXR) into a new asset's height layer.
+    ///
+    /// The DEM is streamed one tile row at a time: memory does not grow with its area. Nodata,
+    /// NaN and infinite samples become nodata (NaN in the asset) and are counted. An existing
+    /// asset at the output path is replaced only once the new one is complete.
+    Ingest {
+        /// The DEM file.
+        src: PathBuf,
+        /// The asset directory to write.
+        #[arg(short, long)]
+        output: PathBuf,
+        #[command(flatten)]
+        opts: IngestArgs,
+        /// Print the manifest as JSON on stdout.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Describe an asset: shape, cell size, georeferencing, layers, nodata, provenance.
+    Info {
+        asset: PathBuf,
+        /// The manifest as JSON, for scripts.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Check every checksum and structural invariant of an asset (exit status 3 if any fails).
+    Verify {
+        asset: PathBuf,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Write a layer as GeoTIFF (.tif, georeferenced, with nodata), OpenEXR (.exr) or a PNG preview (.png).
+    Export {
+        asset: PathBuf,
+        /// Layer name (see `terrabake info`).
+        #[arg(long, default_value = "height")]
+        layer: String,
+        /// Pyramid level of the layer.
+        #[arg(long, default_value_t = 0)]
+        level: u32,
+        /// PNG style: `relief` (hypsometric tint with hillshade, nodata transparent) or
+        /// `gray` (16-bit, min to max).
+        #[arg(long, value_enum, default_value = "relief")]
+        style: PngStyle,
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+    /// Write a synthetic terrain as a float32 GeoTIFF (30 m posts), strip by strip, at any size.
+    Synth {
+        #[arg(value_enum)]
+        kind: SynthKind,
+        /// WIDTHxHEIGHT in posts.
+        #[arg(long, value_parser = parse_size)]
+        size: (u32, u32),
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+    /// Ingest a DEM and run every stage of a recipe, skipping work already done.
+    Bake {
+        src: PathBuf,
+        #[arg(short, long)]
+        output: PathBuf,
+        /// A recipe from pipelines/ (TOML): ingest options and stages.
+        #[arg(long)]
+        recipe: PathBuf,
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+#[derive(clap::Args, Debug)]
+struct IngestArgs {
+    /// Tile edge in posts: a power of two from 16 to 4096.
+    #[arg(long = "tile", default_value_t = DEFAULT_TILE)]
+    tile: u32,
+    /// Nodata value of the source, overriding what the file says.
+    #[arg(long, allow_hyphen_values = true)]
+    nodata: Option<f64>,
+    /// Post spacing in metres, DX or DX,DY (default: from the georeferencing, else 1 m).
+    #[arg(long, value_parser = parse_cell_size)]
+    cell_size: Option<(f64, f64)>,
+    /// Heights are `sample * z_scale + z_offset` (for PNG heightmaps, say).
+    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
+    z_scale: f64,
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    z_offset: f64,
+    /// Tile codec: `raw` (read in place from the mapping) or `zstd` (smaller; decompressed into a cache).
+    #[arg(long, value_parser = parse_codec, default_value = "raw")]
+    codec: Codec,
+    /// Shape of a headerless raster, WIDTHxHEIGHT.
+    #[arg(long, value_parser = parse_size, requires = "raw_type")]
+    raw_shape: Option<(u32, u32)>,
+    /// Sample type of a headerless raster.
+    #[arg(long, value_enum, requires = "raw_shape")]
+    raw_type: Option<RawSampleType>,
+    /// Byte order of a headerless raster.
+    #[arg(long, value_enum, default_value = "le")]
+    byte_order: ByteOrder,
+}
+
+impl IngestArgs {
+    fn options(&self) -> IngestOptions {
+        IngestOptions {
+            tile_size: self.tile,
+            nodata: self.nodata,
+            cell_size: self.cell_size,
+            z_scale: self.z_scale,
+            z_offset: self.z_offset,
+            codec: self.codec,
+            raw: match (self.raw_shape, self.raw_type) {
+                (Some((width, height)), Some(sample)) => Some(RawSpec {
+                    width,
+                    height,
+                    sample,
+                    order: self.byte_order,
+                }),
+                _ => None,
+            },
+        }
+    }
+}
+
+fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or("expected WIDTHxHEIGHT, e.g. 1024x768")?;
+    let parse = |v: &str| v.trim().parse::<u32>().map_err(|e| format!("{v:?}: {e}"));
+    Ok((parse(w)?, parse(h)?))
+}
+
+fn parse_cell_size(s: &str) -> Result<(f64, f64), String> {
+    let parse = |v: &str| match v.trim().parse::<f64>() {
+        Ok(f) if f.is_finite() && f > 0.0 => Ok(f),
+        _ => Err(format!("{v:?} is not a positive number of metres")),
+    };
+    match s.split_once(',') {
+        Some((dx, dy)) => Ok((parse(dx)?, parse(dy)?)),
+        None => parse(s).map(|d| (d, d)),
+    }
+}
+
+fn parse_codec(s: &str) -> Result<Codec, String> {
+    match s {
+        "raw" => Ok(Codec::Raw),
+        "zstd" => Ok(Codec::Zstd),
+        _ => Err(format!("{s:?}: expected raw or zstd")),
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> Result<ExitCode> {
+    let progress = Progress::new(cli.quiet);
+    let say = |msg: String| {
+        if !cli.quiet {
+            eprintln!("{msg}");
+        }
+    };
+    match cli.command {
+        Command::Ingest {
+            src,
+            output,
+            opts,
+            json,
+        } => {
+            let start = std::time::Instant::now();
+            let manifest = ingest(&src, &output, &opts.options(), progress)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&manifest)?);
+            }
+            say(format!(
+                "ingested {} ({} x {}, {} nodata) into {} in {:.2} s",
+                src.display(),
+                manifest.width,
+                manifest.height,
+                manifest.nodata.count,
+                output.display(),
+                start.elapsed().as_secs_f64()
+            ));
+        }
+        Command::Info { asset, json } => {
+            let opened = open_asset(&asset)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(opened.manifest())?);
+            } else {
+                print!("{}", describe(&asset, opened.manifest()));
+            }
+        }
+        Command::Verify { asset, json } => {
+            let opened = open_asset(&asset)?;
+            let report = opened.verify();
+            let problems: Vec<String> = report.problems.iter().map(|p| p.to_string()).collect();
+            if json {
+                let out = serde_json::json!({
+                    "asset": asset.display().to_string(),
+                    "layers": report.layers,
+                    "chunks": report.chunks,
+                    "ok": problems.is_empty(),
+                    "problems": problems,
+                });
+                println!("{}", serde_json::to_string_pretty(&out)?);
+            } else {
+                for p in &problems {
+                    println!("problem: {p}");
+                }
+                println!(
+                    "{}: {} layers, {} chunks, {}",
+                    asset.display(),
+                    report.layers,
+                    report.chunks,
+                    if problems.is_empty() {
+                        "all checksums and structure valid".to_string()
+                    } else {
+                        format!("{} problems", problems.len())
+                    }
+                );
+            }
+            if !problems.is_empty() {
+                return Ok(ExitCode::from(EXIT_VERIFY_FAILED));
+            }
+        }
+        Command::Export {
+            asset,
+            layer,
+            level,
+            style,
+            output,
+        } => {
+            let opened = open_asset(&asset)?;
+            let l = opened.layer(&layer, level)?;
+            export_layer(&opened, l, &output, style, progress)?;
+            say(format!("wrote {}", output.display()));
+        }
+        Command::Synth {
+            kind,
+            size,
+            seed,
+            output,
+        } => {
+            terrabake::synth::write_geotiff(&output, kind, size.0, size.1, seed, progress)?;
+            say(format!(
+                "wrote {} ({} x {} {:?}, seed {seed})",
+                output.display(),
+                size.0,
+                size.1,
+                kind
+            ));
+        }
+        Command::Bake {
+            src,
+            output,
+            recipe,
+            json,
+        } => {
+            let recipe_data = Recipe::load(&recipe)?;
+            let outcomes = bake(&src, &output, &recipe_data, progress)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&outcomes)?);
+            }
+            for o in &outcomes {
+                let what = if o.skipped {
+                    "up to date".to_string()
+                } else {
+                    format!("{:.2} s", o.seconds)
+                };
+                say(format!(
+                    "{:<10} {what:>12}  {}",
+                    o.stage,
+                    o.outputs.join(", ")
+                ));
+            }
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn open_asset(path: &Path) -> Result<Asset<terrabake_format::Mmap>> {
+    if !path.is_dir() {
+        bail!("{}: not an asset directory", path.display());
+    }
+    Asset::open(path).with_context(|| format!("{}: cannot open asset", path.display()))
+}
+
+/// Human-readable summary of a manifest.
+fn describe(path: &Path, m: &terrabake_format::Manifest) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    let posts = u64::from(m.width) * u64::from(m.height);
+    let _ = writeln!(s, "asset       {}", path.display());
+    let _ = writeln!(s, "format      v{}", m.format_version);
+    let _ = writeln!(
+        s,
+        "shape       {} x {} posts, tiles of {}",
+        m.width, m.height, m.tile_size
+    );
+    let _ = writeln!(
+        s,
+        "cell size   {:.3} x {:.3} m ({})",
+        m.cell_size.dx, m.cell_size.dy, m.cell_size.source
+    );
+    match &m.georef {
+        Some(g) => {
+            let epsg = g
+                .epsg
+                .map_or("no EPSG code".to_string(), |c| format!("EPSG:{c}"));
+            let _ = writeln!(
+                s,
+                "georef      {:?}, {epsg}, pixel is {:?}",
+                g.crs_kind, g.raster_type
+            );
+            let t = g.geotransform;
+            let _ = writeln!(
+                s,
+                "            origin ({}, {}), pixel scale ({}, {})",
+                t[0], t[3], t[1], t[5]
+            );
+        }
+        None => {
+            let _ = writeln!(s, "georef      none");
+        }
+    }
+    let _ = writeln!(
+        s,
+        "heights     {} (x {} + {})",
+        m.vertical.units, m.vertical.scale, m.vertical.offset
+    );
+    if let Some(r) = m.height_range {
+        let _ = writeln!(s, "range       {} .. {}", r.min, r.max);
+    }
+    let _ = writeln!(
+        s,
+        "nodata      {} posts ({:.3} %), source value {}",
+        m.nodata.count,
+        100.0 * m.nodata.count as f64 / posts.max(1) as f64,
+        m.nodata.source_value.as_deref().unwrap_or("none")
+    );
+    let _ = writeln!(s, "layers");
+    for l in &m.layers {
+        let _ = writeln!(
+            s,
+            "  {:<16} {:>4} x{} {:>6} x {:<6} {:?} {:>10} stored, {}/{} chunks constant  {}",
+            l.key(),
+            l.elem.name(),
+            l.bands,
+            l.width,
+            l.height,
+            l.codec,
+            human_bytes(l.stored_bytes),
+            l.constant_chunks,
+            l.chunks,
+            l.file
+        );
+    }
+    let _ = writeln!(
+        s,
+        "provenance  {} ({}, {} bytes), by {}",
+        m.provenance.source, m.provenance.source_format, m.provenance.source_len, m.provenance.tool
+    );
+    for r in &m.provenance.stages {
+        let _ = writeln!(
+            s,
+            "  stage {:<10} -> {}  {}",
+            r.stage,
+            r.outputs.join(", "),
+            r.params
+        );
+    }
+    s
+}
+
+fn human_bytes(n: u64) -> String {
+    let units = ["B", "KiB", "MiB", "GiB", "TiB"];
+    let mut v = n as f64;
+    let mut u = 0;
+    while v >= 1024.0 && u + 1 < units.len() {
+        v /= 1024.0;
+        u += 1;
+    }
+    format!("{v:.1} {}", units[u])
+}

@@ -1,0 +1,162 @@
+//! DEM sources, read row band by row band so that ingest never holds a whole
+//! DEM: each reader keeps at most one of its format's natural units (a TIFF
+//! strip or tile row, a PNG row, a raw row band) besides the caller's buffer.
+//!
+//! Every reader turns samples into heights the same way
+//! ([`HeightMapping::height`]): the source's nodata value, NaN and infinities
+//! become NaN (nodata), everything else `value * scale + offset`.
+
+mod exr;
+mod geotiff;
+mod hgt;
+mod png;
+mod raw;
+
+use std::path::Path;
+
+use anyhow::{bail, Context, Result};
+use terrabake_format::manifest::Georef;
+
+pub use self::raw::{ByteOrder, RawSampleType, RawSpec};
+
+/// What a source says about itself besides its samples.
+#[derive(Debug, Clone)]
+pub struct SourceInfo {
+    /// `geotiff`, `hgt`, `raw`, `png`, `exr`.
+    pub format: &'static str,
+    pub width: u32,
+    pub height: u32,
+    pub georef: Option<Georef>,
+    /// Nodata as the source states it (GDAL's text form).
+    pub nodata: Option<String>,
+    /// Vertical units when the source says, else metres are assumed.
+    pub vertical_units: Option<String>,
+    /// Linear unit of a projected CRS in metres (1 for metre).
+    pub linear_unit_m: f64,
+    /// Human description of the sample type, e.g. `int16`.
+    pub sample_type: String,
+}
+
+/// A DEM that yields rows of heights in order.
+pub trait RasterSource {
+    fn info(&self) -> &SourceInfo;
+    /// Fills `out` with rows `y0 .. y0 + out.len() / width` as heights
+    /// (NaN for nodata). Calls come with increasing `y0`.
+    fn read_rows(&mut self, y0: u32, out: &mut [f32], map: &HeightMapping) -> Result<()>;
+}
+
+/// How raw samples become heights.
+#[derive(Debug, Clone, Copy)]
+pub struct HeightMapping {
+    pub nodata: Option<f64>,
+    pub scale: f64,
+    pub offset: f64,
+}
+
+impl HeightMapping {
+    /// Height of one sample; `single` says the source sample is an f32, so
+    /// that its nodata compares in f32 (GDAL writes `-3.4028235e+38`, which
+    /// is f32::MIN only after rounding to f32).
+    #[inline]
+    pub fn height(&self, value: f64, single: bool) -> f32 {
+        let is_nodata = match self.nodata {
+            Some(nd) if single => value as f32 == nd as f32 || (nd.is_nan() && value.is_nan()),
+            Some(nd) => value == nd || (nd.is_nan() && value.is_nan()),
+            None => false,
+        };
+        let z = value * self.scale + self.offset;
+        if is_nodata || !z.is_finite() || !(z as f32).is_finite() {
+            f32::NAN
+        } else {
+            z as f32
+        }
+    }
+}
+
+/// Parses GDAL's textual nodata ("-32767", "nan", "-3.4028234663852886e+38").
+pub fn parse_nodata(text: &str) -> Option<f64> {
+    let t = text.trim().trim_end_matches('\0');
+    if t.eq_ignore_ascii_case("nan") {
+        return Some(f64::NAN);
+    }
+    t.parse::<f64>().ok()
+}
+
+/// Opens `path` by its content (TIFF magic) or extension.
+pub fn open(path: &Path, raw: Option<&RawSpec>) -> Result<Box<dyn RasterSource>> {
+    let meta =
+        std::fs::metadata(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    if meta.is_dir() {
+        bail!("{}: is a directory, not a DEM file", path.display());
+    }
+    if let Some(spec) = raw {
+        return Ok(Box::new(raw::RawSource::open(path, spec)?));
+    }
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(|e| e.to_ascii_lowercase())
+        .unwrap_or_default();
+    let mut magic = [0u8; 8];
+    {
+        use std::io::Read;
+        let mut f = std::fs::File::open(path)
+            .with_context(|| format!("{}: cannot open", path.display()))?;
+        let n = f
+            .read(&mut magic)
+            .with_context(|| format!("{}: cannot read", path.display()))?;
+        if n < magic.len() && ext != "hgt" {
+            bail!("{}: {} bytes is too short to be a DEM", path.display(), n);
+        }
+    }
+    let source: Box<dyn RasterSource> = if magic.starts_with(b"II*\0")
+        || magic.starts_with(b"MM\0*")
+        || magic.starts_with(b"II+\0")
+        || magic.starts_with(b"MM\0+")
+    {
+        Box::new(geotiff::GeoTiffSource::open(path)?)
+    } else if magic.starts_with(b"\x89PNG") {
+        Box::new(png::PngSource::open(path)?)
+    } else if magic.starts_with(&[0x76, 0x2f, 0x31, 0x01]) {
+        Box::new(exr::ExrSource::open(path)?)
+    } else if ext == "hgt" {
+        Box::new(hgt::HgtSource::open(path)?)
+    } else if matches!(ext.as_str(), "tif" | "tiff") {
+        bail!(
+            "{}: not a TIFF file (no TIFF byte-order mark)",
+            path.display()
+        )
+    } else if matches!(ext.as_str(), "f32" | "i16" | "r16" | "raw" | "bin") {
+        bail!(
+            "{}: raw heights need --raw-shape WxH and --raw-type (and --byte-order)",
+            path.display()
+        )
+    } else {
+        bail!(
+            "{}: unknown DEM format (expected GeoTIFF, .hgt, PNG, OpenEXR, or raw with --raw-shape)",
+            path.display()
+        )
+    };
+    Ok(source)
+}
+
+/// Checks a DEM shape before anything is allocated for it.
+pub(crate) fn check_shape(path: &Path, width: u64, height: u64) -> Result<()> {
+    if width == 0 || height == 0 {
+        bail!("{}: empty raster ({width} x {height})", path.display());
+    }
+    if width > u64::from(u32::MAX / 2) || height > u64::from(u32::MAX / 2) {
+        bail!(
+            "{}: raster {width} x {height} is larger than terrabake supports (2^31 - 1 per side)",
+            path.display()
+        );
+    }
+    if width
+        .checked_mul(height)
+        .and_then(|n| n.checked_mul(8))
+        .is_none()
+    {
+        bail!("{}: raster {width} x {height} overflows", path.display());
+    }
+    Ok(())
+}

@@ -1,0 +1,42 @@
+//! Cutting row bands into tiles: every stage produces its output one tile
+//! row at a time (a band of `tile_size` rows across the whole grid) and hands
+//! it here, which pads, encodes (in parallel) and appends the tiles in order.
+
+use rayon::prelude::*;
+use terrabake_format::{encode_tile, Codec, Element, LayerWriter};
+use zerocopy::IntoBytes;
+
+/// zstd level for tiles: 3 is zstd's default, fast to write and to read.
+pub const ZSTD_LEVEL: i32 = 3;
+
+/// Appends one row of tiles taken from `band`, a row-major block of
+/// `width x rows` elements (`rows <= tile_size`; the last band of a grid may
+/// be short). Elements past the grid are `fill`.
+pub fn push_tile_row<T: Element>(
+    writer: &mut LayerWriter,
+    band: &[T],
+    width: usize,
+    fill: T,
+    codec: Codec,
+) -> terrabake_format::Result<()> {
+    let ts = writer.spec().tile_size as usize;
+    let rows = band.len() / width;
+    debug_assert!(rows <= ts && band.len() == rows * width);
+    let tiles_x = width.div_ceil(ts);
+    let encoded: Vec<_> = (0..tiles_x)
+        .into_par_iter()
+        .map(|tx| {
+            let x0 = tx * ts;
+            let w = ts.min(width - x0);
+            let mut tile = vec![fill; ts * ts];
+            for y in 0..rows {
+                tile[y * ts..y * ts + w].copy_from_slice(&band[y * width + x0..y * width + x0 + w]);
+            }
+            encode_tile(tile.as_bytes(), size_of::<T>(), codec, ZSTD_LEVEL)
+        })
+        .collect();
+    for tile in encoded {
+        writer.push(tile)?;
+    }
+    Ok(())
+}
