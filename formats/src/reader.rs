@@ -755,3 +755,11 @@ impl<D: AsRef<[u8]>> Asset<D> {
         report
     }
 }
+
+// Many render threads read one asset: these must stay Send + Sync.
+const _: () = {
+    const fn send_sync<T: Send + Sync>() {}
+    send_sync::<Asset<Mmap>>();
+    send_sync::<Asset<Vec<u8>>>();
+    send_sync::<Tile<'static, f32>>();
+};

@@ -102,12 +102,8 @@ pub fn open(path: &Path, raw: Option<&RawSpec>) -> Result<Box<dyn RasterSource>>
         use std::io::Read;
         let mut f = std::fs::File::open(path)
             .with_context(|| format!("{}: cannot open", path.display()))?;
-        let n = f
-            .read(&mut magic)
+        f.read(&mut magic)
             .with_context(|| format!("{}: cannot read", path.display()))?;
-        if n < magic.len() && ext != "hgt" {
-            bail!("{}: {} bytes is too short to be a DEM", path.display(), n);
-        }
     }
     let source: Box<dyn RasterSource> = if magic.starts_with(b"II*\0")
         || magic.starts_with(b"MM\0*")

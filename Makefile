@@ -1,0 +1,50 @@
+# terrabake: the two commands a fresh machine needs are `make demo` and
+# `make test`; the rest are for developers.
+CARGO ?= cargo
+BIN := target/release/terrabake
+DEMO_DEM := data/srtm3_n07w006_geographic_int16.tif
+OUT ?= out
+
+.PHONY: all build demo test bench-ingest-ooc fixtures fmt lint clean
+
+all: build
+
+build:
+	$(CARGO) build --release --locked
+
+## Bake the bundled SRTM tile: asset, summary (text and JSON), verification, previews.
+demo: build
+	mkdir -p $(OUT)
+	$(BIN) bake $(DEMO_DEM) -o $(OUT)/srtm.tbake --recipe pipelines/demo.toml
+	$(BIN) info $(OUT)/srtm.tbake | tee $(OUT)/srtm.summary.txt
+	$(BIN) info $(OUT)/srtm.tbake --json > $(OUT)/srtm.summary.json
+	$(BIN) verify $(OUT)/srtm.tbake
+	$(BIN) export $(OUT)/srtm.tbake --layer height --style relief -o $(OUT)/srtm_relief.png
+	$(BIN) export $(OUT)/srtm.tbake --layer height --style gray -o $(OUT)/srtm_gray16.png
+	@echo
+	@echo "asset:    $(OUT)/srtm.tbake"
+	@echo "summary:  $(OUT)/srtm.summary.txt ($(OUT)/srtm.summary.json)"
+	@echo "previews: $(OUT)/srtm_relief.png $(OUT)/srtm_gray16.png"
+
+## Every test, optimised ([profile.test] opt-level = 3).
+test:
+	$(CARGO) test --workspace --locked
+
+## Out-of-core ingest of a generated 4 GiB GeoTIFF under a 1 GiB memory limit.
+bench-ingest-ooc: build
+	BIN=$(BIN) bash pipelines/bench_ingest_out_of_core.sh
+
+## Regenerate the GDAL-made TIFF fixtures (needs Debian's python3-gdal).
+## The v1 compatibility asset is never regenerated: see tests/fixtures/README.md.
+fixtures:
+	/usr/bin/python3 tests/fixtures/make_tiff_fixtures.py
+
+fmt:
+	$(CARGO) fmt --all
+
+lint:
+	$(CARGO) clippy --workspace --all-targets -- -D warnings
+
+clean:
+	rm -rf $(OUT)
+	$(CARGO) clean

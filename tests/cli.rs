@@ -1,0 +1,307 @@
+//! The `terrabake` binary end to end: synth -> ingest -> info/verify ->
+//! export -> re-ingest, bake with a recipe (resumable), exit codes, and
+//! errors that name the file.
+
+mod common;
+
+use std::path::Path;
+
+use common::*;
+use terrabake_format::Asset;
+
+fn ok(args: &[&str]) -> String {
+    let out = terrabake(args);
+    assert!(
+        out.status.success(),
+        "terrabake {args:?} failed: {}",
+        stderr(&out)
+    );
+    stdout(&out)
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[test]
+fn every_synthetic_kind_ingests_verifies_and_round_trips_through_geotiff() {
+    let dir = tempfile::tempdir().unwrap();
+    for kind in [
+        "fractal",
+        "flat",
+        "spike",
+        "bowl",
+        "sine",
+        "blocks",
+        "noise",
+        "quantised",
+        "holes",
+    ] {
+        let tif = dir.path().join(format!("{kind}.tif"));
+        let asset = dir.path().join(format!("{kind}.tbake"));
+        ok(&[
+            "synth",
+            kind,
+            "--size",
+            "150x97",
+            "--seed",
+            "5",
+            "-o",
+            s(&tif),
+            "-q",
+        ]);
+        ok(&["ingest", s(&tif), "-o", s(&asset), "--tile", "32", "-q"]);
+        ok(&["verify", s(&asset)]);
+        let info: serde_json::Value =
+            serde_json::from_str(&ok(&["info", s(&asset), "--json"])).unwrap();
+        assert_eq!(info["width"], 150);
+        assert_eq!(info["height"], 97);
+        assert_eq!(info["cell_size"]["dx"], 30.0);
+        let original = heights(&Asset::open(&asset).unwrap());
+        for (x, y) in [(0u32, 0u32), (75, 48), (149, 96)] {
+            let want = terrabake::synth::height(
+                match kind {
+                    "fractal" => terrabake::synth::SynthKind::Fractal,
+                    "flat" => terrabake::synth::SynthKind::Flat,
+                    "spike" => terrabake::synth::SynthKind::Spike,
+                    "bowl" => terrabake::synth::SynthKind::Bowl,
+                    "sine" => terrabake::synth::SynthKind::Sine,
+                    "blocks" => terrabake::synth::SynthKind::Blocks,
+                    "noise" => terrabake::synth::SynthKind::Noise,
+                    "quantised" => terrabake::synth::SynthKind::Quantised,
+                    _ => terrabake::synth::SynthKind::Holes,
+                },
+                x,
+                y,
+                150,
+                97,
+                5,
+            );
+            assert!(
+                same_heights(original[(y * 150 + x) as usize], want),
+                "{kind} ({x}, {y})"
+            );
+        }
+        // GeoTIFF out and back in: same heights, georeferencing and nodata.
+        let exported = dir.path().join(format!("{kind}_out.tif"));
+        ok(&[
+            "export",
+            s(&asset),
+            "--layer",
+            "height",
+            "-o",
+            s(&exported),
+            "-q",
+        ]);
+        let again = dir.path().join(format!("{kind}_again.tbake"));
+        ok(&["ingest", s(&exported), "-o", s(&again), "-q"]);
+        let (a, b) = (Asset::open(&asset).unwrap(), Asset::open(&again).unwrap());
+        assert_eq!(a.manifest().georef, b.manifest().georef, "{kind}");
+        assert_eq!(
+            a.manifest().nodata.count,
+            b.manifest().nodata.count,
+            "{kind}"
+        );
+        let roundtrip = heights(&b);
+        assert!(
+            original
+                .iter()
+                .zip(&roundtrip)
+                .all(|(x, y)| same_heights(*x, *y)),
+            "{kind}: GeoTIFF round trip changed heights"
+        );
+    }
+}
+
+#[test]
+fn srtm_geotiff_export_keeps_the_geotransform() {
+    let dir = tempfile::tempdir().unwrap();
+    let asset = dir.path().join("srtm.tbake");
+    let src = repo_file("data/srtm3_n07w006_geographic_int16.tif");
+    ok(&["ingest", s(&src), "-o", s(&asset), "-q"]);
+    let out = dir.path().join("srtm.tif");
+    ok(&["export", s(&asset), "-o", s(&out), "-q"]);
+    let again = dir.path().join("again.tbake");
+    ok(&["ingest", s(&out), "-o", s(&again), "-q"]);
+    let (a, b) = (Asset::open(&asset).unwrap(), Asset::open(&again).unwrap());
+    assert_eq!(a.manifest().georef, b.manifest().georef);
+    assert_eq!(
+        a.manifest().nodata.source_value,
+        b.manifest().nodata.source_value
+    );
+    assert_eq!(heights(&a), heights(&b));
+}
+
+#[test]
+fn png_and_exr_exports() {
+    let dir = tempfile::tempdir().unwrap();
+    let tif = dir.path().join("holes.tif");
+    let asset = dir.path().join("holes.tbake");
+    ok(&["synth", "holes", "--size", "300x200", "-o", s(&tif), "-q"]);
+    ok(&["ingest", s(&tif), "-o", s(&asset), "-q"]);
+    let png_path = dir.path().join("relief.png");
+    ok(&["export", s(&asset), "-o", s(&png_path), "-q"]);
+    let decoder = png::Decoder::new(std::io::BufReader::new(
+        std::fs::File::open(&png_path).unwrap(),
+    ));
+    let mut reader = decoder.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    assert_eq!(
+        (info.width, info.height, info.color_type),
+        (300, 200, png::ColorType::Rgba)
+    );
+    let original = heights(&Asset::open(&asset).unwrap());
+    // Nodata is transparent, everything else opaque.
+    for (i, z) in original.iter().enumerate() {
+        assert_eq!(buf[i * 4 + 3] == 0, z.is_nan(), "pixel {i}");
+    }
+    let exr_path = dir.path().join("height.exr");
+    ok(&["export", s(&asset), "-o", s(&exr_path), "-q"]);
+    let back = dir.path().join("back.tbake");
+    ok(&["ingest", s(&exr_path), "-o", s(&back), "-q"]);
+    assert!(heights(&Asset::open(&back).unwrap())
+        .iter()
+        .zip(&original)
+        .all(|(a, b)| same_heights(*a, *b)));
+}
+
+#[test]
+fn bake_is_resumable() {
+    let dir = tempfile::tempdir().unwrap();
+    let asset = dir.path().join("srtm.tbake");
+    let src = repo_file("data/srtm3_n07w006_geographic_int16.tif");
+    let recipe = repo_file("pipelines/demo.toml");
+    let first: serde_json::Value = serde_json::from_str(&ok(&[
+        "bake",
+        s(&src),
+        "-o",
+        s(&asset),
+        "--recipe",
+        s(&recipe),
+        "--json",
+        "-q",
+    ]))
+    .unwrap();
+    assert_eq!(first[0]["stage"], "ingest");
+    assert_eq!(first[0]["skipped"], false);
+    let second: serde_json::Value = serde_json::from_str(&ok(&[
+        "bake",
+        s(&src),
+        "-o",
+        s(&asset),
+        "--recipe",
+        s(&recipe),
+        "--json",
+        "-q",
+    ]))
+    .unwrap();
+    assert_eq!(
+        second[0]["skipped"], true,
+        "an up-to-date asset was baked again"
+    );
+    // A different recipe (zstd tiles) is a different ingest.
+    let third: serde_json::Value = serde_json::from_str(&ok(&[
+        "bake",
+        s(&src),
+        "-o",
+        s(&asset),
+        "--recipe",
+        s(&repo_file("pipelines/archive.toml")),
+        "--json",
+        "-q",
+    ]))
+    .unwrap();
+    assert_eq!(third[0]["skipped"], false);
+    let a = Asset::open(&asset).unwrap();
+    assert!(
+        a.manifest().layers[0].stored_bytes < 1201 * 1201 * 4 / 2,
+        "zstd should halve this DEM"
+    );
+    // Old generations are gone: one layer file and the manifest.
+    assert_eq!(std::fs::read_dir(&asset).unwrap().count(), 2);
+}
+
+#[test]
+fn verify_fails_with_status_3_on_a_corrupt_tile() {
+    let dir = tempfile::tempdir().unwrap();
+    let asset = dir.path().join("a.tbake");
+    ok(&[
+        "ingest",
+        s(&fixture("tiff/float32_strip_none.tif")),
+        "-o",
+        s(&asset),
+        "--tile",
+        "16",
+        "-q",
+    ]);
+    let layer = std::fs::read_dir(&asset)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.extension().is_some_and(|e| e == "tbl"))
+        .unwrap();
+    let mut bytes = std::fs::read(&layer).unwrap();
+    bytes[64 + 200] ^= 0x10;
+    std::fs::write(&layer, bytes).unwrap();
+    let out = terrabake(&["verify", s(&asset), "--json"]);
+    assert_eq!(out.status.code(), Some(3));
+    let report: serde_json::Value = serde_json::from_str(&stdout(&out)).unwrap();
+    assert_eq!(report["ok"], false);
+    assert!(
+        report["problems"][0]
+            .as_str()
+            .unwrap()
+            .contains("tile (0, 0)"),
+        "{report}"
+    );
+}
+
+#[test]
+fn errors_name_the_file_and_exit_1() {
+    let dir = tempfile::tempdir().unwrap();
+    let bogus = dir.path().join("bogus.tif");
+    std::fs::write(&bogus, "hello").unwrap();
+    let out = terrabake(&["ingest", s(&bogus), "-o", s(&dir.path().join("x.tbake"))]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(
+        stderr(&out).contains("bogus.tif") && stderr(&out).contains("not a TIFF"),
+        "{}",
+        stderr(&out)
+    );
+    assert!(!dir.path().join("x.tbake").exists());
+
+    let out = terrabake(&["info", s(&dir.path().join("nowhere.tbake"))]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(stderr(&out).contains("nowhere.tbake"));
+
+    let out = terrabake(&["synth", "fractal", "--size", "12by5", "-o", "x.tif"]);
+    assert_eq!(out.status.code(), Some(2), "usage errors exit 2");
+
+    let out = terrabake(&[
+        "export",
+        s(&dir.path().join("nowhere.tbake")),
+        "-o",
+        "x.bmp",
+    ]);
+    assert_eq!(out.status.code(), Some(1));
+}
+
+#[test]
+fn help_teaches() {
+    let text = ok(&["--help"]);
+    for word in [
+        "ingest",
+        "info",
+        "verify",
+        "export",
+        "synth",
+        "bake",
+        "Exit status",
+    ] {
+        assert!(text.contains(word), "--help lacks {word}");
+    }
+    let text = ok(&["ingest", "--help"]);
+    assert!(
+        text.contains("--raw-shape") && text.contains("--z-scale") && text.contains("power of two")
+    );
+}

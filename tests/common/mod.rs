@@ -1,0 +1,69 @@
+//! Shared by the integration tests.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use terrabake_format::{Asset, Mmap};
+
+pub const FIXTURE_W: u32 = 70;
+pub const FIXTURE_H: u32 = 45;
+
+/// The formula every TIFF fixture holds (twin of `expected` in
+/// tests/fixtures/make_tiff_fixtures.py), as the f32 height terrabake stores.
+pub fn fixture_value(sample_type: &str, x: u32, y: u32) -> f32 {
+    let (x, y) = (i64::from(x), i64::from(y));
+    let v = match sample_type {
+        "int8" => ((x * 7 + y * 13) % 256 - 128) as f64,
+        "uint8" => ((x * 7 + y * 13) % 256) as f64,
+        "int16" => ((x * 389 + y * 1031) % 65536 - 32768) as f64,
+        "uint16" => ((x * 389 + y * 1031) % 65536) as f64,
+        "int32" => (x * 10007 + y * 70001 - 2_000_000) as f64,
+        "uint32" => (x * 10007 + y * 70001 + 10000) as f64,
+        "float32" => (x * 37 + y * 101 - 2000) as f64 / 8.0,
+        "float64" => (x * 37 + y * 101 - 2000) as f64 / 1024.0,
+        other => panic!("no formula for {other}"),
+    };
+    v as f32
+}
+
+pub fn fixture(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures")
+        .join(name)
+}
+
+pub fn repo_file(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(name)
+}
+
+/// Every post of an asset's height layer, row-major.
+pub fn heights(asset: &Asset<Mmap>) -> Vec<f32> {
+    let layer = asset.height().expect("height layer");
+    let mut out = vec![0f32; layer.width() as usize * layer.height() as usize];
+    layer
+        .read_window(0, 0, 0, layer.width(), layer.height(), &mut out)
+        .expect("read");
+    out
+}
+
+/// Runs the terrabake binary.
+pub fn terrabake(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_terrabake"))
+        .args(args)
+        .output()
+        .expect("run terrabake")
+}
+
+pub fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+pub fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+/// Bitwise equality that treats every NaN as equal (nodata).
+pub fn same_heights(a: f32, b: f32) -> bool {
+    (a.is_nan() && b.is_nan()) || a.to_bits() == b.to_bits()
+}
