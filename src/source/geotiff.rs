@@ -8,8 +8,10 @@
 use std::fs::File;
 use std::io::BufReader;
 use std::path::{Path, PathBuf};
+use std::sync::Mutex;
 
 use anyhow::{anyhow, bail, Context, Result};
+use rayon::prelude::*;
 use tiff::decoder::{ChunkType, Decoder, DecodingResult, Limits};
 use tiff::tags::Tag;
 use tiff::ColorType;
@@ -19,7 +21,9 @@ use crate::geo;
 
 pub struct GeoTiffSource {
     path: PathBuf,
-    decoder: Decoder<BufReader<File>>,
+    /// One decoder per rayon thread: a `Decoder` reads one chunk at a time,
+    /// so chunks are decoded in parallel by independent decoders.
+    decoders: Vec<Mutex<Decoder<BufReader<File>>>>,
     info: SourceInfo,
     /// Strip or tile size; a strip spans the whole width.
     chunk_w: u32,
@@ -27,23 +31,26 @@ pub struct GeoTiffSource {
     chunks_across: u32,
     byte_counts: Vec<u64>,
     single: bool,
-    /// The decoded chunk row currently held: its index and heights
-    /// (`width x chunk_h`, row-major), and the mapping it was decoded with.
-    band: Option<(u32, Vec<f32>)>,
+    /// The last decoded chunk row, kept when a read ends inside it: its
+    /// index and heights (`width x chunk_h`, row-major).
+    held: Option<(u32, Vec<f32>)>,
 }
 
 impl GeoTiffSource {
     pub fn open(path: &Path) -> Result<Self> {
         let what = |m: &str| format!("{}: {m}", path.display());
-        let file = File::open(path).with_context(|| what("cannot open"))?;
-        let mut limits = Limits::default();
-        // Large DEMs have large strip/tile offset arrays and wide strips.
-        limits.decoding_buffer_size = 1 << 30;
-        limits.intermediate_buffer_size = 1 << 30;
-        limits.ifd_value_size = 256 << 20;
-        let mut decoder = Decoder::new(BufReader::with_capacity(1 << 20, file))
-            .map_err(|e| anyhow!("{}", what(&format!("not a readable TIFF: {e}"))))?
-            .with_limits(limits);
+        let open_decoder = || -> Result<Decoder<BufReader<File>>> {
+            let file = File::open(path).with_context(|| what("cannot open"))?;
+            let mut limits = Limits::default();
+            // Large DEMs have large strip/tile offset arrays and wide strips.
+            limits.decoding_buffer_size = 1 << 30;
+            limits.intermediate_buffer_size = 1 << 30;
+            limits.ifd_value_size = 256 << 20;
+            Ok(Decoder::new(BufReader::with_capacity(1 << 16, file))
+                .map_err(|e| anyhow!("{}", what(&format!("not a readable TIFF: {e}"))))?
+                .with_limits(limits))
+        };
+        let mut decoder = open_decoder()?;
         let (width, height) = decoder
             .dimensions()
             .map_err(|e| anyhow!("{}", what(&format!("bad dimensions: {e}"))))?;
@@ -121,9 +128,13 @@ impl GeoTiffSource {
         let linear_unit_m = georef
             .as_ref()
             .map_or(1.0, |g| geo::linear_unit_metres(&g.geo_key_directory));
+        let mut decoders = vec![Mutex::new(decoder)];
+        for _ in 1..rayon::current_num_threads() {
+            decoders.push(Mutex::new(open_decoder()?));
+        }
         Ok(Self {
             path: path.to_path_buf(),
-            decoder,
+            decoders,
             info: SourceInfo {
                 format: "geotiff",
                 width,
@@ -139,24 +150,57 @@ impl GeoTiffSource {
             chunks_across,
             byte_counts,
             single: sample_format == 3 && bits == 32,
-            band: None,
+            held: None,
         })
     }
 
-    /// Decodes chunk row `row` into heights, `width x chunk_h`.
-    fn decode_band(&mut self, row: u32, map: &HeightMapping) -> Result<Vec<f32>> {
+    /// Decodes chunk rows `rows` into heights, `width x chunk_h` each, all
+    /// their chunks in parallel.
+    fn decode_chunk_rows(
+        &self,
+        rows: std::ops::Range<u32>,
+        map: &HeightMapping,
+    ) -> Result<Vec<Vec<f32>>> {
+        let first = rows.start;
+        let jobs: Vec<(u32, u32)> = rows
+            .clone()
+            .flat_map(|r| (0..self.chunks_across).map(move |a| (r, a)))
+            .collect();
+        let decoded: Vec<(u32, u32, Vec<f32>)> = jobs
+            .into_par_iter()
+            .map(|(row, across)| Ok((row, across, self.decode_chunk(row, across, map)?)))
+            .collect::<Result<_>>()?;
         let width = self.info.width as usize;
-        let mut band = vec![f32::NAN; width * self.chunk_h as usize];
-        for across in 0..self.chunks_across {
-            let index = row * self.chunks_across + across;
+        let mut bands: Vec<Vec<f32>> = rows
+            .map(|_| vec![f32::NAN; width * self.chunk_h as usize])
+            .collect();
+        for (row, across, chunk) in decoded {
             let x0 = (across * self.chunk_w) as usize;
             let data_w = (self.chunk_w as usize).min(width - x0);
-            let data_h = (self.chunk_h).min(self.info.height - row * self.chunk_h) as usize;
-            if self.byte_counts[index as usize] == 0 {
-                // Sparse chunk: nodata (band is NaN already).
-                continue;
+            let band = &mut bands[(row - first) as usize];
+            for (y, src) in chunk.chunks_exact(data_w).enumerate() {
+                band[y * width + x0..y * width + x0 + data_w].copy_from_slice(src);
             }
-            let decoded = self.decoder.read_chunk(index).map_err(|e| {
+        }
+        Ok(bands)
+    }
+
+    /// Decodes one chunk into heights, `data_w x data_h` (edge chunks clipped).
+    fn decode_chunk(&self, row: u32, across: u32, map: &HeightMapping) -> Result<Vec<f32>> {
+        let index = row * self.chunks_across + across;
+        let data_w = (self.chunk_w).min(self.info.width - across * self.chunk_w) as usize;
+        let data_h = (self.chunk_h).min(self.info.height - row * self.chunk_h) as usize;
+        let mut out = vec![f32::NAN; data_w * data_h];
+        if self.byte_counts[index as usize] == 0 {
+            // Sparse chunk: never written, nodata.
+            return Ok(out);
+        }
+        let slot = rayon::current_thread_index().unwrap_or(0) % self.decoders.len();
+        let decoded = {
+            let mut decoder = self.decoders[slot]
+                .lock()
+                .map_err(|_| anyhow!("TIFF decoder poisoned"))?;
+            decoder.read_chunk(index).map_err(|e| {
                 anyhow!(
                     "{}: cannot decode {} {index}: {e}",
                     self.path.display(),
@@ -166,28 +210,27 @@ impl GeoTiffSource {
                         "tile"
                     }
                 )
-            })?;
-            // Edge chunks come back clipped to the image (tiff 0.11) or padded
-            // to the full tile (older writers' readers): accept either.
-            let stride = if sample_count(&decoded) >= self.chunk_w as usize * data_h {
-                self.chunk_w as usize
-            } else {
-                data_w
-            };
-            if sample_count(&decoded) < stride * (data_h - 1) + data_w {
-                bail!(
-                    "{}: chunk {index} decoded to {} samples, expected {}",
-                    self.path.display(),
-                    sample_count(&decoded),
-                    stride * data_h
-                );
-            }
-            for y in 0..data_h {
-                let out = &mut band[y * width + x0..y * width + x0 + data_w];
-                convert(&decoded, y * stride, out, map, self.single);
-            }
+            })?
+        };
+        // Edge chunks come back clipped to the image (tiff 0.11) or padded
+        // to the full tile (other readers' habit): accept either.
+        let stride = if sample_count(&decoded) >= self.chunk_w as usize * data_h {
+            self.chunk_w as usize
+        } else {
+            data_w
+        };
+        if sample_count(&decoded) < stride * (data_h - 1) + data_w {
+            bail!(
+                "{}: chunk {index} decoded to {} samples, expected {}",
+                self.path.display(),
+                sample_count(&decoded),
+                stride * data_h
+            );
         }
-        Ok(band)
+        for (y, row_out) in out.chunks_exact_mut(data_w).enumerate() {
+            convert(&decoded, y * stride, row_out, map, self.single);
+        }
+        Ok(out)
     }
 }
 
@@ -272,17 +315,25 @@ impl RasterSource for GeoTiffSource {
 
     fn read_rows(&mut self, y0: u32, out: &mut [f32], map: &HeightMapping) -> Result<()> {
         let width = self.info.width as usize;
+        let rows = (out.len() / width) as u32;
+        if rows == 0 {
+            return Ok(());
+        }
+        let (first, last) = (y0 / self.chunk_h, (y0 + rows - 1) / self.chunk_h);
+        // Reuse the held chunk row if the read starts in it; decode the rest.
+        let held = self.held.take().filter(|(r, _)| *r == first);
+        let decode_from = if held.is_some() { first + 1 } else { first };
+        let mut bands: Vec<Vec<f32>> = held.map(|(_, b)| b).into_iter().collect();
+        bands.extend(self.decode_chunk_rows(decode_from..last + 1, map)?);
         for (i, row_out) in out.chunks_exact_mut(width).enumerate() {
             let y = y0 + i as u32;
-            let band_row = y / self.chunk_h;
-            if self.band.as_ref().map(|b| b.0) != Some(band_row) {
-                self.band = None; // free before decoding the next
-                let band = self.decode_band(band_row, map)?;
-                self.band = Some((band_row, band));
-            }
-            let (_, band) = self.band.as_ref().expect("just decoded");
+            let band = &bands[(y / self.chunk_h - first) as usize];
             let r = (y % self.chunk_h) as usize;
             row_out.copy_from_slice(&band[r * width..(r + 1) * width]);
+        }
+        // Keep the last chunk row if the next read will start inside it.
+        if (y0 + rows) % self.chunk_h != 0 && y0 + rows < self.info.height {
+            self.held = bands.pop().map(|b| (last, b));
         }
         Ok(())
     }

@@ -1,0 +1,221 @@
+//! The stage interface that later stages (pyramid, cones, horizons) plug
+//! into: layers in, layers out, recorded in the manifest, skipped when done,
+//! and never leaving a half-written asset when a stage fails.
+
+mod common;
+
+use std::path::Path;
+
+use anyhow::Result;
+use common::*;
+use terrabake::ingest::{ingest, IngestOptions};
+use terrabake::progress::Progress;
+use terrabake::stage::{run_stage, Stage};
+use terrabake::tiling::push_tile_row;
+use terrabake_format::{Asset, Codec, ElemType, LayerEntry, LayerSpec, LayerWriter, Mmap};
+
+/// A test stage: `offset` = height + `add`, written band by band; fails
+/// halfway when `fail` is set.
+struct Offset {
+    add: f32,
+    fail: bool,
+}
+
+impl Stage for Offset {
+    fn name(&self) -> &'static str {
+        "offset"
+    }
+    fn params(&self) -> serde_json::Value {
+        serde_json::json!({ "add": self.add })
+    }
+    fn run(&self, asset: &Asset<Mmap>, dir: &Path, _progress: Progress) -> Result<Vec<LayerEntry>> {
+        let height = asset.height()?;
+        let (w, h, ts) = (height.width(), height.height(), height.tile_size());
+        let spec = LayerSpec {
+            name: "offset".into(),
+            level: 0,
+            elem: ElemType::F32,
+            bands: 1,
+            width: w,
+            height: h,
+            tile_size: ts,
+            codec: Codec::Raw,
+            fill_bits: u64::from(f32::NAN.to_bits()),
+            stage: "offset".into(),
+            description: "height + add".into(),
+        };
+        let mut writer = LayerWriter::create(dir, spec)?;
+        for y0 in (0..h).step_by(ts as usize) {
+            if self.fail && y0 > 0 {
+                anyhow::bail!("offset stage failed on purpose at row {y0}");
+            }
+            let rows = ts.min(h - y0);
+            let mut band = vec![0f32; (w * rows) as usize];
+            height.read_window(0, 0, y0, w, rows, &mut band)?;
+            band.iter_mut().for_each(|z| *z += self.add);
+            push_tile_row(&mut writer, &band, w as usize, f32::NAN, Codec::Raw)?;
+        }
+        Ok(vec![writer.finish()?])
+    }
+}
+
+fn asset_files(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
+    names.sort();
+    names
+}
+
+#[test]
+fn stages_add_layers_record_themselves_and_resume() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("a.tbake");
+    ingest(
+        &fixture("tiff/float32_strip_none.tif"),
+        &dir,
+        &IngestOptions {
+            tile_size: 16,
+            ..Default::default()
+        },
+        Progress::hidden(),
+    )
+    .unwrap();
+
+    let first = run_stage(
+        &dir,
+        &Offset {
+            add: 10.0,
+            fail: false,
+        },
+        false,
+        Progress::hidden(),
+    )
+    .unwrap();
+    assert!(!first.skipped);
+    assert_eq!(first.outputs, vec!["offset@0".to_string()]);
+    let asset = Asset::open(&dir).unwrap();
+    let (height, offset) = (asset.height().unwrap(), asset.layer("offset", 0).unwrap());
+    for (x, y) in [(0, 0), (69, 44), (33, 17)] {
+        assert_eq!(
+            offset.get::<f32>(0, x, y).unwrap(),
+            height.get::<f32>(0, x, y).unwrap() + 10.0
+        );
+    }
+    let record = asset.manifest().provenance.stages.last().unwrap();
+    assert_eq!(
+        (record.stage.as_str(), record.params["add"].as_f64()),
+        ("offset", Some(10.0))
+    );
+    drop(asset);
+
+    // Same parameters: skipped, nothing rewritten.
+    let files = asset_files(&dir);
+    assert!(
+        run_stage(
+            &dir,
+            &Offset {
+                add: 10.0,
+                fail: false
+            },
+            false,
+            Progress::hidden()
+        )
+        .unwrap()
+        .skipped
+    );
+    assert_eq!(asset_files(&dir), files);
+
+    // New parameters: the layer is replaced by a new generation; the old file goes.
+    assert!(
+        !run_stage(
+            &dir,
+            &Offset {
+                add: -1.0,
+                fail: false
+            },
+            false,
+            Progress::hidden()
+        )
+        .unwrap()
+        .skipped
+    );
+    let after = asset_files(&dir);
+    assert!(
+        after.contains(&"offset.L0.g1.tbl".to_string())
+            && !after.contains(&"offset.L0.g0.tbl".to_string()),
+        "{after:?}"
+    );
+    let asset = Asset::open(&dir).unwrap();
+    assert_eq!(
+        asset
+            .manifest()
+            .provenance
+            .stages
+            .iter()
+            .filter(|r| r.stage == "offset")
+            .count(),
+        1
+    );
+    assert_eq!(
+        asset
+            .layer("offset", 0)
+            .unwrap()
+            .get::<f32>(0, 3, 4)
+            .unwrap(),
+        fixture_value("float32", 3, 4) - 1.0
+    );
+}
+
+#[test]
+fn a_failing_stage_leaves_the_asset_as_it_was() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("a.tbake");
+    ingest(
+        &fixture("tiff/float32_strip_none.tif"),
+        &dir,
+        &IngestOptions {
+            tile_size: 16,
+            ..Default::default()
+        },
+        Progress::hidden(),
+    )
+    .unwrap();
+    run_stage(
+        &dir,
+        &Offset {
+            add: 1.0,
+            fail: false,
+        },
+        false,
+        Progress::hidden(),
+    )
+    .unwrap();
+    let files = asset_files(&dir);
+    let manifest = std::fs::read(dir.join("manifest.tba")).unwrap();
+
+    let err = run_stage(
+        &dir,
+        &Offset {
+            add: 2.0,
+            fail: true,
+        },
+        false,
+        Progress::hidden(),
+    )
+    .unwrap_err();
+    assert!(format!("{err:#}").contains("on purpose"));
+    assert_eq!(asset_files(&dir), files, "temporary files left behind");
+    assert_eq!(std::fs::read(dir.join("manifest.tba")).unwrap(), manifest);
+    let asset = Asset::open(&dir).unwrap();
+    assert!(asset.verify().problems.is_empty());
+    assert_eq!(
+        asset
+            .layer("offset", 0)
+            .unwrap()
+            .get::<f32>(0, 0, 0)
+            .unwrap(),
+        fixture_value("float32", 0, 0) + 1.0
+    );
+}
