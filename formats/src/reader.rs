@@ -490,20 +490,39 @@ impl<D: AsRef<[u8]>> Layer<D> {
         );
         let (fx, fy) = (gx - x0, gy - y0);
         let (x0, y0) = (x0 as u32, y0 as u32);
+        let ts = self.tile_size();
+        // Posts (x0, y0), (x0+1, y0), (x0, y0+1), (x0+1, y0+1): one tile
+        // lookup when all four share a tile (the common case), else four.
+        let posts: [f32; 4] = if x0 % ts + 1 < ts && y0 % ts + 1 < ts {
+            let tile = self.tile::<f32>(0, x0 / ts, y0 / ts)?;
+            let i = ((y0 % ts) * ts + x0 % ts) as usize;
+            let t = ts as usize;
+            [tile[i], tile[i + 1], tile[i + t], tile[i + t + 1]]
+        } else {
+            let post = |dx: u32, dy: u32| -> Result<f32> {
+                let (x, y) = (
+                    (x0 + dx).min(self.width() - 1),
+                    (y0 + dy).min(self.height() - 1),
+                );
+                self.get::<f32>(0, x, y)
+            };
+            [post(0, 0)?, post(1, 0)?, post(0, 1)?, post(1, 1)?]
+        };
+        let weights = [
+            (1.0 - fx) * (1.0 - fy),
+            fx * (1.0 - fy),
+            (1.0 - fx) * fy,
+            fx * fy,
+        ];
         let mut sum = 0.0f64;
-        for (dx, dy, wt) in [
-            (0, 0, (1.0 - fx) * (1.0 - fy)),
-            (1, 0, fx * (1.0 - fy)),
-            (0, 1, (1.0 - fx) * fy),
-            (1, 1, fx * fy),
-        ] {
+        for (z, wt) in posts.into_iter().zip(weights) {
             if wt == 0.0 {
                 continue;
             }
-            match self.height_at(x0 + dx, y0 + dy)? {
-                Some(z) => sum += wt * f64::from(z),
-                None => return Ok(None),
+            if z.is_nan() {
+                return Ok(None);
             }
+            sum += wt * f64::from(z);
         }
         Ok(Some(sum as f32))
     }
@@ -739,6 +758,20 @@ impl<D: AsRef<[u8]>> Asset<D> {
     /// The height layer (f32, metres, NaN for nodata).
     pub fn height(&self) -> Result<&Layer<D>> {
         self.layer(HEIGHT_LAYER, 0)
+    }
+
+    /// Bilinear height at CRS coordinates `(x, y)` (the asset's georeferencing);
+    /// `None` outside the DEM, over nodata, or when the asset has no georeferencing.
+    pub fn height_at_world(&self, x: f64, y: f64) -> Result<Option<f32>> {
+        match self
+            .manifest
+            .georef
+            .as_ref()
+            .and_then(|g| g.world_to_post(x, y))
+        {
+            Some((gx, gy)) => self.height()?.bilinear(gx, gy),
+            None => Ok(None),
+        }
     }
 
     /// Checksums every tile of every layer.

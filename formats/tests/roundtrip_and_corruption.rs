@@ -360,3 +360,28 @@ fn threads_share_one_asset() {
         }
     });
 }
+
+#[test]
+fn world_coordinates_map_to_posts() {
+    use terrabake_format::manifest::{CrsKind, Georef, RasterType};
+    let (dir, _) = asset_files();
+    let mut m = Asset::open(dir.path()).unwrap().manifest().clone();
+    m.georef = Some(Georef {
+        crs_kind: CrsKind::Projected,
+        epsg: Some(32630),
+        geotransform: [500000.0, 2.0, 0.0, 900000.0, 0.0, -3.0],
+        raster_type: RasterType::Area,
+        geo_key_directory: vec![],
+        geo_double_params: vec![],
+        geo_ascii_params: String::new(),
+    });
+    commit_manifest(dir.path(), &m).unwrap();
+    let asset = Asset::open(dir.path()).unwrap();
+    // Post (40, 50) of a PixelIsArea grid is the centre of pixel (40, 50).
+    let (x, y) = (500000.0 + 40.5 * 2.0, 900000.0 - 50.5 * 3.0);
+    assert_eq!(asset.height_at_world(x, y).unwrap(), Some(value(40, 50)));
+    let g = asset.manifest().georef.as_ref().unwrap();
+    let (px, py) = g.world_to_post(x + 1.0, y - 1.5).unwrap();
+    assert!((px - 40.5).abs() < 1e-9 && (py - 50.5).abs() < 1e-9);
+    assert_eq!(asset.height_at_world(0.0, 0.0).unwrap(), None);
+}

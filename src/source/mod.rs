@@ -156,3 +156,39 @@ pub(crate) fn check_shape(path: &Path, width: u64, height: u64) -> Result<()> {
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn nodata_nan_and_infinities_become_nan() {
+        let map = HeightMapping {
+            nodata: Some(-32767.0),
+            scale: 1.0,
+            offset: 0.0,
+        };
+        assert!(map.height(-32767.0, false).is_nan());
+        assert!(map.height(f64::INFINITY, true).is_nan());
+        assert!(map.height(f64::NEG_INFINITY, true).is_nan());
+        assert!(map.height(f64::NAN, true).is_nan());
+        assert_eq!(map.height(-32766.0, false), -32766.0);
+        // GDAL's textual float32 minimum matches the f32 sample after rounding.
+        let min = HeightMapping {
+            nodata: parse_nodata("-3.4028235e+38"),
+            scale: 1.0,
+            offset: 0.0,
+        };
+        assert!(min.height(f64::from(f32::MIN), true).is_nan());
+        // A value that overflows f32 after scaling is nodata, not infinity.
+        let big = HeightMapping {
+            nodata: None,
+            scale: 1e300,
+            offset: 0.0,
+        };
+        assert!(big.height(1e10, false).is_nan());
+        assert!(parse_nodata(" nan\0").unwrap().is_nan());
+        assert_eq!(parse_nodata("-9999\0"), Some(-9999.0));
+        assert_eq!(parse_nodata("none"), None);
+    }
+}
