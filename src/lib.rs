@@ -9,6 +9,7 @@
 //! - [`ingest`]: the first stage: a source becomes the asset's `height` layer.
 //! - [`stage`]: the stage interface (layers in, layers out, recorded in the
 //!   manifest) and recipes, which `bake` runs in order, resumably.
+//! - [`pyramid`]: the max/min pyramid stage, for hierarchical tracing.
 //! - [`synth`]: synthetic terrains for tests and benchmarks.
 //! - [`export`]: layers out as GeoTIFF, OpenEXR or a PNG preview.
 
@@ -16,6 +17,7 @@ pub mod export;
 pub mod geo;
 pub mod ingest;
 pub mod progress;
+pub mod pyramid;
 pub mod source;
 pub mod stage;
 pub mod synth;

@@ -9,8 +9,9 @@ use clap::{Parser, Subcommand};
 use terrabake::export::{export_layer, PngStyle};
 use terrabake::ingest::{ingest, IngestOptions, DEFAULT_TILE};
 use terrabake::progress::Progress;
+use terrabake::pyramid::PyramidStage;
 use terrabake::source::{ByteOrder, RawSampleType, RawSpec};
-use terrabake::stage::{bake, Recipe};
+use terrabake::stage::{bake, run_stage, Recipe, StageOutcome};
 use terrabake::synth::SynthKind;
 use terrabake_format::{Asset, Codec};
 
@@ -99,6 +100,18 @@ enum Command {
         seed: u64,
         #[arg(short, long)]
         output: PathBuf,
+    },
+    /// Add the quadtree max/min pyramid layers (for hierarchical ray tracing) to an asset.
+    ///
+    /// Level 0 holds each cell's tallest and lowest corner; each level above the max and min of
+    /// 2 x 2 blocks, up to one tile. Skipped when the asset already has them.
+    Pyramid {
+        asset: PathBuf,
+        /// Rebuild even if the asset already has an up-to-date pyramid.
+        #[arg(long)]
+        force: bool,
+        #[arg(long)]
+        json: bool,
     },
     /// Ingest a DEM and run every stage of a recipe, skipping work already done.
     Bake {
@@ -300,6 +313,13 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 kind
             ));
         }
+        Command::Pyramid { asset, force, json } => {
+            let outcome = run_stage(&asset, &PyramidStage, force, progress)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&outcome)?);
+            }
+            say(describe_outcome(&outcome));
+        }
         Command::Bake {
             src,
             output,
@@ -312,20 +332,20 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 println!("{}", serde_json::to_string_pretty(&outcomes)?);
             }
             for o in &outcomes {
-                let what = if o.skipped {
-                    "up to date".to_string()
-                } else {
-                    format!("{:.2} s", o.seconds)
-                };
-                say(format!(
-                    "{:<10} {what:>12}  {}",
-                    o.stage,
-                    o.outputs.join(", ")
-                ));
+                say(describe_outcome(o));
             }
         }
     }
     Ok(ExitCode::SUCCESS)
+}
+
+fn describe_outcome(o: &StageOutcome) -> String {
+    let what = if o.skipped {
+        "up to date".to_string()
+    } else {
+        format!("{:.2} s", o.seconds)
+    };
+    format!("{:<10} {what:>12}  {}", o.stage, o.outputs.join(", "))
 }
 
 fn open_asset(path: &Path) -> Result<Asset<terrabake_format::Mmap>> {

@@ -200,10 +200,16 @@ impl Recipe {
 
 /// The stages this build provides, by recipe name.
 pub fn stage_from_recipe(step: &RecipeStage) -> Result<Box<dyn Stage>> {
-    bail!(
-        "stage '{}' is not available in this build of terrabake (available after ingest: none yet)",
-        step.name
-    )
+    let no_params = |stage: Box<dyn Stage>| -> Result<Box<dyn Stage>> {
+        if let Some(key) = step.params.keys().next() {
+            bail!("stage '{}' takes no parameter '{key}'", step.name);
+        }
+        Ok(stage)
+    };
+    match step.name.as_str() {
+        "pyramid" => no_params(Box::new(crate::pyramid::PyramidStage)),
+        other => bail!("stage '{other}' is not available in this build of terrabake (available after ingest: pyramid)"),
+    }
 }
 
 /// Ingest (unless the asset already is this ingest) and every recipe stage.

@@ -34,6 +34,8 @@ pub mod error;
 pub mod layout;
 pub mod manifest;
 pub mod reader;
+pub mod surface;
+pub mod trace;
 pub mod writer;
 
 pub use error::{Error, Location, Result};
