@@ -354,7 +354,7 @@ fn hillshade(dzdx: f64, dzdy: f64) -> f32 {
 }
 
 /// A hypsometric tint for t in 0..1 (lowland green, upland tan, peaks white).
-fn hypsometric(t: f32) -> [f32; 3] {
+pub fn hypsometric(t: f32) -> [f32; 3] {
     const STOPS: [(f32, [f32; 3]); 5] = [
         (0.0, [62.0, 128.0, 72.0]),
         (0.3, [150.0, 180.0, 100.0]),

@@ -10,6 +10,7 @@
 //! - [`stage`]: the stage interface (layers in, layers out, recorded in the
 //!   manifest) and recipes, which `bake` runs in order, resumably.
 //! - [`pyramid`]: the max/min pyramid stage, for hierarchical tracing.
+//! - [`render`]: perspective views traced through an asset (any method).
 //! - [`synth`]: synthetic terrains for tests and benchmarks.
 //! - [`export`]: layers out as GeoTIFF, OpenEXR or a PNG preview.
 
@@ -18,6 +19,7 @@ pub mod geo;
 pub mod ingest;
 pub mod progress;
 pub mod pyramid;
+pub mod render;
 pub mod source;
 pub mod stage;
 pub mod synth;

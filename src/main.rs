@@ -10,9 +10,11 @@ use terrabake::export::{export_layer, PngStyle};
 use terrabake::ingest::{ingest, IngestOptions, DEFAULT_TILE};
 use terrabake::progress::Progress;
 use terrabake::pyramid::PyramidStage;
+use terrabake::render::{builtin_views, render, write_png, Camera, RenderOptions, Sun};
 use terrabake::source::{ByteOrder, RawSampleType, RawSpec};
 use terrabake::stage::{bake, run_stage, Recipe, StageOutcome};
 use terrabake::synth::SynthKind;
+use terrabake_format::trace::{Method, Tracer};
 use terrabake_format::{Asset, Codec};
 
 /// Exit status when `verify` finds problems (1 is any other error, 2 a usage error).
@@ -113,6 +115,68 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Render a shaded perspective view, traced through the asset (sun light and sun shadows).
+    ///
+    /// Coordinates are local metres: x east and y north from the DEM's south-west post, z the
+    /// heights' metres (`terrabake info` gives the extent). Use --view 1..16 for the built-in
+    /// oblique views of the tracing benchmark, or --camera and --look-at.
+    Render {
+        asset: PathBuf,
+        /// Camera position X,Y,Z (local metres).
+        #[arg(long, value_parser = parse_point, allow_hyphen_values = true, requires = "look_at", conflicts_with = "view")]
+        camera: Option<[f64; 3]>,
+        /// Point the camera looks at, X,Y,Z (local metres).
+        #[arg(long, value_parser = parse_point, allow_hyphen_values = true, requires = "camera")]
+        look_at: Option<[f64; 3]>,
+        /// One of the sixteen built-in oblique views (1..=16).
+        #[arg(long, value_parser = clap::value_parser!(u32).range(1..=16))]
+        view: Option<u32>,
+        /// Horizontal field of view, degrees (built-in views use 104).
+        #[arg(long)]
+        fov: Option<f64>,
+        /// Image size WIDTHxHEIGHT.
+        #[arg(long, value_parser = parse_size, default_value = "800x600")]
+        size: (u32, u32),
+        /// Tracer: incremental, runs, hierarchical, brute-force (all give the same picture).
+        #[arg(long, default_value = "hierarchical")]
+        method: Method,
+        /// Sun azimuth (clockwise from north) and elevation, degrees.
+        #[arg(long, value_parser = parse_sun, default_value = "135,35")]
+        sun: Sun,
+        /// Trace every N-th pixel only (others copy the nearest traced one).
+        #[arg(long, default_value_t = 1)]
+        every: u32,
+        /// No shadow rays.
+        #[arg(long)]
+        no_shadows: bool,
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Print rays per second and mean steps per ray.
+        #[arg(long)]
+        stats: bool,
+        /// Print the statistics as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Benchmark the tracers on the sixteen built-in views, side by side (Paglieroni's Table 1).
+    BenchViews {
+        asset: PathBuf,
+        /// Image side in pixels.
+        #[arg(long, default_value_t = 512)]
+        size: u32,
+        /// Trace every N-th pixel (16 as in the paper, 1 for every pixel).
+        #[arg(long, default_value_t = 16)]
+        every: u32,
+        /// Methods, comma-separated.
+        #[arg(
+            long,
+            value_delimiter = ',',
+            default_value = "incremental,runs,hierarchical"
+        )]
+        methods: Vec<Method>,
+        #[arg(long)]
+        json: bool,
+    },
     /// Ingest a DEM and run every stage of a recipe, skipping work already done.
     Bake {
         src: PathBuf,
@@ -195,6 +259,31 @@ fn parse_cell_size(s: &str) -> Result<(f64, f64), String> {
         Some((dx, dy)) => Ok((parse(dx)?, parse(dy)?)),
         None => parse(s).map(|d| (d, d)),
     }
+}
+
+fn parse_point(s: &str) -> Result<[f64; 3], String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|p| p.trim().parse::<f64>().map_err(|e| format!("{p:?}: {e}")))
+        .collect::<Result<_, _>>()?;
+    match v[..] {
+        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([x, y, z]),
+        _ => Err("expected X,Y,Z in metres".into()),
+    }
+}
+
+fn parse_sun(s: &str) -> Result<Sun, String> {
+    let (az, el) = s
+        .split_once(',')
+        .ok_or("expected AZIMUTH,ELEVATION in degrees")?;
+    let parse = |v: &str| v.trim().parse::<f64>().map_err(|e| format!("{v:?}: {e}"));
+    let (azimuth, elevation) = (parse(az)?, parse(el)?);
+    if !(-90.0..=90.0).contains(&elevation) {
+        return Err(format!(
+            "sun elevation {elevation} is not between -90 and 90 degrees"
+        ));
+    }
+    Ok(Sun { azimuth, elevation })
 }
 
 fn parse_codec(s: &str) -> Result<Codec, String> {
@@ -312,6 +401,79 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 size.1,
                 kind
             ));
+        }
+        Command::Render {
+            asset,
+            camera,
+            look_at,
+            view,
+            fov,
+            size,
+            method,
+            sun,
+            every,
+            no_shadows,
+            output,
+            stats,
+            json,
+        } => {
+            let opened = open_asset(&asset)?;
+            let tracer = Tracer::new(&opened)?;
+            let mut cam = match (view, camera, look_at) {
+                (Some(v), _, _) => builtin_views(&tracer, &opened)[v as usize - 1],
+                (None, Some(eye), Some(look_at)) => Camera {
+                    eye,
+                    look_at,
+                    fov: 60.0,
+                },
+                _ => bail!("give --view N, or --camera X,Y,Z and --look-at X,Y,Z"),
+            };
+            if let Some(f) = fov {
+                anyhow::ensure!(
+                    f > 0.0 && f < 180.0,
+                    "--fov {f} is not between 0 and 180 degrees"
+                );
+                cam.fov = f;
+            }
+            let opts = RenderOptions {
+                width: size.0,
+                height: size.1,
+                method,
+                sun,
+                every,
+                shadows: !no_shadows,
+            };
+            let (image, st) = render(&opened, &tracer, &cam, &opts)?;
+            write_png(&output, &image)?;
+            if json {
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(
+                        &serde_json::json!({ "camera": cam, "method": method.name(), "stats": st })
+                    )?
+                );
+            } else if stats {
+                println!(
+                    "{}: {} primary + {} shadow rays in {:.3} s on {} threads: {:.0} rays/s; per primary ray {:.2} steps, {:.2} cells, {:.2} nodes pushed",
+                    method.name(), st.primary_rays, st.shadow_rays, st.seconds, st.threads, st.rays_per_second, st.mean_steps, st.mean_cells, st.mean_nodes_pushed
+                );
+            }
+            say(format!("wrote {}", output.display()));
+        }
+        Command::BenchViews {
+            asset,
+            size,
+            every,
+            methods,
+            json,
+        } => {
+            let opened = open_asset(&asset)?;
+            let table = terrabake::render::bench_views(&opened, size, every, &methods)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&table)?);
+            } else {
+                print!("{}", terrabake::render::bench_table_markdown(&table));
+            }
         }
         Command::Pyramid { asset, force, json } => {
             let outcome = run_stage(&asset, &PyramidStage, force, progress)?;

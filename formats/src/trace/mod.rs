@@ -129,7 +129,9 @@ impl std::str::FromStr for Method {
 /// serves every render thread.
 pub struct Tracer<'a, D> {
     height: &'a Layer<D>,
-    pyramid: Vec<&'a Layer<D>>,
+    /// Max pyramid, level 0 (cells) upwards: the stored levels, then
+    /// levels built in memory from the stored top up to a single node.
+    pyramid: Vec<Level<'a, D>>,
     /// Posts per side and cells per side.
     posts: (u32, u32),
     cells: (u32, u32),
@@ -184,6 +186,38 @@ impl<'a, D: AsRef<[u8]>> Posts<'a, D> {
             sw: get(c, r + 1)?,
             se: get(c + 1, r + 1)?,
         })
+    }
+}
+
+/// One level of the max pyramid.
+enum Level<'a, D> {
+    Stored(&'a Layer<D>),
+    Memory {
+        width: u32,
+        height: u32,
+        max: Vec<f32>,
+    },
+}
+
+impl<D: AsRef<[u8]>> Level<'_, D> {
+    fn width(&self) -> u32 {
+        match self {
+            Level::Stored(l) => l.width(),
+            Level::Memory { width, .. } => *width,
+        }
+    }
+    fn height(&self) -> u32 {
+        match self {
+            Level::Stored(l) => l.height(),
+            Level::Memory { height, .. } => *height,
+        }
+    }
+    #[inline]
+    fn max(&self, a: u32, b: u32) -> Result<f32> {
+        match self {
+            Level::Stored(l) => l.get::<f32>(0, a, b),
+            Level::Memory { width, max, .. } => Ok(max[(b * width + a) as usize]),
+        }
     }
 }
 
@@ -247,7 +281,30 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
         }
         let mut pyramid = Vec::new();
         while let Ok(level) = asset.layer(PYRAMID_MAX, pyramid.len() as u32) {
-            pyramid.push(level);
+            pyramid.push(Level::Stored(level));
+        }
+        // The stage stores levels up to one tile; the few above it (down to
+        // one node) are small, so they are built here, in memory.
+        if let Some(Level::Stored(top)) = pyramid.last() {
+            let (mut w, mut h) = (top.width(), top.height());
+            let mut max = vec![0f32; w as usize * h as usize];
+            top.read_window(0, 0, 0, w, h, &mut max)?;
+            while w > 1 || h > 1 {
+                let (nw, nh) = (w.div_ceil(2), h.div_ceil(2));
+                let mut up = vec![f32::NEG_INFINITY; nw as usize * nh as usize];
+                for y in 0..h {
+                    for x in 0..w {
+                        let i = ((y / 2) * nw + x / 2) as usize;
+                        up[i] = up[i].max(max[(y * w + x) as usize]);
+                    }
+                }
+                pyramid.push(Level::Memory {
+                    width: nw,
+                    height: nh,
+                    max: up.clone(),
+                });
+                (w, h, max) = (nw, nh, up);
+            }
         }
         let z_max = m.height_range.map_or(f64::INFINITY, |r| f64::from(r.max));
         Ok(Self {
@@ -452,7 +509,7 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
     }
 
     fn hierarchical(&self, st: &mut Trace<'a, D>) {
-        let Some(top_layer) = self.pyramid.last() else {
+        let Some(top_level) = self.pyramid.last() else {
             st.err = Some(Error::NoLayer {
                 name: PYRAMID_MAX.into(),
                 level: 0,
@@ -461,8 +518,8 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
         };
         let top = self.pyramid.len() - 1;
         let bounds = Bounds {
-            u: (0, i64::from(top_layer.width()) - 1),
-            v: (0, i64::from(top_layer.height()) - 1),
+            u: (0, i64::from(top_level.width()) - 1),
+            v: (0, i64::from(top_level.height()) - 1),
         };
         let (g, ta, tb) = (st.g, st.ta, st.tb);
         let _ = walk(
@@ -492,7 +549,7 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
         if t0 > st.best.t() {
             return ControlFlow::Break(());
         }
-        let z_max = f64::from(st.ok(self.pyramid[level].get::<f32>(0, a as u32, b as u32))?);
+        let z_max = f64::from(st.ok(self.pyramid[level].max(a as u32, b as u32))?);
         if st.g.z(t0).min(st.g.z(t1)) > z_max {
             return ControlFlow::Continue(());
         }
@@ -584,24 +641,34 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
 
     /// Tallest valid post under cells `lo..=hi` along `major` in minor row
     /// `k`: posts `lo..=hi + 1` along the run, `k..=k + 1` across (two rows
-    /// of contiguous memory for row runs). Nodata posts are left out: their
-    /// cells have no surface, and every cell that has one is bounded.
+    /// of contiguous memory for row runs), scanned tile by tile in place.
+    /// Nodata posts are left out: their cells have no surface, and every
+    /// cell that has one is bounded by its own corners.
     fn run_max(&self, major: usize, k: u32, lo: u32, hi: u32) -> Result<f64> {
-        const PIECE: u32 = 256;
+        let (c0, c1, r0, r1) = if major == 0 {
+            (lo, hi + 1, k, k + 1)
+        } else {
+            (k, k + 1, lo, hi + 1)
+        };
+        let ts = self.height.tile_size();
         let mut z = f32::NEG_INFINITY;
-        let mut buf = [0f32; 2 * PIECE as usize];
-        let mut p = lo;
-        while p <= hi + 1 {
-            let n = (hi + 2 - p).min(PIECE);
-            let out = &mut buf[..2 * n as usize];
-            if major == 0 {
-                self.height.read_window(0, p, k, n, 2, out)?;
-            } else {
-                self.height.read_window(0, k, p, 2, n, out)?;
+        for ty in r0 / ts..=r1 / ts {
+            for tx in c0 / ts..=c1 / ts {
+                let tile = self.height.tile::<f32>(0, tx, ty)?;
+                let (x0, x1) = (
+                    c0.max(tx * ts) - tx * ts,
+                    c1.min(tx * ts + ts - 1) - tx * ts,
+                );
+                let (y0, y1) = (
+                    r0.max(ty * ts) - ty * ts,
+                    r1.min(ty * ts + ts - 1) - ty * ts,
+                );
+                for y in y0..=y1 {
+                    let row = &tile[(y * ts + x0) as usize..=(y * ts + x1) as usize];
+                    // NaN is never greater: nodata posts drop out.
+                    z = row.iter().fold(z, |m, &v| if v > m { v } else { m });
+                }
             }
-            // NaN is never greater: nodata posts drop out.
-            z = out.iter().fold(z, |m, &v| if v > m { v } else { m });
-            p += n;
         }
         Ok(f64::from(z))
     }

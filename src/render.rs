@@ -1,0 +1,358 @@
+//! Perspective views of an asset, traced with any method: Lambert shading
+//! from the sun, sun shadows from shadow rays, a hypsometric tint, and a sky.
+//! Used by `terrabake render` and by the tracing benchmark (Paglieroni and
+//! Petersen's Table 1: 16 oblique views from inside the bounding box).
+//!
+//! Coordinates are local metres: `x` east and `y` north from the DEM's
+//! south-west post, `z` the heights' metres (see `terrabake_format::trace`).
+
+use rayon::prelude::*;
+use serde::Serialize;
+use terrabake_format::trace::{Counters, Method, Ray, Tracer};
+use terrabake_format::{Asset, Mmap};
+
+/// A pinhole camera: horizontal field of view, up is +z.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Camera {
+    pub eye: [f64; 3],
+    pub look_at: [f64; 3],
+    /// Horizontal field of view, degrees.
+    pub fov: f64,
+}
+
+/// Sun direction: azimuth clockwise from north, elevation above the horizon, degrees.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Sun {
+    pub azimuth: f64,
+    pub elevation: f64,
+}
+
+impl Sun {
+    /// Unit vector towards the sun (x east, y north, z up).
+    pub fn direction(&self) -> [f64; 3] {
+        let (az, el) = (self.azimuth.to_radians(), self.elevation.to_radians());
+        [az.sin() * el.cos(), az.cos() * el.cos(), el.sin()]
+    }
+}
+
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct RenderStats {
+    pub pixels: u64,
+    pub primary_rays: u64,
+    pub primary_hits: u64,
+    pub shadow_rays: u64,
+    pub seconds: f64,
+    /// Primary and shadow rays per second, over all threads.
+    pub rays_per_second: f64,
+    pub threads: usize,
+    /// Means over primary rays.
+    pub mean_steps: f64,
+    pub mean_cells: f64,
+    pub mean_nodes_pushed: f64,
+}
+
+/// An RGB image, row-major from the top.
+#[derive(Debug, Clone)]
+pub struct Image {
+    pub width: u32,
+    pub height: u32,
+    pub rgb: Vec<u8>,
+}
+
+fn normalize(v: [f64; 3]) -> [f64; 3] {
+    let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    [v[0] / l, v[1] / l, v[2] / l]
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+impl Camera {
+    /// The primary ray through pixel `(px, py)` (centre) of a `w x h` image.
+    pub fn ray(&self, px: f64, py: f64, w: u32, h: u32) -> Ray {
+        let forward = normalize([
+            self.look_at[0] - self.eye[0],
+            self.look_at[1] - self.eye[1],
+            self.look_at[2] - self.eye[2],
+        ]);
+        // Looking straight up or down: any horizontal right vector will do.
+        let right = if forward[0].abs() < 1e-12 && forward[1].abs() < 1e-12 {
+            [1.0, 0.0, 0.0]
+        } else {
+            normalize(cross(forward, [0.0, 0.0, 1.0]))
+        };
+        let up = cross(right, forward);
+        let half = (self.fov.to_radians() / 2.0).tan();
+        let (sx, sy) = (
+            (2.0 * (px + 0.5) / f64::from(w) - 1.0) * half,
+            (1.0 - 2.0 * (py + 0.5) / f64::from(h)) * half * f64::from(h) / f64::from(w),
+        );
+        let dir = [0, 1, 2].map(|i| forward[i] + sx * right[i] + sy * up[i]);
+        Ray {
+            origin: self.eye,
+            dir,
+            t_min: 0.0,
+            t_max: f64::INFINITY,
+        }
+    }
+}
+
+/// What to render.
+#[derive(Debug, Clone, Copy)]
+pub struct RenderOptions {
+    pub width: u32,
+    pub height: u32,
+    pub method: Method,
+    pub sun: Sun,
+    /// Trace only every `every`-th pixel in x and y (1: all); the rest are
+    /// filled from the traced ones, for quick previews and the benchmark.
+    pub every: u32,
+    /// Trace shadow rays (off for benchmarks of primary rays alone).
+    pub shadows: bool,
+}
+
+/// Renders `camera`'s view. Errors only when the asset cannot be read.
+pub fn render(
+    asset: &Asset<Mmap>,
+    tracer: &Tracer<'_, Mmap>,
+    camera: &Camera,
+    opts: &RenderOptions,
+) -> anyhow::Result<(Image, RenderStats)> {
+    let (w, h, every) = (opts.width, opts.height, opts.every.max(1));
+    let range = asset
+        .manifest()
+        .height_range
+        .map_or((0.0, 1.0), |r| (f64::from(r.min), f64::from(r.max)));
+    let sun = opts.sun.direction();
+    let start = std::time::Instant::now();
+    let traced_rows: Vec<u32> = (0..h).step_by(every as usize).collect();
+    let rows: Vec<anyhow::Result<(Vec<[u8; 3]>, Counters, u64, u64)>> = traced_rows
+        .par_iter()
+        .map(|&py| {
+            let mut row = Vec::with_capacity(w.div_ceil(every) as usize);
+            let (mut counters, mut hits, mut shadow_rays) = (Counters::default(), 0u64, 0u64);
+            for px in (0..w).step_by(every as usize) {
+                let ray = camera.ray(f64::from(px), f64::from(py), w, h);
+                let (hit, c) = tracer.trace(&ray, opts.method)?;
+                counters += c;
+                let colour = match hit {
+                    None => sky(&ray),
+                    Some(hit) => {
+                        hits += 1;
+                        let n = hit.normal.map(f64::from);
+                        let lambert = (n[0] * sun[0] + n[1] * sun[1] + n[2] * sun[2]).max(0.0);
+                        let lit = if lambert > 0.0 && opts.shadows {
+                            shadow_rays += 1;
+                            // Start just above the hit so the ray leaves its own triangle.
+                            let lift = 1e-3 * (range.1 - range.0).max(1.0);
+                            let origin = [hit.point[0], hit.point[1], hit.point[2] + lift];
+                            let shadow = Ray {
+                                origin,
+                                dir: sun,
+                                t_min: 0.0,
+                                t_max: f64::INFINITY,
+                            };
+                            tracer.trace(&shadow, opts.method)?.0.is_none()
+                        } else {
+                            lambert > 0.0
+                        };
+                        let t = ((hit.point[2] - range.0) / (range.1 - range.0).max(1e-9)) as f32;
+                        let tint = crate::export::hypsometric(t);
+                        let light = 0.25 + 0.75 * if lit { lambert as f32 } else { 0.0 };
+                        tint.map(|c| (c * light).clamp(0.0, 255.0) as u8)
+                    }
+                };
+                row.push(colour);
+            }
+            Ok((row, counters, hits, shadow_rays))
+        })
+        .collect();
+    let seconds = start.elapsed().as_secs_f64();
+    let mut stats = RenderStats {
+        threads: rayon::current_num_threads(),
+        seconds,
+        ..Default::default()
+    };
+    let mut totals = Counters::default();
+    let mut traced: Vec<Vec<[u8; 3]>> = Vec::with_capacity(rows.len());
+    for row in rows {
+        let (row, c, hits, shadows) = row?;
+        stats.primary_rays += row.len() as u64;
+        stats.primary_hits += hits;
+        stats.shadow_rays += shadows;
+        totals += c;
+        traced.push(row);
+    }
+    stats.pixels = u64::from(w) * u64::from(h);
+    let n = stats.primary_rays.max(1) as f64;
+    stats.mean_steps = totals.steps as f64 / n;
+    stats.mean_cells = totals.cells as f64 / n;
+    stats.mean_nodes_pushed = totals.nodes_pushed as f64 / n;
+    stats.rays_per_second = (stats.primary_rays + stats.shadow_rays) as f64 / seconds.max(1e-9);
+    // Untraced pixels take the nearest traced one up and to the left.
+    let mut rgb = Vec::with_capacity((w * h * 3) as usize);
+    for py in 0..h {
+        let row = &traced[(py / every) as usize];
+        for px in 0..w {
+            rgb.extend_from_slice(&row[(px / every) as usize]);
+        }
+    }
+    Ok((
+        Image {
+            width: w,
+            height: h,
+            rgb,
+        },
+        stats,
+    ))
+}
+
+fn sky(ray: &Ray) -> [u8; 3] {
+    let d = normalize(ray.dir);
+    let t = d[2].clamp(-0.2, 1.0) as f32;
+    [
+        (170.0 - 90.0 * t) as u8,
+        (200.0 - 70.0 * t) as u8,
+        (235.0 - 20.0 * t) as u8,
+    ]
+}
+
+/// The sixteen built-in oblique views of an asset (`--view 1..=16`), after
+/// Paglieroni and Petersen's Table 1: cameras inside the bounding box, at
+/// heights from just above the terrain's top to well above it, looking in
+/// sixteen azimuths with tilts from slightly up to steeply down, 104 degree
+/// field of view (their 50 mm lens on a 128 mm focal plane).
+pub fn builtin_views(tracer: &Tracer<'_, Mmap>, asset: &Asset<Mmap>) -> Vec<Camera> {
+    let (xm, ym) = tracer.extent();
+    let r = asset
+        .manifest()
+        .height_range
+        .map_or((0.0, 1.0), |r| (f64::from(r.min), f64::from(r.max)));
+    let relief = (r.1 - r.0).max(1.0);
+    (0..16)
+        .map(|k| {
+            let k = f64::from(k);
+            let az = (k * 22.5 + 10.0).to_radians();
+            // Cameras on a ring inside the box, looking across it.
+            let (ex, ey) = (
+                0.5 * xm - 0.3 * xm * az.sin(),
+                0.5 * ym - 0.3 * ym * az.cos(),
+            );
+            let ez = r.1 + relief * (0.05 + 0.5 * ((k * 7.0) % 16.0) / 16.0);
+            // Depression below the horizontal: -5 (slightly up) to 33 degrees.
+            let depression = (-5.0 + 38.0 * ((k * 5.0) % 16.0) / 15.0).to_radians();
+            let d = 0.5 * xm.max(ym);
+            Camera {
+                eye: [ex, ey, ez],
+                look_at: [
+                    ex + d * az.sin(),
+                    ey + d * az.cos(),
+                    ez - d * depression.tan(),
+                ],
+                fov: 104.0,
+            }
+        })
+        .collect()
+}
+
+/// Writes an RGB PNG (through a temporary file).
+pub fn write_png(path: &std::path::Path, image: &Image) -> anyhow::Result<()> {
+    crate::export::write_atomically(path, |file| {
+        let mut enc = png::Encoder::new(file, image.width, image.height);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        enc.write_header()?.write_image_data(&image.rgb)?;
+        Ok(())
+    })
+}
+
+/// One method's totals over the sixteen views.
+#[derive(Debug, Clone, Serialize)]
+pub struct BenchRow {
+    pub method: String,
+    pub rays: u64,
+    pub hits: u64,
+    pub seconds: f64,
+    pub threads: usize,
+    pub mean_steps: f64,
+    pub mean_cells: f64,
+    pub mean_nodes_pushed: f64,
+    pub rays_per_second_per_thread: f64,
+}
+
+/// Paglieroni and Petersen's Table 1 on `asset`: every method over the
+/// sixteen built-in views (`size x size`, every `every`-th pixel, primary
+/// rays only, as in the paper), in one run.
+pub fn bench_views(
+    asset: &Asset<Mmap>,
+    size: u32,
+    every: u32,
+    methods: &[Method],
+) -> anyhow::Result<Vec<BenchRow>> {
+    let tracer = Tracer::new(asset)?;
+    let views = builtin_views(&tracer, asset);
+    let mut rows = Vec::new();
+    for &method in methods {
+        let opts = RenderOptions {
+            width: size,
+            height: size,
+            method,
+            sun: Sun {
+                azimuth: 135.0,
+                elevation: 35.0,
+            },
+            every,
+            shadows: false,
+        };
+        let (mut rays, mut hits, mut seconds, mut steps, mut cells, mut nodes) =
+            (0u64, 0u64, 0.0, 0.0, 0.0, 0.0);
+        for cam in &views {
+            let (_, st) = render(asset, &tracer, cam, &opts)?;
+            rays += st.primary_rays;
+            hits += st.primary_hits;
+            seconds += st.seconds;
+            steps += st.mean_steps * st.primary_rays as f64;
+            cells += st.mean_cells * st.primary_rays as f64;
+            nodes += st.mean_nodes_pushed * st.primary_rays as f64;
+        }
+        let threads = rayon::current_num_threads();
+        let n = rays.max(1) as f64;
+        rows.push(BenchRow {
+            method: method.name().into(),
+            rays,
+            hits,
+            seconds,
+            threads,
+            mean_steps: steps / n,
+            mean_cells: cells / n,
+            mean_nodes_pushed: nodes / n,
+            rays_per_second_per_thread: rays as f64 / seconds.max(1e-9) / threads as f64,
+        });
+    }
+    Ok(rows)
+}
+
+/// The benchmark as a Markdown table, with time ratios against the first row.
+pub fn bench_table_markdown(rows: &[BenchRow]) -> String {
+    let mut s = String::from("| method | rays | hits | mean steps / ray | mean cells tested / ray | time (s) | rays/s per thread | time vs first |\n| --- | --- | --- | --- | --- | --- | --- | --- |\n");
+    let base = rows.first().map_or(1.0, |r| r.seconds);
+    for r in rows {
+        s += &format!(
+            "| {} | {} | {} | {:.2} | {:.2} | {:.3} | {:.0} | {:.2}x |\n",
+            r.method,
+            r.rays,
+            r.hits,
+            r.mean_steps,
+            r.mean_cells,
+            r.seconds,
+            r.rays_per_second_per_thread,
+            base / r.seconds.max(1e-9)
+        );
+    }
+    s
+}
