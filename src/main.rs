@@ -174,6 +174,9 @@ enum Command {
             default_value = "incremental,runs,hierarchical"
         )]
         methods: Vec<Method>,
+        /// Instead of the views: cost per ray in N azimuths (shallow rays from a grid of origins).
+        #[arg(long)]
+        directions: Option<u32>,
         #[arg(long)]
         json: bool,
     },
@@ -462,10 +465,26 @@ fn run(cli: Cli) -> Result<ExitCode> {
         }
         Command::BenchViews {
             asset,
+            directions: Some(n),
+            methods,
+            json,
+            ..
+        } => {
+            let opened = open_asset(&asset)?;
+            let rows = terrabake::render::bench_directions(&opened, n, &methods)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&rows)?);
+            } else {
+                print!("{}", terrabake::render::directions_table_markdown(&rows));
+            }
+        }
+        Command::BenchViews {
+            asset,
             size,
             every,
             methods,
             json,
+            directions: None,
         } => {
             let opened = open_asset(&asset)?;
             let table = terrabake::render::bench_views(&opened, size, every, &methods)?;

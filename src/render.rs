@@ -131,7 +131,7 @@ pub fn render(
     let sun = opts.sun.direction();
     let start = std::time::Instant::now();
     let traced_rows: Vec<u32> = (0..h).step_by(every as usize).collect();
-    let rows: Vec<anyhow::Result<(Vec<[u8; 3]>, Counters, u64, u64)>> = traced_rows
+    let rows: Vec<anyhow::Result<TracedRow>> = traced_rows
         .par_iter()
         .map(|&py| {
             let mut row = Vec::with_capacity(w.div_ceil(every) as usize);
@@ -169,7 +169,12 @@ pub fn render(
                 };
                 row.push(colour);
             }
-            Ok((row, counters, hits, shadow_rays))
+            Ok(TracedRow {
+                pixels: row,
+                counters,
+                hits,
+                shadow_rays,
+            })
         })
         .collect();
     let seconds = start.elapsed().as_secs_f64();
@@ -181,7 +186,12 @@ pub fn render(
     let mut totals = Counters::default();
     let mut traced: Vec<Vec<[u8; 3]>> = Vec::with_capacity(rows.len());
     for row in rows {
-        let (row, c, hits, shadows) = row?;
+        let TracedRow {
+            pixels: row,
+            counters: c,
+            hits,
+            shadow_rays: shadows,
+        } = row?;
         stats.primary_rays += row.len() as u64;
         stats.primary_hits += hits;
         stats.shadow_rays += shadows;
@@ -210,6 +220,14 @@ pub fn render(
         },
         stats,
     ))
+}
+
+/// One traced row of pixels and what it cost.
+struct TracedRow {
+    pixels: Vec<[u8; 3]>,
+    counters: Counters,
+    hits: u64,
+    shadow_rays: u64,
 }
 
 fn sky(ray: &Ray) -> [u8; 3] {
@@ -353,6 +371,98 @@ pub fn bench_table_markdown(rows: &[BenchRow]) -> String {
             r.rays_per_second_per_thread,
             base / r.seconds.max(1e-9)
         );
+    }
+    s
+}
+
+/// Per-azimuth cost of the tracers: shallow rays (2 degrees down) from a
+/// grid of points over the DEM, all in one direction; for checking that
+/// runs are never slower than incremental, whatever the direction.
+#[derive(Debug, Clone, Serialize)]
+pub struct DirectionRow {
+    pub azimuth: f64,
+    pub rays: usize,
+    /// Per method: (name, mean steps per ray, microseconds per ray).
+    pub methods: Vec<(String, f64, f64)>,
+}
+
+pub fn bench_directions(
+    asset: &Asset<Mmap>,
+    azimuths: u32,
+    methods: &[Method],
+) -> anyhow::Result<Vec<DirectionRow>> {
+    let tracer = Tracer::new(asset)?;
+    let (xm, ym) = tracer.extent();
+    let r = asset
+        .manifest()
+        .height_range
+        .map_or((0.0, 1.0), |r| (f64::from(r.min), f64::from(r.max)));
+    let z = r.1 + 0.05 * (r.1 - r.0).max(1.0);
+    let mut rows = Vec::new();
+    for k in 0..azimuths {
+        let az = 360.0 * f64::from(k) / f64::from(azimuths);
+        let (s, c) = (az.to_radians().sin(), az.to_radians().cos());
+        let dir = [
+            s * 2f64.to_radians().cos(),
+            c * 2f64.to_radians().cos(),
+            -(2f64.to_radians().sin()),
+        ];
+        const N: u32 = 60;
+        let rays: Vec<Ray> = (0..N)
+            .flat_map(|i| {
+                (0..N).map(move |j| {
+                    [
+                        xm * (f64::from(i) + 0.5) / f64::from(N),
+                        ym * (f64::from(j) + 0.5) / f64::from(N),
+                        z,
+                    ]
+                })
+            })
+            .map(|origin| Ray {
+                origin,
+                dir,
+                t_min: 0.0,
+                t_max: f64::INFINITY,
+            })
+            .collect();
+        let mut row = DirectionRow {
+            azimuth: az,
+            rays: rays.len(),
+            methods: Vec::new(),
+        };
+        for &m in methods {
+            let start = std::time::Instant::now();
+            let mut steps = 0u64;
+            for ray in &rays {
+                steps += tracer.trace(ray, m)?.1.steps;
+            }
+            let us = start.elapsed().as_secs_f64() * 1e6 / rays.len() as f64;
+            row.methods
+                .push((m.name().into(), steps as f64 / rays.len() as f64, us));
+        }
+        rows.push(row);
+    }
+    Ok(rows)
+}
+
+/// The per-azimuth benchmark as a Markdown table.
+pub fn directions_table_markdown(rows: &[DirectionRow]) -> String {
+    let Some(first) = rows.first() else {
+        return String::new();
+    };
+    let mut s = String::from("| azimuth |");
+    for (name, ..) in &first.methods {
+        s += &format!(" {name} steps | {name} us/ray |");
+    }
+    s += "\n|---|";
+    s += &"---|---|".repeat(first.methods.len());
+    s += "\n";
+    for r in rows {
+        s += &format!("| {:.2} |", r.azimuth);
+        for (_, steps, us) in &r.methods {
+            s += &format!(" {steps:.1} | {us:.2} |");
+        }
+        s += "\n";
     }
     s
 }

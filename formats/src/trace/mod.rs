@@ -580,6 +580,13 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
             1
         };
         let minor = 1 - major;
+        // Runs shorter than three cells on average (slopes between 1/3 and
+        // 3) buy nothing over the cell walk: Henning and Stephenson measured
+        // no gain at run length one. There the cell walk is used; it visits
+        // the same cells.
+        if g.dir[minor].abs() * 3.0 > g.dir[major].abs() {
+            return self.incremental(st);
+        }
         let cells = [i64::from(self.cells.0), i64::from(self.cells.1)];
         let (n_major, n_minor) = (cells[major], cells[minor]);
         let line_bounds = if minor == 0 {
@@ -611,30 +618,67 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
             if lo > hi {
                 return ControlFlow::Continue(());
             }
-            // One test for the whole run: the ray's lowest point in the row
-            // against the tallest post under the run.
-            let z_max = st.ok(self.run_max(major, k as u32, lo as u32, hi as u32))?;
-            if g.z(r0).min(g.z(r1)) > z_max {
-                return ControlFlow::Continue(());
-            }
+            // The run in pieces of up to PIECE cells, in travel order; a
+            // piece of MIN_TESTED cells or more is skipped whole when the
+            // ray's lowest point over it is above its tallest post. (Shorter
+            // pieces, as on diagonals, go straight to the per-cell test,
+            // which rejects as cheaply.)
+            const PIECE: i64 = 32;
+            const MIN_TESTED: i64 = 4;
             let step: i64 = if first <= last { 1 } else { -1 };
-            let mut m = first;
+            let (first, last) = if step > 0 { (lo, hi) } else { (hi, lo) };
+            let cell_at = |m: i64| {
+                if major == 0 {
+                    (m as u32, k as u32)
+                } else {
+                    (k as u32, m as u32)
+                }
+            };
+            let mut start = first;
             loop {
-                if (0..n_major).contains(&m) {
-                    let (c, r) = if major == 0 {
-                        (m as u32, k as u32)
-                    } else {
-                        (k as u32, m as u32)
-                    };
+                let end = if step > 0 {
+                    (start + PIECE - 1).min(last)
+                } else {
+                    (start - PIECE + 1).max(last)
+                };
+                if (end - start).abs() + 1 >= MIN_TESTED {
+                    let (c0, r0) = cell_at(start);
+                    let (c1, r1) = cell_at(end);
+                    let t_start = g.square(f64::from(c0), f64::from(r0), 1.0, ta, tb).0;
+                    let t_end = g.square(f64::from(c1), f64::from(r1), 1.0, ta, tb).1;
+                    if t_start > st.best.t() {
+                        return ControlFlow::Break(());
+                    }
+                    let z_max = st.ok(self.run_max(
+                        major,
+                        k as u32,
+                        start.min(end) as u32,
+                        start.max(end) as u32,
+                    ))?;
+                    if g.z(t_start).min(g.z(t_end)) > z_max {
+                        if end == last {
+                            return ControlFlow::Continue(());
+                        }
+                        start = end + step;
+                        continue;
+                    }
+                }
+                let mut m = start;
+                loop {
+                    let (c, r) = cell_at(m);
                     let interval = g.square(f64::from(c), f64::from(r), 1.0, ta, tb);
                     if interval.0 <= interval.1 {
                         self.test_cell(st, c, r, interval)?;
                     }
+                    if m == end {
+                        break;
+                    }
+                    m += step;
                 }
-                if m == last {
+                if end == last {
                     return ControlFlow::Continue(());
                 }
-                m += step;
+                start = end + step;
             }
         });
     }
