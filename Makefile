@@ -5,7 +5,7 @@ BIN := target/release/terrabake
 DEMO_DEM := data/srtm3_n07w006_geographic_int16.tif
 OUT ?= out
 
-.PHONY: all build demo test bench-ingest-ooc fixtures fmt lint clean
+.PHONY: all build demo test bench-ingest-ooc bench-trace bench-reader fixtures fmt lint clean
 
 all: build
 
@@ -21,10 +21,11 @@ demo: build
 	$(BIN) verify $(OUT)/srtm.tbake
 	$(BIN) export $(OUT)/srtm.tbake --layer height --style relief -o $(OUT)/srtm_relief.png
 	$(BIN) export $(OUT)/srtm.tbake --layer height --style gray -o $(OUT)/srtm_gray16.png
+	$(BIN) render $(OUT)/srtm.tbake --camera 10000,20000,1400 --look-at 60000,70000,150 --fov 70 --sun 300,12 --size 1024x640 --stats -o $(OUT)/srtm_view.png
 	@echo
 	@echo "asset:    $(OUT)/srtm.tbake"
 	@echo "summary:  $(OUT)/srtm.summary.txt ($(OUT)/srtm.summary.json)"
-	@echo "previews: $(OUT)/srtm_relief.png $(OUT)/srtm_gray16.png"
+	@echo "previews: $(OUT)/srtm_relief.png $(OUT)/srtm_gray16.png $(OUT)/srtm_view.png"
 
 ## Every test, optimised ([profile.test] opt-level = 3).
 test:
@@ -33,6 +34,14 @@ test:
 ## Out-of-core ingest of a generated 4 GiB GeoTIFF under a 1 GiB memory limit.
 bench-ingest-ooc: build
 	BIN=$(BIN) bash pipelines/bench_ingest_out_of_core.sh
+
+## Tracing: Table 1 on the SRTM tile, cost by azimuth, scaling with DEM size.
+bench-trace: build
+	BIN=$(BIN) bash pipelines/bench_trace.sh
+
+## Reader micro-benchmarks (criterion).
+bench-reader:
+	$(CARGO) bench -p terrabake-format --bench reader
 
 ## Regenerate the GDAL-made TIFF fixtures (needs Debian's python3-gdal).
 ## The v1 compatibility asset is never regenerated: see tests/fixtures/README.md.

@@ -584,7 +584,8 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
         // 3) buy nothing over the cell walk: Henning and Stephenson measured
         // no gain at run length one. There the cell walk is used; it visits
         // the same cells.
-        if g.dir[minor].abs() * 3.0 > g.dir[major].abs() {
+        // Vertical rays (no major motion) touch a cell or four: also walked.
+        if g.dir[minor].abs() * 3.0 > g.dir[major].abs() || g.dir[major] == 0.0 {
             return self.incremental(st);
         }
         let cells = [i64::from(self.cells.0), i64::from(self.cells.1)];
@@ -642,10 +643,12 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
                     (start - PIECE + 1).max(last)
                 };
                 if (end - start).abs() + 1 >= MIN_TESTED {
-                    let (c0, r0) = cell_at(start);
-                    let (c1, r1) = cell_at(end);
-                    let t_start = g.square(f64::from(c0), f64::from(r0), 1.0, ta, tb).0;
-                    let t_end = g.square(f64::from(c1), f64::from(r1), 1.0, ta, tb).1;
+                    let (first_c, first_r) = cell_at(start);
+                    let (end_c, end_r) = cell_at(end);
+                    let t_start = g
+                        .square(f64::from(first_c), f64::from(first_r), 1.0, ta, tb)
+                        .0;
+                    let t_end = g.square(f64::from(end_c), f64::from(end_r), 1.0, ta, tb).1;
                     if t_start > st.best.t() {
                         return ControlFlow::Break(());
                     }
@@ -663,10 +666,16 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
                         continue;
                     }
                 }
+                // A cell's interval is its major-axis slab within the row's
+                // interval: the same numbers `GridRay::square` gives, with
+                // one division per cell (each boundary is shared by two).
+                let (o, d) = (g.origin[major], g.dir[major]);
+                let boundary = |k: i64| (k as f64 - o) / d;
                 let mut m = start;
+                let (mut b_lo, mut b_hi) = (boundary(m), boundary(m + 1));
                 loop {
                     let (c, r) = cell_at(m);
-                    let interval = g.square(f64::from(c), f64::from(r), 1.0, ta, tb);
+                    let interval = (b_lo.min(b_hi).max(r0), b_lo.max(b_hi).min(r1));
                     if interval.0 <= interval.1 {
                         self.test_cell(st, c, r, interval)?;
                     }
@@ -674,6 +683,11 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
                         break;
                     }
                     m += step;
+                    if step > 0 {
+                        (b_lo, b_hi) = (b_hi, boundary(m + 1));
+                    } else {
+                        (b_lo, b_hi) = (boundary(m), b_lo);
+                    }
                 }
                 if end == last {
                     return ControlFlow::Continue(());

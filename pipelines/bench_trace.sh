@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# Tracing benchmarks (docs/BENCHMARKS.md), single-threaded for per-core
+# figures: Paglieroni and Petersen's Table 1 on the bundled SRTM tile (16
+# oblique views, 512 x 512, every 16th pixel and every pixel), cost by
+# azimuth, and scaling with DEM size on fractal terrain.
+# Usage: make bench-trace [WORK=/tmp/terrabake-trace]
+set -euo pipefail
+BIN=${BIN:-target/release/terrabake}
+WORK=${WORK:-/tmp/terrabake-trace}
+mkdir -p "$WORK"
+export RAYON_NUM_THREADS=1
+"$BIN" bake data/srtm3_n07w006_geographic_int16.tif -o "$WORK/srtm.tbake" --recipe pipelines/demo.toml -q
+echo "## SRTM N07W006, 16 views, 512 x 512, every 16th pixel"
+"$BIN" bench-views "$WORK/srtm.tbake" --every 16 --methods incremental,runs,hierarchical,brute-force
+echo
+echo "## SRTM N07W006, 16 views, 512 x 512, every pixel"
+"$BIN" bench-views "$WORK/srtm.tbake" --every 1 --methods incremental,runs,hierarchical
+echo
+echo "## SRTM N07W006, cost per ray by azimuth (3600 rays each, 2 degrees down)"
+"$BIN" bench-views "$WORK/srtm.tbake" --directions 16 --methods incremental,runs,hierarchical
+for n in 1024 2048 4096 8192; do
+  echo
+  echo "## fractal ${n} x ${n}, 16 views, 512 x 512, every 16th pixel"
+  [ -f "$WORK/fractal_$n.tif" ] || "$BIN" synth fractal --size "${n}x${n}" -o "$WORK/fractal_$n.tif" -q
+  "$BIN" bake "$WORK/fractal_$n.tif" -o "$WORK/fractal_$n.tbake" --recipe pipelines/demo.toml -q
+  "$BIN" bench-views "$WORK/fractal_$n.tbake" --every 16 --methods incremental,runs,hierarchical
+done

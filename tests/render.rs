@@ -1,0 +1,216 @@
+//! Pictures: every tracer renders the same image, the image shows terrain,
+//! sky and shadows, and a spike casts its shadow where geometry says.
+
+mod common;
+
+use terrabake::ingest::{ingest, IngestOptions};
+use terrabake::progress::Progress;
+use terrabake::pyramid::PyramidStage;
+use terrabake::render::{builtin_views, render, RenderOptions, Sun};
+use terrabake::stage::run_stage;
+use terrabake::synth::SynthKind;
+use terrabake_format::trace::{Method, Ray, Tracer};
+use terrabake_format::Asset;
+
+fn srtm_with_pyramid(dir: &std::path::Path) -> std::path::PathBuf {
+    let out = dir.join("srtm.tbake");
+    ingest(
+        &common::repo_file("data/srtm3_n07w006_geographic_int16.tif"),
+        &out,
+        &IngestOptions::default(),
+        Progress::hidden(),
+    )
+    .unwrap();
+    run_stage(&out, &PyramidStage, false, Progress::hidden()).unwrap();
+    out
+}
+
+#[test]
+fn every_method_renders_the_same_picture() {
+    let dir = tempfile::tempdir().unwrap();
+    let asset = Asset::open(srtm_with_pyramid(dir.path())).unwrap();
+    let tracer = Tracer::new(&asset).unwrap();
+    let views = builtin_views(&tracer, &asset);
+    assert_eq!(views.len(), 16);
+    for view in [0, 5, 13] {
+        let mut images = Vec::new();
+        for method in [Method::Incremental, Method::Runs, Method::Hierarchical] {
+            let opts = RenderOptions {
+                width: 80,
+                height: 60,
+                method,
+                sun: Sun {
+                    azimuth: 250.0,
+                    elevation: 4.0,
+                },
+                every: 1,
+                shadows: true,
+            };
+            let (image, stats) = render(&asset, &tracer, &views[view], &opts).unwrap();
+            assert_eq!(stats.primary_rays, 80 * 60);
+            images.push(image.rgb);
+        }
+        assert!(
+            images.windows(2).all(|w| w[0] == w[1]),
+            "view {} differs between methods",
+            view + 1
+        );
+        // Terrain, sky, and more than a handful of shades.
+        let mut colours: Vec<[u8; 3]> = images[0].chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
+        colours.sort_unstable();
+        colours.dedup();
+        assert!(
+            colours.len() > 50,
+            "view {}: {} colours",
+            view + 1,
+            colours.len()
+        );
+    }
+}
+
+#[test]
+fn a_spike_shadows_the_ground_behind_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let tif = dir.path().join("spike.tif");
+    terrabake::synth::write_geotiff(&tif, SynthKind::Spike, 65, 65, 1, Progress::hidden()).unwrap();
+    let out = dir.path().join("spike.tbake");
+    ingest(
+        &tif,
+        &out,
+        &IngestOptions {
+            tile_size: 16,
+            ..Default::default()
+        },
+        Progress::hidden(),
+    )
+    .unwrap();
+    run_stage(&out, &PyramidStage, false, Progress::hidden()).unwrap();
+    let asset = Asset::open(&out).unwrap();
+    let tracer = Tracer::new(&asset).unwrap();
+    // The spike: post (32, 32), 1000 m, on flat 0 m ground with 30 m posts.
+    let top = [32.0 * 30.0, 32.0 * 30.0, 1000.0];
+    let sun = Sun {
+        azimuth: 90.0,
+        elevation: 45.0,
+    }
+    .direction(); // from the east
+    for method in [
+        Method::Incremental,
+        Method::Runs,
+        Method::Hierarchical,
+        Method::BruteForce,
+    ] {
+        // 500 m west of the spike the sun (45 degrees up) is behind its flank.
+        let behind = Ray {
+            origin: [top[0] - 500.0, top[1], 0.01],
+            dir: sun,
+            t_min: 0.0,
+            t_max: f64::INFINITY,
+        };
+        let (hit, _) = tracer.trace(&behind, method).unwrap();
+        let hit = hit.unwrap_or_else(|| panic!("{}: no shadow behind the spike", method.name()));
+        assert!(
+            hit.point[0] > top[0] - 30.0 && hit.point[0] <= top[0],
+            "{}: {:?}",
+            method.name(),
+            hit.point
+        );
+        // 1100 m west the ray passes above the top (1100 m up when it gets there).
+        let clear = Ray {
+            origin: [top[0] - 1100.0, top[1], 0.01],
+            dir: sun,
+            t_min: 0.0,
+            t_max: f64::INFINITY,
+        };
+        assert!(
+            tracer.trace(&clear, method).unwrap().0.is_none(),
+            "{}",
+            method.name()
+        );
+        // North of the spike's shadow, in the sun.
+        let beside = Ray {
+            origin: [top[0] - 500.0, top[1] + 90.0, 0.01],
+            dir: sun,
+            t_min: 0.0,
+            t_max: f64::INFINITY,
+        };
+        assert!(
+            tracer.trace(&beside, method).unwrap().0.is_none(),
+            "{}",
+            method.name()
+        );
+    }
+}
+
+#[test]
+fn render_command_writes_a_png_and_statistics() {
+    let dir = tempfile::tempdir().unwrap();
+    let asset = srtm_with_pyramid(dir.path());
+    let png_path = dir.path().join("view.png");
+    let out = common::terrabake(&[
+        "render",
+        asset.to_str().unwrap(),
+        "--view",
+        "7",
+        "--size",
+        "64x48",
+        "--method",
+        "runs",
+        "--json",
+        "-o",
+        png_path.to_str().unwrap(),
+        "-q",
+    ]);
+    assert!(out.status.success(), "{}", common::stderr(&out));
+    let report: serde_json::Value = serde_json::from_str(&common::stdout(&out)).unwrap();
+    assert_eq!(report["method"], "runs");
+    assert_eq!(report["stats"]["primary_rays"], 64 * 48);
+    assert!(report["stats"]["mean_steps"].as_f64().unwrap() > 1.0);
+    let decoder = png::Decoder::new(std::io::BufReader::new(
+        std::fs::File::open(&png_path).unwrap(),
+    ));
+    let info = decoder.read_info().unwrap().info().clone();
+    assert_eq!((info.width, info.height), (64, 48));
+    // Free camera, and a clear error without a pyramid for hierarchical.
+    let plain = dir.path().join("plain.tbake");
+    common::terrabake(&[
+        "ingest",
+        "data/srtm3_n07w006_geographic_int16.tif",
+        "-o",
+        plain.to_str().unwrap(),
+        "-q",
+    ]);
+    let out = common::terrabake(&[
+        "render",
+        plain.to_str().unwrap(),
+        "--camera",
+        "50000,50000,900",
+        "--look-at",
+        "60000,60000,300",
+        "--size",
+        "32x24",
+        "-o",
+        png_path.to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(
+        common::stderr(&out).contains("pyramid"),
+        "{}",
+        common::stderr(&out)
+    );
+    let out = common::terrabake(&[
+        "render",
+        plain.to_str().unwrap(),
+        "--camera",
+        "50000,50000,900",
+        "--look-at",
+        "60000,60000,300",
+        "--size",
+        "32x24",
+        "--method",
+        "incremental",
+        "-o",
+        png_path.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", common::stderr(&out));
+}
