@@ -389,3 +389,57 @@ fn every_method_equals_brute_force_on_the_real_dem() {
     let asset = build_asset(&sub, &raw, Some(spec), (dx, dy));
     check_terrain("SRTM crop", &asset, rays_per_terrain(), 77);
 }
+
+mod random_terrains {
+    //! Property test: tiny random terrains (random heights, random nodata
+    //! posts, random tile size and cell size) and random rays; every method
+    //! equals the brute force.
+    use super::*;
+    use proptest::prelude::*;
+
+    fn terrain() -> impl Strategy<Value = (u32, u32, Vec<f32>, f64, f64)> {
+        (2u32..9, 2u32..9).prop_flat_map(|(w, h)| {
+            let post = prop_oneof![8 => (-20.0f32..20.0).prop_map(|z| z.round()), 1 => Just(f32::NAN), 2 => Just(5.0f32)];
+            (Just(w), Just(h), proptest::collection::vec(post, (w * h) as usize), 1.0f64..50.0, 1.0f64..50.0)
+        })
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(300))]
+        #[test]
+        fn methods_agree_on_random_terrains((w, h, posts, dx, dy) in terrain(), seed in any::<u64>()) {
+            let dir = tempfile::tempdir().unwrap();
+            let raw = dir.path().join("t.f32");
+            std::fs::write(&raw, posts.iter().flat_map(|z| z.to_le_bytes()).collect::<Vec<u8>>()).unwrap();
+            let spec = RawSpec { width: w, height: h, sample: RawSampleType::F32, order: ByteOrder::Le };
+            let out = dir.path().join("t.tbake");
+            ingest(&raw, &out, &IngestOptions { tile_size: 16, cell_size: Some((dx, dy)), raw: Some(spec), ..Default::default() }, Progress::hidden()).unwrap();
+            run_stage(&out, &PyramidStage, false, Progress::hidden()).unwrap();
+            let asset = Asset::open(&out).unwrap();
+            let tracer = Tracer::new(&asset).unwrap();
+            let mut rng = Rng(seed);
+            let (xm, ym) = tracer.extent();
+            for _ in 0..200 {
+                // Origins snapped to a quarter of a cell half the time: rays
+                // through posts, edges and corners are the hard ones.
+                let mut o = [rng.range(-0.5 * xm, 1.5 * xm), rng.range(-0.5 * ym, 1.5 * ym), rng.range(-30.0, 40.0)];
+                let mut d = [rng.range(-1.0, 1.0) * dx, rng.range(-1.0, 1.0) * dy, rng.range(-1.0, 1.0) * 10.0];
+                if rng.int(2) == 0 {
+                    o[0] = (o[0] / dx * 4.0).round() / 4.0 * dx;
+                    o[1] = (o[1] / dy * 4.0).round() / 4.0 * dy;
+                    d[0] = (d[0] / dx * 2.0).round() / 2.0 * dx;
+                    d[1] = (d[1] / dy * 2.0).round() / 2.0 * dy;
+                }
+                if d == [0.0; 3] {
+                    continue;
+                }
+                let ray = Ray { origin: o, dir: d, t_min: 0.0, t_max: f64::INFINITY };
+                let (want, _) = tracer.trace(&ray, Method::BruteForce).unwrap();
+                for m in [Method::Incremental, Method::Runs, Method::Hierarchical] {
+                    let (got, _) = tracer.trace(&ray, m).unwrap();
+                    prop_assert!(same_hit(&tracer, &ray, &got, &want), "{}: {ray:?}\n got {got:?}\nwant {want:?}", m.name());
+                }
+            }
+        }
+    }
+}

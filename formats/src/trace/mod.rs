@@ -254,6 +254,16 @@ struct Trace<'a, D> {
 }
 
 impl<D> Trace<'_, D> {
+    /// Continue, unless an error ended the trace.
+    #[inline]
+    fn stop_on_error(&self) -> ControlFlow<()> {
+        if self.err.is_some() {
+            ControlFlow::Break(())
+        } else {
+            ControlFlow::Continue(())
+        }
+    }
+
     /// The value, or: record the error and stop the walk.
     #[inline]
     fn ok<T>(&mut self, r: Result<T>) -> ControlFlow<(), T> {
@@ -559,15 +569,19 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
             u: (2 * a, (2 * a + 1).min(i64::from(child.width()) - 1)),
             v: (2 * b, (2 * b + 1).min(i64::from(child.height()) - 1)),
         };
+        // A child breaks its walk once children start after the best hit;
+        // that ends this subtree only. A node beside this one (a ray along a
+        // grid line touches two at once) is still this level's to visit.
         let g = st.g;
-        walk(
+        let _ = walk(
             &g,
             f64::from(1u32 << (level - 1)),
             bounds,
             t0,
             t1,
             |ca, cb, s0, s1| self.node(st, level - 1, ca, cb, (s0, s1)),
-        )
+        );
+        st.stop_on_error()
     }
 
     fn runs(&self, st: &mut Trace<'a, D>) {
@@ -650,7 +664,9 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
                         .0;
                     let t_end = g.square(f64::from(end_c), f64::from(end_r), 1.0, ta, tb).1;
                     if t_start > st.best.t() {
-                        return ControlFlow::Break(());
+                        // The rest of this run starts after the best hit; a
+                        // parallel run (ray along a grid line) may not.
+                        return ControlFlow::Continue(());
                     }
                     let z_max = st.ok(self.run_max(
                         major,
@@ -677,7 +693,10 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
                     let (c, r) = cell_at(m);
                     let interval = (b_lo.min(b_hi).max(r0), b_lo.max(b_hi).min(r1));
                     if interval.0 <= interval.1 {
-                        self.test_cell(st, c, r, interval)?;
+                        if self.test_cell(st, c, r, interval).is_break() {
+                            // Past the best hit (or an error): this run is done.
+                            return st.stop_on_error();
+                        }
                     }
                     if m == end {
                         break;
