@@ -692,11 +692,9 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
                 loop {
                     let (c, r) = cell_at(m);
                     let interval = (b_lo.min(b_hi).max(r0), b_lo.max(b_hi).min(r1));
-                    if interval.0 <= interval.1 {
-                        if self.test_cell(st, c, r, interval).is_break() {
-                            // Past the best hit (or an error): this run is done.
-                            return st.stop_on_error();
-                        }
+                    // Past the best hit (or an error): this run is done.
+                    if interval.0 <= interval.1 && self.test_cell(st, c, r, interval).is_break() {
+                        return st.stop_on_error();
                     }
                     if m == end {
                         break;
