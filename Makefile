@@ -21,7 +21,7 @@ demo: build
 	$(BIN) verify $(OUT)/srtm.tbake
 	$(BIN) export $(OUT)/srtm.tbake --layer height --style relief -o $(OUT)/srtm_relief.png
 	$(BIN) export $(OUT)/srtm.tbake --layer height --style gray -o $(OUT)/srtm_gray16.png
-	$(BIN) render $(OUT)/srtm.tbake --camera 10000,20000,1400 --look-at 60000,70000,150 --fov 70 --sun 300,12 --size 1024x640 --stats -o $(OUT)/srtm_view.png
+	$(BIN) render $(OUT)/srtm.tbake --camera 30000,8000,4500 --look-at 55000,60000,500 --fov 60 --sun 290,10 --exaggerate 8 --size 1024x640 --stats -o $(OUT)/srtm_view.png
 	@echo
 	@echo "asset:    $(OUT)/srtm.tbake"
 	@echo "summary:  $(OUT)/srtm.summary.txt ($(OUT)/srtm.summary.json)"

@@ -149,6 +149,9 @@ enum Command {
         /// No shadow rays.
         #[arg(long)]
         no_shadows: bool,
+        /// Vertical exaggeration (camera heights are then in exaggerated metres).
+        #[arg(long, default_value_t = 1.0)]
+        exaggerate: f64,
         #[arg(short, long)]
         output: PathBuf,
         /// Print rays per second and mean steps per ray.
@@ -416,10 +419,15 @@ fn run(cli: Cli) -> Result<ExitCode> {
             sun,
             every,
             no_shadows,
+            exaggerate,
             output,
             stats,
             json,
         } => {
+            anyhow::ensure!(
+                exaggerate > 0.0 && exaggerate.is_finite(),
+                "--exaggerate {exaggerate} must be a positive number"
+            );
             let opened = open_asset(&asset)?;
             let tracer = Tracer::new(&opened)?;
             let mut cam = match (view, camera, look_at) {
@@ -445,6 +453,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 sun,
                 every,
                 shadows: !no_shadows,
+                exaggeration: exaggerate,
             };
             let (image, st) = render(&opened, &tracer, &cam, &opts)?;
             write_png(&output, &image)?;

@@ -45,6 +45,7 @@ fn every_method_renders_the_same_picture() {
                 },
                 every: 1,
                 shadows: true,
+                exaggeration: 1.0,
             };
             let (image, stats) = render(&asset, &tracer, &views[view], &opts).unwrap();
             assert_eq!(stats.primary_rays, 80 * 60);
