@@ -18,10 +18,13 @@ echo "## SRTM N07W006, 16 views, 512 x 512, every pixel"
 echo
 echo "## SRTM N07W006, cost per ray by azimuth (3600 rays each, 2 degrees down)"
 "$BIN" bench-views "$WORK/srtm.tbake" --directions 16 --methods incremental,runs,hierarchical
+echo
+echo "## fractal terrain of growing size, 16 views, 512 x 512, every 16th pixel"
+assets=()
 for n in 1024 2048 4096 8192; do
-  echo
-  echo "## fractal ${n} x ${n}, 16 views, 512 x 512, every 16th pixel"
   [ -f "$WORK/fractal_$n.tif" ] || "$BIN" synth fractal --size "${n}x${n}" -o "$WORK/fractal_$n.tif" -q
   "$BIN" bake "$WORK/fractal_$n.tif" -o "$WORK/fractal_$n.tbake" --recipe pipelines/demo.toml -q
-  "$BIN" bench-views "$WORK/fractal_$n.tbake" --every 16 --methods incremental,runs,hierarchical
+  assets+=("$WORK/fractal_$n.tbake")
 done
+mkdir -p docs/charts
+"$BIN" bench-views "${assets[@]}" --every 16 --methods incremental,runs,hierarchical --chart docs/charts/trace_scaling

@@ -14,6 +14,7 @@
 //! - [`synth`]: synthetic terrains for tests and benchmarks.
 //! - [`export`]: layers out as GeoTIFF, OpenEXR or a PNG preview.
 
+pub mod chart;
 pub mod export;
 pub mod geo;
 pub mod ingest;

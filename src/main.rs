@@ -163,7 +163,12 @@ enum Command {
     },
     /// Benchmark the tracers on the sixteen built-in views, side by side (Paglieroni's Table 1).
     BenchViews {
-        asset: PathBuf,
+        /// One asset, or several (a scaling series, e.g. for --chart).
+        #[arg(required = true)]
+        assets: Vec<PathBuf>,
+        /// With several assets: write PREFIX_steps.svg and PREFIX_time.svg, per method against DEM side.
+        #[arg(long)]
+        chart: Option<PathBuf>,
         /// Image side in pixels.
         #[arg(long, default_value_t = 512)]
         size: u32,
@@ -473,34 +478,58 @@ fn run(cli: Cli) -> Result<ExitCode> {
             say(format!("wrote {}", output.display()));
         }
         Command::BenchViews {
-            asset,
+            assets,
             directions: Some(n),
             methods,
             json,
             ..
         } => {
-            let opened = open_asset(&asset)?;
-            let rows = terrabake::render::bench_directions(&opened, n, &methods)?;
-            if json {
-                println!("{}", serde_json::to_string_pretty(&rows)?);
-            } else {
-                print!("{}", terrabake::render::directions_table_markdown(&rows));
+            for asset in &assets {
+                let opened = open_asset(asset)?;
+                let rows = terrabake::render::bench_directions(&opened, n, &methods)?;
+                if json {
+                    println!("{}", serde_json::to_string_pretty(&rows)?);
+                } else {
+                    print!("{}", terrabake::render::directions_table_markdown(&rows));
+                }
             }
         }
         Command::BenchViews {
-            asset,
+            assets,
+            chart,
             size,
             every,
             methods,
             json,
             directions: None,
         } => {
-            let opened = open_asset(&asset)?;
-            let table = terrabake::render::bench_views(&opened, size, every, &methods)?;
-            if json {
-                println!("{}", serde_json::to_string_pretty(&table)?);
-            } else {
-                print!("{}", terrabake::render::bench_table_markdown(&table));
+            let mut results = Vec::new();
+            for asset in &assets {
+                let opened = open_asset(asset)?;
+                let side = opened.manifest().width.max(opened.manifest().height);
+                let table = terrabake::render::bench_views(&opened, size, every, &methods)?;
+                if json {
+                    println!(
+                        "{}",
+                        serde_json::to_string_pretty(
+                            &serde_json::json!({ "asset": asset.display().to_string(), "side": side, "methods": table })
+                        )?
+                    );
+                } else {
+                    if assets.len() > 1 {
+                        println!("\n{} ({side} posts a side)\n", asset.display());
+                    }
+                    print!("{}", terrabake::render::bench_table_markdown(&table));
+                }
+                results.push((f64::from(side), table));
+            }
+            if let Some(prefix) = chart {
+                terrabake::render::scaling_charts(&prefix, &results)?;
+                say(format!(
+                    "wrote {}_steps.svg and {}_time.svg",
+                    prefix.display(),
+                    prefix.display()
+                ));
             }
         }
         Command::Pyramid { asset, force, json } => {

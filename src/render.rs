@@ -486,3 +486,50 @@ pub fn directions_table_markdown(rows: &[DirectionRow]) -> String {
     }
     s
 }
+
+/// Charts of a scaling series (DEM side, per-method rows): mean steps per
+/// ray and microseconds per ray per thread, log-log, written to
+/// `PREFIX_steps.svg` and `PREFIX_time.svg`.
+pub fn scaling_charts(
+    prefix: &std::path::Path,
+    results: &[(f64, Vec<BenchRow>)],
+) -> anyhow::Result<()> {
+    use crate::chart::{log_log_svg, Series};
+    let methods: Vec<String> = results
+        .first()
+        .map(|r| r.1.iter().map(|m| m.method.clone()).collect())
+        .unwrap_or_default();
+    let series = |value: &dyn Fn(&BenchRow) -> f64| -> Vec<Series> {
+        methods
+            .iter()
+            .map(|name| Series {
+                name: name.clone(),
+                points: results
+                    .iter()
+                    .filter_map(|(side, rows)| {
+                        rows.iter()
+                            .find(|r| &r.method == name)
+                            .map(|r| (*side, value(r)))
+                    })
+                    .collect(),
+            })
+            .collect()
+    };
+    let path =
+        |suffix: &str| std::path::PathBuf::from(format!("{}_{suffix}.svg", prefix.display()));
+    log_log_svg(
+        &path("steps"),
+        "Mean traversal steps per ray, 16 oblique views",
+        "DEM side (posts)",
+        "steps per ray",
+        &series(&|r| r.mean_steps),
+    )?;
+    log_log_svg(
+        &path("time"),
+        "Time per ray, one thread, 16 oblique views",
+        "DEM side (posts)",
+        "microseconds per ray",
+        &series(&|r| 1e6 / r.rays_per_second_per_thread),
+    )?;
+    Ok(())
+}

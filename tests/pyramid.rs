@@ -4,10 +4,7 @@
 
 mod common;
 
-use terrabake::ingest::{ingest, IngestOptions};
-use terrabake::progress::Progress;
-use terrabake::pyramid::PyramidStage;
-use terrabake::stage::run_stage;
+use terrabake::ingest::IngestOptions;
 use terrabake::synth::SynthKind;
 use terrabake_format::trace::{PYRAMID_MAX, PYRAMID_MIN};
 use terrabake_format::Asset;
@@ -20,20 +17,17 @@ fn every_node_bounds_exactly_the_cells_below_it() {
         (SynthKind::Spike, 17, 17),
     ] {
         let dir = tempfile::tempdir().unwrap();
-        let tif = dir.path().join("t.tif");
-        terrabake::synth::write_geotiff(&tif, kind, w, h, 5, Progress::hidden()).unwrap();
-        let out = dir.path().join("t.tbake");
-        ingest(
-            &tif,
-            &out,
-            &IngestOptions {
+        let out = common::synth_with_pyramid(
+            dir.path(),
+            kind,
+            w,
+            h,
+            5,
+            IngestOptions {
                 tile_size: 16,
                 ..Default::default()
             },
-            Progress::hidden(),
-        )
-        .unwrap();
-        run_stage(&out, &PyramidStage, false, Progress::hidden()).unwrap();
+        );
         let asset = Asset::open(&out).unwrap();
         let heights = common::heights(&asset);
         let post = |c: u32, r: u32| heights[(r * w + c) as usize];

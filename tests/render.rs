@@ -72,20 +72,17 @@ fn every_method_renders_the_same_picture() {
 #[test]
 fn a_spike_shadows_the_ground_behind_it() {
     let dir = tempfile::tempdir().unwrap();
-    let tif = dir.path().join("spike.tif");
-    terrabake::synth::write_geotiff(&tif, SynthKind::Spike, 65, 65, 1, Progress::hidden()).unwrap();
-    let out = dir.path().join("spike.tbake");
-    ingest(
-        &tif,
-        &out,
-        &IngestOptions {
+    let out = common::synth_with_pyramid(
+        dir.path(),
+        SynthKind::Spike,
+        65,
+        65,
+        1,
+        IngestOptions {
             tile_size: 16,
             ..Default::default()
         },
-        Progress::hidden(),
-    )
-    .unwrap();
-    run_stage(&out, &PyramidStage, false, Progress::hidden()).unwrap();
+    );
     let asset = Asset::open(&out).unwrap();
     let tracer = Tracer::new(&asset).unwrap();
     // The spike: post (32, 32), 1000 m, on flat 0 m ground with 30 m posts.

@@ -69,9 +69,12 @@ fn build_asset(dir: &Path, src: &Path, raw: Option<RawSpec>, cell: (f64, f64)) -
 }
 
 fn synth_asset(dir: &Path, kind: SynthKind, w: u32, h: u32) -> Asset<Mmap> {
-    let tif = dir.join("t.tif");
-    terrabake::synth::write_geotiff(&tif, kind, w, h, 11, Progress::hidden()).unwrap();
-    build_asset(dir, &tif, None, (30.0, 20.0))
+    let opts = IngestOptions {
+        tile_size: 16,
+        cell_size: Some((30.0, 20.0)),
+        ..Default::default()
+    };
+    Asset::open(common::synth_with_pyramid(dir, kind, w, h, 11, opts)).unwrap()
 }
 
 /// A ray of one of the hard kinds, in local metres.

@@ -67,3 +67,28 @@ pub fn stdout(o: &Output) -> String {
 pub fn same_heights(a: f32, b: f32) -> bool {
     (a.is_nan() && b.is_nan()) || a.to_bits() == b.to_bits()
 }
+
+/// A synthetic terrain ingested with tiles of `tile` and its pyramid built:
+/// the asset directory `dir/t.tbake`.
+pub fn synth_with_pyramid(
+    dir: &Path,
+    kind: terrabake::synth::SynthKind,
+    w: u32,
+    h: u32,
+    seed: u64,
+    opts: terrabake::ingest::IngestOptions,
+) -> PathBuf {
+    use terrabake::progress::Progress;
+    let tif = dir.join("t.tif");
+    terrabake::synth::write_geotiff(&tif, kind, w, h, seed, Progress::hidden()).unwrap();
+    let out = dir.join("t.tbake");
+    terrabake::ingest::ingest(&tif, &out, &opts, Progress::hidden()).unwrap();
+    terrabake::stage::run_stage(
+        &out,
+        &terrabake::pyramid::PyramidStage,
+        false,
+        Progress::hidden(),
+    )
+    .unwrap();
+    out
+}

@@ -552,12 +552,14 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
         b: i64,
         (t0, t1): (f64, f64),
     ) -> ControlFlow<()> {
+        // Nodes come in order of entry: one that starts after the best hit
+        // ends this level's walk unvisited.
+        if t0 > st.best.t() {
+            return ControlFlow::Break(());
+        }
         st.counters.steps += 1;
         if level == 0 {
             return self.test_cell(st, a as u32, b as u32, (t0, t1));
-        }
-        if t0 > st.best.t() {
-            return ControlFlow::Break(());
         }
         let z_max = f64::from(st.ok(self.pyramid[level].max(a as u32, b as u32))?);
         if st.g.z(t0).min(st.g.z(t1)) > z_max {
