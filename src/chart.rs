@@ -50,6 +50,16 @@ pub fn log_log_svg(
         .configure_mesh()
         .x_desc(x_label)
         .y_desc(y_label)
+        .x_labels(6)
+        .y_labels(6)
+        .x_label_formatter(&|v| format!("{v:.0}"))
+        .y_label_formatter(&|v| {
+            if *v >= 10.0 {
+                format!("{v:.0}")
+            } else {
+                format!("{v}")
+            }
+        })
         .label_style(("sans-serif", 13))
         .draw()
         .map_err(|e| err(&e))?;

@@ -333,6 +333,23 @@ pub fn bench_views(
 ) -> anyhow::Result<Vec<BenchRow>> {
     let tracer = Tracer::new(asset)?;
     let views = builtin_views(&tracer, asset);
+    // Warm the page cache (heights and pyramid along the views' rays), so
+    // that the first method timed does not pay for cold pages alone.
+    for cam in &views {
+        let warm = RenderOptions {
+            width: size,
+            height: size,
+            method: Method::Incremental,
+            sun: Sun {
+                azimuth: 0.0,
+                elevation: 45.0,
+            },
+            every: every * 4,
+            shadows: false,
+            exaggeration: 1.0,
+        };
+        render(asset, &tracer, cam, &warm)?;
+    }
     let mut rows = Vec::new();
     for &method in methods {
         let opts = RenderOptions {
