@@ -137,8 +137,6 @@ pub struct Tracer<'a, D> {
     cells: (u32, u32),
     dx: f64,
     dy: f64,
-    /// Tallest post of the DEM (bounds every ray test).
-    z_max: f64,
 }
 
 impl<D> std::fmt::Debug for Tracer<'_, D> {
@@ -316,7 +314,6 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
                 (w, h, max) = (nw, nh, up);
             }
         }
-        let z_max = m.height_range.map_or(f64::INFINITY, |r| f64::from(r.max));
         Ok(Self {
             height,
             pyramid,
@@ -324,7 +321,6 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
             cells: (w - 1, h - 1),
             dx: m.cell_size.dx,
             dy: m.cell_size.dy,
-            z_max,
         })
     }
 
@@ -748,13 +744,5 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
             }
         }
         Ok(f64::from(z))
-    }
-}
-
-/// Ray height above the global maximum: nothing to hit (used by renderers
-/// to skip sky rays cheaply).
-impl<D> Tracer<'_, D> {
-    pub fn z_max(&self) -> f64 {
-        self.z_max
     }
 }
