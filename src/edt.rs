@@ -27,8 +27,8 @@ pub fn squared_1d(f: &[f64], spacing: f64, out: &mut [f64], v: &mut Vec<usize>, 
         let (qf, rf) = (q as f64, r as f64);
         ((f[q] / s2 + qf * qf) - (f[r] / s2 + rf * rf)) / (2.0 * (qf - rf))
     };
-    for q in 0..f.len() {
-        if f[q] == f64::INFINITY {
+    for (q, &fq) in f.iter().enumerate() {
+        if fq == f64::INFINITY {
             continue;
         }
         loop {
