@@ -68,20 +68,27 @@ fn asset_files(dir: &Path) -> Vec<String> {
     names
 }
 
-#[test]
-fn stages_add_layers_record_themselves_and_resume() {
-    let tmp = tempfile::tempdir().unwrap();
-    let dir = tmp.path().join("a.tbake");
+/// A fresh asset in `parent` with the float32 fixture's heights, tiles of 16.
+fn ingested(parent: &Path) -> std::path::PathBuf {
+    let dir = parent.join("a.tbake");
+    let opts = IngestOptions {
+        tile_size: 16,
+        ..Default::default()
+    };
     ingest(
         &fixture("tiff/float32_strip_none.tif"),
         &dir,
-        &IngestOptions {
-            tile_size: 16,
-            ..Default::default()
-        },
+        &opts,
         Progress::hidden(),
     )
     .unwrap();
+    dir
+}
+
+#[test]
+fn stages_add_layers_record_themselves_and_resume() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = ingested(tmp.path());
 
     let first = run_stage(
         &dir,
@@ -171,17 +178,7 @@ fn stages_add_layers_record_themselves_and_resume() {
 #[test]
 fn a_failing_stage_leaves_the_asset_as_it_was() {
     let tmp = tempfile::tempdir().unwrap();
-    let dir = tmp.path().join("a.tbake");
-    ingest(
-        &fixture("tiff/float32_strip_none.tif"),
-        &dir,
-        &IngestOptions {
-            tile_size: 16,
-            ..Default::default()
-        },
-        Progress::hidden(),
-    )
-    .unwrap();
+    let dir = ingested(tmp.path());
     run_stage(
         &dir,
         &Offset {
