@@ -73,8 +73,8 @@ fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
 }
 
 impl Camera {
-    /// The primary ray through pixel `(px, py)` (centre) of a `w x h` image.
-    pub fn ray(&self, px: f64, py: f64, w: u32, h: u32) -> Ray {
+    /// The camera's basis for a `w x h` image, computed once per image.
+    pub fn projector(&self, w: u32, h: u32) -> Projector {
         let forward = normalize([
             self.look_at[0] - self.eye[0],
             self.look_at[1] - self.eye[1],
@@ -88,11 +88,36 @@ impl Camera {
         };
         let up = cross(right, forward);
         let half = (self.fov.to_radians() / 2.0).tan();
+        let aspect = f64::from(h) / f64::from(w);
+        Projector {
+            eye: self.eye,
+            forward,
+            right: right.map(|c| c * half),
+            up: up.map(|c| c * half * aspect),
+            size: (f64::from(w), f64::from(h)),
+        }
+    }
+}
+
+/// Primary rays of one camera and image size.
+#[derive(Debug, Clone, Copy)]
+pub struct Projector {
+    eye: [f64; 3],
+    forward: [f64; 3],
+    /// Right and up, scaled to the half-width and half-height of the image plane.
+    right: [f64; 3],
+    up: [f64; 3],
+    size: (f64, f64),
+}
+
+impl Projector {
+    /// The primary ray through the centre of pixel `(px, py)`.
+    pub fn ray(&self, px: f64, py: f64) -> Ray {
         let (sx, sy) = (
-            (2.0 * (px + 0.5) / f64::from(w) - 1.0) * half,
-            (1.0 - 2.0 * (py + 0.5) / f64::from(h)) * half * f64::from(h) / f64::from(w),
+            2.0 * (px + 0.5) / self.size.0 - 1.0,
+            1.0 - 2.0 * (py + 0.5) / self.size.1,
         );
-        let dir = [0, 1, 2].map(|i| forward[i] + sx * right[i] + sy * up[i]);
+        let dir = [0, 1, 2].map(|i| self.forward[i] + sx * self.right[i] + sy * self.up[i]);
         Ray {
             origin: self.eye,
             dir,
@@ -138,6 +163,7 @@ pub fn render(
         1.0
     };
     let start = std::time::Instant::now();
+    let projector = camera.projector(w, h);
     let traced_rows: Vec<u32> = (0..h).step_by(every as usize).collect();
     let rows: Vec<anyhow::Result<TracedRow>> = traced_rows
         .par_iter()
@@ -145,7 +171,7 @@ pub fn render(
             let mut row = Vec::with_capacity(w.div_ceil(every) as usize);
             let (mut counters, mut hits, mut shadow_rays) = (Counters::default(), 0u64, 0u64);
             for px in (0..w).step_by(every as usize) {
-                let ray = camera.ray(f64::from(px), f64::from(py), w, h);
+                let ray = projector.ray(f64::from(px), f64::from(py));
                 // Exaggerating the terrain by e is tracing the ray with its z
                 // divided by e: the hit's t is the same.
                 let (hit, c) = tracer.trace(&squash(&ray, e), opts.method)?;

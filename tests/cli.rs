@@ -172,46 +172,29 @@ fn bake_is_resumable() {
     let asset = dir.path().join("srtm.tbake");
     let src = repo_file("data/srtm3_n07w006_geographic_int16.tif");
     let recipe = repo_file("pipelines/demo.toml");
-    let first: serde_json::Value = serde_json::from_str(&ok(&[
-        "bake",
-        s(&src),
-        "-o",
-        s(&asset),
-        "--recipe",
-        s(&recipe),
-        "--json",
-        "-q",
-    ]))
-    .unwrap();
+    let bake = |recipe: &Path| -> serde_json::Value {
+        serde_json::from_str(&ok(&[
+            "bake",
+            s(&src),
+            "-o",
+            s(&asset),
+            "--recipe",
+            s(recipe),
+            "--json",
+            "-q",
+        ]))
+        .unwrap()
+    };
+    let first = bake(&recipe);
     assert_eq!(first[0]["stage"], "ingest");
     assert_eq!(first[0]["skipped"], false);
-    let second: serde_json::Value = serde_json::from_str(&ok(&[
-        "bake",
-        s(&src),
-        "-o",
-        s(&asset),
-        "--recipe",
-        s(&recipe),
-        "--json",
-        "-q",
-    ]))
-    .unwrap();
+    let second = bake(&recipe);
     assert_eq!(
         second[0]["skipped"], true,
         "an up-to-date asset was baked again"
     );
     // A different recipe (zstd tiles) is a different ingest.
-    let third: serde_json::Value = serde_json::from_str(&ok(&[
-        "bake",
-        s(&src),
-        "-o",
-        s(&asset),
-        "--recipe",
-        s(&repo_file("pipelines/archive.toml")),
-        "--json",
-        "-q",
-    ]))
-    .unwrap();
+    let third = bake(&repo_file("pipelines/archive.toml"));
     assert_eq!(third[0]["skipped"], false);
     let a = Asset::open(&asset).unwrap();
     assert!(

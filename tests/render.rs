@@ -178,37 +178,28 @@ fn render_command_writes_a_png_and_statistics() {
         plain.to_str().unwrap(),
         "-q",
     ]);
-    let out = common::terrabake(&[
-        "render",
-        plain.to_str().unwrap(),
-        "--camera",
-        "50000,50000,900",
-        "--look-at",
-        "60000,60000,300",
-        "--size",
-        "32x24",
-        "-o",
-        png_path.to_str().unwrap(),
-    ]);
+    let free_camera = |extra: &[&str]| {
+        let mut args = vec![
+            "render",
+            plain.to_str().unwrap(),
+            "--camera",
+            "50000,50000,900",
+            "--look-at",
+            "60000,60000,300",
+            "--size",
+            "32x24",
+        ];
+        args.extend_from_slice(extra);
+        args.extend_from_slice(&["-o", png_path.to_str().unwrap()]);
+        common::terrabake(&args)
+    };
+    let out = free_camera(&[]);
     assert_eq!(out.status.code(), Some(1));
     assert!(
         common::stderr(&out).contains("pyramid"),
         "{}",
         common::stderr(&out)
     );
-    let out = common::terrabake(&[
-        "render",
-        plain.to_str().unwrap(),
-        "--camera",
-        "50000,50000,900",
-        "--look-at",
-        "60000,60000,300",
-        "--size",
-        "32x24",
-        "--method",
-        "incremental",
-        "-o",
-        png_path.to_str().unwrap(),
-    ]);
+    let out = free_camera(&["--method", "incremental"]);
     assert!(out.status.success(), "{}", common::stderr(&out));
 }
