@@ -10,12 +10,15 @@
 //! - [`stage`]: the stage interface (layers in, layers out, recorded in the
 //!   manifest) and recipes, which `bake` runs in order, resumably.
 //! - [`pyramid`]: the max/min pyramid stage, for hierarchical tracing.
-//! - [`edt`]: exact Euclidean distance transforms (groundwork for the cone stage).
+//! - [`cones`]: the parameter-plane stage (cone apex and slope per cell),
+//!   for parametric tracing.
+//! - [`edt`]: exact Euclidean distance transforms (the cone stage's slices).
 //! - [`render`]: perspective views traced through an asset (any method).
 //! - [`synth`]: synthetic terrains for tests and benchmarks.
 //! - [`export`]: layers out as GeoTIFF, OpenEXR or a PNG preview.
 
 pub mod chart;
+pub mod cones;
 pub mod edt;
 pub mod export;
 pub mod geo;

@@ -6,6 +6,7 @@ use std::process::ExitCode;
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
+use terrabake::cones::{ConesStage, SliceChoice};
 use terrabake::export::{export_layer, PngStyle};
 use terrabake::ingest::{ingest, IngestOptions, DEFAULT_TILE};
 use terrabake::progress::Progress;
@@ -14,6 +15,7 @@ use terrabake::render::{builtin_views, render, write_png, Camera, RenderOptions,
 use terrabake::source::{ByteOrder, RawSampleType, RawSpec};
 use terrabake::stage::{bake, run_stage, Recipe, StageOutcome};
 use terrabake::synth::SynthKind;
+use terrabake_format::cones::{ConeEncoding, CONE_APEX};
 use terrabake_format::trace::{Method, Tracer};
 use terrabake_format::{Asset, Codec};
 
@@ -110,6 +112,41 @@ enum Command {
     Pyramid {
         asset: PathBuf,
         /// Rebuild even if the asset already has an up-to-date pyramid.
+        #[arg(long)]
+        force: bool,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Add the parameter planes (a cone of empty space over every cell) for parametric ray tracing.
+    ///
+    /// Per cell, the apex height and the slope (horizontal metres per metre of rise) of a cone that
+    /// no terrain enters (Paglieroni and Petersen 1992). --slices K is the paper's method: K
+    /// horizontal slices, one exact distance transform each, the apex at the first slice above the
+    /// cell. --slices exact computes the limit of infinitely many slices without slicing (the
+    /// lowest apex, the widest cone). --slices auto picks K from the data: no more slices than the
+    /// data has height steps, and no more than --apex-gap needs. Encodings f16 and u16 halve the
+    /// planes' size and stay conservative (slope rounded down, apex up). DEMs larger than
+    /// --max-memory are baked in windows with halos (docs/ALGORITHMS.md).
+    #[command(
+        after_help = "Examples:\n  terrabake cones dem.tbake\n  terrabake cones dem.tbake --slices exact\n  \
+terrabake cones dem.tbake --slices 256 --encoding u16 --json"
+    )]
+    Cones {
+        asset: PathBuf,
+        /// A slice count K (1..=65535), auto, or exact.
+        #[arg(long, default_value = "auto")]
+        slices: SliceChoice,
+        /// With --slices auto: how far (metres) the apex may sit above a cell's neighbourhood;
+        /// default relief / 255, i.e. 256 slices unless the data has fewer height steps.
+        #[arg(long, value_parser = parse_positive)]
+        apex_gap: Option<f64>,
+        /// How the planes are stored: f32, f16 or u16 (conservatively rounded).
+        #[arg(long, default_value = "f32")]
+        encoding: ConeEncoding,
+        /// Working memory in MiB; a DEM that needs more is baked in windows.
+        #[arg(long, default_value_t = 8192, value_parser = clap::value_parser!(u64).range(1..))]
+        max_memory: u64,
+        /// Rebuild even if the asset already has up-to-date planes.
         #[arg(long)]
         force: bool,
         #[arg(long)]
@@ -295,6 +332,13 @@ fn parse_sun(s: &str) -> Result<Sun, String> {
         ));
     }
     Ok(Sun { azimuth, elevation })
+}
+
+fn parse_positive(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v > 0.0 && v.is_finite() => Ok(v),
+        _ => Err(format!("expected a positive number, not {s:?}")),
+    }
 }
 
 fn parse_codec(s: &str) -> Result<Codec, String> {
@@ -538,6 +582,39 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 println!("{}", serde_json::to_string_pretty(&outcome)?);
             }
             say(describe_outcome(&outcome));
+        }
+        Command::Cones {
+            asset,
+            slices,
+            apex_gap,
+            encoding,
+            max_memory,
+            force,
+            json,
+        } => {
+            let slices = match (slices, apex_gap) {
+                (SliceChoice::Auto { .. }, gap) => SliceChoice::Auto { apex_gap: gap },
+                (_, Some(_)) => bail!("--apex-gap goes with --slices auto"),
+                (s, None) => s,
+            };
+            let stage = ConesStage {
+                slices,
+                encoding,
+                max_memory: max_memory << 20,
+            };
+            let outcome = run_stage(&asset, &stage, force, progress)?;
+            let how = open_asset(&asset)?
+                .manifest()
+                .layer(CONE_APEX, 0)
+                .map(|l| l.description.clone())
+                .unwrap_or_default();
+            if json {
+                let mut v = serde_json::to_value(&outcome)?;
+                v["planes"] = serde_json::Value::String(how.clone());
+                println!("{}", serde_json::to_string_pretty(&v)?);
+            }
+            say(describe_outcome(&outcome));
+            say(how);
         }
         Command::Bake {
             src,

@@ -208,8 +208,50 @@ pub fn stage_from_recipe(step: &RecipeStage) -> Result<Box<dyn Stage>> {
     };
     match step.name.as_str() {
         "pyramid" => no_params(Box::new(crate::pyramid::PyramidStage)),
-        other => bail!("stage '{other}' is not available in this build of terrabake (available after ingest: pyramid)"),
+        "cones" => cones_from_recipe(&step.params).map(|s| Box::new(s) as Box<dyn Stage>),
+        other => bail!("stage '{other}' is not available in this build of terrabake (available after ingest: pyramid, cones)"),
     }
+}
+
+/// `[[stage]] name = "cones"` with optional `slices` (a count, "auto" or
+/// "exact"), `apex_gap` (metres, with auto), `encoding` ("f32", "f16",
+/// "u16") and `max_memory_mib`.
+fn cones_from_recipe(params: &toml::Table) -> Result<crate::cones::ConesStage> {
+    use crate::cones::{ConesStage, SliceChoice};
+    let mut stage = ConesStage::default();
+    let mut apex_gap = None;
+    for (key, value) in params {
+        let bad = || anyhow::anyhow!("stage 'cones': invalid {key} = {value}");
+        match key.as_str() {
+            "slices" => {
+                let text = match value {
+                    toml::Value::Integer(k) => k.to_string(),
+                    toml::Value::String(s) => s.clone(),
+                    _ => return Err(bad()),
+                };
+                stage.slices = text.parse().map_err(|e: String| anyhow::anyhow!("stage 'cones': {e}"))?;
+            }
+            "apex_gap" => apex_gap = Some(value.as_float().filter(|g| *g > 0.0).ok_or_else(bad)?),
+            "encoding" => {
+                stage.encoding = value
+                    .as_str()
+                    .ok_or_else(bad)?
+                    .parse()
+                    .map_err(|e: String| anyhow::anyhow!("stage 'cones': {e}"))?;
+            }
+            "max_memory_mib" => {
+                stage.max_memory = value.as_integer().filter(|m| *m > 0).ok_or_else(bad)? as u64 * (1 << 20);
+            }
+            other => bail!("stage 'cones' takes no parameter '{other}' (slices, apex_gap, encoding, max_memory_mib)"),
+        }
+    }
+    if let Some(gap) = apex_gap {
+        let SliceChoice::Auto { apex_gap } = &mut stage.slices else {
+            bail!("stage 'cones': apex_gap goes with slices = \"auto\"");
+        };
+        *apex_gap = Some(gap);
+    }
+    Ok(stage)
 }
 
 /// Ingest (unless the asset already is this ingest) and every recipe stage.

@@ -37,6 +37,20 @@ pub enum SynthKind {
     Holes,
 }
 
+impl SynthKind {
+    pub const ALL: [SynthKind; 9] = [
+        SynthKind::Fractal,
+        SynthKind::Flat,
+        SynthKind::Spike,
+        SynthKind::Bowl,
+        SynthKind::Sine,
+        SynthKind::Blocks,
+        SynthKind::Noise,
+        SynthKind::Quantised,
+        SynthKind::Holes,
+    ];
+}
+
 /// SplitMix64: a fast, well-mixed hash of a 64-bit key.
 fn mix(mut z: u64) -> u64 {
     z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);

@@ -16,12 +16,14 @@ mod common;
 use std::path::Path;
 
 use rayon::prelude::*;
+use terrabake::cones::{ConesStage, SliceChoice};
 use terrabake::ingest::{ingest, IngestOptions};
 use terrabake::progress::Progress;
 use terrabake::pyramid::PyramidStage;
 use terrabake::source::{ByteOrder, RawSampleType, RawSpec};
 use terrabake::stage::run_stage;
 use terrabake::synth::SynthKind;
+use terrabake_format::cones::ConeEncoding;
 use terrabake_format::surface::GridRay;
 use terrabake_format::trace::{Hit, Method, Ray, Tracer};
 use terrabake_format::{Asset, Mmap};
@@ -54,8 +56,32 @@ fn rays_per_terrain() -> usize {
         .unwrap_or(1_000_000)
 }
 
-/// A terrain asset with a pyramid: posts `w x h`, tiles of 16, cells of `dx x dy` m.
-fn build_asset(dir: &Path, src: &Path, raw: Option<RawSpec>, cell: (f64, f64)) -> Asset<Mmap> {
+/// The cone planes of the `n`-th terrain: every slice choice and encoding
+/// in turn, so that the matrix covers them all.
+fn cones_stage(n: usize) -> ConesStage {
+    let slices = [
+        SliceChoice::Exact,
+        SliceChoice::Count(16),
+        SliceChoice::Auto { apex_gap: None },
+        SliceChoice::Count(1),
+        SliceChoice::Count(300),
+    ];
+    ConesStage {
+        slices: slices[n % slices.len()],
+        encoding: ConeEncoding::ALL[n % 3],
+        ..Default::default()
+    }
+}
+
+/// A terrain asset with a pyramid and cone planes: posts `w x h`, tiles of
+/// 16, cells of `dx x dy` m.
+fn build_asset(
+    dir: &Path,
+    src: &Path,
+    raw: Option<RawSpec>,
+    cell: (f64, f64),
+    n: usize,
+) -> Asset<Mmap> {
     let out = dir.join("t.tbake");
     let opts = IngestOptions {
         tile_size: 16,
@@ -65,16 +91,19 @@ fn build_asset(dir: &Path, src: &Path, raw: Option<RawSpec>, cell: (f64, f64)) -
     };
     ingest(src, &out, &opts, Progress::hidden()).unwrap();
     run_stage(&out, &PyramidStage, false, Progress::hidden()).unwrap();
+    run_stage(&out, &cones_stage(n), false, Progress::hidden()).unwrap();
     Asset::open(&out).unwrap()
 }
 
-fn synth_asset(dir: &Path, kind: SynthKind, w: u32, h: u32) -> Asset<Mmap> {
+fn synth_asset(dir: &Path, kind: SynthKind, w: u32, h: u32, n: usize) -> Asset<Mmap> {
     let opts = IngestOptions {
         tile_size: 16,
         cell_size: Some((30.0, 20.0)),
         ..Default::default()
     };
-    Asset::open(common::synth_with_pyramid(dir, kind, w, h, 11, opts)).unwrap()
+    let out = common::synth_with_pyramid(dir, kind, w, h, 11, opts);
+    run_stage(&out, &cones_stage(n), false, Progress::hidden()).unwrap();
+    Asset::open(out).unwrap()
 }
 
 /// A ray of one of the hard kinds, in local metres.
@@ -268,8 +297,13 @@ fn same_hit(tracer: &Tracer<'_, Mmap>, ray: &Ray, hit: &Option<Hit>, want: &Opti
 /// with the first few for the failure message, and hit counts.
 fn check_terrain(name: &str, asset: &Asset<Mmap>, n: usize, seed: u64) {
     let tracer = Tracer::new(asset).unwrap();
-    assert!(tracer.has_pyramid());
-    let methods = [Method::Incremental, Method::Runs, Method::Hierarchical];
+    assert!(tracer.has_pyramid() && tracer.has_cones());
+    let methods = [
+        Method::Incremental,
+        Method::Runs,
+        Method::Hierarchical,
+        Method::Parametric,
+    ];
     let chunks = 64;
     let results: Vec<(Vec<usize>, Vec<String>, usize)> = (0..chunks)
         .into_par_iter()
@@ -332,24 +366,16 @@ fn check_terrain(name: &str, asset: &Asset<Mmap>, n: usize, seed: u64) {
 #[test]
 fn every_method_equals_brute_force_on_every_synthetic_terrain() {
     let n = rays_per_terrain();
-    for (i, kind) in [
-        SynthKind::Fractal,
-        SynthKind::Flat,
-        SynthKind::Spike,
-        SynthKind::Bowl,
-        SynthKind::Sine,
-        SynthKind::Blocks,
-        SynthKind::Noise,
-        SynthKind::Quantised,
-        SynthKind::Holes,
-    ]
-    .into_iter()
-    .enumerate()
-    {
+    for (i, kind) in SynthKind::ALL.into_iter().enumerate() {
         let dir = tempfile::tempdir().unwrap();
         // Odd, non-square, several tiles and pyramid levels.
-        let asset = synth_asset(dir.path(), kind, 71, 53);
-        check_terrain(&format!("{kind:?}"), &asset, n, 1000 + i as u64);
+        let asset = synth_asset(dir.path(), kind, 71, 53, i);
+        check_terrain(
+            &format!("{kind:?} (cones {:?})", cones_stage(i).slices),
+            &asset,
+            n,
+            1000 + i as u64,
+        );
     }
 }
 
@@ -389,7 +415,7 @@ fn every_method_equals_brute_force_on_the_real_dem() {
     let sub = dir.path().join("crop");
     std::fs::create_dir(&sub).unwrap();
     let (dx, dy) = (srtm.manifest().cell_size.dx, srtm.manifest().cell_size.dy);
-    let asset = build_asset(&sub, &raw, Some(spec), (dx, dy));
+    let asset = build_asset(&sub, &raw, Some(spec), (dx, dy), 0);
     check_terrain("SRTM crop", &asset, rays_per_terrain(), 77);
 }
 
@@ -418,6 +444,7 @@ mod random_terrains {
             let out = dir.path().join("t.tbake");
             ingest(&raw, &out, &IngestOptions { tile_size: 16, cell_size: Some((dx, dy)), raw: Some(spec), ..Default::default() }, Progress::hidden()).unwrap();
             run_stage(&out, &PyramidStage, false, Progress::hidden()).unwrap();
+            run_stage(&out, &cones_stage(seed as usize % 15), false, Progress::hidden()).unwrap();
             let asset = Asset::open(&out).unwrap();
             let tracer = Tracer::new(&asset).unwrap();
             let mut rng = Rng(seed);
@@ -438,7 +465,7 @@ mod random_terrains {
                 }
                 let ray = Ray { origin: o, dir: d, t_min: 0.0, t_max: f64::INFINITY };
                 let (want, _) = tracer.trace(&ray, Method::BruteForce).unwrap();
-                for m in [Method::Incremental, Method::Runs, Method::Hierarchical] {
+                for m in [Method::Incremental, Method::Runs, Method::Hierarchical, Method::Parametric] {
                     let (got, _) = tracer.trace(&ray, m).unwrap();
                     prop_assert!(same_hit(&tracer, &ray, &got, &want), "{}: {ray:?}\n got {got:?}\nwant {want:?}", m.name());
                 }

@@ -30,6 +30,7 @@
 //! # Ok::<(), terrabake_format::Error>(())
 //! ```
 
+pub mod cones;
 pub mod error;
 pub mod layout;
 pub mod manifest;
@@ -40,7 +41,7 @@ pub mod writer;
 
 pub use error::{Error, Location, Result};
 pub use layout::{Codec, ElemType, FORMAT_VERSION, MANIFEST_FILE};
-pub use manifest::{LayerEntry, Manifest, HEIGHT_LAYER};
+pub use manifest::{LayerEntry, Manifest, Quantization, HEIGHT_LAYER};
 pub use memmap2::Mmap;
 pub use reader::{Asset, Element, Layer, Tile, VerifyReport};
 pub use writer::{

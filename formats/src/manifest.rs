@@ -155,6 +155,18 @@ pub struct LayerEntry {
     /// What the values mean (units, encoding); free text for people.
     #[serde(default)]
     pub description: String,
+    /// For quantised layers: how stored values map to real ones.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub quantization: Option<Quantization>,
+}
+
+/// An affine map from stored to real values: `real = offset + scale * stored`
+/// (`stored` being the element read as a number: a `u16` as an integer, an
+/// `f16` as its float value).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Quantization {
+    pub offset: f64,
+    pub scale: f64,
 }
 
 impl LayerEntry {

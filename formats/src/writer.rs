@@ -310,6 +310,7 @@ impl LayerWriter {
             stored_bytes: self.stored_bytes,
             stage: self.spec.stage.clone(),
             description: self.spec.description.clone(),
+            quantization: None,
         })
     }
 }

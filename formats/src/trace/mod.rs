@@ -20,6 +20,16 @@
 //!   `pyramid_max@L`), stepping over nodes the ray passes above (Paglieroni
 //!   and Petersen sec. 1.2), the walk at each level as exact as the
 //!   incremental one.
+//! - [`Method::Parametric`]: Paglieroni and Petersen's parametric tracer
+//!   (sec. 2.3-2.4) over the cone planes (`crate::cones`): cell by cell like
+//!   the incremental walk, but from every cell whose cone the ray is in, a
+//!   leap to where the ray leaves that cone (eq. 11-13); a ray that never
+//!   leaves it (the upward early exit) ends there. Departures: the leap
+//!   starts where the ray leaves the cell (the cone covers the whole closed
+//!   cell, so the step is never shorter than the paper's) and the walk
+//!   resumes at the landing point with every touched cell's whole interval,
+//!   so the hit is the brute force's to the last bit; the paper's jump start
+//!   is simply the next cell of the walk.
 //! - [`Method::BruteForce`]: the reference for tests: every cell the ground
 //!   track touches is intersected (candidates: per row of cells, the columns
 //!   the track spans there, widened by one), in no particular order, and the
@@ -34,11 +44,12 @@ mod walk;
 
 use std::ops::ControlFlow;
 
+use crate::cones::{ConePlanes, CONE_SLOPE};
 use crate::error::{Error, Result};
 use crate::reader::{Asset, Layer, Tile};
 use crate::surface::{intersect_cell, Cell, GridRay};
 
-pub(crate) use walk::{touched_range, walk, Bounds};
+pub(crate) use walk::{touched_range, walk, walk_from, Bounds};
 
 /// Layers written by the pyramid stage: per cell and level, the tallest and
 /// lowest corner of every cell below (`-inf` / `+inf` where no surface).
@@ -92,14 +103,16 @@ pub enum Method {
     Incremental,
     Runs,
     Hierarchical,
+    Parametric,
     BruteForce,
 }
 
 impl Method {
-    pub const ALL: [Method; 4] = [
+    pub const ALL: [Method; 5] = [
         Method::Incremental,
         Method::Runs,
         Method::Hierarchical,
+        Method::Parametric,
         Method::BruteForce,
     ];
 
@@ -108,6 +121,7 @@ impl Method {
             Method::Incremental => "incremental",
             Method::Runs => "runs",
             Method::Hierarchical => "hierarchical",
+            Method::Parametric => "parametric",
             Method::BruteForce => "brute-force",
         }
     }
@@ -120,7 +134,7 @@ impl std::str::FromStr for Method {
             .into_iter()
             .find(|m| m.name() == s)
             .ok_or_else(|| {
-                format!("unknown method {s:?} (incremental, runs, hierarchical, brute-force)")
+                format!("unknown method {s:?} (incremental, runs, hierarchical, parametric, brute-force)")
             })
     }
 }
@@ -132,6 +146,8 @@ pub struct Tracer<'a, D> {
     /// Max pyramid, level 0 (cells) upwards: the stored levels, then
     /// levels built in memory from the stored top up to a single node.
     pyramid: Vec<Level<'a, D>>,
+    /// The cone planes, when the asset has them.
+    cones: Option<ConePlanes<'a, D>>,
     /// Posts per side and cells per side.
     posts: (u32, u32),
     cells: (u32, u32),
@@ -276,8 +292,9 @@ impl<D> Trace<'_, D> {
 }
 
 impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
-    /// A tracer over `asset`'s height layer, and its max pyramid when the
-    /// asset has one (needed by [`Method::Hierarchical`]).
+    /// A tracer over `asset`'s height layer, and its max pyramid and cone
+    /// planes when the asset has them (needed by [`Method::Hierarchical`]
+    /// and [`Method::Parametric`]).
     pub fn new(asset: &'a Asset<D>) -> Result<Self> {
         let height = asset.height()?;
         let m = asset.manifest();
@@ -317,6 +334,7 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
         Ok(Self {
             height,
             pyramid,
+            cones: ConePlanes::open(asset)?,
             posts: (w, h),
             cells: (w - 1, h - 1),
             dx: m.cell_size.dx,
@@ -327,6 +345,11 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
     /// Whether [`Method::Hierarchical`] can run (the asset has a pyramid).
     pub fn has_pyramid(&self) -> bool {
         !self.pyramid.is_empty()
+    }
+
+    /// Whether [`Method::Parametric`] can run (the asset has cone planes).
+    pub fn has_cones(&self) -> bool {
+        self.cones.is_some()
     }
 
     /// The DEM's extent in local metres: `(x_max, y_max)`; the DEM covers
@@ -392,6 +415,7 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
             Method::Incremental => self.incremental(&mut st),
             Method::Runs => self.runs(&mut st),
             Method::Hierarchical => self.hierarchical(&mut st),
+            Method::Parametric => self.parametric(&mut st),
             Method::BruteForce => self.brute_force(&mut st),
         }
         if let Some(e) = st.err.take() {
@@ -466,6 +490,99 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
             st.counters.steps += 1;
             self.test_cell(st, c as u32, r as u32, (t0, t1))
         });
+    }
+
+    fn parametric(&self, st: &mut Trace<'a, D>) {
+        let Some(cones) = &self.cones else {
+            st.err = Some(Error::NoLayer {
+                name: CONE_SLOPE.into(),
+                level: 0,
+            });
+            return;
+        };
+        let (g, ta, tb) = (st.g, st.ta, st.tb);
+        // Horizontal metres per unit of t, and metres of rise per unit of t.
+        let run = (g.dir[0] * self.dx).hypot(g.dir[1] * self.dy);
+        let rise = g.dir[2];
+        let mut t_start = ta;
+        loop {
+            // A stretch `[from, to)` of the ray known to be above the
+            // terrain: the union of the cones the ray has been in. The walk
+            // leaps once it reaches a cell entered at or after `from`: every
+            // cell entered before (a neighbour along a grid line, a corner
+            // grazed) has been tested by then.
+            let mut empty: Option<(f64, f64)> = None;
+            let mut leap = None;
+            let _ = walk_from(
+                &g,
+                1.0,
+                self.cell_bounds(),
+                t_start,
+                (ta, tb),
+                |c, r, t0, t1| {
+                    if let Some((from, to)) = empty {
+                        if t0 >= from {
+                            leap = Some(to);
+                            return ControlFlow::Break(());
+                        }
+                    }
+                    st.counters.steps += 1;
+                    self.test_cell(st, c as u32, r as u32, (t0, t1))?;
+                    // After a hit only the cells entered before it remain.
+                    if st.best.hit.is_some() {
+                        empty = None;
+                        return ControlFlow::Continue(());
+                    }
+                    let cone = st.ok(cones.cone(c as u32, r as u32))?;
+                    // Where the ray leaves the cell it is still over the closed
+                    // cell; from there, `tau` later, it is at most `run * tau`
+                    // from the cell and `room + slope * rise * tau` is the cone's
+                    // radius at its height (eq. 11-12 with the cell for a point).
+                    // Heights are rounded (the ray's, and the landing's `above /
+                    // closing`, which cancels on grazing rays): both are shaded
+                    // towards a shorter leap by far more than their rounding.
+                    let slack = (g.origin[2].abs() + (t1 * rise).abs() + cone.apex.abs()) * 1e-12;
+                    let above = g.z(t1) - cone.apex - slack;
+                    if !(above > 0.0 && cone.slope > 0.0) {
+                        return ControlFlow::Continue(());
+                    }
+                    let tau = if cone.slope == f64::INFINITY {
+                        // Nothing in the DEM rises above the apex: the "cone" is
+                        // the half-space above it.
+                        if rise < 0.0 {
+                            above / -rise
+                        } else {
+                            f64::INFINITY
+                        }
+                    } else {
+                        let closing =
+                            run - cone.slope * rise + (run + (cone.slope * rise).abs()) * 1e-12;
+                        if closing <= 0.0 {
+                            // Upward and never leaving the cone: no hit (sec. 2.3).
+                            f64::INFINITY
+                        } else {
+                            cone.slope * above / closing
+                        }
+                    };
+                    // A hair short of the cone's edge, so that rounding never
+                    // carries the landing past it.
+                    let to = t1 + tau * (1.0 - 1e-9);
+                    empty = match empty {
+                        // Overlapping stretches make one.
+                        Some((from, end)) if t1 <= end && from <= to => {
+                            Some((from.min(t1), end.max(to)))
+                        }
+                        Some((from, end)) if end >= to => Some((from, end)),
+                        _ => Some((t1, to)),
+                    };
+                    ControlFlow::Continue(())
+                },
+            );
+            match leap {
+                Some(t) if t <= tb && st.err.is_none() => t_start = t,
+                _ => return,
+            }
+        }
     }
 
     fn brute_force(&self, st: &mut Trace<'a, D>) {

@@ -143,9 +143,25 @@ pub(crate) fn walk(
     bounds: Bounds,
     ta: f64,
     tb: f64,
+    visit: impl FnMut(i64, i64, f64, f64) -> ControlFlow<()>,
+) -> ControlFlow<()> {
+    walk_from(ray, size, bounds, ta, (ta, tb), visit)
+}
+
+/// [`walk`] over `[ta, tb]` that starts at `t_start` instead of `ta`: the
+/// nodes touched at or after `t_start`, each with its whole interval within
+/// `[ta, tb]` (a node entered before `t_start` keeps its earlier `t0`), so
+/// that a tracer resuming after a leap tests cells exactly as a walk from
+/// the start would.
+pub(crate) fn walk_from(
+    ray: &GridRay,
+    size: f64,
+    bounds: Bounds,
+    t_start: f64,
+    (ta, tb): (f64, f64),
     mut visit: impl FnMut(i64, i64, f64, f64) -> ControlFlow<()>,
 ) -> ControlFlow<()> {
-    if ta.is_nan() || tb.is_nan() || ta > tb {
+    if ta.is_nan() || tb.is_nan() || t_start.is_nan() || ta > tb || t_start > tb {
         return ControlFlow::Continue(());
     }
     let mut node = |a: i64, b: i64| -> ControlFlow<()> {
@@ -158,8 +174,9 @@ pub(crate) fn walk(
         }
         visit(a, b, t0, t1)
     };
-    let (mut u, tu, nu) = Axis::start(ray.origin[0], ray.dir[0], size, ta);
-    let (mut v, tv, nv) = Axis::start(ray.origin[1], ray.dir[1], size, ta);
+    let t_start = t_start.max(ta);
+    let (mut u, tu, nu) = Axis::start(ray.origin[0], ray.dir[0], size, t_start);
+    let (mut v, tv, nv) = Axis::start(ray.origin[1], ray.dir[1], size, t_start);
     for &a in &tu[..nu] {
         for &b in &tv[..nv] {
             node(a, b)?;

@@ -1,0 +1,456 @@
+//! The `cones` stage: parameter planes (`cone_apex@0`, `cone_slope@0`, one
+//! element per cell) for parametric ray tracing. The planes, their guarantee
+//! and their encodings are specified in `terrabake_format::cones`; the
+//! algorithms are in [`planes`].
+//!
+//! **Slices.** `--slices K` is the paper's method with `K` slices; `exact`
+//! is the limit of infinitely many, computed without slices; `auto` picks
+//! `K` from the data: never more slices than the data has height steps
+//! (slicing finer than a 1 m integer DEM buys nothing), and no more than the
+//! requested apex gap needs (the apex may sit up to one slice step above a
+//! cell's neighbourhood; `--apex-gap` defaults to 1/255 of the relief, i.e.
+//! 256 slices).
+//!
+//! **Out of core.** Distance transforms are global. When the DEM's cells,
+//! at [`BYTES_PER_CELL`], fit in `--max-memory`, the whole DEM is one window
+//! and the planes are exact for it. Otherwise the stage cuts it into square
+//! core blocks (a multiple of the tile size) and computes each over the
+//! block plus a halo of half a block on every side; terrain beyond the halo
+//! is at least `halo * min(dx, dy)` metres away and no taller than the DEM's
+//! maximum, so every slope is capped at `halo * min(dx, dy) / (z_max -
+//! apex)`. That cap is the cost: a leap never crosses more than about one
+//! halo, where the in-core planes are unbounded. Peak memory is one window
+//! and one row of core blocks of output.
+
+pub mod planes;
+
+use std::path::Path;
+
+use anyhow::{bail, Result};
+use terrabake_format::cones::{
+    apex_quantization, encode_apex, encode_slope, ConeEncoding, CONE_APEX, CONE_SLOPE,
+};
+use terrabake_format::{Asset, Codec, Element, LayerEntry, LayerSpec, LayerWriter, Mmap};
+
+use crate::progress::Progress;
+use crate::stage::Stage;
+use crate::tiling::push_tile_row;
+use planes::{exact_planes, neighbourhood_max, sliced_planes, Cap, Planes, Slices};
+
+/// Working memory per cell of a window: posts, `nmax`, the apex slices, one
+/// distance plane, the two planes and the exact method's pyramid.
+pub const BYTES_PER_CELL: u64 = 32;
+
+/// How many slices.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum SliceChoice {
+    Count(usize),
+    /// `K` from the data and the apex gap (metres; `None`: relief / 255).
+    Auto {
+        apex_gap: Option<f64>,
+    },
+    Exact,
+}
+
+impl std::str::FromStr for SliceChoice {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "auto" => Ok(SliceChoice::Auto { apex_gap: None }),
+            "exact" => Ok(SliceChoice::Exact),
+            n => match n.parse::<usize>() {
+                Ok(k) if (1..=65535).contains(&k) => Ok(SliceChoice::Count(k)),
+                _ => Err(format!(
+                    "--slices takes a count from 1 to 65535, auto or exact, not {s:?}"
+                )),
+            },
+        }
+    }
+}
+
+/// The DEM's heights, from one streaming pass over its posts.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct HeightSummary {
+    pub z_min: f64,
+    pub z_max: f64,
+    /// The smallest difference between distinct heights in an even sample
+    /// of up to 2^20 posts: the data's vertical quantisation.
+    pub step: f64,
+}
+
+/// What `--slices` resolved to, and why.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct SlicePlan {
+    /// `None` for exact.
+    pub slices: Option<usize>,
+    pub reason: String,
+}
+
+impl SliceChoice {
+    pub fn resolve(self, h: &HeightSummary) -> SlicePlan {
+        let relief = h.z_max - h.z_min;
+        match self {
+            SliceChoice::Count(k) => SlicePlan {
+                slices: Some(k),
+                reason: format!("{k} slices as asked"),
+            },
+            SliceChoice::Exact => SlicePlan {
+                slices: None,
+                reason: "exact cones (no slices)".into(),
+            },
+            SliceChoice::Auto { apex_gap } => {
+                if relief <= 0.0 {
+                    return SlicePlan {
+                        slices: Some(1),
+                        reason: "1 slice: the DEM is flat".into(),
+                    };
+                }
+                let gap = apex_gap.unwrap_or(relief / 255.0);
+                let by_gap = (relief / gap).ceil() + 1.0;
+                let by_data = if h.step > 0.0 {
+                    (relief / h.step).floor() + 1.0
+                } else {
+                    f64::INFINITY
+                };
+                let k = by_gap.min(by_data).clamp(1.0, 65535.0) as usize;
+                let reason = if by_data <= by_gap {
+                    format!(
+                        "{k} slices: relief {relief:.6} m in steps of {:.6} m; more slices than height steps buy nothing",
+                        h.step
+                    )
+                } else {
+                    format!(
+                        "{k} slices: relief {relief:.6} m with the apex at most {gap:.6} m above a cell's neighbourhood (the data has {by_data} height steps)"
+                    )
+                };
+                SlicePlan {
+                    slices: Some(k),
+                    reason,
+                }
+            }
+        }
+    }
+}
+
+/// The cones stage (`terrabake cones`, recipe step `cones`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ConesStage {
+    pub slices: SliceChoice,
+    pub encoding: ConeEncoding,
+    /// Working memory allowed, bytes; beyond it the DEM is baked in windows.
+    pub max_memory: u64,
+}
+
+impl Default for ConesStage {
+    fn default() -> Self {
+        Self {
+            slices: SliceChoice::Auto { apex_gap: None },
+            encoding: ConeEncoding::F32,
+            max_memory: 8 << 30,
+        }
+    }
+}
+
+/// One pass over the posts, a band of tiles at a time.
+pub fn summarize_heights(asset: &Asset<Mmap>) -> Result<HeightSummary> {
+    let height = asset.height()?;
+    let (w, h, ts) = (height.width(), height.height(), height.tile_size());
+    let stride = ((u64::from(w) * u64::from(h)) >> 20).max(1);
+    let (mut z_min, mut z_max) = (f64::INFINITY, f64::NEG_INFINITY);
+    let mut sample = Vec::new();
+    let mut band = vec![0f32; w as usize * ts as usize];
+    for y0 in (0..h).step_by(ts as usize) {
+        let rows = ts.min(h - y0);
+        let band = &mut band[..(w * rows) as usize];
+        height.read_window(0, 0, y0, w, rows, band)?;
+        for (i, &z) in band.iter().enumerate() {
+            if z.is_nan() {
+                continue;
+            }
+            z_min = z_min.min(f64::from(z));
+            z_max = z_max.max(f64::from(z));
+            if (u64::from(y0) * u64::from(w) + i as u64) % stride == 0 {
+                sample.push(z);
+            }
+        }
+    }
+    if z_min > z_max {
+        bail!("the DEM has no valid height");
+    }
+    sample.sort_by(f32::total_cmp);
+    sample.dedup();
+    let step = sample
+        .windows(2)
+        .map(|p| f64::from(p[1]) - f64::from(p[0]))
+        .fold(f64::INFINITY, f64::min);
+    Ok(HeightSummary {
+        z_min,
+        z_max,
+        step: if step.is_finite() { step } else { 0.0 },
+    })
+}
+
+/// The windows of a bake: core blocks and the halo around each.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Blocking {
+    /// Core block side in cells (the whole DEM when one window).
+    core: usize,
+    halo: usize,
+    whole: bool,
+}
+
+fn blocking(cells: (usize, usize), tile: usize, max_memory: u64) -> Blocking {
+    let area = cells.0 as u64 * cells.1 as u64;
+    if area * BYTES_PER_CELL <= max_memory {
+        return Blocking {
+            core: cells.0.max(cells.1),
+            halo: 0,
+            whole: true,
+        };
+    }
+    // A window is (core + 2 * halo)^2 = (2 core)^2 cells.
+    let side = ((max_memory / BYTES_PER_CELL) as f64).sqrt() as usize / 2;
+    let core = (side / tile).max(1) * tile;
+    Blocking {
+        core,
+        halo: core / 2,
+        whole: false,
+    }
+}
+
+impl ConesStage {
+    /// Planes of one window of cells `[x0, x1) x [y0, y1)`, whose core is
+    /// returned: the whole window when `cap` is `None`.
+    #[allow(clippy::too_many_arguments)]
+    fn window(
+        &self,
+        asset: &Asset<Mmap>,
+        window: (usize, usize, usize, usize),
+        core: (usize, usize, usize, usize),
+        plan: &SlicePlan,
+        summary: &HeightSummary,
+        cap: Option<Cap>,
+        tick: &(dyn Fn() + Sync),
+    ) -> Result<Planes> {
+        let height = asset.height()?;
+        let m = asset.manifest();
+        let (x0, y0, x1, y1) = window;
+        // One more cell around the window, so that every window cell's
+        // neighbourhood is complete; posts are one more than cells.
+        let (cw_dem, ch_dem) = (height.width() as usize - 1, height.height() as usize - 1);
+        let (ex0, ey0) = (x0.saturating_sub(1), y0.saturating_sub(1));
+        let (ex1, ey1) = ((x1 + 1).min(cw_dem), (y1 + 1).min(ch_dem));
+        let (pw, ph) = (ex1 - ex0 + 1, ey1 - ey0 + 1);
+        let mut posts = vec![0f32; pw * ph];
+        height.read_window(0, ex0 as u32, ey0 as u32, pw as u32, ph as u32, &mut posts)?;
+        let extended = neighbourhood_max(&posts, pw, ph);
+        drop(posts);
+        let (ww, wh) = (x1 - x0, y1 - y0);
+        let mut nmax = vec![0f32; ww * wh];
+        for (y, row) in nmax.chunks_mut(ww).enumerate() {
+            let src = (y + y0 - ey0) * (pw - 1) + (x0 - ex0);
+            row.copy_from_slice(&extended[src..src + ww]);
+        }
+        drop(extended);
+        let cell = (m.cell_size.dx, m.cell_size.dy);
+        let planes = match plan.slices {
+            Some(k) => sliced_planes(
+                &nmax,
+                (ww, wh),
+                cell,
+                &Slices::uniform(summary.z_min, summary.z_max, k),
+                cap,
+                tick,
+            ),
+            None => exact_planes(&nmax, (ww, wh), cell, summary.z_min, cap, tick),
+        };
+        if core == window {
+            return Ok(planes);
+        }
+        let (cx0, cy0, cx1, cy1) = core;
+        let crop = |v: &[f32]| -> Vec<f32> {
+            (cy0..cy1)
+                .flat_map(|y| {
+                    let s = (y - y0) * ww + (cx0 - x0);
+                    v[s..s + (cx1 - cx0)].iter().copied()
+                })
+                .collect()
+        };
+        Ok(Planes {
+            apex: crop(&planes.apex),
+            slope: crop(&planes.slope),
+            stats: planes.stats,
+        })
+    }
+}
+
+fn encode_rows<T: Element>(
+    writer: &mut LayerWriter,
+    values: &[f32],
+    width: usize,
+    encode: impl Fn(f64) -> T + Sync,
+    fill: T,
+) -> Result<()> {
+    let encoded: Vec<T> = values.iter().map(|&v| encode(f64::from(v))).collect();
+    let ts = writer.spec().tile_size as usize;
+    for band in encoded.chunks(ts * width) {
+        push_tile_row(writer, band, width, fill, Codec::Raw)?;
+    }
+    Ok(())
+}
+
+impl Stage for ConesStage {
+    fn name(&self) -> &'static str {
+        "cones"
+    }
+
+    fn params(&self) -> serde_json::Value {
+        let slices = match self.slices {
+            SliceChoice::Count(k) => serde_json::json!(k),
+            SliceChoice::Auto { apex_gap } => {
+                serde_json::json!({ "auto": { "apex_gap": apex_gap } })
+            }
+            SliceChoice::Exact => serde_json::json!("exact"),
+        };
+        serde_json::json!({
+            "slices": slices,
+            "encoding": self.encoding.name(),
+            "max_memory": self.max_memory,
+        })
+    }
+
+    fn run(&self, asset: &Asset<Mmap>, dir: &Path, progress: Progress) -> Result<Vec<LayerEntry>> {
+        let height = asset.height()?;
+        let (w, h, ts) = (height.width(), height.height(), height.tile_size());
+        anyhow::ensure!(w >= 2 && h >= 2, "a {w} x {h} DEM has no cells");
+        let (cw, ch) = ((w - 1) as usize, (h - 1) as usize);
+        let summary = summarize_heights(asset)?;
+        let plan = self.slices.resolve(&summary);
+        let blocks = blocking((cw, ch), ts as usize, self.max_memory);
+        let m = asset.manifest();
+        let cap = (!blocks.whole).then(|| Cap {
+            radius: blocks.halo as f64 * m.cell_size.dx.min(m.cell_size.dy),
+            z_max: summary.z_max,
+        });
+        let (bx, by) = (cw.div_ceil(blocks.core), ch.div_ceil(blocks.core));
+        let units_per_window = match plan.slices {
+            Some(k) => k,
+            None => blocks.core.min(ch) + 2 * blocks.halo,
+        };
+        let bar = progress.bar(
+            (bx * by * units_per_window) as u64,
+            "cones",
+            if plan.slices.is_some() {
+                "slices"
+            } else {
+                "rows"
+            },
+        );
+        let tick = || bar.inc(1);
+
+        let enc = self.encoding;
+        let apex_q = apex_quantization(summary.z_min, summary.z_max, enc);
+        let how = match plan.slices {
+            Some(k) => format!("{k} slices"),
+            None => "exact".into(),
+        };
+        let spec = |name: &str, description: String| LayerSpec {
+            name: name.into(),
+            level: 0,
+            elem: enc.elem(),
+            bands: 1,
+            width: cw as u32,
+            height: ch as u32,
+            tile_size: ts,
+            codec: Codec::Raw,
+            fill_bits: 0,
+            stage: "cones".into(),
+            description,
+        };
+        let mut apex_writer = LayerWriter::create(
+            dir,
+            spec(
+                CONE_APEX,
+                format!(
+                    "cone apex z_p over each cell, metres, {} rounded up ({how}; {})",
+                    enc.name(),
+                    plan.reason
+                ),
+            ),
+        )?;
+        let mut slope_writer = LayerWriter::create(
+            dir,
+            spec(
+                CONE_SLOPE,
+                format!(
+                    "cone slope m_p, horizontal metres per metre of rise, {} rounded down ({how}{})",
+                    enc.name(),
+                    match cap {
+                        Some(c) => format!("; windowed, capped at {:.0} m / (z_max - apex)", c.radius),
+                        None => String::new(),
+                    }
+                ),
+            ),
+        )?;
+        for byi in 0..by {
+            let (cy0, cy1) = (byi * blocks.core, ((byi + 1) * blocks.core).min(ch));
+            let mut band_apex = vec![0f32; cw * (cy1 - cy0)];
+            let mut band_slope = vec![0f32; cw * (cy1 - cy0)];
+            for bxi in 0..bx {
+                let (cx0, cx1) = (bxi * blocks.core, ((bxi + 1) * blocks.core).min(cw));
+                let window = (
+                    cx0.saturating_sub(blocks.halo),
+                    cy0.saturating_sub(blocks.halo),
+                    (cx1 + blocks.halo).min(cw),
+                    (cy1 + blocks.halo).min(ch),
+                );
+                let planes = self.window(
+                    asset,
+                    window,
+                    (cx0, cy0, cx1, cy1),
+                    &plan,
+                    &summary,
+                    cap,
+                    &tick,
+                )?;
+                let core_w = cx1 - cx0;
+                for (y, (a, s)) in planes
+                    .apex
+                    .chunks(core_w)
+                    .zip(planes.slope.chunks(core_w))
+                    .enumerate()
+                {
+                    band_apex[y * cw + cx0..y * cw + cx1].copy_from_slice(a);
+                    band_slope[y * cw + cx0..y * cw + cx1].copy_from_slice(s);
+                }
+            }
+            match enc {
+                ConeEncoding::F32 => {
+                    encode_rows(&mut apex_writer, &band_apex, cw, |v| v as f32, 0f32)?;
+                    encode_rows(&mut slope_writer, &band_slope, cw, |v| v as f32, 0f32)?;
+                }
+                ConeEncoding::F16 | ConeEncoding::U16 => {
+                    let code = |v: u32| v as u16;
+                    encode_rows(
+                        &mut apex_writer,
+                        &band_apex,
+                        cw,
+                        |v| code(encode_apex(v, enc, apex_q)),
+                        0u16,
+                    )?;
+                    encode_rows(
+                        &mut slope_writer,
+                        &band_slope,
+                        cw,
+                        |v| code(encode_slope(v, enc)),
+                        0u16,
+                    )?;
+                }
+            }
+        }
+        bar.finish_and_clear();
+        let mut apex_entry = apex_writer.finish()?;
+        apex_entry.quantization = apex_q;
+        Ok(vec![apex_entry, slope_writer.finish()?])
+    }
+}

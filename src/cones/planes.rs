@@ -1,0 +1,460 @@
+//! The parameter planes' algorithms: pure functions over row-major grids of
+//! cells, called by the `cones` stage on whole DEMs or on windows of them,
+//! and by the tests on tiny ones.
+//!
+//! **What is bounded.** The surface over cell `C'` never rises above the
+//! tallest of its corners, `cellmax(C')`. A cone over cell `C` (apex `z_p`,
+//! slope `m_p`, see `terrabake_format::cones`) is empty when, for every
+//! cell `C'` taller than the apex, `dist(C, C') >= m_p (cellmax(C') - z_p)`,
+//! `dist` being the distance between the two closed squares. That distance
+//! is the distance between cell *centres* once every cell is dilated by its
+//! 3 x 3 neighbourhood: `min` over the neighbours `C''` of `C'` of
+//! `|centre(C) - centre(C'')|` equals `dist(C, C')` axis by axis. So both
+//! algorithms below work on [`neighbourhood_max`] (`nmax`: the tallest corner
+//! of any cell touching the cell) with plain centre-to-centre distances,
+//! which is exact, not an approximation of the continuous surface.
+//!
+//! - [`sliced_planes`]: Paglieroni and Petersen (1992, sec. 2.1-2.2): `K`
+//!   horizontal slices `z_k` (eq. 1-2), the Euclidean distance transform of
+//!   each slice's bit plane `nmax >= z_k` (eq. 3-4; Felzenszwalb-Huttenlocher
+//!   in `crate::edt`), the apex at the first slice the cell is not part of,
+//!   and the least slope over the pairs `(D_k, z_{k+1})`, slice by slice, so
+//!   one distance plane exists at a time. Departures: a slice whose bit plane
+//!   equals the next one (no cell has its top between them) is skipped, since
+//!   the next gives tighter bounds from the same distances; this makes `K` above the data's
+//!   number of distinct heights cost nothing. The column pass is a two-sweep
+//!   integer distance over strips of columns (cache-friendly, no parabolas
+//!   needed for a bit plane); the row pass is the lower envelope of
+//!   parabolas.
+//! - [`exact_planes`]: the limit `K -> infinity`, without slices: the apex at
+//!   the cell's own `nmax` (the lowest apex possible) and the least slope
+//!   over every taller cell, found by branch and bound over a max pyramid of
+//!   `nmax`: a node whose nearest point divided by its height above the apex
+//!   cannot beat the best cone so far is not opened. The previous cell's
+//!   tightest cell seeds the search.
+//!
+//! Both take an optional [`Cap`]: when the grid is a window of a larger DEM,
+//! terrain outside the window is at least `radius` away and no taller than
+//! the DEM's maximum, which bounds every slope (see the stage's docs).
+
+use rayon::prelude::*;
+use terrabake_format::cones::{round_down_f32, round_up_f32};
+use terrabake_format::surface::Cell;
+
+use crate::edt::squared_1d;
+
+/// Per cell of a `w x h`-post grid (`(w - 1) x (h - 1)` cells), the tallest
+/// corner of any cell in its 3 x 3 neighbourhood; `-inf` where none of them
+/// has a surface.
+pub fn neighbourhood_max(posts: &[f32], w: usize, h: usize) -> Vec<f32> {
+    assert!(w >= 2 && h >= 2 && posts.len() == w * h, "{w} x {h} posts");
+    let (cw, ch) = (w - 1, h - 1);
+    // Each cell's tallest corner, then the 3-wide max along rows, then along
+    // columns.
+    let mut across = vec![0f32; cw * ch];
+    across.par_chunks_mut(cw).enumerate().for_each(|(r, out)| {
+        let (north, south) = (&posts[r * w..(r + 1) * w], &posts[(r + 1) * w..(r + 2) * w]);
+        let cell = |c: usize| {
+            Cell {
+                nw: north[c],
+                ne: north[c + 1],
+                sw: south[c],
+                se: south[c + 1],
+            }
+            .max()
+        };
+        let mut prev = f32::NEG_INFINITY;
+        let mut here = cell(0);
+        for (c, o) in out.iter_mut().enumerate() {
+            let next = if c + 1 < cw {
+                cell(c + 1)
+            } else {
+                f32::NEG_INFINITY
+            };
+            *o = prev.max(here).max(next);
+            (prev, here) = (here, next);
+        }
+    });
+    let mut nmax = vec![0f32; cw * ch];
+    nmax.par_chunks_mut(cw).enumerate().for_each(|(r, out)| {
+        let row = |k: usize| &across[k * cw..(k + 1) * cw];
+        out.copy_from_slice(row(r));
+        for k in [r.wrapping_sub(1), r + 1] {
+            if k < ch {
+                for (o, &v) in out.iter_mut().zip(row(k)) {
+                    *o = o.max(v);
+                }
+            }
+        }
+    });
+    nmax
+}
+
+/// Terrain outside a window: at least `radius` metres from every cell of
+/// its core, and no taller than `z_max`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Cap {
+    pub radius: f64,
+    pub z_max: f64,
+}
+
+impl Cap {
+    /// The widest slope that terrain outside the window allows for `apex`.
+    fn slope(cap: Option<Cap>, apex: f64) -> f64 {
+        match cap {
+            Some(c) if c.z_max > apex => c.radius / (c.z_max - apex),
+            _ => f64::INFINITY,
+        }
+    }
+}
+
+/// The slice heights `z_k` (eq. 1-2): `k` heights from `z_min` to `z_max`,
+/// increasing; the last is `z_max` exactly (with one slice, `z_min`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Slices {
+    pub z: Vec<f64>,
+    /// The DEM's top, `z_max`: the height bound above the last slice.
+    pub top: f64,
+}
+
+impl Slices {
+    pub fn uniform(z_min: f64, z_max: f64, k: usize) -> Self {
+        assert!(
+            k >= 1 && z_min <= z_max,
+            "{k} slices over [{z_min}, {z_max}]"
+        );
+        let step = if k > 1 {
+            (z_max - z_min) / (k - 1) as f64
+        } else {
+            0.0
+        };
+        let mut z: Vec<f64> = (0..k).map(|i| z_min + i as f64 * step).collect();
+        z[k - 1] = if k > 1 { z_max } else { z_min };
+        Self { z, top: z_max }
+    }
+
+    pub fn len(&self) -> usize {
+        self.z.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.z.is_empty()
+    }
+
+    /// How many slices a cell of this `nmax` belongs to: it is in the bit
+    /// plane of slices `0..n` and not in the rest, so `n` is the index of its
+    /// apex slice (`n == len` when it is in every slice).
+    pub fn member_of(&self, nmax: f32) -> usize {
+        let v = f64::from(nmax);
+        self.z.partition_point(|&z| z <= v)
+    }
+}
+
+/// What a bake did, for the stage's report and the benchmarks.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct PlaneStats {
+    /// Distance transforms computed (sliced).
+    pub transforms: usize,
+    /// Slices skipped because their bit plane equals the next one.
+    pub slices_skipped: usize,
+    /// Pyramid nodes examined (exact).
+    pub nodes: u64,
+}
+
+/// The planes of one grid: per cell, the apex rounded up and the slope
+/// rounded down to `f32` (the encodings round further from these).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Planes {
+    pub apex: Vec<f32>,
+    pub slope: Vec<f32>,
+    pub stats: PlaneStats,
+}
+
+/// Slopes are computed in `f64` from exact integer offsets; this margin
+/// covers the rounding of the metre scaling and of the square root.
+const SLOPE_MARGIN: f64 = 1.0 - 1e-12;
+
+/// Columns per strip in the column pass: a strip's rows are contiguous, so
+/// both sweeps stream through memory.
+const STRIP: usize = 64;
+
+/// Paglieroni and Petersen's planes from `slices`, over a `cw x ch` grid of
+/// `nmax` values with cells `dx x dy` metres; `on_slice` is called after
+/// every slice (for progress).
+pub fn sliced_planes(
+    nmax: &[f32],
+    (cw, ch): (usize, usize),
+    (dx, dy): (f64, f64),
+    slices: &Slices,
+    cap: Option<Cap>,
+    on_slice: &(dyn Fn() + Sync),
+) -> Planes {
+    assert_eq!(nmax.len(), cw * ch);
+    let k_count = slices.len();
+    assert!(
+        k_count >= 1 && k_count <= usize::from(u16::MAX),
+        "{k_count} slices"
+    );
+    // The apex slice of every cell; slice k's bit plane is `member > k`.
+    let member: Vec<u16> = nmax
+        .par_iter()
+        .map(|&v| slices.member_of(v) as u16)
+        .collect();
+    let mut apex_of_slice = vec![0usize; k_count + 1];
+    for &m in &member {
+        apex_of_slice[usize::from(m)] += 1;
+    }
+    let mut slope = vec![f32::INFINITY; cw * ch];
+    let strips = cw.div_ceil(STRIP);
+    let mut column = vec![u32::MAX; strips * ch * STRIP];
+    let mut stats = PlaneStats::default();
+    for k in 0..k_count {
+        // Slice k's plane equals slice k + 1's when no cell has its apex at
+        // k + 1; then (D_k+1, z_k+2) = (D_k, z_k+2) bounds every cell more
+        // tightly than (D_k, z_k+1), and slice k adds nothing.
+        if k + 1 < k_count && apex_of_slice[k + 1] == 0 {
+            stats.slices_skipped += 1;
+            on_slice();
+            continue;
+        }
+        // The cells outside the plane: none means nothing to bound.
+        let outside: usize = apex_of_slice[..=k].iter().sum();
+        if outside == 0 {
+            on_slice();
+            continue;
+        }
+        stats.transforms += 1;
+        let k16 = k as u16;
+        // Column pass: cells to the nearest plane cell in the same column.
+        column
+            .par_chunks_mut(ch * STRIP)
+            .enumerate()
+            .for_each(|(s, strip)| {
+                let c0 = s * STRIP;
+                let width = STRIP.min(cw - c0);
+                let mut prev = [u32::MAX; STRIP];
+                for r in 0..ch {
+                    let m = &member[r * cw + c0..r * cw + c0 + width];
+                    let out = &mut strip[r * STRIP..r * STRIP + width];
+                    for j in 0..width {
+                        out[j] = if m[j] > k16 {
+                            0
+                        } else {
+                            prev[j].saturating_add(1)
+                        };
+                        prev[j] = out[j];
+                    }
+                }
+                let mut next = [u32::MAX; STRIP];
+                for r in (0..ch).rev() {
+                    let out = &mut strip[r * STRIP..r * STRIP + width];
+                    for j in 0..width {
+                        out[j] = out[j].min(next[j].saturating_add(1));
+                        next[j] = out[j];
+                    }
+                }
+            });
+        // Row pass: the lower envelope of the columns' parabolas, then the
+        // slope update of every cell outside the plane.
+        // Cells in slice k and not in k + 1 are below z_k+1 (the last slice:
+        // below the top).
+        let z_next = slices.z.get(k + 1).copied().unwrap_or(slices.top);
+        let column = &column;
+        let member = &member;
+        slope.par_chunks_mut(cw).enumerate().for_each_init(
+            || (Vec::new(), Vec::new(), Vec::new(), Vec::new()),
+            |(f, d2, v, z), (r, row)| {
+                f.clear();
+                f.extend((0..cw).map(|c| {
+                    let g = column[(c / STRIP) * ch * STRIP + r * STRIP + c % STRIP];
+                    if g == u32::MAX {
+                        f64::INFINITY
+                    } else {
+                        let g = f64::from(g) * dy;
+                        g * g
+                    }
+                }));
+                d2.resize(cw, 0.0);
+                squared_1d(f, dx, d2, v, z);
+                let m = &member[r * cw..(r + 1) * cw];
+                for c in 0..cw {
+                    let apex_k = usize::from(m[c]);
+                    if apex_k > k {
+                        continue;
+                    }
+                    let rise = z_next - slices.z[apex_k];
+                    if rise <= 0.0 {
+                        continue;
+                    }
+                    // Compare squares; one root only where the slope drops.
+                    let bound = f64::from(row[c]) * rise;
+                    if d2[c] < bound * bound {
+                        row[c] = round_down_f32(d2[c].sqrt() / rise * SLOPE_MARGIN);
+                    }
+                }
+            },
+        );
+        on_slice();
+    }
+    // A cell in every slice has nothing above the top.
+    let apex: Vec<f32> = member
+        .par_iter()
+        .map(|&m| round_up_f32(slices.z.get(usize::from(m)).copied().unwrap_or(slices.top)))
+        .collect();
+    slope
+        .par_iter_mut()
+        .zip(&apex)
+        .for_each(|(s, &a)| *s = s.min(round_down_f32(Cap::slope(cap, f64::from(a)))));
+    Planes { apex, slope, stats }
+}
+
+/// The max pyramid of `nmax` for the branch and bound: level 0 is the grid.
+struct MaxPyramid {
+    levels: Vec<(usize, usize, Vec<f32>)>,
+}
+
+impl MaxPyramid {
+    fn new(nmax: &[f32], cw: usize, ch: usize) -> Self {
+        let mut levels = vec![(cw, ch, nmax.to_vec())];
+        while let Some(&(w, h, ref below)) = levels.last().filter(|l| l.0 > 1 || l.1 > 1) {
+            let (nw, nh) = (w.div_ceil(2), h.div_ceil(2));
+            let mut up = vec![f32::NEG_INFINITY; nw * nh];
+            for y in 0..h {
+                for x in 0..w {
+                    let i = (y / 2) * nw + x / 2;
+                    up[i] = up[i].max(below[y * w + x]);
+                }
+            }
+            levels.push((nw, nh, up));
+        }
+        Self { levels }
+    }
+}
+
+/// The exact planes (the limit of infinitely many slices) over a `cw x ch`
+/// grid of `nmax` values; `z_floor` is the apex of cells with no surface
+/// around them (the DEM's lowest height). `on_row` is called after every row.
+pub fn exact_planes(
+    nmax: &[f32],
+    (cw, ch): (usize, usize),
+    (dx, dy): (f64, f64),
+    z_floor: f64,
+    cap: Option<Cap>,
+    on_row: &(dyn Fn() + Sync),
+) -> Planes {
+    assert_eq!(nmax.len(), cw * ch);
+    let pyramid = MaxPyramid::new(nmax, cw, ch);
+    let top = pyramid.levels.len() - 1;
+    let (dx2, dy2) = (dx * dx, dy * dy);
+    let mut apex = vec![0f32; cw * ch];
+    let mut slope = vec![0f32; cw * ch];
+    let nodes: u64 = apex
+        .par_chunks_mut(cw)
+        .zip(slope.par_chunks_mut(cw))
+        .enumerate()
+        .map_init(Vec::new, |stack, (y, (apex_row, slope_row))| {
+            let mut nodes = 0u64;
+            // The previous cell's tightest cell: usually this cell's too.
+            let mut seed: Option<(usize, usize)> = None;
+            for x in 0..cw {
+                let a = f64::from(nmax[y * cw + x]).max(z_floor);
+                // Squared offsets in metres from cell (x, y) to the nearest
+                // cell of the index ranges.
+                let gap2 = |x0: usize, x1: usize, y0: usize, y1: usize| {
+                    let ex = x0.saturating_sub(x).max(x.saturating_sub(x1)) as f64;
+                    let ey = y0.saturating_sub(y).max(y.saturating_sub(y1)) as f64;
+                    ex * ex * dx2 + ey * ey * dy2
+                };
+                // The best squared slope so far: distance^2 / rise^2.
+                let cap_slope = Cap::slope(cap, a);
+                let mut best = cap_slope * cap_slope;
+                let mut best_at = None;
+                if let Some((sx, sy)) = seed {
+                    let rise = f64::from(nmax[sy * cw + sx]) - a;
+                    if rise > 0.0 {
+                        let s = gap2(sx, sx, sy, sy) / (rise * rise);
+                        if s < best {
+                            (best, best_at) = (s, Some((sx, sy)));
+                        }
+                    }
+                }
+                stack.clear();
+                let root_rise = f64::from(pyramid.levels[top].2[0]) - a;
+                if root_rise > 0.0 {
+                    stack.push((
+                        top,
+                        0usize,
+                        0usize,
+                        gap2(0, cw - 1, 0, ch - 1) / (root_rise * root_rise),
+                    ));
+                }
+                while let Some((level, nx, ny, bound)) = stack.pop() {
+                    if bound >= best {
+                        continue;
+                    }
+                    nodes += 1;
+                    if level == 0 {
+                        (best, best_at) = (bound, Some((nx, ny)));
+                        continue;
+                    }
+                    let (w, h, ref max) = pyramid.levels[level - 1];
+                    let size = 1usize << (level - 1);
+                    let first = stack.len();
+                    for cy in 2 * ny..(2 * ny + 2).min(h) {
+                        for cx in 2 * nx..(2 * nx + 2).min(w) {
+                            let rise = f64::from(max[cy * w + cx]) - a;
+                            if rise <= 0.0 {
+                                continue;
+                            }
+                            let (x0, y0) = (cx * size, cy * size);
+                            let (x1, y1) = ((x0 + size).min(cw) - 1, (y0 + size).min(ch) - 1);
+                            let s = gap2(x0, x1, y0, y1) / (rise * rise);
+                            if s < best {
+                                stack.push((level - 1, cx, cy, s));
+                            }
+                        }
+                    }
+                    // Nearest-looking child on top of the stack.
+                    stack[first..].sort_unstable_by(|p, q| q.3.total_cmp(&p.3));
+                }
+                seed = best_at;
+                apex_row[x] = round_up_f32(a);
+                slope_row[x] = round_down_f32(best.sqrt() * SLOPE_MARGIN);
+            }
+            on_row();
+            nodes
+        })
+        .sum();
+    Planes {
+        apex,
+        slope,
+        stats: PlaneStats {
+            nodes,
+            ..PlaneStats::default()
+        },
+    }
+}
+
+/// The definition, O(n^2): for tests. Every cell's cone as the least slope
+/// over every taller cell for the given apexes (`apex[i]` must be at least
+/// the cell's `nmax`).
+pub fn brute_force_slopes(
+    nmax: &[f32],
+    (cw, ch): (usize, usize),
+    (dx, dy): (f64, f64),
+    apex: &[f32],
+) -> Vec<f64> {
+    (0..cw * ch)
+        .map(|i| {
+            let (x, y) = ((i % cw) as f64, (i / cw) as f64);
+            let a = f64::from(apex[i]);
+            (0..cw * ch)
+                .filter(|&j| f64::from(nmax[j]) > a)
+                .map(|j| {
+                    let (ex, ey) = ((x - (j % cw) as f64) * dx, (y - (j / cw) as f64) * dy);
+                    (ex * ex + ey * ey).sqrt() / (f64::from(nmax[j]) - a)
+                })
+                .fold(f64::INFINITY, f64::min)
+        })
+        .collect()
+}

@@ -1,0 +1,285 @@
+//! The cone planes against their definition, by brute force on small DEMs:
+//! every cell's stored cone (after encoding) must hold no terrain, on every
+//! synthetic terrain, for slice counts from 1 to far more than the data's
+//! height steps, for exact cones, for every encoding and for windowed
+//! (out-of-core) bakes; exact cones must be the widest possible.
+//!
+//! The reference works on the surface itself: cell `C'` reaches up to its
+//! tallest corner (no surface where a corner is nodata), and the distance is
+//! between the closed squares of the two cells. It shares nothing with the
+//! stage's algorithm (neighbourhood maxima, slices, distance transforms,
+//! branch and bound).
+
+mod common;
+
+use std::path::Path;
+
+use terrabake::cones::planes::{brute_force_slopes, neighbourhood_max};
+use terrabake::cones::{ConesStage, SliceChoice};
+use terrabake::ingest::IngestOptions;
+use terrabake::progress::Progress;
+use terrabake::stage::run_stage;
+use terrabake::synth::SynthKind;
+use terrabake_format::cones::{Cone, ConeEncoding, ConePlanes};
+use terrabake_format::surface::Cell;
+use terrabake_format::{Asset, Mmap};
+
+fn opts() -> IngestOptions {
+    IngestOptions {
+        tile_size: 16,
+        cell_size: Some((30.0, 20.0)),
+        ..Default::default()
+    }
+}
+
+fn bake_cones(dir: &Path, stage: &ConesStage) -> Asset<Mmap> {
+    let out = dir.join("t.tbake");
+    run_stage(&out, stage, true, Progress::hidden()).unwrap();
+    Asset::open(&out).unwrap()
+}
+
+/// Per cell: tallest corner (`-inf` without surface).
+fn cell_max(asset: &Asset<Mmap>) -> (Vec<f32>, usize, usize) {
+    let posts = common::heights(asset);
+    let h = asset.height().unwrap();
+    let (w, hh) = (h.width() as usize, h.height() as usize);
+    let (cw, ch) = (w - 1, hh - 1);
+    let mut out = Vec::with_capacity(cw * ch);
+    for r in 0..ch {
+        for c in 0..cw {
+            out.push(
+                Cell {
+                    nw: posts[r * w + c],
+                    ne: posts[r * w + c + 1],
+                    sw: posts[(r + 1) * w + c],
+                    se: posts[(r + 1) * w + c + 1],
+                }
+                .max(),
+            );
+        }
+    }
+    (out, cw, ch)
+}
+
+fn cones(asset: &Asset<Mmap>, cw: usize, ch: usize) -> Vec<Cone> {
+    let planes = ConePlanes::open(asset).unwrap().expect("planes");
+    (0..cw * ch)
+        .map(|i| planes.cone((i % cw) as u32, (i / cw) as u32).unwrap())
+        .collect()
+}
+
+/// Distance in metres between the closed squares of cells `i` and `j`.
+fn square_distance(i: usize, j: usize, cw: usize, (dx, dy): (f64, f64)) -> f64 {
+    let gap = |a: usize, b: usize| (a.abs_diff(b).saturating_sub(1)) as f64;
+    let ex = gap(i % cw, j % cw) * dx;
+    let ey = gap(i / cw, j / cw) * dy;
+    ex.hypot(ey)
+}
+
+/// Cells whose cone holds terrain, with the first few for the message.
+fn violations(asset: &Asset<Mmap>) -> (usize, Vec<String>) {
+    let (tall, cw, ch) = cell_max(asset);
+    let cones = cones(asset, cw, ch);
+    let cs = &asset.manifest().cell_size;
+    let mut bad = 0;
+    let mut examples = Vec::new();
+    for (i, cone) in cones.iter().enumerate() {
+        assert!(
+            cone.slope >= 0.0 && !cone.apex.is_nan(),
+            "cell {i}: {cone:?}"
+        );
+        for (j, &z) in tall.iter().enumerate() {
+            let rise = f64::from(z) - cone.apex;
+            if rise > 0.0 && square_distance(i, j, cw, (cs.dx, cs.dy)) < cone.slope * rise {
+                bad += 1;
+                if examples.len() < 3 {
+                    examples.push(format!("cell {i} {cone:?}: cell {j} at height {z}"));
+                }
+                break;
+            }
+        }
+    }
+    (bad, examples)
+}
+
+#[test]
+fn no_cone_holds_terrain_on_any_synthetic_terrain() {
+    let choices = [
+        SliceChoice::Count(1),
+        SliceChoice::Count(2),
+        SliceChoice::Count(7),
+        SliceChoice::Count(64),
+        SliceChoice::Count(5000),
+        SliceChoice::Auto { apex_gap: None },
+        SliceChoice::Exact,
+    ];
+    for kind in SynthKind::ALL {
+        let dir = tempfile::tempdir().unwrap();
+        common::synth_with_pyramid(dir.path(), kind, 41, 33, 5, opts());
+        for (n, &slices) in choices.iter().enumerate() {
+            // Every encoding, in turn.
+            let encoding = ConeEncoding::ALL[n % 3];
+            let asset = bake_cones(
+                dir.path(),
+                &ConesStage {
+                    slices,
+                    encoding,
+                    ..Default::default()
+                },
+            );
+            let (bad, examples) = violations(&asset);
+            assert_eq!(bad, 0, "{kind:?} {slices:?} {encoding:?}: {examples:?}");
+        }
+    }
+}
+
+#[test]
+fn exact_cones_are_the_widest_for_their_apex() {
+    for kind in SynthKind::ALL {
+        let dir = tempfile::tempdir().unwrap();
+        common::synth_with_pyramid(dir.path(), kind, 37, 29, 9, opts());
+        let asset = bake_cones(
+            dir.path(),
+            &ConesStage {
+                slices: SliceChoice::Exact,
+                ..Default::default()
+            },
+        );
+        let (tall, cw, ch) = cell_max(&asset);
+        let cones = cones(&asset, cw, ch);
+        let cs = &asset.manifest().cell_size;
+        for (i, cone) in cones.iter().enumerate() {
+            // The widest slope that the definition allows for this apex.
+            let widest = tall
+                .iter()
+                .enumerate()
+                .filter(|&(_, &z)| f64::from(z) > cone.apex)
+                .map(|(j, &z)| {
+                    square_distance(i, j, cw, (cs.dx, cs.dy)) / (f64::from(z) - cone.apex)
+                })
+                .fold(f64::INFINITY, f64::min);
+            assert!(
+                cone.slope <= widest && cone.slope >= widest * (1.0 - 1e-6),
+                "{kind:?} cell {i}: slope {} but the widest is {widest}",
+                cone.slope
+            );
+        }
+        // The apex is the lowest possible: the tallest corner touching the cell.
+        let posts = common::heights(&asset);
+        let nmax = neighbourhood_max(&posts, cw + 1, ch + 1);
+        for (i, cone) in cones.iter().enumerate() {
+            if nmax[i].is_finite() {
+                assert_eq!(cone.apex, f64::from(nmax[i]), "{kind:?} cell {i}");
+            }
+        }
+        // The algorithm's own reference on neighbourhood maxima agrees.
+        let apex: Vec<f32> = cones.iter().map(|c| c.apex as f32).collect();
+        let brute = brute_force_slopes(&nmax, (cw, ch), (cs.dx, cs.dy), &apex);
+        for (i, (c, b)) in cones.iter().zip(&brute).enumerate() {
+            assert!(
+                c.slope <= *b && c.slope >= b * (1.0 - 1e-6),
+                "{kind:?} cell {i}: {} vs {b}",
+                c.slope
+            );
+        }
+    }
+}
+
+#[test]
+fn flat_dems_and_one_slice_give_unbounded_cones_at_the_top() {
+    let dir = tempfile::tempdir().unwrap();
+    common::synth_with_pyramid(dir.path(), SynthKind::Flat, 20, 17, 1, opts());
+    for slices in [
+        SliceChoice::Count(1),
+        SliceChoice::Count(300),
+        SliceChoice::Auto { apex_gap: None },
+        SliceChoice::Exact,
+    ] {
+        let asset = bake_cones(
+            dir.path(),
+            &ConesStage {
+                slices,
+                ..Default::default()
+            },
+        );
+        for cone in cones(&asset, 19, 16) {
+            assert_eq!(
+                cone,
+                Cone {
+                    apex: 100.0,
+                    slope: f64::INFINITY
+                },
+                "{slices:?}"
+            );
+        }
+    }
+    // One slice on real relief: the apex is the DEM's top, the cone unbounded.
+    common::synth_with_pyramid(dir.path(), SynthKind::Sine, 20, 17, 1, opts());
+    let asset = bake_cones(
+        dir.path(),
+        &ConesStage {
+            slices: SliceChoice::Count(1),
+            ..Default::default()
+        },
+    );
+    let top = common::heights(&asset)
+        .into_iter()
+        .fold(f32::NEG_INFINITY, f32::max);
+    for cone in cones(&asset, 19, 16) {
+        assert_eq!(
+            cone,
+            Cone {
+                apex: f64::from(top),
+                slope: f64::INFINITY
+            }
+        );
+    }
+}
+
+#[test]
+fn windowed_bakes_are_valid_and_never_wider_than_whole_ones() {
+    for kind in [SynthKind::Fractal, SynthKind::Spike, SynthKind::Holes] {
+        let dir = tempfile::tempdir().unwrap();
+        common::synth_with_pyramid(dir.path(), kind, 90, 75, 3, opts());
+        for slices in [SliceChoice::Count(32), SliceChoice::Exact] {
+            let whole = bake_cones(
+                dir.path(),
+                &ConesStage {
+                    slices,
+                    ..Default::default()
+                },
+            );
+            let (cw, ch) = (89, 74);
+            let whole_cones = cones(&whole, cw, ch);
+            drop(whole);
+            // Windows of 16-cell cores with 8-cell halos.
+            let windowed = bake_cones(
+                dir.path(),
+                &ConesStage {
+                    slices,
+                    max_memory: 32 * 32 * terrabake::cones::BYTES_PER_CELL,
+                    ..Default::default()
+                },
+            );
+            assert!(windowed
+                .layer("cone_slope", 0)
+                .unwrap()
+                .entry()
+                .description
+                .contains("windowed"));
+            let (bad, examples) = violations(&windowed);
+            assert_eq!(bad, 0, "{kind:?} {slices:?}: {examples:?}");
+            for (i, (w, c)) in cones(&windowed, cw, ch)
+                .iter()
+                .zip(&whole_cones)
+                .enumerate()
+            {
+                assert_eq!(w.apex, c.apex, "{kind:?} {slices:?} cell {i}");
+                assert!(
+                    w.slope <= c.slope,
+                    "{kind:?} {slices:?} cell {i}: {w:?} vs {c:?}"
+                );
+            }
+        }
+    }
+}
