@@ -15,57 +15,92 @@
 
 use rayon::prelude::*;
 
+/// The lower envelope of the parabolas `y = (x - q)^2 + f_q` (in sample
+/// units), built left to right from samples in increasing `q` (Felzenszwalb
+/// and Huttenlocher, Algorithm 1): the scratch of a 1-D transform, reused
+/// across rows so that it allocates once per thread.
+#[derive(Debug, Default, Clone)]
+pub struct Envelope {
+    parabolas: Vec<Parabola>,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Parabola {
+    root: f64,
+    offset: f64,
+    /// `offset + root^2`: two parabolas meet at `(key - key') / (2 (root - root'))`.
+    key: f64,
+    /// Where the parabola starts to be the lowest.
+    from: f64,
+}
+
+impl Envelope {
+    pub fn clear(&mut self) {
+        self.parabolas.clear();
+    }
+
+    /// Adds the parabola rooted at `q` (greater than every root so far) with
+    /// offset `f` (finite).
+    #[inline]
+    pub fn push(&mut self, q: f64, f: f64) {
+        let key = f + q * q;
+        let mut from = f64::NEG_INFINITY;
+        while let Some(last) = self.parabolas.last() {
+            // Where the new parabola meets the last one: after the point
+            // where the last one became the lowest, or the last one is
+            // never the lowest.
+            let s = (key - last.key) / (2.0 * (q - last.root));
+            if s > last.from {
+                from = s;
+                break;
+            }
+            self.parabolas.pop();
+        }
+        self.parabolas.push(Parabola {
+            root: q,
+            offset: f,
+            key,
+            from,
+        });
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.parabolas.is_empty()
+    }
+
+    /// Calls `visit(p, d)` for `p` in `0..n` with `d` the envelope at `p`
+    /// (`inf` everywhere when it is empty).
+    #[inline]
+    pub fn evaluate(&self, n: usize, mut visit: impl FnMut(usize, f64)) {
+        let Some((first, rest)) = self.parabolas.split_first() else {
+            (0..n).for_each(|p| visit(p, f64::INFINITY));
+            return;
+        };
+        let mut lowest = first;
+        let mut next = rest.iter().peekable();
+        for p in 0..n {
+            let pf = p as f64;
+            while let Some(n) = next.next_if(|n| n.from < pf) {
+                lowest = n;
+            }
+            let d = pf - lowest.root;
+            visit(p, d * d + lowest.offset);
+        }
+    }
+}
+
 /// 1-D squared distance transform: `out[p] = min_q (spacing (p - q))^2 + f[q]`,
 /// `f[q] = inf` where there is no sample; `out` is `inf` where `f` is all
-/// `inf`. `v` and `z` are scratch space of `f.len()` and `f.len() + 1`.
-pub fn squared_1d(f: &[f64], spacing: f64, out: &mut [f64], v: &mut Vec<usize>, z: &mut Vec<f64>) {
+/// `inf`.
+pub fn squared_1d(f: &[f64], spacing: f64, out: &mut [f64], envelope: &mut Envelope) {
     let s2 = spacing * spacing;
-    v.clear();
-    z.clear();
-    // Intersection of the parabolas rooted at q and at v (in sample units).
-    let meet = |q: usize, r: usize| {
-        let (qf, rf) = (q as f64, r as f64);
-        ((f[q] / s2 + qf * qf) - (f[r] / s2 + rf * rf)) / (2.0 * (qf - rf))
-    };
+    envelope.clear();
     for (q, &fq) in f.iter().enumerate() {
-        if fq == f64::INFINITY {
-            continue;
-        }
-        loop {
-            match v.last() {
-                None => {
-                    v.push(q);
-                    z.push(f64::NEG_INFINITY);
-                    break;
-                }
-                Some(&r) => {
-                    let s = meet(q, r);
-                    if s <= *z.last().expect("z follows v") {
-                        v.pop();
-                        z.pop();
-                    } else {
-                        v.push(q);
-                        z.push(s);
-                        break;
-                    }
-                }
-            }
+        if fq != f64::INFINITY {
+            envelope.push(q as f64, fq / s2);
         }
     }
-    if v.is_empty() {
-        out.iter_mut().for_each(|o| *o = f64::INFINITY);
-        return;
-    }
-    z.push(f64::INFINITY);
-    let mut k = 0;
-    for (p, o) in out.iter_mut().enumerate() {
-        let pf = p as f64;
-        while z[k + 1] < pf {
-            k += 1;
-        }
-        let d = pf - v[k] as f64;
-        *o = s2 * d * d + f[v[k]];
-    }
+    envelope.evaluate(out.len(), |p, d| out[p] = d * s2);
 }
 
 /// Squared Euclidean distance, in metres², from every cell of a `width x
@@ -77,8 +112,8 @@ pub fn squared_2d(site: &[bool], width: usize, height: usize, dx: f64, dy: f64) 
     // Columns first, into a column-major buffer so both passes read contiguously.
     let mut cols = vec![0f64; width * height];
     cols.par_chunks_mut(height).enumerate().for_each_init(
-        || (Vec::new(), Vec::new(), Vec::new()),
-        |(f, v, z), (x, col)| {
+        || (Vec::new(), Envelope::default()),
+        |(f, envelope), (x, col)| {
             f.clear();
             f.extend((0..height).map(|y| {
                 if site[y * width + x] {
@@ -87,16 +122,16 @@ pub fn squared_2d(site: &[bool], width: usize, height: usize, dx: f64, dy: f64) 
                     f64::INFINITY
                 }
             }));
-            squared_1d(f, dy, col, v, z);
+            squared_1d(f, dy, col, envelope);
         },
     );
     let mut out = vec![0f64; width * height];
     out.par_chunks_mut(width).enumerate().for_each_init(
-        || (Vec::new(), Vec::new(), Vec::new()),
-        |(f, v, z), (y, row)| {
+        || (Vec::new(), Envelope::default()),
+        |(f, envelope), (y, row)| {
             f.clear();
             f.extend((0..width).map(|x| cols[x * height + y]));
-            squared_1d(f, dx, row, v, z);
+            squared_1d(f, dx, row, envelope);
         },
     );
     out

@@ -41,7 +41,7 @@ use rayon::prelude::*;
 use terrabake_format::cones::{round_down_f32, round_up_f32};
 use terrabake_format::surface::Cell;
 
-use crate::edt::squared_1d;
+use crate::edt::Envelope;
 
 /// Per cell of a `w x h`-post grid (`(w - 1) x (h - 1)` cells), the tallest
 /// corner of any cell in its 3 x 3 neighbourhood; `-inf` where none of them
@@ -178,10 +178,62 @@ const SLOPE_MARGIN: f64 = 1.0 - 1e-12;
 /// both sweeps stream through memory.
 const STRIP: usize = 64;
 
+/// A distance in cells along a column; `NONE` when the column has no plane
+/// cell. `u16` halves the memory traffic of the column pass and is used
+/// whenever the grid has fewer rows than `u16::MAX`.
+trait ColumnDistance: Copy + Send + Sync + Eq + Ord {
+    const NONE: Self;
+    const ZERO: Self;
+    fn next(self) -> Self;
+    fn cells(self) -> f64;
+}
+
+impl ColumnDistance for u16 {
+    const NONE: Self = u16::MAX;
+    const ZERO: Self = 0;
+    #[inline]
+    fn next(self) -> Self {
+        self.saturating_add(1)
+    }
+    #[inline]
+    fn cells(self) -> f64 {
+        f64::from(self)
+    }
+}
+
+impl ColumnDistance for u32 {
+    const NONE: Self = u32::MAX;
+    const ZERO: Self = 0;
+    #[inline]
+    fn next(self) -> Self {
+        self.saturating_add(1)
+    }
+    #[inline]
+    fn cells(self) -> f64 {
+        f64::from(self)
+    }
+}
+
 /// Paglieroni and Petersen's planes from `slices`, over a `cw x ch` grid of
 /// `nmax` values with cells `dx x dy` metres; `on_slice` is called after
 /// every slice (for progress).
 pub fn sliced_planes(
+    nmax: &[f32],
+    cells: (usize, usize),
+    spacing: (f64, f64),
+    slices: &Slices,
+    cap: Option<Cap>,
+    on_slice: &(dyn Fn() + Sync),
+) -> Planes {
+    // A distance of u16::MAX - 1 rows must stay representable.
+    if cells.1 < usize::from(u16::MAX) {
+        sliced_planes_with::<u16>(nmax, cells, spacing, slices, cap, on_slice)
+    } else {
+        sliced_planes_with::<u32>(nmax, cells, spacing, slices, cap, on_slice)
+    }
+}
+
+fn sliced_planes_with<G: ColumnDistance>(
     nmax: &[f32],
     (cw, ch): (usize, usize),
     (dx, dy): (f64, f64),
@@ -206,9 +258,14 @@ pub fn sliced_planes(
     }
     let mut slope = vec![f32::INFINITY; cw * ch];
     let strips = cw.div_ceil(STRIP);
-    let mut column = vec![u32::MAX; strips * ch * STRIP];
+    let mut column = vec![G::NONE; strips * ch * STRIP];
     let mut stats = PlaneStats::default();
-    for k in 0..k_count {
+    // The top slice first: it bounds every cell below the top at once, so
+    // that from then on every row has a finite reach and the row pass can
+    // leave out far parabolas. Then bottom-up, where a cell's tightest
+    // bound tends to come from its first slices: fewer slope updates than
+    // top-down.
+    for k in std::iter::once(k_count - 1).chain(0..k_count - 1) {
         // Slice k's plane equals slice k + 1's when no cell has its apex at
         // k + 1; then (D_k+1, z_k+2) = (D_k, z_k+2) bounds every cell more
         // tightly than (D_k, z_k+1), and slice k adds nothing.
@@ -232,24 +289,20 @@ pub fn sliced_planes(
             .for_each(|(s, strip)| {
                 let c0 = s * STRIP;
                 let width = STRIP.min(cw - c0);
-                let mut prev = [u32::MAX; STRIP];
+                let mut prev = [G::NONE; STRIP];
                 for r in 0..ch {
                     let m = &member[r * cw + c0..r * cw + c0 + width];
                     let out = &mut strip[r * STRIP..r * STRIP + width];
                     for j in 0..width {
-                        out[j] = if m[j] > k16 {
-                            0
-                        } else {
-                            prev[j].saturating_add(1)
-                        };
+                        out[j] = if m[j] > k16 { G::ZERO } else { prev[j].next() };
                         prev[j] = out[j];
                     }
                 }
-                let mut next = [u32::MAX; STRIP];
+                let mut next = [G::NONE; STRIP];
                 for r in (0..ch).rev() {
                     let out = &mut strip[r * STRIP..r * STRIP + width];
                     for j in 0..width {
-                        out[j] = out[j].min(next[j].saturating_add(1));
+                        out[j] = out[j].min(next[j].next());
                         next[j] = out[j];
                     }
                 }
@@ -259,39 +312,69 @@ pub fn sliced_planes(
         // Cells in slice k and not in k + 1 are below z_k+1 (the last slice:
         // below the top).
         let z_next = slices.z.get(k + 1).copied().unwrap_or(slices.top);
+        // Per apex slice: the rise from the apex to z_next (0 for cells in
+        // the plane, which this slice does not bound).
+        let rise_of: Vec<f64> = (0..=k_count)
+            .map(|a| if a <= k { z_next - slices.z[a] } else { 0.0 })
+            .collect();
+        let rise_of = &rise_of;
         let column = &column;
         let member = &member;
+        // Distances in units of dx: a column distance of g cells is g * dy / dx.
+        let (aspect, dx2) = (dy / dx, dx * dx);
         slope.par_chunks_mut(cw).enumerate().for_each_init(
-            || (Vec::new(), Vec::new(), Vec::new(), Vec::new()),
-            |(f, d2, v, z), (r, row)| {
-                f.clear();
-                f.extend((0..cw).map(|c| {
-                    let g = column[(c / STRIP) * ch * STRIP + r * STRIP + c % STRIP];
-                    if g == u32::MAX {
-                        f64::INFINITY
-                    } else {
-                        let g = f64::from(g) * dy;
-                        g * g
-                    }
-                }));
-                d2.resize(cw, 0.0);
-                squared_1d(f, dx, d2, v, z);
+            Envelope::default,
+            |envelope, (r, row)| {
                 let m = &member[r * cw..(r + 1) * cw];
-                for c in 0..cw {
-                    let apex_k = usize::from(m[c]);
-                    if apex_k > k {
-                        continue;
-                    }
-                    let rise = z_next - slices.z[apex_k];
-                    if rise <= 0.0 {
-                        continue;
-                    }
-                    // Compare squares; one root only where the slope drops.
-                    let bound = f64::from(row[c]) * rise;
-                    if d2[c] < bound * bound {
-                        row[c] = round_down_f32(d2[c].sqrt() / rise * SLOPE_MARGIN);
+                // The farthest that a plane cell can be and still narrow a
+                // cone of this row (in dx units, squared): farther columns
+                // cannot lower any slope, so their parabolas are left out.
+                // At high slices, where plane cells are few and far, this
+                // leaves out most of them.
+                // Eight running maxima, so that the loop does not wait on
+                // one (inf * 0 is NaN, which never compares greater).
+                let mut lanes = [0.0f64; 8];
+                for (m8, s8) in m.chunks(8).zip(row.chunks(8)) {
+                    for (lane, (&a, &slope)) in lanes.iter_mut().zip(m8.iter().zip(s8)) {
+                        let v = f64::from(slope) * rise_of[usize::from(a)];
+                        *lane = if v > *lane { v } else { *lane };
                     }
                 }
+                let reach = lanes.into_iter().fold(0.0f64, f64::max);
+                // (A row with no plane cell in reach has nothing to update.)
+                if !(reach > 0.0) {
+                    return;
+                }
+                let reach2 = reach * reach / dx2;
+                envelope.clear();
+                for (s, strip) in column.chunks(ch * STRIP).enumerate() {
+                    let c0 = s * STRIP;
+                    let width = STRIP.min(cw - c0);
+                    for (j, &g) in strip[r * STRIP..r * STRIP + width].iter().enumerate() {
+                        if g == G::NONE {
+                            continue;
+                        }
+                        let g = g.cells() * aspect;
+                        if g * g < reach2 {
+                            envelope.push((c0 + j) as f64, g * g);
+                        }
+                    }
+                }
+                if envelope.is_empty() {
+                    return;
+                }
+                envelope.evaluate(cw, |c, d2| {
+                    let rise = rise_of[usize::from(m[c])];
+                    if rise <= 0.0 {
+                        return;
+                    }
+                    // Compare squares; one root only where the slope drops.
+                    let d2 = d2 * dx2;
+                    let bound = f64::from(row[c]) * rise;
+                    if d2 < bound * bound {
+                        row[c] = round_down_f32(d2.sqrt() / rise * SLOPE_MARGIN);
+                    }
+                });
             },
         );
         on_slice();
