@@ -5,7 +5,7 @@ BIN := target/release/terrabake
 DEMO_DEM := data/srtm3_n07w006_geographic_int16.tif
 OUT ?= out
 
-.PHONY: all build demo test bench-ingest-ooc bench-trace bench-reader fixtures fmt lint clean
+.PHONY: all build demo test bench-ingest-ooc bench-trace bench-cones bench-reader fixtures fmt lint clean
 
 all: build
 
@@ -21,7 +21,7 @@ demo: build
 	$(BIN) verify $(OUT)/srtm.tbake
 	$(BIN) export $(OUT)/srtm.tbake --layer height --style relief -o $(OUT)/srtm_relief.png
 	$(BIN) export $(OUT)/srtm.tbake --layer height --style gray -o $(OUT)/srtm_gray16.png
-	$(BIN) render $(OUT)/srtm.tbake --camera 30000,8000,4500 --look-at 55000,60000,500 --fov 60 --sun 290,10 --exaggerate 8 --size 1024x640 --stats -o $(OUT)/srtm_view.png
+	$(BIN) render $(OUT)/srtm.tbake --camera 30000,8000,4500 --look-at 55000,60000,500 --fov 60 --sun 290,10 --exaggerate 8 --size 1024x640 --method parametric --stats -o $(OUT)/srtm_view.png
 	@echo
 	@echo "asset:    $(OUT)/srtm.tbake"
 	@echo "summary:  $(OUT)/srtm.summary.txt ($(OUT)/srtm.summary.json)"
@@ -38,6 +38,12 @@ bench-ingest-ooc: build
 ## Tracing: Table 1 on the SRTM tile, cost by azimuth, scaling with DEM size.
 bench-trace: build
 	BIN=$(BIN) bash pipelines/bench_trace.sh
+
+## Cone planes: bake time against DEM size and slices; speed against bake
+## time on the SRTM tile (table and docs/charts/cones_*.svg).
+bench-cones: build
+	BIN=$(BIN) bash pipelines/bench_cones.sh
+	BIN=$(BIN) bash pipelines/bench_cones_out_of_core.sh
 
 ## Reader micro-benchmarks (criterion).
 bench-reader:

@@ -11,10 +11,10 @@ mkdir -p "$WORK"
 export RAYON_NUM_THREADS=1
 "$BIN" bake data/srtm3_n07w006_geographic_int16.tif -o "$WORK/srtm.tbake" --recipe pipelines/demo.toml -q
 echo "## SRTM N07W006, 16 views, 512 x 512, every 16th pixel"
-"$BIN" bench-views "$WORK/srtm.tbake" --every 16 --methods incremental,runs,hierarchical,brute-force
+"$BIN" bench-views "$WORK/srtm.tbake" --every 16 --methods incremental,runs,hierarchical,parametric,brute-force
 echo
 echo "## SRTM N07W006, 16 views, 512 x 512, every pixel"
-"$BIN" bench-views "$WORK/srtm.tbake" --every 1 --methods incremental,runs,hierarchical
+"$BIN" bench-views "$WORK/srtm.tbake" --every 1 --methods incremental,runs,hierarchical,parametric
 echo
 echo "## SRTM N07W006, cost per ray by azimuth (3600 rays each, 2 degrees down)"
 "$BIN" bench-views "$WORK/srtm.tbake" --directions 16 --methods incremental,runs,hierarchical

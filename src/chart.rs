@@ -13,6 +13,33 @@ pub struct Series {
     pub points: Vec<(f64, f64)>,
 }
 
+/// A tick label: whole numbers from 10 up, two significant digits below.
+fn tick(v: f64) -> String {
+    if v >= 10.0 {
+        format!("{v:.0}")
+    } else {
+        let digits = (1 - v.log10().floor() as i32).max(0) as usize;
+        format!("{v:.digits$}")
+    }
+}
+
+/// Ticks at 1, 2 and 5 times the powers of ten within `[lo, hi]`
+/// (plotters' own log axis labels only the powers, too few within a decade).
+fn log_ticks(lo: f64, hi: f64) -> Vec<f64> {
+    let mut ticks = Vec::new();
+    let mut decade = 10f64.powi(lo.log10().floor() as i32);
+    while decade <= hi {
+        for m in [1.0, 2.0, 5.0] {
+            let v = m * decade;
+            if (lo..=hi).contains(&v) {
+                ticks.push(v);
+            }
+        }
+        decade *= 10.0;
+    }
+    ticks
+}
+
 /// A log-log line chart of `series`, written to `path` (SVG).
 pub fn log_log_svg(
     path: &Path,
@@ -42,24 +69,22 @@ pub fn log_log_svg(
         .x_label_area_size(40)
         .y_label_area_size(60)
         .build_cartesian_2d(
-            (x0 / 1.3..x1 * 1.3).log_scale(),
-            (y0 / 2.0..y1 * 2.0).log_scale(),
+            (x0 / 1.3..x1 * 1.3)
+                .log_scale()
+                .with_key_points(log_ticks(x0 / 1.3, x1 * 1.3)),
+            (y0 / 1.25..y1 * 1.25)
+                .log_scale()
+                .with_key_points(log_ticks(y0 / 1.25, y1 * 1.25)),
         )
         .map_err(|e| err(&e))?;
     chart
         .configure_mesh()
         .x_desc(x_label)
         .y_desc(y_label)
-        .x_labels(6)
-        .y_labels(6)
-        .x_label_formatter(&|v| format!("{v:.0}"))
-        .y_label_formatter(&|v| {
-            if *v >= 10.0 {
-                format!("{v:.0}")
-            } else {
-                format!("{v}")
-            }
-        })
+        .x_labels(12)
+        .y_labels(12)
+        .x_label_formatter(&|v| tick(*v))
+        .y_label_formatter(&|v| tick(*v))
         .label_style(("sans-serif", 13))
         .draw()
         .map_err(|e| err(&e))?;
@@ -69,6 +94,9 @@ pub fn log_log_svg(
         RGBColor(0x2c, 0xa0, 0x2c),
         RGBColor(0x94, 0x67, 0xbd),
         RGBColor(0xff, 0x7f, 0x0e),
+        RGBColor(0x8c, 0x56, 0x4b),
+        RGBColor(0xe3, 0x77, 0xc2),
+        RGBColor(0x17, 0xbe, 0xcf),
     ];
     for (i, s) in series.iter().enumerate() {
         let colour = palette[i % palette.len()];
@@ -91,7 +119,7 @@ pub fn log_log_svg(
         .background_style(WHITE.mix(0.8))
         .border_style(BLACK)
         .label_font(("sans-serif", 13))
-        .position(SeriesLabelPosition::UpperLeft)
+        .position(SeriesLabelPosition::UpperRight)
         .draw()
         .map_err(|e| err(&e))?;
     root.present().map_err(|e| err(&e))?;

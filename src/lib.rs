@@ -14,9 +14,11 @@
 //!   for parametric tracing.
 //! - [`edt`]: exact Euclidean distance transforms (the cone stage's slices).
 //! - [`render`]: perspective views traced through an asset (any method).
+//! - [`bench`]: the cone planes' speed against their bake time.
 //! - [`synth`]: synthetic terrains for tests and benchmarks.
 //! - [`export`]: layers out as GeoTIFF, OpenEXR or a PNG preview.
 
+pub mod bench;
 pub mod chart;
 pub mod cones;
 pub mod edt;

@@ -126,7 +126,7 @@ enum Command {
     /// lowest apex, the widest cone). --slices auto picks K from the data: no more slices than the
     /// data has height steps, and no more than --apex-gap needs. Encodings f16 and u16 halve the
     /// planes' size and stay conservative (slope rounded down, apex up). DEMs larger than
-    /// --max-memory are baked in windows with halos (docs/ALGORITHMS.md).
+    /// --max-memory are baked in windows with halos (docs/CONES.md).
     #[command(
         after_help = "Examples:\n  terrabake cones dem.tbake\n  terrabake cones dem.tbake --slices exact\n  \
 terrabake cones dem.tbake --slices 256 --encoding u16 --json"
@@ -152,6 +152,39 @@ terrabake cones dem.tbake --slices 256 --encoding u16 --json"
         #[arg(long)]
         json: bool,
     },
+    /// Chart the parametric tracer's speed against the cone planes' bake time (replaces the asset's planes).
+    ///
+    /// For every slice count and encoding: bake the planes (all cores), then trace the sixteen
+    /// views of bench-views with the parametric tracer on one thread; the hierarchical tracer and
+    /// its pyramid are the reference. Prints a table; --chart writes PREFIX_steps.svg and
+    /// PREFIX_speed.svg.
+    #[command(
+        after_help = "Example:\n  terrabake bench-cones srtm.tbake --chart docs/charts/cones"
+    )]
+    BenchCones {
+        asset: PathBuf,
+        /// Slice counts and/or exact, comma-separated.
+        #[arg(
+            long,
+            value_delimiter = ',',
+            default_value = "4,8,16,32,64,128,256,512,1024,exact"
+        )]
+        slices: Vec<SliceChoice>,
+        /// Encodings, comma-separated.
+        #[arg(long, value_delimiter = ',', default_value = "f32")]
+        encodings: Vec<ConeEncoding>,
+        /// Image side in pixels.
+        #[arg(long, default_value_t = 512)]
+        size: u32,
+        /// Trace every N-th pixel.
+        #[arg(long, default_value_t = 4)]
+        every: u32,
+        /// Write PREFIX_steps.svg and PREFIX_speed.svg.
+        #[arg(long)]
+        chart: Option<PathBuf>,
+        #[arg(long)]
+        json: bool,
+    },
     /// Render a shaded perspective view, traced through the asset (sun light and sun shadows).
     ///
     /// Coordinates are local metres: x east and y north from the DEM's south-west post, z the
@@ -174,7 +207,8 @@ terrabake cones dem.tbake --slices 256 --encoding u16 --json"
         /// Image size WIDTHxHEIGHT.
         #[arg(long, value_parser = parse_size, default_value = "800x600")]
         size: (u32, u32),
-        /// Tracer: incremental, runs, hierarchical, brute-force (all give the same picture).
+        /// Tracer: incremental, runs, hierarchical, parametric, brute-force (all give the same picture;
+        /// hierarchical needs the pyramid stage, parametric the cones stage).
         #[arg(long, default_value = "hierarchical")]
         method: Method,
         /// Sun azimuth (clockwise from north) and elevation, degrees.
@@ -615,6 +649,33 @@ fn run(cli: Cli) -> Result<ExitCode> {
             }
             say(describe_outcome(&outcome));
             say(how);
+        }
+        Command::BenchCones {
+            asset,
+            slices,
+            encodings,
+            size,
+            every,
+            chart,
+            json,
+        } => {
+            open_asset(&asset)?;
+            let rows = terrabake::bench::cone_tradeoff(
+                &asset, &slices, &encodings, size, every, progress,
+            )?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&rows)?);
+            } else {
+                print!("{}", terrabake::bench::tradeoff_table_markdown(&rows));
+            }
+            if let Some(prefix) = chart {
+                terrabake::bench::tradeoff_charts(&prefix, &rows)?;
+                say(format!(
+                    "wrote {}_steps.svg and {}_speed.svg",
+                    prefix.display(),
+                    prefix.display()
+                ));
+            }
         }
         Command::Bake {
             src,

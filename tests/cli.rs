@@ -288,3 +288,80 @@ fn help_teaches() {
         text.contains("--raw-shape") && text.contains("--z-scale") && text.contains("power of two")
     );
 }
+
+#[test]
+fn cones_from_the_command_line_and_from_recipes() {
+    let dir = tempfile::tempdir().unwrap();
+    let tif = dir.path().join("t.tif");
+    ok(&["synth", "sine", "--size", "60x40", "-o", s(&tif), "-q"]);
+    let asset = dir.path().join("t.tbake");
+    ok(&["ingest", s(&tif), "-o", s(&asset), "-q"]);
+    let out: serde_json::Value = serde_json::from_str(&ok(&[
+        "cones",
+        s(&asset),
+        "--slices",
+        "exact",
+        "--json",
+        "-q",
+    ]))
+    .unwrap();
+    assert_eq!(out["skipped"], false);
+    assert!(out["planes"].as_str().unwrap().contains("exact"), "{out}");
+    // Auto says what it chose and why.
+    let out: serde_json::Value =
+        serde_json::from_str(&ok(&["cones", s(&asset), "--json", "-q"])).unwrap();
+    assert!(
+        out["planes"].as_str().unwrap().contains("slices: relief"),
+        "{out}"
+    );
+    ok(&[
+        "render",
+        s(&asset),
+        "--view",
+        "2",
+        "--method",
+        "parametric",
+        "--size",
+        "40x30",
+        "-o",
+        s(&dir.path().join("v.png")),
+        "-q",
+    ]);
+
+    let bad = terrabake(&["cones", s(&asset), "--slices", "0"]);
+    assert_eq!(bad.status.code(), Some(2), "{}", stderr(&bad));
+    let bad = terrabake(&["cones", s(&asset), "--slices", "16", "--apex-gap", "3"]);
+    assert_eq!(bad.status.code(), Some(1));
+    assert!(stderr(&bad).contains("--apex-gap"), "{}", stderr(&bad));
+
+    let recipe = dir.path().join("r.toml");
+    std::fs::write(
+        &recipe,
+        "[[stage]]\nname = \"cones\"\nslices = 64\nencoding = \"u16\"\n",
+    )
+    .unwrap();
+    ok(&[
+        "bake",
+        s(&tif),
+        "-o",
+        s(&asset),
+        "--recipe",
+        s(&recipe),
+        "-q",
+    ]);
+    let a = Asset::open(&asset).unwrap();
+    let slope = a.layer("cone_slope", 0).unwrap().entry();
+    assert_eq!(slope.elem, terrabake_format::ElemType::U16);
+    assert!(slope.description.contains("64 slices"));
+    assert!(a
+        .layer("cone_apex", 0)
+        .unwrap()
+        .entry()
+        .quantization
+        .is_some());
+
+    std::fs::write(&recipe, "[[stage]]\nname = \"cones\"\nslice = 64\n").unwrap();
+    let bad = terrabake(&["bake", s(&tif), "-o", s(&asset), "--recipe", s(&recipe)]);
+    assert_eq!(bad.status.code(), Some(1));
+    assert!(stderr(&bad).contains("'slice'"), "{}", stderr(&bad));
+}

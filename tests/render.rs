@@ -3,6 +3,7 @@
 
 mod common;
 
+use terrabake::cones::ConesStage;
 use terrabake::ingest::{ingest, IngestOptions};
 use terrabake::progress::Progress;
 use terrabake::pyramid::PyramidStage;
@@ -22,6 +23,7 @@ fn srtm_with_pyramid(dir: &std::path::Path) -> std::path::PathBuf {
     )
     .unwrap();
     run_stage(&out, &PyramidStage, false, Progress::hidden()).unwrap();
+    run_stage(&out, &ConesStage::default(), false, Progress::hidden()).unwrap();
     out
 }
 
@@ -34,7 +36,12 @@ fn every_method_renders_the_same_picture() {
     assert_eq!(views.len(), 16);
     for view in [0, 5, 13] {
         let mut images = Vec::new();
-        for method in [Method::Incremental, Method::Runs, Method::Hierarchical] {
+        for method in [
+            Method::Incremental,
+            Method::Runs,
+            Method::Hierarchical,
+            Method::Parametric,
+        ] {
             let opts = RenderOptions {
                 width: 80,
                 height: 60,
@@ -83,6 +90,7 @@ fn a_spike_shadows_the_ground_behind_it() {
             ..Default::default()
         },
     );
+    run_stage(&out, &ConesStage::default(), false, Progress::hidden()).unwrap();
     let asset = Asset::open(&out).unwrap();
     let tracer = Tracer::new(&asset).unwrap();
     // The spike: post (32, 32), 1000 m, on flat 0 m ground with 30 m posts.
@@ -96,6 +104,7 @@ fn a_spike_shadows_the_ground_behind_it() {
         Method::Incremental,
         Method::Runs,
         Method::Hierarchical,
+        Method::Parametric,
         Method::BruteForce,
     ] {
         // 500 m west of the spike the sun (45 degrees up) is behind its flank.

@@ -20,7 +20,7 @@
 //! maximum, so every slope is capped at `halo * min(dx, dy) / (z_max -
 //! apex)`. That cap is the cost: a leap never crosses more than about one
 //! halo, where the in-core planes are unbounded. Peak memory is one window
-//! and one row of core blocks of output.
+//! and one row of core blocks of output, both counted against the budget.
 
 pub mod planes;
 
@@ -113,14 +113,22 @@ impl SliceChoice {
                     f64::INFINITY
                 };
                 let k = by_gap.min(by_data).clamp(1.0, 65535.0) as usize;
+                // Metres to the millimetre, without trailing zeros.
+                let m = |v: f64| {
+                    let t = format!("{v:.3}");
+                    t.trim_end_matches('0').trim_end_matches('.').to_string()
+                };
                 let reason = if by_data <= by_gap {
                     format!(
-                        "{k} slices: relief {relief:.6} m in steps of {:.6} m; more slices than height steps buy nothing",
-                        h.step
+                        "{k} slices: relief {} m in steps of {} m; more slices than height steps buy nothing",
+                        m(relief),
+                        m(h.step)
                     )
                 } else {
                     format!(
-                        "{k} slices: relief {relief:.6} m with the apex at most {gap:.6} m above a cell's neighbourhood (the data has {by_data} height steps)"
+                        "{k} slices: relief {} m with the apex at most {} m above a cell's neighbourhood (the data has {by_data} height steps)",
+                        m(relief),
+                        m(gap)
                     )
                 };
                 SlicePlan {
@@ -208,9 +216,12 @@ fn blocking(cells: (usize, usize), tile: usize, max_memory: u64) -> Blocking {
             whole: true,
         };
     }
-    // A window is (core + 2 * halo)^2 = (2 core)^2 cells.
-    let side = ((max_memory / BYTES_PER_CELL) as f64).sqrt() as usize / 2;
-    let core = (side / tile).max(1) * tile;
+    // A window is (core + 2 * halo)^2 = (2 core)^2 cells at BYTES_PER_CELL,
+    // and a row of core blocks of output is core x width x 8 bytes (apex and
+    // slope in f32): the largest core for which both fit.
+    let (b, w, m) = (BYTES_PER_CELL as f64, cells.0 as f64, max_memory as f64);
+    let side = ((64.0 * w * w + 16.0 * b * m).sqrt() - 8.0 * w) / (8.0 * b);
+    let core = (side as usize / tile).max(1) * tile;
     Blocking {
         core,
         halo: core / 2,
@@ -291,10 +302,13 @@ fn encode_rows<T: Element>(
     encode: impl Fn(f64) -> T + Sync,
     fill: T,
 ) -> Result<()> {
-    let encoded: Vec<T> = values.iter().map(|&v| encode(f64::from(v))).collect();
+    // One tile row at a time, so that the encoded copy stays small.
     let ts = writer.spec().tile_size as usize;
-    for band in encoded.chunks(ts * width) {
-        push_tile_row(writer, band, width, fill, Codec::Raw)?;
+    let mut encoded = Vec::with_capacity(ts * width);
+    for band in values.chunks(ts * width) {
+        encoded.clear();
+        encoded.extend(band.iter().map(|&v| encode(f64::from(v))));
+        push_tile_row(writer, &encoded, width, fill, Codec::Raw)?;
     }
     Ok(())
 }

@@ -342,7 +342,7 @@ fn sliced_planes_with<G: ColumnDistance>(
                 }
                 let reach = lanes.into_iter().fold(0.0f64, f64::max);
                 // (A row with no plane cell in reach has nothing to update.)
-                if !(reach > 0.0) {
+                if reach <= 0.0 {
                     return;
                 }
                 let reach2 = reach * reach / dx2;

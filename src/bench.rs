@@ -1,0 +1,184 @@
+//! The cone planes' speed against precomputation cost (`terrabake
+//! bench-cones`): for each slice count (and the exact cones) and each
+//! encoding, the bake time on all cores and the parametric tracer's mean
+//! steps and rays per second on one thread over the sixteen views of the
+//! tracing benchmark, with the hierarchical tracer (and its pyramid's bake
+//! time) beside them. This is the chart a user reads to choose `--slices`.
+
+use std::path::Path;
+
+use anyhow::Result;
+use serde::Serialize;
+use terrabake_format::cones::ConeEncoding;
+use terrabake_format::trace::Method;
+use terrabake_format::Asset;
+
+use crate::chart::{log_log_svg, Series};
+use crate::cones::{ConesStage, SliceChoice};
+use crate::progress::Progress;
+use crate::pyramid::PyramidStage;
+use crate::render::{bench_views, BenchRow};
+use crate::stage::run_stage;
+
+/// One configuration's cost and benefit.
+#[derive(Debug, Clone, Serialize)]
+pub struct TradeoffRow {
+    /// `K` slices, `exact`, or the hierarchical reference (`pyramid`).
+    pub planes: String,
+    pub encoding: String,
+    /// Bake time of the layers the tracer needs, all cores.
+    pub bake_seconds: f64,
+    /// Bytes per cell of those layers.
+    pub bytes_per_cell: f64,
+    pub method: String,
+    pub mean_steps: f64,
+    pub mean_cells: f64,
+    pub rays_per_second_per_thread: f64,
+}
+
+fn row(
+    planes: String,
+    encoding: &str,
+    bake_seconds: f64,
+    bytes_per_cell: f64,
+    b: &BenchRow,
+) -> TradeoffRow {
+    TradeoffRow {
+        planes,
+        encoding: encoding.into(),
+        bake_seconds,
+        bytes_per_cell,
+        method: b.method.clone(),
+        mean_steps: b.mean_steps,
+        mean_cells: b.mean_cells,
+        rays_per_second_per_thread: b.rays_per_second_per_thread,
+    }
+}
+
+/// Bakes every configuration into the asset at `dir` (replacing its cone
+/// planes) and traces the views (`size x size`, every `every`-th pixel) on
+/// one thread. The first row is the hierarchical reference.
+pub fn cone_tradeoff(
+    dir: &Path,
+    slices: &[SliceChoice],
+    encodings: &[ConeEncoding],
+    size: u32,
+    every: u32,
+    progress: Progress,
+) -> Result<Vec<TradeoffRow>> {
+    let one_thread = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;
+    let trace = |method: Method| -> Result<BenchRow> {
+        let asset = Asset::open(dir)?;
+        let rows = one_thread.install(|| bench_views(&asset, size, every, &[method]))?;
+        Ok(rows.into_iter().next().expect("one method"))
+    };
+    let pyramid = run_stage(dir, &PyramidStage, true, progress)?;
+    // The pyramid's levels above 0 add a third: 4 bytes x 4/3 per cell (max only is traced).
+    let mut rows = vec![row(
+        "pyramid".into(),
+        "f32",
+        pyramid.seconds,
+        4.0 * 4.0 / 3.0,
+        &trace(Method::Hierarchical)?,
+    )];
+    for &encoding in encodings {
+        for &choice in slices {
+            let stage = ConesStage {
+                slices: choice,
+                encoding,
+                ..Default::default()
+            };
+            let outcome = run_stage(dir, &stage, true, progress)?;
+            let planes = match choice {
+                SliceChoice::Count(k) => k.to_string(),
+                SliceChoice::Exact => "exact".into(),
+                SliceChoice::Auto { .. } => "auto".into(),
+            };
+            let bytes = 2.0 * encoding.elem().size() as f64;
+            rows.push(row(
+                planes,
+                encoding.name(),
+                outcome.seconds,
+                bytes,
+                &trace(Method::Parametric)?,
+            ));
+        }
+    }
+    Ok(rows)
+}
+
+pub fn tradeoff_table_markdown(rows: &[TradeoffRow]) -> String {
+    let mut s = String::from("| tracer | planes | encoding | bake (s) | bytes / cell | mean steps / ray | mean cells tested / ray | rays/s per thread |\n| --- | --- | --- | --- | --- | --- | --- | --- |\n");
+    for r in rows {
+        s += &format!(
+            "| {} | {} | {} | {:.2} | {:.1} | {:.2} | {:.2} | {:.0} |\n",
+            r.method,
+            r.planes,
+            r.encoding,
+            r.bake_seconds,
+            r.bytes_per_cell,
+            r.mean_steps,
+            r.mean_cells,
+            r.rays_per_second_per_thread
+        );
+    }
+    s
+}
+
+/// `PREFIX_steps.svg` and `PREFIX_speed.svg`: steps per ray and rays per
+/// second against bake time, one line per encoding of the sliced planes,
+/// the exact cones and the hierarchical reference as points.
+pub fn tradeoff_charts(prefix: &Path, rows: &[TradeoffRow]) -> Result<()> {
+    let series = |value: &dyn Fn(&TradeoffRow) -> f64| -> Vec<Series> {
+        let mut out = Vec::new();
+        let mut keys: Vec<(String, String)> = Vec::new();
+        for r in rows {
+            let kind = match r.planes.as_str() {
+                "pyramid" | "exact" => r.planes.clone(),
+                _ => "sliced".into(),
+            };
+            if !keys.contains(&(kind.clone(), r.encoding.clone())) {
+                keys.push((kind, r.encoding.clone()));
+            }
+        }
+        for (kind, encoding) in keys {
+            let name = match kind.as_str() {
+                "pyramid" => "hierarchical (max pyramid)".to_string(),
+                "exact" => format!("parametric, exact cones, {encoding}"),
+                _ => format!("parametric, K slices, {encoding}"),
+            };
+            let points = rows
+                .iter()
+                .filter(|r| {
+                    r.encoding == encoding
+                        && match kind.as_str() {
+                            "pyramid" | "exact" => r.planes == kind,
+                            _ => r.planes.parse::<usize>().is_ok(),
+                        }
+                })
+                .map(|r| (r.bake_seconds, value(r)))
+                .collect::<Vec<_>>();
+            // In order of cost: a line that reads left to right.
+            let mut points = points;
+            points.sort_by(|p, q| p.0.total_cmp(&q.0));
+            out.push(Series { name, points });
+        }
+        out
+    };
+    let path =
+        |suffix: &str| std::path::PathBuf::from(format!("{}_{suffix}.svg", prefix.display()));
+    log_log_svg(
+        &path("steps"),
+        "Mean steps per ray against precomputation (K = 4 .. 1024 slices)",
+        "bake time (s, 2 cores)",
+        "steps per ray",
+        &series(&|r| r.mean_steps),
+    )?;
+    log_log_svg(
+        &path("speed"),
+        "Rays per second (one thread) against precomputation",
+        "bake time (s, 2 cores)",
+        "rays per second",
+        &series(&|r| r.rays_per_second_per_thread),
+    )
+}
