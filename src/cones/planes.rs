@@ -188,31 +188,24 @@ trait ColumnDistance: Copy + Send + Sync + Eq + Ord {
     fn cells(self) -> f64;
 }
 
-impl ColumnDistance for u16 {
-    const NONE: Self = u16::MAX;
-    const ZERO: Self = 0;
-    #[inline]
-    fn next(self) -> Self {
-        self.saturating_add(1)
-    }
-    #[inline]
-    fn cells(self) -> f64 {
-        f64::from(self)
-    }
+macro_rules! column_distance {
+    ($t:ty) => {
+        impl ColumnDistance for $t {
+            const NONE: Self = <$t>::MAX;
+            const ZERO: Self = 0;
+            #[inline]
+            fn next(self) -> Self {
+                self.saturating_add(1)
+            }
+            #[inline]
+            fn cells(self) -> f64 {
+                f64::from(self)
+            }
+        }
+    };
 }
-
-impl ColumnDistance for u32 {
-    const NONE: Self = u32::MAX;
-    const ZERO: Self = 0;
-    #[inline]
-    fn next(self) -> Self {
-        self.saturating_add(1)
-    }
-    #[inline]
-    fn cells(self) -> f64 {
-        f64::from(self)
-    }
-}
+column_distance!(u16);
+column_distance!(u32);
 
 /// Paglieroni and Petersen's planes from `slices`, over a `cw x ch` grid of
 /// `nmax` values with cells `dx x dy` metres; `on_slice` is called after
