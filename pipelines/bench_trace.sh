@@ -27,4 +27,4 @@ for n in 1024 2048 4096 8192; do
   assets+=("$WORK/fractal_$n.tbake")
 done
 mkdir -p docs/charts
-"$BIN" bench-views "${assets[@]}" --every 16 --methods incremental,runs,hierarchical --chart docs/charts/trace_scaling
+"$BIN" bench-views "${assets[@]}" --every 16 --methods incremental,runs,hierarchical,parametric --chart docs/charts/trace_scaling

@@ -359,13 +359,17 @@ pub fn bench_views(
 ) -> anyhow::Result<Vec<BenchRow>> {
     let tracer = Tracer::new(asset)?;
     let views = builtin_views(&tracer, asset);
-    // Warm the page cache (heights and pyramid along the views' rays), so
-    // that the first method timed does not pay for cold pages alone.
-    for cam in &views {
+    // Warm the page cache and the tiles' first-read checksums along the
+    // views' rays with every method (each reads its own layers: heights,
+    // pyramid, cone planes), so that no method timed pays for cold pages.
+    for (cam, &method) in views
+        .iter()
+        .flat_map(|cam| methods.iter().map(move |m| (cam, m)))
+    {
         let warm = RenderOptions {
             width: size,
             height: size,
-            method: Method::Incremental,
+            method,
             sun: Sun {
                 azimuth: 0.0,
                 elevation: 45.0,
