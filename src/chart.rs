@@ -40,6 +40,23 @@ fn log_ticks(lo: f64, hi: f64) -> Vec<f64> {
     ticks
 }
 
+/// The upper corner with fewer points under it (in log space), for the legend.
+fn legend_corner(
+    points: &[(f64, f64)],
+    (x0, x1): (f64, f64),
+    (y0, y1): (f64, f64),
+) -> SeriesLabelPosition {
+    let (xm, ym) = ((x0 * x1).sqrt(), (y0 * y1).sqrt());
+    let upper = points.iter().filter(|p| p.1 >= ym);
+    let left = upper.clone().filter(|p| p.0 < xm).count();
+    let right = upper.count() - left;
+    if left <= right {
+        SeriesLabelPosition::UpperLeft
+    } else {
+        SeriesLabelPosition::UpperRight
+    }
+}
+
 /// A log-log line chart of `series`, written to `path` (SVG).
 pub fn log_log_svg(
     path: &Path,
@@ -119,7 +136,7 @@ pub fn log_log_svg(
         .background_style(WHITE.mix(0.8))
         .border_style(BLACK)
         .label_font(("sans-serif", 13))
-        .position(SeriesLabelPosition::UpperRight)
+        .position(legend_corner(&all, (x0, x1), (y0, y1)))
         .draw()
         .map_err(|e| err(&e))?;
     root.present().map_err(|e| err(&e))?;

@@ -92,7 +92,9 @@ pub fn run_stage(
             });
         }
     }
-    let entries = stage.run(&asset, dir, progress)?;
+    let entries = stage
+        .run(&asset, dir, progress)
+        .with_context(|| format!("{}: stage '{}' failed", dir.display(), stage.name()))?;
     let mut manifest = asset.manifest().clone();
     drop(asset);
     let outputs: Vec<String> = entries.iter().map(LayerEntry::key).collect();

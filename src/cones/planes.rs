@@ -19,13 +19,13 @@
 //!   each slice's bit plane `nmax >= z_k` (eq. 3-4; Felzenszwalb-Huttenlocher
 //!   in `crate::edt`), the apex at the first slice the cell is not part of,
 //!   and the least slope over the pairs `(D_k, z_{k+1})`, slice by slice, so
-//!   one distance plane exists at a time. Departures: a slice whose bit plane
-//!   equals the next one (no cell has its top between them) is skipped, since
-//!   the next gives tighter bounds from the same distances; this makes `K` above the data's
-//!   number of distinct heights cost nothing. The column pass is a two-sweep
-//!   integer distance over strips of columns (cache-friendly, no parabolas
-//!   needed for a bit plane); the row pass is the lower envelope of
-//!   parabolas.
+//!   one distance plane exists at a time. Departures (docs/CONES.md): a
+//!   slice whose bit plane equals the next one is skipped, since the next
+//!   gives tighter bounds from the same distances (so `K` above the data's
+//!   number of distinct heights costs nothing); the column pass is two
+//!   integer sweeps over strips of columns (no parabolas needed for a bit
+//!   plane); the row pass leaves out parabolas too far to narrow any cone of
+//!   the row; the top slice runs first so that every row has a finite reach.
 //! - [`exact_planes`]: the limit `K -> infinity`, without slices: the apex at
 //!   the cell's own `nmax` (the lowest apex possible) and the least slope
 //!   over every taller cell, found by branch and bound over a max pyramid of
