@@ -68,23 +68,35 @@ impl Envelope {
         self.parabolas.is_empty()
     }
 
-    /// Calls `visit(p, d)` for `p` in `0..n` with `d` the envelope at `p`
-    /// (`inf` everywhere when it is empty).
+    /// Calls `visit(p, d)` for every `p` of `positions` (increasing) with
+    /// `d` the envelope at `p`; the envelope must not be empty.
     #[inline]
-    pub fn evaluate(&self, n: usize, mut visit: impl FnMut(usize, f64)) {
-        let Some((first, rest)) = self.parabolas.split_first() else {
-            (0..n).for_each(|p| visit(p, f64::INFINITY));
-            return;
-        };
+    pub fn evaluate_at(
+        &self,
+        positions: impl Iterator<Item = usize>,
+        mut visit: impl FnMut(usize, f64),
+    ) {
+        let (first, rest) = self.parabolas.split_first().expect("a parabola");
         let mut lowest = first;
         let mut next = rest.iter().peekable();
-        for p in 0..n {
+        for p in positions {
             let pf = p as f64;
             while let Some(n) = next.next_if(|n| n.from < pf) {
                 lowest = n;
             }
             let d = pf - lowest.root;
             visit(p, d * d + lowest.offset);
+        }
+    }
+
+    /// Calls `visit(p, d)` for `p` in `0..n` with `d` the envelope at `p`
+    /// (`inf` everywhere when it is empty).
+    #[inline]
+    pub fn evaluate(&self, n: usize, mut visit: impl FnMut(usize, f64)) {
+        if self.is_empty() {
+            (0..n).for_each(|p| visit(p, f64::INFINITY));
+        } else {
+            self.evaluate_at(0..n, visit);
         }
     }
 }

@@ -27,6 +27,7 @@ pub mod planes;
 use std::path::Path;
 
 use anyhow::{bail, Result};
+use rayon::prelude::*;
 use terrabake_format::cones::{
     apex_quantization, encode_apex, encode_slope, ConeEncoding, CONE_APEX, CONE_SLOPE,
 };
@@ -171,16 +172,29 @@ pub fn summarize_heights(asset: &Asset<Mmap>) -> Result<HeightSummary> {
         let rows = ts.min(h - y0);
         let band = &mut band[..(w * rows) as usize];
         height.read_window(0, 0, y0, w, rows, band)?;
-        for (i, &z) in band.iter().enumerate() {
-            if z.is_nan() {
-                continue;
-            }
-            z_min = z_min.min(f64::from(z));
-            z_max = z_max.max(f64::from(z));
-            if (u64::from(y0) * u64::from(w) + i as u64) % stride == 0 {
-                sample.push(z);
-            }
-        }
+        let (lo, hi) = band
+            .par_chunks(w as usize)
+            .map(|row| {
+                row.iter()
+                    .filter(|z| !z.is_nan())
+                    .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &z| {
+                        (a.min(z), b.max(z))
+                    })
+            })
+            .reduce(
+                || (f32::INFINITY, f32::NEG_INFINITY),
+                |p, q| (p.0.min(q.0), p.1.max(q.1)),
+            );
+        z_min = z_min.min(f64::from(lo));
+        z_max = z_max.max(f64::from(hi));
+        let first = u64::from(y0) * u64::from(w);
+        let skip = (stride - first % stride) % stride;
+        sample.extend(
+            band.iter()
+                .skip(skip as usize)
+                .step_by(stride as usize)
+                .filter(|z| !z.is_nan()),
+        );
     }
     if z_min > z_max {
         bail!("the DEM has no valid height");

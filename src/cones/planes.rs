@@ -146,7 +146,26 @@ impl Slices {
     /// apex slice (`n == len` when it is in every slice).
     pub fn member_of(&self, nmax: f32) -> usize {
         let v = f64::from(nmax);
-        self.z.partition_point(|&z| z <= v)
+        let (z, n) = (&self.z, self.z.len());
+        // Slices are uniform: guess from the step, then settle exactly on
+        // the count of slices at or below v (a binary search costs 3x more).
+        let step = if n > 1 {
+            (z[n - 1] - z[0]) / (n - 1) as f64
+        } else {
+            0.0
+        };
+        let mut i = if step > 0.0 && v.is_finite() {
+            (((v - z[0]) / step).floor() + 1.0).clamp(0.0, n as f64) as usize
+        } else {
+            z.partition_point(|&s| s <= v)
+        };
+        while i > 0 && z[i - 1] > v {
+            i -= 1;
+        }
+        while i < n && z[i] <= v {
+            i += 1;
+        }
+        i
     }
 }
 
@@ -316,26 +335,27 @@ fn sliced_planes_with<G: ColumnDistance>(
         // Distances in units of dx: a column distance of g cells is g * dy / dx.
         let (aspect, dx2) = (dy / dx, dx * dx);
         slope.par_chunks_mut(cw).enumerate().for_each_init(
-            Envelope::default,
-            |envelope, (r, row)| {
+            || (Envelope::default(), Vec::<u32>::new()),
+            |(envelope, targets), (r, row)| {
                 let m = &member[r * cw..(r + 1) * cw];
                 // The farthest that a plane cell can be and still narrow a
                 // cone of this row (in dx units, squared): farther columns
                 // cannot lower any slope, so their parabolas are left out.
                 // At high slices, where plane cells are few and far, this
                 // leaves out most of them.
-                // Eight running maxima, so that the loop does not wait on
-                // one (inf * 0 is NaN, which never compares greater).
-                let mut lanes = [0.0f64; 8];
-                for (m8, s8) in m.chunks(8).zip(row.chunks(8)) {
-                    for (lane, (&a, &slope)) in lanes.iter_mut().zip(m8.iter().zip(s8)) {
-                        let v = f64::from(slope) * rise_of[usize::from(a)];
-                        *lane = if v > *lane { v } else { *lane };
+                // The cells this slice can narrow (outside the plane, with a
+                // cone still open), and the reach: the widest of them.
+                targets.clear();
+                let mut reach = 0.0f64;
+                for (c, (&a, &slope)) in m.iter().zip(row.iter()).enumerate() {
+                    let v = f64::from(slope) * rise_of[usize::from(a)];
+                    // (inf * 0 is NaN, which is never greater.)
+                    if v > 0.0 {
+                        targets.push(c as u32);
+                        reach = reach.max(v);
                     }
                 }
-                let reach = lanes.into_iter().fold(0.0f64, f64::max);
-                // (A row with no plane cell in reach has nothing to update.)
-                if reach <= 0.0 {
+                if targets.is_empty() {
                     return;
                 }
                 let reach2 = reach * reach / dx2;
@@ -353,14 +373,12 @@ fn sliced_planes_with<G: ColumnDistance>(
                         }
                     }
                 }
+                // (No plane cell in reach: nothing to update.)
                 if envelope.is_empty() {
                     return;
                 }
-                envelope.evaluate(cw, |c, d2| {
+                envelope.evaluate_at(targets.iter().map(|&c| c as usize), |c, d2| {
                     let rise = rise_of[usize::from(m[c])];
-                    if rise <= 0.0 {
-                        return;
-                    }
                     // Compare squares; one root only where the slope drops.
                     let d2 = d2 * dx2;
                     let bound = f64::from(row[c]) * rise;
