@@ -187,6 +187,17 @@ pub fn encode_apex(z: f64, enc: ConeEncoding, q: Option<Quantization>) -> u32 {
     }
 }
 
+/// The 65,536 `u16` slope codes decoded, each rounded down to `f32`: built
+/// once per process (about a millisecond), shared by every reader.
+fn u16_slope_table() -> &'static [f32] {
+    static TABLE: std::sync::OnceLock<Vec<f32>> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| {
+        (0..=u16::MAX)
+            .map(|q| round_down_f32(slope_from_angle_code(q)))
+            .collect()
+    })
+}
+
 /// One cell's cone, decoded.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Cone {
@@ -203,8 +214,8 @@ pub struct ConePlanes<'a, D> {
     slope: &'a Layer<D>,
     enc: ConeEncoding,
     apex_q: Option<Quantization>,
-    /// `u16` slopes: the 65536 codes decoded once, each rounded down to f32.
-    slope_table: Vec<f32>,
+    /// `u16` slopes: the 65536 codes decoded, each rounded down to f32.
+    slope_table: &'static [f32],
 }
 
 impl<D> std::fmt::Debug for ConePlanes<'_, D> {
@@ -245,11 +256,9 @@ impl<'a, D: AsRef<[u8]>> ConePlanes<'a, D> {
             )));
         }
         let slope_table = if enc == ConeEncoding::U16 {
-            (0..=u16::MAX)
-                .map(|q| round_down_f32(slope_from_angle_code(q)))
-                .collect()
+            u16_slope_table()
         } else {
-            Vec::new()
+            &[]
         };
         Ok(Some(Self {
             apex,
