@@ -153,7 +153,10 @@ pub fn apex_quantization(z_lo: f64, z_hi: f64, enc: ConeEncoding) -> Option<Quan
     }
 }
 
-fn apex_from_code(code: u32, enc: ConeEncoding, q: Option<Quantization>) -> f64 {
+/// Decodes a stored apex (the inverse of [`encode_apex`]): `f32` bits or
+/// the `f16` / `u16` code, through the layer's quantisation.
+#[inline]
+pub fn decode_apex(code: u32, enc: ConeEncoding, q: Option<Quantization>) -> f64 {
     let stored = match enc {
         ConeEncoding::F32 => return f64::from(f32::from_bits(code)),
         ConeEncoding::F16 => f16::from_bits(code as u16).to_f64(),
@@ -171,7 +174,7 @@ pub fn encode_apex(z: f64, enc: ConeEncoding, q: Option<Quantization>) -> u32 {
         ConeEncoding::F16 => {
             let qz = q.expect("f16 apexes are quantised");
             let mut code = f16::from_f64((z - qz.offset).max(0.0)).to_bits();
-            while apex_from_code(u32::from(code), enc, q) < z {
+            while decode_apex(u32::from(code), enc, q) < z {
                 code += 1;
             }
             u32::from(code)
@@ -179,7 +182,7 @@ pub fn encode_apex(z: f64, enc: ConeEncoding, q: Option<Quantization>) -> u32 {
         ConeEncoding::U16 => {
             let qz = q.expect("u16 apexes are quantised");
             let mut code = ((z - qz.offset) / qz.scale).ceil().clamp(0.0, 65535.0) as u32;
-            while code < 65535 && apex_from_code(code, enc, q) < z {
+            while code < 65535 && decode_apex(code, enc, q) < z {
                 code += 1;
             }
             code
@@ -214,8 +217,6 @@ pub struct ConePlanes<'a, D> {
     slope: &'a Layer<D>,
     enc: ConeEncoding,
     apex_q: Option<Quantization>,
-    /// `u16` slopes: the 65536 codes decoded, each rounded down to f32.
-    slope_table: &'static [f32],
 }
 
 impl<D> std::fmt::Debug for ConePlanes<'_, D> {
@@ -255,17 +256,11 @@ impl<'a, D: AsRef<[u8]>> ConePlanes<'a, D> {
                 enc.name()
             )));
         }
-        let slope_table = if enc == ConeEncoding::U16 {
-            u16_slope_table()
-        } else {
-            &[]
-        };
         Ok(Some(Self {
             apex,
             slope,
             enc,
             apex_q,
-            slope_table,
         }))
     }
 
@@ -276,44 +271,32 @@ impl<'a, D: AsRef<[u8]>> ConePlanes<'a, D> {
     /// The cone over cell `(c, r)`.
     #[inline]
     pub fn cone(&self, c: u32, r: u32) -> Result<Cone> {
-        Ok(match self.enc {
-            ConeEncoding::F32 => Cone {
-                apex: f64::from(self.apex.get::<f32>(0, c, r)?),
-                slope: f64::from(self.slope.get::<f32>(0, c, r)?),
-            },
-            ConeEncoding::F16 => Cone {
-                apex: apex_from_code(
-                    u32::from(self.apex.get::<u16>(0, c, r)?),
-                    self.enc,
-                    self.apex_q,
-                ),
-                slope: f16::from_bits(self.slope.get::<u16>(0, c, r)?).to_f64(),
-            },
-            ConeEncoding::U16 => Cone {
-                apex: apex_from_code(
-                    u32::from(self.apex.get::<u16>(0, c, r)?),
-                    self.enc,
-                    self.apex_q,
-                ),
-                slope: f64::from(self.slope_table[usize::from(self.slope.get::<u16>(0, c, r)?)]),
-            },
+        let (apex, slope) = match self.enc {
+            ConeEncoding::F32 => (
+                self.apex.get::<f32>(0, c, r)?.to_bits(),
+                self.slope.get::<f32>(0, c, r)?.to_bits(),
+            ),
+            ConeEncoding::F16 | ConeEncoding::U16 => (
+                u32::from(self.apex.get::<u16>(0, c, r)?),
+                u32::from(self.slope.get::<u16>(0, c, r)?),
+            ),
+        };
+        Ok(Cone {
+            apex: decode_apex(apex, self.enc, self.apex_q),
+            slope: decode_slope(slope, self.enc),
         })
     }
 }
 
-/// Decodes a stored slope (the inverse of [`encode_slope`], exactly as the
-/// reader does it).
+/// Decodes a stored slope (the inverse of [`encode_slope`]): `f32` bits or
+/// the `f16` / `u16` code.
+#[inline]
 pub fn decode_slope(code: u32, enc: ConeEncoding) -> f64 {
     match enc {
         ConeEncoding::F32 => f64::from(f32::from_bits(code)),
         ConeEncoding::F16 => f16::from_bits(code as u16).to_f64(),
-        ConeEncoding::U16 => f64::from(round_down_f32(slope_from_angle_code(code as u16))),
+        ConeEncoding::U16 => f64::from(u16_slope_table()[code as usize]),
     }
-}
-
-/// Decodes a stored apex (the inverse of [`encode_apex`]).
-pub fn decode_apex(code: u32, enc: ConeEncoding, q: Option<Quantization>) -> f64 {
-    apex_from_code(code, enc, q)
 }
 
 #[cfg(test)]

@@ -27,7 +27,6 @@ pub mod planes;
 use std::path::Path;
 
 use anyhow::{bail, Result};
-use rayon::prelude::*;
 use terrabake_format::cones::{
     apex_quantization, encode_apex, encode_slope, ConeEncoding, CONE_APEX, CONE_SLOPE,
 };
@@ -69,7 +68,7 @@ impl std::str::FromStr for SliceChoice {
     }
 }
 
-/// The DEM's heights, from one streaming pass over its posts.
+/// The DEM's heights: its range and its vertical quantisation.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct HeightSummary {
     pub z_min: f64,
@@ -160,44 +159,21 @@ impl Default for ConesStage {
     }
 }
 
-/// One pass over the posts, a band of tiles at a time.
+/// The DEM's range (recorded at ingest) and its height step, from an even
+/// sample of up to 2^20 posts read in place.
 pub fn summarize_heights(asset: &Asset<Mmap>) -> Result<HeightSummary> {
-    let height = asset.height()?;
-    let (w, h, ts) = (height.width(), height.height(), height.tile_size());
-    let stride = ((u64::from(w) * u64::from(h)) >> 20).max(1);
-    let (mut z_min, mut z_max) = (f64::INFINITY, f64::NEG_INFINITY);
-    let mut sample = Vec::new();
-    let mut band = vec![0f32; w as usize * ts as usize];
-    for y0 in (0..h).step_by(ts as usize) {
-        let rows = ts.min(h - y0);
-        let band = &mut band[..(w * rows) as usize];
-        height.read_window(0, 0, y0, w, rows, band)?;
-        let (lo, hi) = band
-            .par_chunks(w as usize)
-            .map(|row| {
-                row.iter()
-                    .filter(|z| !z.is_nan())
-                    .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &z| {
-                        (a.min(z), b.max(z))
-                    })
-            })
-            .reduce(
-                || (f32::INFINITY, f32::NEG_INFINITY),
-                |p, q| (p.0.min(q.0), p.1.max(q.1)),
-            );
-        z_min = z_min.min(f64::from(lo));
-        z_max = z_max.max(f64::from(hi));
-        let first = u64::from(y0) * u64::from(w);
-        let skip = (stride - first % stride) % stride;
-        sample.extend(
-            band.iter()
-                .skip(skip as usize)
-                .step_by(stride as usize)
-                .filter(|z| !z.is_nan()),
-        );
-    }
-    if z_min > z_max {
+    let Some(range) = asset.manifest().height_range else {
         bail!("the DEM has no valid height");
+    };
+    let height = asset.height()?;
+    let (w, h) = (u64::from(height.width()), u64::from(height.height()));
+    let stride = ((w * h) >> 20).max(1);
+    let mut sample = Vec::new();
+    for i in (0..w * h).step_by(stride as usize) {
+        let z = height.get::<f32>(0, (i % w) as u32, (i / w) as u32)?;
+        if !z.is_nan() {
+            sample.push(z);
+        }
     }
     sample.sort_by(f32::total_cmp);
     sample.dedup();
@@ -206,8 +182,8 @@ pub fn summarize_heights(asset: &Asset<Mmap>) -> Result<HeightSummary> {
         .map(|p| f64::from(p[1]) - f64::from(p[0]))
         .fold(f64::INFINITY, f64::min);
     Ok(HeightSummary {
-        z_min,
-        z_max,
+        z_min: f64::from(range.min),
+        z_max: f64::from(range.max),
         step: if step.is_finite() { step } else { 0.0 },
     })
 }
@@ -271,12 +247,8 @@ impl ConesStage {
         let extended = neighbourhood_max(&posts, pw, ph);
         drop(posts);
         let (ww, wh) = (x1 - x0, y1 - y0);
-        let mut nmax = vec![0f32; ww * wh];
-        for (y, row) in nmax.chunks_mut(ww).enumerate() {
-            let src = (y + y0 - ey0) * (pw - 1) + (x0 - ex0);
-            row.copy_from_slice(&extended[src..src + ww]);
-        }
-        drop(extended);
+        let inner = (x0 - ex0, y0 - ey0, x1 - ex0, y1 - ey0);
+        let nmax = crop(extended, pw - 1, inner);
         let cell = (m.cell_size.dx, m.cell_size.dy);
         let planes = match plan.slices {
             Some(k) => sliced_planes(
@@ -289,24 +261,29 @@ impl ConesStage {
             ),
             None => exact_planes(&nmax, (ww, wh), cell, summary.z_min, cap, tick),
         };
-        if core == window {
-            return Ok(planes);
-        }
         let (cx0, cy0, cx1, cy1) = core;
-        let crop = |v: &[f32]| -> Vec<f32> {
-            (cy0..cy1)
-                .flat_map(|y| {
-                    let s = (y - y0) * ww + (cx0 - x0);
-                    v[s..s + (cx1 - cx0)].iter().copied()
-                })
-                .collect()
-        };
+        let core = (cx0 - x0, cy0 - y0, cx1 - x0, cy1 - y0);
         Ok(Planes {
-            apex: crop(&planes.apex),
-            slope: crop(&planes.slope),
+            apex: crop(planes.apex, ww, core),
+            slope: crop(planes.slope, ww, core),
             stats: planes.stats,
         })
     }
+}
+
+/// The rectangle `[x0, x1) x [y0, y1)` of a row-major grid `width` wide;
+/// the grid itself when the rectangle is all of it.
+fn crop(
+    values: Vec<f32>,
+    width: usize,
+    (x0, y0, x1, y1): (usize, usize, usize, usize),
+) -> Vec<f32> {
+    if (x0, y0, x1) == (0, 0, width) && y1 * width == values.len() {
+        return values;
+    }
+    (y0..y1)
+        .flat_map(|y| values[y * width + x0..y * width + x1].iter().copied())
+        .collect()
 }
 
 fn encode_rows<T: Element>(
@@ -422,8 +399,7 @@ impl Stage for ConesStage {
         )?;
         for byi in 0..by {
             let (cy0, cy1) = (byi * blocks.core, ((byi + 1) * blocks.core).min(ch));
-            let mut band_apex = vec![0f32; cw * (cy1 - cy0)];
-            let mut band_slope = vec![0f32; cw * (cy1 - cy0)];
+            let (mut band_apex, mut band_slope) = (Vec::new(), Vec::new());
             for bxi in 0..bx {
                 let (cx0, cx1) = (bxi * blocks.core, ((bxi + 1) * blocks.core).min(cw));
                 let window = (
@@ -441,6 +417,13 @@ impl Stage for ConesStage {
                     cap,
                     &tick,
                 )?;
+                // One block across: its planes are the band.
+                if bx == 1 {
+                    (band_apex, band_slope) = (planes.apex, planes.slope);
+                    continue;
+                }
+                band_apex.resize(cw * (cy1 - cy0), 0.0);
+                band_slope.resize(cw * (cy1 - cy0), 0.0);
                 let core_w = cx1 - cx0;
                 for (y, (a, s)) in planes
                     .apex

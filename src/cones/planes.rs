@@ -40,6 +40,7 @@
 use rayon::prelude::*;
 use terrabake_format::cones::{round_down_f32, round_up_f32};
 use terrabake_format::surface::Cell;
+use terrabake_format::trace::max_levels;
 
 use crate::edt::Envelope;
 
@@ -115,6 +116,8 @@ pub struct Slices {
     pub z: Vec<f64>,
     /// The DEM's top, `z_max`: the height bound above the last slice.
     pub top: f64,
+    /// `z_k+1 - z_k` (0 for one slice or a flat DEM).
+    pub step: f64,
 }
 
 impl Slices {
@@ -130,7 +133,11 @@ impl Slices {
         };
         let mut z: Vec<f64> = (0..k).map(|i| z_min + i as f64 * step).collect();
         z[k - 1] = if k > 1 { z_max } else { z_min };
-        Self { z, top: z_max }
+        Self {
+            z,
+            top: z_max,
+            step,
+        }
     }
 
     pub fn len(&self) -> usize {
@@ -149,13 +156,8 @@ impl Slices {
         let (z, n) = (&self.z, self.z.len());
         // Slices are uniform: guess from the step, then settle exactly on
         // the count of slices at or below v (a binary search costs 3x more).
-        let step = if n > 1 {
-            (z[n - 1] - z[0]) / (n - 1) as f64
-        } else {
-            0.0
-        };
-        let mut i = if step > 0.0 && v.is_finite() {
-            (((v - z[0]) / step).floor() + 1.0).clamp(0.0, n as f64) as usize
+        let mut i = if self.step > 0.0 && v.is_finite() {
+            (((v - z[0]) / self.step).floor() + 1.0).clamp(0.0, n as f64) as usize
         } else {
             z.partition_point(|&s| s <= v)
         };
@@ -402,29 +404,6 @@ fn sliced_planes_with<G: ColumnDistance>(
     Planes { apex, slope, stats }
 }
 
-/// The max pyramid of `nmax` for the branch and bound: level 0 is the grid.
-struct MaxPyramid {
-    levels: Vec<(usize, usize, Vec<f32>)>,
-}
-
-impl MaxPyramid {
-    fn new(nmax: &[f32], cw: usize, ch: usize) -> Self {
-        let mut levels = vec![(cw, ch, nmax.to_vec())];
-        while let Some(&(w, h, ref below)) = levels.last().filter(|l| l.0 > 1 || l.1 > 1) {
-            let (nw, nh) = (w.div_ceil(2), h.div_ceil(2));
-            let mut up = vec![f32::NEG_INFINITY; nw * nh];
-            for y in 0..h {
-                for x in 0..w {
-                    let i = (y / 2) * nw + x / 2;
-                    up[i] = up[i].max(below[y * w + x]);
-                }
-            }
-            levels.push((nw, nh, up));
-        }
-        Self { levels }
-    }
-}
-
 /// The exact planes (the limit of infinitely many slices) over a `cw x ch`
 /// grid of `nmax` values; `z_floor` is the apex of cells with no surface
 /// around them (the DEM's lowest height). `on_row` is called after every row.
@@ -437,8 +416,15 @@ pub fn exact_planes(
     on_row: &(dyn Fn() + Sync),
 ) -> Planes {
     assert_eq!(nmax.len(), cw * ch);
-    let pyramid = MaxPyramid::new(nmax, cw, ch);
-    let top = pyramid.levels.len() - 1;
+    // The max pyramid of `nmax` for the branch and bound; level 0 is `nmax`.
+    let above = max_levels(cw, ch, nmax);
+    let level = |l: usize| -> (usize, usize, &[f32]) {
+        match l {
+            0 => (cw, ch, nmax),
+            _ => (above[l - 1].0, above[l - 1].1, &above[l - 1].2),
+        }
+    };
+    let top = above.len();
     let (dx2, dy2) = (dx * dx, dy * dy);
     let mut apex = vec![0f32; cw * ch];
     let mut slope = vec![0f32; cw * ch];
@@ -473,7 +459,7 @@ pub fn exact_planes(
                     }
                 }
                 stack.clear();
-                let root_rise = f64::from(pyramid.levels[top].2[0]) - a;
+                let root_rise = f64::from(level(top).2[0]) - a;
                 if root_rise > 0.0 {
                     stack.push((
                         top,
@@ -482,17 +468,17 @@ pub fn exact_planes(
                         gap2(0, cw - 1, 0, ch - 1) / (root_rise * root_rise),
                     ));
                 }
-                while let Some((level, nx, ny, bound)) = stack.pop() {
+                while let Some((node_level, nx, ny, bound)) = stack.pop() {
                     if bound >= best {
                         continue;
                     }
                     nodes += 1;
-                    if level == 0 {
+                    if node_level == 0 {
                         (best, best_at) = (bound, Some((nx, ny)));
                         continue;
                     }
-                    let (w, h, ref max) = pyramid.levels[level - 1];
-                    let size = 1usize << (level - 1);
+                    let (w, h, max) = level(node_level - 1);
+                    let size = 1usize << (node_level - 1);
                     let first = stack.len();
                     for cy in 2 * ny..(2 * ny + 2).min(h) {
                         for cx in 2 * nx..(2 * nx + 2).min(w) {
@@ -504,7 +490,7 @@ pub fn exact_planes(
                             let (x1, y1) = ((x0 + size).min(cw) - 1, (y0 + size).min(ch) - 1);
                             let s = gap2(x0, x1, y0, y1) / (rise * rise);
                             if s < best {
-                                stack.push((level - 1, cx, cy, s));
+                                stack.push((node_level - 1, cx, cy, s));
                             }
                         }
                     }

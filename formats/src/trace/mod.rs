@@ -203,6 +203,29 @@ impl<'a, D: AsRef<[u8]>> Posts<'a, D> {
     }
 }
 
+/// The max pyramid above a `width x height` grid (row-major `base`): each
+/// level the max of 2 x 2 blocks of the one below (a last odd row or column
+/// alone), up to a single node; `(width, height, values)` per level, the
+/// base not included.
+pub fn max_levels(width: usize, height: usize, base: &[f32]) -> Vec<(usize, usize, Vec<f32>)> {
+    let mut levels: Vec<(usize, usize, Vec<f32>)> = Vec::new();
+    let (mut w, mut h) = (width, height);
+    while w > 1 || h > 1 {
+        let below = levels.last().map_or(base, |l| &l.2);
+        let (nw, nh) = (w.div_ceil(2), h.div_ceil(2));
+        let mut up = vec![f32::NEG_INFINITY; nw * nh];
+        for y in 0..h {
+            for x in 0..w {
+                let i = (y / 2) * nw + x / 2;
+                up[i] = up[i].max(below[y * w + x]);
+            }
+        }
+        levels.push((nw, nh, up));
+        (w, h) = (nw, nh);
+    }
+    levels
+}
+
 /// One level of the max pyramid.
 enum Level<'a, D> {
     Stored(&'a Layer<D>),
@@ -311,24 +334,15 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
         // The stage stores levels up to one tile; the few above it (down to
         // one node) are small, so they are built here, in memory.
         if let Some(Level::Stored(top)) = pyramid.last() {
-            let (mut w, mut h) = (top.width(), top.height());
+            let (w, h) = (top.width(), top.height());
             let mut max = vec![0f32; w as usize * h as usize];
             top.read_window(0, 0, 0, w, h, &mut max)?;
-            while w > 1 || h > 1 {
-                let (nw, nh) = (w.div_ceil(2), h.div_ceil(2));
-                let mut up = vec![f32::NEG_INFINITY; nw as usize * nh as usize];
-                for y in 0..h {
-                    for x in 0..w {
-                        let i = ((y / 2) * nw + x / 2) as usize;
-                        up[i] = up[i].max(max[(y * w + x) as usize]);
-                    }
-                }
+            for (width, height, max) in max_levels(w as usize, h as usize, &max) {
                 pyramid.push(Level::Memory {
-                    width: nw,
-                    height: nh,
-                    max: up.clone(),
+                    width: width as u32,
+                    height: height as u32,
+                    max,
                 });
-                (w, h, max) = (nw, nh, up);
             }
         }
         Ok(Self {
