@@ -24,6 +24,7 @@ pub mod cones;
 pub mod edt;
 pub mod export;
 pub mod geo;
+pub mod horizon;
 pub mod ingest;
 pub mod progress;
 pub mod pyramid;

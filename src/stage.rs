@@ -211,7 +211,10 @@ pub fn stage_from_recipe(step: &RecipeStage) -> Result<Box<dyn Stage>> {
     match step.name.as_str() {
         "pyramid" => no_params(Box::new(crate::pyramid::PyramidStage)),
         "cones" => cones_from_recipe(&step.params).map(|s| Box::new(s) as Box<dyn Stage>),
-        other => bail!("stage '{other}' is not available in this build of terrabake (available after ingest: pyramid, cones)"),
+        "horizons" => {
+            crate::horizon::from_recipe(&step.params).map(|s| Box::new(s) as Box<dyn Stage>)
+        }
+        other => bail!("stage '{other}' is not available in this build of terrabake (available after ingest: pyramid, cones, horizons)"),
     }
 }
 

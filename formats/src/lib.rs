@@ -32,6 +32,7 @@
 
 pub mod cones;
 pub mod error;
+pub mod horizons;
 pub mod layout;
 pub mod manifest;
 pub mod reader;

@@ -158,6 +158,10 @@ pub struct LayerEntry {
     /// For quantised layers: how stored values map to real ones.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub quantization: Option<Quantization>,
+    /// For layers with one band per direction (horizon angles): the compass
+    /// azimuth of each band, in degrees clockwise from north.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub band_azimuths: Vec<f64>,
 }
 
 /// An affine map from stored to real values: `real = offset + scale * stored`

@@ -311,6 +311,7 @@ impl LayerWriter {
             stage: self.spec.stage.clone(),
             description: self.spec.description.clone(),
             quantization: None,
+            band_azimuths: Vec::new(),
         })
     }
 }

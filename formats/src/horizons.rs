@@ -1,0 +1,328 @@
+//! Horizon maps as stored in an asset, and what a renderer asks of them.
+//!
+//! The `horizon` layer has one band per azimuth: band `i` holds, for every
+//! post, the elevation angle of the horizon seen from that post in direction
+//! `band_azimuths[i]` (compass degrees, clockwise from north; the manifest
+//! lists them). Angles are degrees in `[-90, 90]`: negative means the
+//! terrain ahead stays below the horizontal, and `-90` means nothing of the
+//! DEM lies ahead at all (the post is on the DEM's edge, facing out). Bands
+//! are chunked band-major (sector-major), so one sector is a contiguous run
+//! of tiles that a GPU uploads as one texture-array slice.
+//!
+//! What an angle means depends on the method the `horizons` stage ran
+//! (recorded in the layer description and the stage parameters): `sector`
+//! is Stewart's (1998) maximum over the closed azimuth wedge centred on the
+//! band azimuth, `line` the maximum along the straight line from the post
+//! in that direction, `sampled` centre-line sampling (a baseline).
+//!
+//! **Encodings** (chosen at bake time from the angular error asked for):
+//!
+//! | elem | stored `q` | angle in degrees | worst error |
+//! |------|-----------|------------------|-------------|
+//! | `u8` | 1..=255, 0 = nodata | `-90 + (q - 1) * 180 / 254` | 0.354 deg |
+//! | `u16` | 1..=65535, 0 = nodata | `-90 + (q - 1) * 180 / 65534` | 0.0014 deg |
+//! | `f32` | the angle, NaN = nodata | itself | rounding |
+//!
+//! The layer's [`Quantization`] says the same (`offset = -90 - step`,
+//! `scale = step`), so generic readers decode it without this module.
+
+use crate::error::{Error, Result};
+use crate::manifest::Quantization;
+use crate::reader::{Asset, Layer};
+use crate::ElemType;
+
+pub const HORIZON: &str = "horizon";
+/// Sky-view factor as the solid angle of visible sky over the hemisphere
+/// above the horizontal: `1 - mean(sin(max(h, 0)))` (Zakšek et al. 2011).
+pub const SVF: &str = "svf";
+/// Sky-view factor as the cosine-weighted view factor of the visible sky
+/// from the tilted surface: `(1/pi) * integral over visible sky of N.u`
+/// (Dozier and Frew 1990; Stewart 1998 sec. VI).
+pub const SVF_COSINE: &str = "svf_cosine";
+/// Positive openness (Yokoyama et al. 2002): the mean zenith angle of the
+/// horizon, `mean(90 - h)` in degrees; above 90 where the terrain falls away.
+pub const OPENNESS: &str = "openness";
+
+/// How horizon angles are stored.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum AngleEncoding {
+    U8,
+    U16,
+    F32,
+}
+
+impl AngleEncoding {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::U8 => "u8",
+            Self::U16 => "u16",
+            Self::F32 => "f32",
+        }
+    }
+
+    pub fn elem(self) -> ElemType {
+        match self {
+            Self::U8 => ElemType::U8,
+            Self::U16 => ElemType::U16,
+            Self::F32 => ElemType::F32,
+        }
+    }
+
+    fn codes(self) -> Option<f64> {
+        match self {
+            Self::U8 => Some(254.0),
+            Self::U16 => Some(65534.0),
+            Self::F32 => None,
+        }
+    }
+
+    /// Degrees between neighbouring codes (0 for f32).
+    pub fn step_deg(self) -> f64 {
+        self.codes().map_or(0.0, |n| 180.0 / n)
+    }
+
+    /// The worst error of a stored angle, in degrees: half a step, or f32
+    /// rounding at 90 degrees.
+    pub fn max_error_deg(self) -> f64 {
+        match self {
+            Self::F32 => 90.0 * f64::from(f32::EPSILON),
+            _ => self.step_deg() / 2.0,
+        }
+    }
+
+    /// The smallest encoding whose worst error is within `error_deg`.
+    pub fn for_error(error_deg: f64) -> Self {
+        [Self::U8, Self::U16]
+            .into_iter()
+            .filter(|_| error_deg > 0.0)
+            .find(|e| e.max_error_deg() <= error_deg)
+            .unwrap_or(Self::F32)
+    }
+
+    pub fn quantization(self) -> Option<Quantization> {
+        let step = self.step_deg();
+        self.codes().map(|_| Quantization {
+            offset: -90.0 - step,
+            scale: step,
+        })
+    }
+
+    /// The stored code of `deg` (NaN: nodata), rounded to the nearest code.
+    pub fn encode(self, deg: f64) -> u32 {
+        match self.codes() {
+            None => (deg as f32).to_bits(),
+            Some(_) if deg.is_nan() => 0,
+            Some(n) => {
+                1 + ((deg.clamp(-90.0, 90.0) + 90.0) / self.step_deg())
+                    .round()
+                    .min(n) as u32
+            }
+        }
+    }
+
+    /// The angle in degrees of a stored code; `None` for nodata.
+    pub fn decode(self, code: u32) -> Option<f64> {
+        match self.codes() {
+            None => Some(f64::from(f32::from_bits(code))).filter(|d| !d.is_nan()),
+            Some(_) if code == 0 => None,
+            Some(_) => Some(-90.0 + f64::from(code - 1) * self.step_deg()),
+        }
+    }
+
+    fn from_elem(elem: ElemType) -> Option<Self> {
+        match elem {
+            ElemType::U8 => Some(Self::U8),
+            ElemType::U16 => Some(Self::U16),
+            ElemType::F32 => Some(Self::F32),
+            _ => None,
+        }
+    }
+}
+
+/// Fraction of a sun disc of angular radius `radius` (degrees) whose centre
+/// stands at `elevation` that shows above a horizon at `horizon` (degrees):
+/// the area of the disc above a chord, with the horizon taken as straight
+/// across the disc. A point sun (`radius` 0) is lit or not.
+pub fn disc_fraction_above(elevation: f64, horizon: f64, radius: f64) -> f64 {
+    if radius <= 0.0 {
+        return if elevation > horizon { 1.0 } else { 0.0 };
+    }
+    let d = ((elevation - horizon) / radius).clamp(-1.0, 1.0);
+    1.0 - (d.acos() - d * (1.0 - d * d).sqrt()) / std::f64::consts::PI
+}
+
+/// Distance in metres from post `(x, y)` to the DEM's edge, going in the
+/// compass direction `azimuth` on a `width x height` grid of `dx x dy`
+/// metres: how far the DEM can see. A horizon whose terrain could rise past
+/// it beyond that distance may be cut short by the edge.
+pub fn edge_distance(
+    (width, height): (u32, u32),
+    (dx, dy): (f64, f64),
+    (x, y): (f64, f64),
+    azimuth: f64,
+) -> f64 {
+    let (sin, cos) = azimuth.to_radians().sin_cos();
+    // Metres east and south per metre travelled.
+    let (ve, vs) = (sin, -cos);
+    let reach = |pos: f64, v: f64, last: f64, step: f64| {
+        if v > 1e-12 {
+            (last - pos) * step / v
+        } else if v < -1e-12 {
+            pos * step / -v
+        } else {
+            f64::INFINITY
+        }
+    };
+    reach(x, ve, f64::from(width - 1), dx).min(reach(y, vs, f64::from(height - 1), dy))
+}
+
+/// The `horizon` layer of an asset, decoded.
+pub struct HorizonMap<'a, D> {
+    layer: &'a Layer<D>,
+    encoding: AngleEncoding,
+    azimuths: Vec<f64>,
+}
+
+impl<D> std::fmt::Debug for HorizonMap<'_, D> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("HorizonMap")
+            .field("encoding", &self.encoding)
+            .field("azimuths", &self.azimuths)
+            .finish_non_exhaustive()
+    }
+}
+
+impl<'a, D: AsRef<[u8]>> HorizonMap<'a, D> {
+    pub fn open(asset: &'a Asset<D>) -> Result<Self> {
+        let layer = asset.layer(HORIZON, 0)?;
+        let entry = layer.entry();
+        let bad =
+            |why: String| Error::malformed(crate::Location::layer(asset.dir(), entry.key()), why);
+        let encoding = AngleEncoding::from_elem(entry.elem)
+            .ok_or_else(|| bad(format!("horizon angles stored as {}", entry.elem.name())))?;
+        if entry.band_azimuths.len() != entry.bands as usize {
+            return Err(bad(format!(
+                "{} bands but {} band azimuths",
+                entry.bands,
+                entry.band_azimuths.len()
+            )));
+        }
+        Ok(Self {
+            layer,
+            encoding,
+            azimuths: entry.band_azimuths.clone(),
+        })
+    }
+
+    pub fn encoding(&self) -> AngleEncoding {
+        self.encoding
+    }
+
+    /// Compass azimuth of each band, degrees.
+    pub fn azimuths(&self) -> &[f64] {
+        &self.azimuths
+    }
+
+    /// Horizon angle (degrees) at post `(x, y)` in band `band`; `None` for
+    /// nodata and posts outside the area the stage computed.
+    pub fn angle(&self, x: u32, y: u32, band: u32) -> Result<Option<f64>> {
+        let code = match self.encoding {
+            AngleEncoding::U8 => u32::from(self.layer.get::<u8>(band, x, y)?),
+            AngleEncoding::U16 => u32::from(self.layer.get::<u16>(band, x, y)?),
+            AngleEncoding::F32 => self.layer.get::<f32>(band, x, y)?.to_bits(),
+        };
+        Ok(self.encoding.decode(code))
+    }
+
+    /// The horizon at `azimuth` (compass degrees), linear between the two
+    /// nearest band azimuths (cyclically).
+    pub fn horizon_at(&self, x: u32, y: u32, azimuth: f64) -> Result<Option<f64>> {
+        let n = self.azimuths.len();
+        let az = azimuth.rem_euclid(360.0);
+        // The band at or before `az`, cyclically (azimuths ascend).
+        let after = self.azimuths.partition_point(|&a| a <= az);
+        let (i, j) = ((after + n - 1) % n, after % n);
+        let (a0, a1) = (self.azimuths[i], self.azimuths[j]);
+        let span = (a1 - a0).rem_euclid(360.0);
+        let f = if span == 0.0 {
+            0.0
+        } else {
+            (az - a0).rem_euclid(360.0) / span
+        };
+        let (Some(h0), Some(h1)) = (self.angle(x, y, i as u32)?, self.angle(x, y, j as u32)?)
+        else {
+            return Ok(None);
+        };
+        Ok(Some(h0 + f * (h1 - h0)))
+    }
+
+    /// Fraction of the sun's disc (centre at `sun_azimuth`, `sun_elevation`,
+    /// angular radius `sun_radius`, all degrees; the sun is about 0.27)
+    /// visible above the horizon of post `(x, y)`: sun shadows at any hour
+    /// without tracing a ray. `None` for nodata.
+    pub fn lit_fraction(
+        &self,
+        x: u32,
+        y: u32,
+        sun_azimuth: f64,
+        sun_elevation: f64,
+        sun_radius: f64,
+    ) -> Result<Option<f64>> {
+        Ok(self
+            .horizon_at(x, y, sun_azimuth)?
+            .map(|h| disc_fraction_above(sun_elevation, h, sun_radius)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn codes_round_trip_within_half_a_step() {
+        for enc in [AngleEncoding::U8, AngleEncoding::U16, AngleEncoding::F32] {
+            assert_eq!(enc.decode(enc.encode(f64::NAN)), None);
+            for i in 0..=3600 {
+                let deg = -90.0 + i as f64 * 0.05;
+                let back = enc.decode(enc.encode(deg)).unwrap();
+                assert!(
+                    (back - deg).abs() <= enc.max_error_deg() + 1e-9,
+                    "{enc:?} {deg} {back}"
+                );
+                if let Some(q) = enc.quantization() {
+                    let code = f64::from(enc.encode(deg));
+                    assert!((q.offset + q.scale * code - back).abs() < 1e-9);
+                }
+            }
+        }
+        assert_eq!(AngleEncoding::for_error(0.5), AngleEncoding::U8);
+        assert_eq!(AngleEncoding::for_error(0.01), AngleEncoding::U16);
+        assert_eq!(AngleEncoding::for_error(0.001), AngleEncoding::F32);
+        assert_eq!(AngleEncoding::for_error(0.0), AngleEncoding::F32);
+    }
+
+    #[test]
+    fn disc_fraction() {
+        assert_eq!(disc_fraction_above(10.0, 5.0, 0.0), 1.0);
+        assert_eq!(disc_fraction_above(5.0, 10.0, 0.0), 0.0);
+        assert!((disc_fraction_above(10.0, 10.0, 0.27) - 0.5).abs() < 1e-12);
+        assert_eq!(disc_fraction_above(11.0, 10.0, 0.27), 1.0);
+        assert_eq!(disc_fraction_above(9.0, 10.0, 0.27), 0.0);
+        // Monotone in elevation.
+        let f: Vec<f64> = (0..=20)
+            .map(|i| disc_fraction_above(9.73 + i as f64 * 0.027, 10.0, 0.27))
+            .collect();
+        assert!(f.windows(2).all(|w| w[0] <= w[1]));
+    }
+
+    #[test]
+    fn edge_distances() {
+        let g = ((11, 21), (2.0, 3.0));
+        assert!((edge_distance(g.0, g.1, (5.0, 5.0), 0.0) - 15.0).abs() < 1e-9); // north: 5 rows
+        assert!((edge_distance(g.0, g.1, (5.0, 5.0), 180.0) - 45.0).abs() < 1e-9);
+        assert!((edge_distance(g.0, g.1, (5.0, 5.0), 90.0) - 10.0).abs() < 1e-9);
+        assert!((edge_distance(g.0, g.1, (5.0, 5.0), 270.0) - 10.0).abs() < 1e-9);
+        assert_eq!(edge_distance(g.0, g.1, (0.0, 3.0), 270.0), 0.0);
+    }
+}

@@ -1,0 +1,136 @@
+//! Brute-force references, one post at a time, written independently of
+//! the fast algorithms so that the tests compare two derivations of each
+//! definition: the line horizon from the surface of
+//! `terrabake_format::surface` sampled at every crossing of the line with
+//! the grid, and the sector horizon from every post of the DEM, `O(n)` per
+//! post.
+
+use terrabake_format::surface::Cell;
+
+use super::sector::{NarrowStencil, SectorFrame};
+use super::terrain::Terrain;
+
+/// Surface height at fractional post coordinates `(col, row)` (row grows
+/// south), from any cell with a surface that contains the point.
+fn surface_at(t: &Terrain, col: f64, row: f64) -> Option<f64> {
+    let around = |v: f64| {
+        let (lo, hi) = ((v - 1e-9).floor() as i64, (v + 1e-9).floor() as i64);
+        if lo == hi {
+            vec![lo]
+        } else {
+            vec![lo, hi]
+        }
+    };
+    for c in around(col) {
+        for r in around(row) {
+            if t.cell_exists(c, r) {
+                let (cu, ru) = (c as usize, r as usize);
+                let cell = Cell {
+                    nw: t.at(cu, ru),
+                    ne: t.at(cu + 1, ru),
+                    sw: t.at(cu, ru + 1),
+                    se: t.at(cu + 1, ru + 1),
+                };
+                return Some(cell.height(col - c as f64, (r + 1) as f64 - row));
+            }
+        }
+    }
+    None
+}
+
+/// The line horizon of post `(col, row)` along grid step `(a, b)`, degrees
+/// (NaN for nodata, -90 when no surface lies ahead).
+pub fn line_horizon(t: &Terrain, (col, row): (usize, usize), (a, b): (i64, i64)) -> f32 {
+    let zp = t.at(col, row);
+    if zp.is_nan() {
+        return f32::NAN;
+    }
+    let (pc, pr, a, b) = (col as f64, row as f64, a as f64, b as f64);
+    // Largest s that keeps col + a s in [0, W-1] and row + b s in [0, H-1].
+    let exit = |p: f64, d: f64, last: f64| {
+        if d > 0.0 {
+            (last - p) / d
+        } else if d < 0.0 {
+            p / -d
+        } else {
+            f64::INFINITY
+        }
+    };
+    let s_max = exit(pc, a, (t.width - 1) as f64).min(exit(pr, b, (t.height - 1) as f64));
+    let mut crossings = Vec::new();
+    // Every s where p + s (a, b) meets col = i, row = j or col + row = k.
+    for (p, d) in [(pc, a), (pr, b), (pc + pr, a + b)] {
+        if d == 0.0 {
+            continue;
+        }
+        let (lo, hi) = if d > 0.0 {
+            (p, p + d * s_max)
+        } else {
+            (p + d * s_max, p)
+        };
+        // A margin for the exit point, which rounding may put a hair off.
+        for k in (lo - 1e-6).ceil() as i64..=(hi + 1e-6).floor() as i64 {
+            let s = (k as f64 - p) / d;
+            if s > 0.0 && s <= s_max * (1.0 + 1e-12) {
+                crossings.push(s.min(s_max));
+            }
+        }
+    }
+    let step_len = (a * t.dx).hypot(b * t.dy);
+    let mut best = f64::NEG_INFINITY;
+    for s in crossings {
+        if let Some(z) = surface_at(t, pc + a * s, pr + b * s) {
+            let d = s * step_len;
+            best = best.max((z - t.curvature * d * d - f64::from(zp)) / d);
+        }
+    }
+    if best == f64::NEG_INFINITY {
+        -90.0
+    } else {
+        best.atan().to_degrees() as f32
+    }
+}
+
+/// Stewart's sector horizon of post `(col, row)` in the sector of `frame`,
+/// from every post of the DEM (plus the IV-E posts of `narrow`), degrees.
+pub fn sector_horizon(
+    t: &Terrain,
+    (col, row): (usize, usize),
+    frame: &SectorFrame,
+    narrow: Option<&NarrowStencil>,
+) -> f32 {
+    let zp = t.at(col, row);
+    if zp.is_nan() {
+        return f32::NAN;
+    }
+    let kp = frame.keys(col, row);
+    let tp = frame.along(col, row);
+    let c = t.curvature;
+    let slope = |qc: usize, qr: usize| {
+        let tq = frame.along(qc, qr);
+        let dz = f64::from(t.at(qc, qr)) - c * (tq - tp) * (tq - tp) - f64::from(zp);
+        dz / (tq - tp)
+    };
+    let mut best = f64::NEG_INFINITY;
+    for qr in 0..t.height {
+        for qc in 0..t.width {
+            if !t.at(qc, qr).is_nan() && SectorFrame::contains(&kp, &frame.keys(qc, qr)) {
+                best = best.max(slope(qc, qr));
+            }
+        }
+    }
+    for &(dc, dr) in narrow.map_or(&[][..], |n| &n.offsets[..]) {
+        let (qc, qr) = (col as i64 + dc, row as i64 + dr);
+        if t.contains(qc, qr)
+            && !t.at(qc as usize, qr as usize).is_nan()
+            && frame.along(qc as usize, qr as usize) > tp
+        {
+            best = best.max(slope(qc as usize, qr as usize));
+        }
+    }
+    if best == f64::NEG_INFINITY {
+        -90.0
+    } else {
+        best.atan().to_degrees() as f32
+    }
+}

@@ -1,0 +1,513 @@
+//! Line horizons: in direction `theta`, the largest elevation angle of the
+//! surface (`terrabake_format::surface`: two triangles per cell) along the
+//! straight line from a post, found for every post at once by sweeps of
+//! parallel lines that carry an upper convex hull (Timonen 2013, sec. 3-5;
+//! Dozier et al. 1981 for one hull per line).
+//!
+//! **Grid directions.** A line from a post in direction `theta` passes
+//! through other posts only when `theta` is the direction of an integer
+//! step `(a, b)` of the grid; then every post on it shares one sweep and the
+//! result is still exact at each post. For any other `theta` every post has
+//! its own line, and sharing a sweep means interpolating the receiver, which
+//! is what Timonen does (lines one unit apart, samples stepped along them).
+//! So we pick, for each asked azimuth, the grid step with the fewest posts
+//! per step whose azimuth is within a tolerance, and report the azimuth it
+//! has ([`grid_direction`]; the manifest lists it per band). The cost per
+//! post is the number of profile vertices per step, about `|a| + |b| +
+//! |a + b|`.
+//!
+//! **Profiles.** Along a step the line crosses vertical and horizontal grid
+//! lines and cell diagonals (`col + row` integer: the SW-NE diagonals); the
+//! surface is linear between crossings, so the steepest sight line from a
+//! post ends at a crossing ([`Stencil`]: the crossings of one step, the same
+//! for every post). With curvature, each crossing at distance `d` drops by
+//! `c d^2`; with `w = z - c t^2` (t along the line) the slope from post `p`
+//! is `(w_q - w_p) / (t_q - t_p) + 2 c t_p`, so one hull of `w` serves every
+//! post of the line, exactly.
+//!
+//! **Sweep.** Each line is walked from its far end towards the near end;
+//! every vertex is pushed on a stack that is the upper hull of everything
+//! farther along the line, popping what falls below (Graham's scan). When a
+//! post is pushed, the hull vertex it lands next to is its horizon (the
+//! tangent from the leftmost point of an upper hull is its neighbour), so a
+//! line of `n` vertices costs `O(n)` in all. Timonen's convex hull tree keeps
+//! the popped branches to list every local horizon; the horizon alone needs
+//! only the stack, which is what this sweep keeps.
+//!
+//! **Nodata and edges.** A vertex exists when a segment beside it lies in a
+//! cell with a surface; nodata posts receive nothing (NaN). A post with no
+//! surface ahead within the DEM gets -90 degrees.
+//!
+//! **Maximum distance.** A bounded horizon breaks the stack's amortisation
+//! (far vertices must leave it), so [`line_horizon_within`] walks each post's
+//! line up to the distance instead: `O(distance)` per post.
+
+use super::terrain::Terrain;
+
+/// Largest `|a|`, `|b|` of a grid step considered.
+pub const MAX_STEP: i64 = 64;
+
+/// A grid direction: a step of `step.0` columns east and `step.1` rows
+/// south between consecutive posts of a line.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GridDirection {
+    pub step: (i64, i64),
+    /// Compass azimuth of the step, degrees clockwise from north.
+    pub azimuth: f64,
+    /// The azimuth that was asked for.
+    pub nominal: f64,
+}
+
+impl GridDirection {
+    /// Metres between consecutive posts of a line.
+    pub fn step_length(&self, dx: f64, dy: f64) -> f64 {
+        (self.step.0 as f64 * dx).hypot(self.step.1 as f64 * dy)
+    }
+}
+
+/// Compass azimuth (degrees) of the grid step `(a, b)`.
+pub fn step_azimuth((a, b): (i64, i64), dx: f64, dy: f64) -> f64 {
+    (a as f64 * dx)
+        .atan2(-(b as f64) * dy)
+        .to_degrees()
+        .rem_euclid(360.0)
+}
+
+fn angle_between(a: f64, b: f64) -> f64 {
+    let d = (a - b).rem_euclid(360.0);
+    d.min(360.0 - d)
+}
+
+fn gcd(a: i64, b: i64) -> i64 {
+    if b == 0 {
+        a
+    } else {
+        gcd(b, a % b)
+    }
+}
+
+/// The grid step nearest in cost to `nominal`: the fewest posts per step
+/// (`max(|a|, |b|)`) among steps within `tolerance` degrees, the closest
+/// among those; the closest of all if none is within tolerance.
+pub fn grid_direction(nominal: f64, dx: f64, dy: f64, tolerance: f64) -> GridDirection {
+    let mut within: Option<(i64, f64, (i64, i64))> = None;
+    let mut closest: Option<(f64, (i64, i64))> = None;
+    for a in -MAX_STEP..=MAX_STEP {
+        for b in -MAX_STEP..=MAX_STEP {
+            if gcd(a.abs(), b.abs()) != 1 {
+                continue;
+            }
+            let err = angle_between(step_azimuth((a, b), dx, dy), nominal);
+            let len = a.abs().max(b.abs());
+            if err <= tolerance && within.is_none_or(|(l, e, _)| (len, err) < (l, e)) {
+                within = Some((len, err, (a, b)));
+            }
+            if closest.is_none_or(|(e, _)| err < e) {
+                closest = Some((err, (a, b)));
+            }
+        }
+    }
+    let step = within
+        .map(|(_, _, s)| s)
+        .or(closest.map(|(_, s)| s))
+        .expect("steps exist");
+    GridDirection {
+        step,
+        azimuth: step_azimuth(step, dx, dy),
+        nominal,
+    }
+}
+
+/// `count` directions for nominal azimuths `i * 360 / count`, each within
+/// `tolerance` degrees where a step up to [`MAX_STEP`] allows.
+pub fn grid_directions(count: usize, dx: f64, dy: f64, tolerance: f64) -> Vec<GridDirection> {
+    (0..count)
+        .map(|i| grid_direction(i as f64 * 360.0 / count as f64, dx, dy, tolerance))
+        .collect()
+}
+
+/// The default tolerance for `count` directions: an eighth of their spacing.
+pub fn default_tolerance(count: usize) -> f64 {
+    360.0 / count as f64 / 8.0
+}
+
+/// One crossing of a step's line with the grid: the surface height there is
+/// `(1 - wb) * z[a] + wb * z[b]` (posts given as offsets from the step's
+/// first post).
+#[derive(Debug, Clone)]
+struct StencilVertex {
+    /// Fraction of the step, in (0, 1]; 1 is the next post.
+    s: f64,
+    a: (i64, i64),
+    b: (i64, i64),
+    wb: f64,
+}
+
+/// The crossings of one step `P -> P + step`, the same for every post `P`,
+/// and the cells beside each segment between them.
+#[derive(Debug, Clone)]
+pub struct Stencil {
+    step: (i64, i64),
+    /// Interior crossings by increasing `s`, then the next post (`s = 1`).
+    vertices: Vec<StencilVertex>,
+    /// `segments[k]`: the cells (offsets from `P`) that hold the segment
+    /// ending at vertex `k`; `segments[n]` is the first segment of the next
+    /// step (after the next post).
+    segments: Vec<Vec<(i64, i64)>>,
+}
+
+impl Stencil {
+    pub fn new((a, b): (i64, i64)) -> Self {
+        assert!((a, b) != (0, 0));
+        // Every crossing is at s = m / l for integer m.
+        let lcm = |x: i64, y: i64| {
+            if x == 0 {
+                y
+            } else if y == 0 {
+                x
+            } else {
+                x / gcd(x, y) * y
+            }
+        };
+        let l = lcm(lcm(a.abs(), b.abs()), (a + b).abs());
+        let mut ms: Vec<i64> = Vec::new();
+        for den in [a.abs(), b.abs(), (a + b).abs()] {
+            if den > 1 {
+                ms.extend((1..den).map(|i| i * (l / den)));
+            }
+        }
+        ms.sort_unstable();
+        ms.dedup();
+        ms.push(l);
+        let vertex = |m: i64| {
+            let (cn, rn) = (a * m, b * m);
+            let (c, r) = (cn.div_euclid(l), rn.div_euclid(l));
+            let (fc, fr) = (cn.rem_euclid(l), rn.rem_euclid(l));
+            let frac = |f: i64| f as f64 / l as f64;
+            let (pa, pb, wb) = match (fc == 0, fr == 0) {
+                (true, true) => ((c, r), (c, r), 0.0),
+                (true, false) => ((c, r), (c, r + 1), frac(fr)),
+                (false, true) => ((c, r), (c + 1, r), frac(fc)),
+                // On the SW-NE diagonal of cell (c, r): SW post (c, r + 1)
+                // to NE post (c + 1, r), `frac(fc)` of the way.
+                (false, false) => ((c, r + 1), (c + 1, r), frac(fc)),
+            };
+            StencilVertex {
+                s: m as f64 / l as f64,
+                a: pa,
+                b: pb,
+                wb,
+            }
+        };
+        // Cells holding the segment whose midpoint is at 2m/(2l) of the step.
+        let cells = |m2: i64| {
+            let side = |n: i64| {
+                let (q, f) = (n.div_euclid(2 * l), n.rem_euclid(2 * l));
+                if f == 0 {
+                    vec![q - 1, q]
+                } else {
+                    vec![q]
+                }
+            };
+            let mut out = Vec::new();
+            for c in side(a * m2) {
+                for r in side(b * m2) {
+                    out.push((c, r));
+                }
+            }
+            out
+        };
+        let mut prev = 0;
+        let mut segments = Vec::new();
+        for &m in &ms {
+            segments.push(cells(prev + m));
+            prev = m;
+        }
+        let first = ms[0];
+        segments.push(cells(first).iter().map(|&(c, r)| (c + a, r + b)).collect());
+        Self {
+            step: (a, b),
+            vertices: ms.into_iter().map(vertex).collect(),
+            segments,
+        }
+    }
+
+    /// Profile vertices per step (crossings and the next post).
+    pub fn len(&self) -> usize {
+        self.vertices.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.vertices.is_empty()
+    }
+}
+
+/// Counts of one sweep, for the benchmarks and the bowl test.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct SweepStats {
+    /// Profile vertices pushed on a hull.
+    pub vertices: u64,
+    /// Vertices popped off a hull (each at most once).
+    pub pops: u64,
+    /// Posts that received a horizon.
+    pub posts: u64,
+}
+
+impl std::ops::AddAssign for SweepStats {
+    fn add_assign(&mut self, o: Self) {
+        self.vertices += o.vertices;
+        self.pops += o.pops;
+        self.posts += o.posts;
+    }
+}
+
+/// Where a step's vertices stand for post `(col, row)`, and whether they lie
+/// on the surface.
+struct Placed<'t> {
+    t: &'t Terrain<'t>,
+    stencil: &'t Stencil,
+}
+
+impl Placed<'_> {
+    fn segment_exists(&self, (col, row): (i64, i64), k: usize) -> bool {
+        self.stencil.segments[k]
+            .iter()
+            .any(|&(c, r)| self.t.cell_exists(col + c, row + r))
+    }
+
+    /// Height of stencil vertex `k` from post `(col, row)`, if it is on the
+    /// surface.
+    fn vertex(&self, (col, row): (i64, i64), k: usize) -> Option<f64> {
+        let v = &self.stencil.vertices[k];
+        let (a, b) = ((col + v.a.0, row + v.a.1), (col + v.b.0, row + v.b.1));
+        if !(self.t.contains(a.0, a.1) && self.t.contains(b.0, b.1)) {
+            return None;
+        }
+        if !(self.segment_exists((col, row), k) || self.segment_exists((col, row), k + 1)) {
+            return None;
+        }
+        Some(self.height_unchecked(a, b, v.wb))
+    }
+
+    #[inline]
+    fn height_unchecked(&self, a: (i64, i64), b: (i64, i64), wb: f64) -> f64 {
+        let za = f64::from(self.t.at(a.0 as usize, a.1 as usize));
+        if wb == 0.0 {
+            return za;
+        }
+        let zb = f64::from(self.t.at(b.0 as usize, b.1 as usize));
+        za + wb * (zb - za)
+    }
+
+    /// Whether post `(col, row)` is a vertex of the surface along the line.
+    fn post_exists(&self, (col, row): (i64, i64)) -> bool {
+        let n = self.stencil.vertices.len();
+        let (a, b) = self.stencil.step;
+        !self.t.at(col as usize, row as usize).is_nan()
+            && (self.segment_exists((col, row), 0)
+                || self.segment_exists((col - a, row - b), n - 1))
+    }
+}
+
+/// Pushes `(t, w)` (nearer than everything on the hull) and returns the
+/// hull vertex it lands beside: the steepest sight line from it.
+#[inline]
+fn push(hull: &mut Vec<[f64; 2]>, t: f64, w: f64, pops: &mut u64) -> Option<[f64; 2]> {
+    while let [.., [t1, w1], [t0, w0]] = hull[..] {
+        // Drop the top if it is on or below the line from the new point to
+        // the one behind it.
+        if (w0 - w) * (t1 - t) <= (w1 - w) * (t0 - t) {
+            hull.pop();
+            *pops += 1;
+        } else {
+            break;
+        }
+    }
+    let top = hull.last().copied();
+    hull.push([t, w]);
+    top
+}
+
+/// The steepest sight line from `(t, w)` to a hull, without changing it.
+fn tangent(hull: &[[f64; 2]], t: f64, w: f64) -> Option<[f64; 2]> {
+    let slope = |[tq, wq]: [f64; 2]| (wq - w) / (tq - t);
+    let mut best = *hull.last()?;
+    for &q in hull.iter().rev().skip(1) {
+        if slope(q) >= slope(best) {
+            best = q;
+        } else {
+            break;
+        }
+    }
+    Some(best)
+}
+
+/// Elevation angle in degrees of the sight line from `(t, w)` to `q`, with
+/// the curvature term; -90 when nothing lies ahead.
+fn angle_deg(q: Option<[f64; 2]>, t: f64, w: f64, curvature: f64) -> f32 {
+    match q {
+        Some([tq, wq]) => (((wq - w) / (tq - t)) + 2.0 * curvature * t)
+            .atan()
+            .to_degrees() as f32,
+        None => -90.0,
+    }
+}
+
+/// Line horizons in direction `dir` at every post of `terrain`, in degrees
+/// (NaN for nodata posts), into `out` (one value per post).
+pub fn line_horizons(terrain: &Terrain, dir: &GridDirection, out: &mut [f32]) -> SweepStats {
+    assert_eq!(out.len(), terrain.z.len());
+    let stencil = Stencil::new(dir.step);
+    let placed = Placed {
+        t: terrain,
+        stencil: &stencil,
+    };
+    let (a, b) = dir.step;
+    let len = dir.step_length(terrain.dx, terrain.dy);
+    let c = terrain.curvature;
+    let w_of = |t: f64, z: f64| z - c * t * t;
+    let nodata = terrain.has_nodata();
+    let n = stencil.vertices.len();
+    let mut stats = SweepStats::default();
+    let mut hull: Vec<[f64; 2]> = Vec::new();
+    let (w, h) = (terrain.width as i64, terrain.height as i64);
+    for row in 0..h {
+        for col in 0..w {
+            // A line starts at its far post: the one whose next step leaves.
+            if terrain.contains(col + a, row + b) {
+                continue;
+            }
+            hull.clear();
+            // Crossings beyond the far post that are still on the DEM.
+            for k in (0..n - 1).rev() {
+                if let Some(z) = placed.vertex((col, row), k) {
+                    let t = stencil.vertices[k].s * len;
+                    push(&mut hull, t, w_of(t, z), &mut stats.pops);
+                    stats.vertices += 1;
+                }
+            }
+            let (mut pc, mut pr, mut t_post) = (col, row, 0.0);
+            loop {
+                let zp = terrain.at(pc as usize, pr as usize);
+                let wp = w_of(t_post, f64::from(zp));
+                let idx = pr as usize * terrain.width + pc as usize;
+                if zp.is_nan() {
+                    out[idx] = f32::NAN;
+                } else {
+                    stats.posts += 1;
+                    let q = if !nodata || placed.post_exists((pc, pr)) {
+                        stats.vertices += 1;
+                        push(&mut hull, t_post, wp, &mut stats.pops)
+                    } else {
+                        tangent(&hull, t_post, wp)
+                    };
+                    out[idx] = angle_deg(q, t_post, wp, c);
+                }
+                let (nc, nr) = (pc - a, pr - b);
+                if !terrain.contains(nc, nr) {
+                    break;
+                }
+                let t_next = t_post - len;
+                // The crossings between the next post and this one, far first.
+                for k in (0..n - 1).rev() {
+                    let v = &stencil.vertices[k];
+                    let z = if nodata {
+                        placed.vertex((nc, nr), k)
+                    } else {
+                        Some(placed.height_unchecked(
+                            (nc + v.a.0, nr + v.a.1),
+                            (nc + v.b.0, nr + v.b.1),
+                            v.wb,
+                        ))
+                    };
+                    if let Some(z) = z {
+                        let t = t_next + v.s * len;
+                        push(&mut hull, t, w_of(t, z), &mut stats.pops);
+                        stats.vertices += 1;
+                    }
+                }
+                (pc, pr, t_post) = (nc, nr, t_next);
+            }
+        }
+    }
+    stats
+}
+
+/// The line horizon (degrees) of one post, looking no farther than
+/// `max_distance` metres: a walk along the post's line. NaN for nodata.
+pub fn line_horizon_within(
+    terrain: &Terrain,
+    stencil: &Stencil,
+    len: f64,
+    (col, row): (i64, i64),
+    max_distance: f64,
+) -> f32 {
+    let zp = terrain.at(col as usize, row as usize);
+    if zp.is_nan() {
+        return f32::NAN;
+    }
+    let placed = Placed {
+        t: terrain,
+        stencil,
+    };
+    let (a, b) = stencil.step;
+    let c = terrain.curvature;
+    let mut best: Option<f64> = None;
+    let mut base = (col, row);
+    let mut t0 = 0.0;
+    'walk: loop {
+        for (k, v) in stencil.vertices.iter().enumerate() {
+            let d = t0 + v.s * len;
+            if d > max_distance {
+                break 'walk;
+            }
+            if let Some(z) = placed.vertex(base, k) {
+                let slope = (z - c * d * d - f64::from(zp)) / d;
+                best = Some(best.map_or(slope, |b: f64| b.max(slope)));
+            }
+        }
+        base = (base.0 + a, base.1 + b);
+        t0 += len;
+        if !terrain.contains(base.0, base.1) {
+            break;
+        }
+    }
+    best.map_or(-90.0, |s| s.atan().to_degrees() as f32)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stencil_of_axis_and_diagonal_steps() {
+        // East: no crossing, the next post only.
+        assert_eq!(Stencil::new((1, 0)).len(), 1);
+        // North-east (col + 1, row - 1) runs along the diagonals.
+        assert_eq!(Stencil::new((1, -1)).len(), 1);
+        // South-east crosses one diagonal, in the middle of the cell.
+        let se = Stencil::new((1, 1));
+        assert_eq!(se.len(), 2);
+        assert_eq!(se.vertices[0].s, 0.5);
+        // (2, 1): a vertical line at s = 1/2, diagonals at 1/3 and 2/3.
+        assert_eq!(Stencil::new((2, 1)).len(), 4);
+    }
+
+    #[test]
+    fn directions_are_near_their_nominal_azimuth() {
+        for count in [4, 7, 16, 64, 256] {
+            let tol = default_tolerance(count);
+            let dirs = grid_directions(count, 30.0, 30.0, tol);
+            for d in &dirs {
+                assert!(angle_between(d.azimuth, d.nominal) <= tol, "{d:?}");
+            }
+            for w in dirs.windows(2) {
+                assert!(w[0].azimuth < w[1].azimuth);
+            }
+        }
+        let north = grid_direction(0.0, 30.0, 30.0, 1.0);
+        assert_eq!(north.step, (0, -1));
+        let east = grid_direction(90.0, 20.0, 30.0, 1.0);
+        assert_eq!(east.step, (1, 0));
+    }
+}

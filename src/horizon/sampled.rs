@@ -1,0 +1,48 @@
+//! Centre-line sampling, the baseline that GRASS `r.horizon`, SAGA and
+//! topocalc use (Stewart's "CMS" family): from each post, step along the
+//! direction at a fixed distance (one post spacing), take the nearest
+//! post's height, and keep the steepest. Cheap per sample, `O(distance)` per
+//! post, and it misses what falls between samples (a narrow spike off the
+//! line). Kept for comparison only.
+
+use super::terrain::{compass, Terrain};
+
+/// Sampled horizons in direction `azimuth` (compass degrees) at every post,
+/// degrees (NaN for nodata), looking at most `max_distance` metres.
+pub fn sampled_horizons(terrain: &Terrain, azimuth: f64, max_distance: f64, out: &mut [f32]) {
+    let (w, h) = (terrain.width, terrain.height);
+    assert_eq!(out.len(), w * h);
+    let (e, n) = compass(azimuth);
+    let step = terrain.dx.min(terrain.dy);
+    // Posts per sample, columns east and rows south.
+    let (sc, sr) = (e * step / terrain.dx, -n * step / terrain.dy);
+    let c = terrain.curvature;
+    for row in 0..h {
+        for col in 0..w {
+            let zp = terrain.at(col, row);
+            if zp.is_nan() {
+                out[row * w + col] = f32::NAN;
+                continue;
+            }
+            let mut best = f64::NEG_INFINITY;
+            let mut k = 1.0;
+            loop {
+                let d = k * step;
+                let (qc, qr) = ((col as f64 + k * sc).round(), (row as f64 + k * sr).round());
+                if d > max_distance || !terrain.contains(qc as i64, qr as i64) {
+                    break;
+                }
+                let zq = terrain.at(qc as usize, qr as usize);
+                if !zq.is_nan() {
+                    best = best.max((f64::from(zq) - c * d * d - f64::from(zp)) / d);
+                }
+                k += 1.0;
+            }
+            out[row * w + col] = if best == f64::NEG_INFINITY {
+                -90.0
+            } else {
+                best.atan().to_degrees() as f32
+            };
+        }
+    }
+}

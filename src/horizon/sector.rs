@@ -1,0 +1,384 @@
+//! Sector horizons (Stewart 1998): in sector `i` of post `p`, the largest
+//! elevation angle of any post that falls in the closed wedge between the
+//! sector's two bounding azimuths, the angle measured in the vertical plane
+//! through the sector's centre line (sec. III: `atan(dz / ((q - p) . r_i))`).
+//! A narrow spike anywhere in the wedge sets the whole sector.
+//!
+//! **Algorithm** (sec. IV-A to IV-C). Per sector, posts are processed in
+//! order along `a_perp` (the normal of the clockwise boundary), so that when
+//! `p` is processed every post on the inner side of that boundary already
+//! has been; a static binary tree over the posts' ranks along `b_perp`
+//! holds, in each node, the upper convex hull of the processed posts
+//! projected onto the centre plane `(t, w)`. The nodes on the path from the
+//! root to `p`'s leaf cover exactly the processed posts on the inner side of
+//! the other boundary: the wedge (the Observation of sec. IV). `p`'s horizon
+//! is the steepest tangent from `p` to those hulls; `p` then joins the hulls
+//! of the left siblings along its path. Nodes whose leaves are all
+//! processed are dropped (sec. IV-C). Hulls are sorted arrays, as Stewart
+//! found best (their mean size is small).
+//!
+//! **Boundaries** (sec. IV-D). Ties along `a_perp` are broken by the
+//! projection on `a`, ties along `b_perp` by the projection on `b`, so that
+//! a post exactly on a boundary ray is in the sector and a post on the
+//! boundary line behind the apex is not. Boundaries at multiples of 45
+//! degrees are snapped to exact directions and keys are computed in post
+//! units when `dx == dy`, so that grid diagonals tie exactly.
+//!
+//! **Narrow sectors** (sec. IV-E). A narrow wedge may miss every post near
+//! its apex; with the check on, the posts within `spacing / sin(2 pi / s)`
+//! whose cell (the `dx x dy` rectangle around the post) touches the wedge
+//! count as well ([`NarrowStencil`]).
+//!
+//! **Curvature.** The drop uses the distance along the centre line, `t`;
+//! with `w = z - c t^2` the slope from `p` is `(w_q - w_p) / (t_q - t_p) +
+//! 2 c t_p`, so the hulls hold `w` and stay exact.
+//!
+//! We depart from Stewart in one way: the posts are grid posts, so keys
+//! come from `(col, row)` and the IV-E stencil is one list of offsets per
+//! sector rather than a search per point.
+
+use super::terrain::Terrain;
+
+/// The geometry of sector `index` of `count`: its boundaries and centre.
+#[derive(Debug, Clone, Copy)]
+pub struct SectorFrame {
+    /// Unit-ish (east, north) of the clockwise boundary `a` and the
+    /// counter-clockwise one `b`, in the key frame (see [`Self::key_point`]).
+    lo: (f64, f64),
+    hi: (f64, f64),
+    /// Unit (east, north) of the centre line, metres.
+    centre: (f64, f64),
+    /// North metres per key unit over east metres per key unit.
+    aspect: f64,
+    dx: f64,
+}
+
+fn snapped(az_deg: f64) -> (f64, f64) {
+    let (e, n) = super::terrain::compass(az_deg);
+    let snap = |v: f64| {
+        if v.abs() < 1e-12 {
+            0.0
+        } else {
+            v
+        }
+    };
+    let (e, n) = (snap(e), snap(n));
+    if (e.abs() - n.abs()).abs() < 1e-12 {
+        (e.signum(), n.signum())
+    } else {
+        (e, n)
+    }
+}
+
+impl SectorFrame {
+    pub fn new(index: usize, count: usize, dx: f64, dy: f64) -> Self {
+        assert!(
+            count >= 3,
+            "sectors narrower than 180 degrees need 3 or more"
+        );
+        let width = 360.0 / count as f64;
+        let mid = index as f64 * width;
+        // In the key frame a post is (col, -row * dy / dx): metres / dx.
+        // A world direction keeps its angle under that uniform scaling.
+        Self {
+            lo: snapped(mid - width / 2.0),
+            hi: snapped(mid + width / 2.0),
+            centre: super::terrain::compass(mid),
+            aspect: dy / dx,
+            dx,
+        }
+    }
+
+    /// Compass azimuth of the sector's centre, degrees.
+    pub fn centre_azimuth(index: usize, count: usize) -> f64 {
+        index as f64 * 360.0 / count as f64
+    }
+
+    fn key_point(&self, col: f64, row: f64) -> (f64, f64) {
+        (col, -row * self.aspect)
+    }
+
+    /// The four keys of a post: along `a_perp` and `a` (order), along
+    /// `b_perp` and `b` (rank).
+    pub fn keys(&self, col: usize, row: usize) -> [f64; 4] {
+        let (e, n) = self.key_point(col as f64, row as f64);
+        let (a, b) = (self.lo, self.hi);
+        // `+ 0.0` turns -0 into 0, so that sorting and comparing agree.
+        [
+            -(a.0 * n - a.1 * e),
+            a.0 * e + a.1 * n,
+            b.0 * n - b.1 * e,
+            b.0 * e + b.1 * n,
+        ]
+        .map(|k| k + 0.0)
+    }
+
+    /// Metres along the centre line.
+    pub fn along(&self, col: usize, row: usize) -> f64 {
+        let (e, n) = (col as f64 * self.dx, -(row as f64) * self.dx * self.aspect);
+        self.centre.0 * e + self.centre.1 * n
+    }
+
+    /// Whether post `q` (keys `kq`) is in the closed wedge of post `p`.
+    pub fn contains(kp: &[f64; 4], kq: &[f64; 4]) -> bool {
+        let after = |i: usize| kq[i] > kp[i] || (kq[i] == kp[i] && kq[i + 1] > kp[i + 1]);
+        after(0) && after(2)
+    }
+
+    /// Whether the closed wedge from the origin touches the rectangle of
+    /// half-sizes `(hx, hy)` centred at `(cx, cy)` (key units).
+    fn touches_rect(&self, (cx, cy): (f64, f64), (hx, hy): (f64, f64)) -> bool {
+        let (a, b) = (self.lo, self.hi);
+        let inside = |(e, n): (f64, f64)| -(a.0 * n - a.1 * e) >= 0.0 && b.0 * n - b.1 * e >= 0.0;
+        let corners = [(-1.0, -1.0), (1.0, -1.0), (-1.0, 1.0), (1.0, 1.0)]
+            .map(|(sx, sy)| (cx + sx * hx, cy + sy * hy));
+        if corners.iter().any(|&c| inside(c)) {
+            return true;
+        }
+        // A boundary ray through the rectangle (slab test, t >= 0).
+        [a, b].iter().any(|&(de, dn)| {
+            let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
+            for (d, lo, hi) in [(de, cx - hx, cx + hx), (dn, cy - hy, cy + hy)] {
+                if d.abs() < 1e-15 {
+                    if lo > 0.0 || hi < 0.0 {
+                        return false;
+                    }
+                } else {
+                    let (u, v) = (lo / d, hi / d);
+                    t0 = t0.max(u.min(v));
+                    t1 = t1.min(u.max(v));
+                }
+            }
+            t0 <= t1
+        })
+    }
+}
+
+/// The posts near a sector's apex that Stewart's narrow-sector check
+/// (sec. IV-E) adds: offsets `(dcol, drow)` within `max(dx, dy) / sin(2 pi /
+/// s)` whose `dx x dy` rectangle touches the closed wedge.
+#[derive(Debug, Clone)]
+pub struct NarrowStencil {
+    pub offsets: Vec<(i64, i64)>,
+}
+
+impl NarrowStencil {
+    pub fn new(frame: &SectorFrame, count: usize, dx: f64, dy: f64) -> Self {
+        let radius = dx.max(dy) / (2.0 * std::f64::consts::PI / count as f64).sin().max(1e-9);
+        let (rc, rr) = ((radius / dx).ceil() as i64, (radius / dy).ceil() as i64);
+        let mut offsets = Vec::new();
+        for dr in -rr..=rr {
+            for dc in -rc..=rc {
+                let (e, n) = (dc as f64 * dx, -(dr as f64) * dy);
+                if (dc, dr) == (0, 0) || e.hypot(n) > radius {
+                    continue;
+                }
+                let centre = frame.key_point(dc as f64, dr as f64);
+                if frame.touches_rect(centre, (0.5, 0.5 * frame.aspect)) {
+                    offsets.push((dc, dr));
+                }
+            }
+        }
+        Self { offsets }
+    }
+}
+
+/// Counts of one sector's run, for the benchmarks.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct SectorStats {
+    /// Hull points visited by tangent queries.
+    pub tangent_steps: u64,
+    /// Hull insertions attempted.
+    pub inserts: u64,
+}
+
+/// Inserts `(t, w)` into an upper hull sorted by `t`.
+fn hull_insert(hull: &mut Vec<[f64; 2]>, t: f64, w: f64) {
+    let i = hull.partition_point(|q| q[0] < t);
+    if i < hull.len() && hull[i][0] == t {
+        if hull[i][1] >= w {
+            return;
+        }
+        hull.remove(i);
+    }
+    // Below the hull edge over `t`: not on the hull.
+    let below = |l: [f64; 2], r: [f64; 2], t: f64, w: f64| {
+        (w - l[1]) * (r[0] - l[0]) <= (r[1] - l[1]) * (t - l[0])
+    };
+    if i > 0 && i < hull.len() && below(hull[i - 1], hull[i], t, w) {
+        return;
+    }
+    hull.insert(i, [t, w]);
+    let mut i = i;
+    while i >= 2 && below(hull[i - 2], hull[i], hull[i - 1][0], hull[i - 1][1]) {
+        hull.remove(i - 1);
+        i -= 1;
+    }
+    while i + 2 < hull.len() && below(hull[i], hull[i + 2], hull[i + 1][0], hull[i + 1][1]) {
+        hull.remove(i + 1);
+    }
+}
+
+/// Steepest slope from `(t, w)` (left of every hull point) to the hull.
+fn hull_tangent(hull: &[[f64; 2]], t: f64, w: f64, steps: &mut u64) -> f64 {
+    let mut best = f64::NEG_INFINITY;
+    for q in hull {
+        *steps += 1;
+        let s = (q[1] - w) / (q[0] - t);
+        if s < best {
+            break; // slopes to an upper hull rise, then fall
+        }
+        best = s;
+    }
+    best
+}
+
+/// Order-preserving `u64` of an `f64` (for radix-friendly sorting keys).
+fn ordered(v: f64) -> u64 {
+    let bits = v.to_bits();
+    if bits >> 63 == 1 {
+        !bits
+    } else {
+        bits | (1 << 63)
+    }
+}
+
+/// Sector horizons of sector `index` of `count` at every post, in degrees
+/// (NaN for nodata), into `out`. `narrow`: Stewart's IV-E check.
+pub fn sector_horizons(
+    terrain: &Terrain,
+    index: usize,
+    count: usize,
+    narrow: bool,
+    out: &mut [f32],
+) -> SectorStats {
+    let (w, h) = (terrain.width, terrain.height);
+    assert_eq!(out.len(), w * h);
+    let frame = SectorFrame::new(index, count, terrain.dx, terrain.dy);
+    let c = terrain.curvature;
+    let posts: Vec<u32> = (0..w * h)
+        .filter(|&i| !terrain.z[i].is_nan())
+        .map(|i| i as u32)
+        .collect();
+    let n = posts.len();
+    let keys: Vec<[f64; 4]> = posts
+        .iter()
+        .map(|&i| frame.keys(i as usize % w, i as usize / w))
+        .collect();
+    // Centre-plane coordinates (t, w) per post (NaN where nodata).
+    let mut plane = vec![[f64::NAN; 2]; w * h];
+    for &i in &posts {
+        let t = frame.along(i as usize % w, i as usize / w);
+        plane[i as usize] = [t, f64::from(terrain.z[i as usize]) - c * t * t];
+    }
+    // Processing order: a_perp descending, ties by a descending (IV-D).
+    let mut order: Vec<u32> = (0..n as u32).collect();
+    order.sort_unstable_by_key(|&j| {
+        let k = &keys[j as usize];
+        std::cmp::Reverse((ordered(k[0]), ordered(k[1])))
+    });
+    // Ranks: b_perp ascending, ties by b ascending.
+    let mut by_rank: Vec<u32> = (0..n as u32).collect();
+    by_rank.sort_unstable_by_key(|&j| {
+        let k = &keys[j as usize];
+        (ordered(k[2]), ordered(k[3]))
+    });
+    let mut rank = vec![0u32; n];
+    for (r, &j) in by_rank.iter().enumerate() {
+        rank[j as usize] = r as u32;
+    }
+    drop(by_rank);
+
+    let leaves = n.next_power_of_two().max(1);
+    let mut hulls: Vec<Vec<[f64; 2]>> = vec![Vec::new(); 2 * leaves];
+    let mut remaining = vec![0u32; 2 * leaves];
+    for leaf in 0..n {
+        let mut v = leaves + leaf;
+        while v >= 1 {
+            remaining[v] += 1;
+            v >>= 1;
+        }
+    }
+    let stencil = narrow.then(|| NarrowStencil::new(&frame, count, terrain.dx, terrain.dy));
+    let mut stats = SectorStats::default();
+    out.fill(f32::NAN);
+    for &j in &order {
+        let post = posts[j as usize] as usize;
+        let [tp, wp] = plane[post];
+        let k = rank[j as usize] as usize;
+        let mut best = f64::NEG_INFINITY;
+        let mut v = leaves + k;
+        while v >= 1 {
+            if !hulls[v].is_empty() {
+                best = best.max(hull_tangent(&hulls[v], tp, wp, &mut stats.tangent_steps));
+            }
+            remaining[v] -= 1;
+            if remaining[v] == 0 {
+                hulls[v] = Vec::new();
+            }
+            v >>= 1;
+        }
+        if let Some(st) = &stencil {
+            let (col, row) = ((post % w) as i64, (post / w) as i64);
+            for &(dc, dr) in &st.offsets {
+                if terrain.contains(col + dc, row + dr) {
+                    let [tq, wq] = plane[(row + dr) as usize * w + (col + dc) as usize];
+                    if tq > tp {
+                        best = best.max((wq - wp) / (tq - tp));
+                    }
+                }
+            }
+        }
+        out[post] = if best == f64::NEG_INFINITY {
+            -90.0
+        } else {
+            (best + 2.0 * c * tp).atan().to_degrees() as f32
+        };
+        // Join the hulls of the left siblings along the path: they cover
+        // the ranks below k, whose posts have p on their b side.
+        let mut v = leaves + k;
+        while v > 1 {
+            if v & 1 == 1 && remaining[v - 1] > 0 {
+                hull_insert(&mut hulls[v - 1], tp, wp);
+                stats.inserts += 1;
+            }
+            v >>= 1;
+        }
+    }
+    stats
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hull_insert_keeps_the_upper_hull() {
+        let mut hull = Vec::new();
+        for (t, w) in [
+            (3.0, 1.0),
+            (1.0, 0.0),
+            (2.0, 5.0),
+            (5.0, 0.0),
+            (4.0, 1.0),
+            (2.0, 4.0),
+        ] {
+            hull_insert(&mut hull, t, w);
+        }
+        assert_eq!(hull, vec![[1.0, 0.0], [2.0, 5.0], [5.0, 0.0]]);
+    }
+
+    #[test]
+    fn frames_snap_diagonals() {
+        let f = SectorFrame::new(0, 4, 1.0, 1.0);
+        assert_eq!(f.lo, (-1.0, 1.0));
+        assert_eq!(f.hi, (1.0, 1.0));
+        // The post one up and one right of (5, 5) is on the hi boundary.
+        let (p, q) = (f.keys(5, 5), f.keys(6, 4));
+        assert!(SectorFrame::contains(&p, &q));
+        // ... and so is the one up-left; the ones behind are not.
+        assert!(SectorFrame::contains(&p, &f.keys(4, 4)));
+        assert!(!SectorFrame::contains(&p, &f.keys(4, 6)));
+        assert!(!SectorFrame::contains(&p, &f.keys(5, 5)));
+    }
+}

@@ -1,0 +1,277 @@
+//! What renderers and analysts derive from horizons: sky-view factor in its
+//! two common definitions, positive openness, and Stewart's (1998, sec. VI)
+//! direct sky irradiance under any sky radiance and his approximate
+//! radiosity.
+//!
+//! A post's horizon is known in bands, each covering an azimuth interval
+//! `[lo, hi]` with one angle (a Stewart sector covers its wedge; a line or
+//! sampled direction covers half the way to its neighbours). Within a band
+//! the horizon is taken as constant.
+//!
+//! - **`svf`** (Zakšek et al. 2011): the solid angle of visible sky over the
+//!   hemisphere above the horizontal, `1 - sum w_i sin(max(h_i, 0))`.
+//!   Horizons below the horizontal count as the horizontal: this is the
+//!   GIS quantity (RVT, SAGA), blind to the surface's own tilt.
+//! - **`svf_cosine`** (Dozier and Frew 1990; Stewart sec. VI): the view
+//!   factor from the tilted surface to the visible sky, `(1/pi) integral
+//!   over visible sky of N.u dOmega`, the sky limited both by the horizon
+//!   and by the surface's tangent plane. 1 on flat open ground, less on any
+//!   slope even with nothing around; this is what diffuse lighting needs.
+//! - **`openness`** (Yokoyama et al. 2002, positive): `sum w_i (90 -
+//!   h_i)` degrees, negative horizons included (so above 90 on summits).
+
+use super::terrain::compass;
+
+/// Integral over elevation `h'..90` of `N.u cos(el)` for azimuth unit
+/// `(e, n)`, with `h'` the horizon raised to the tangent plane.
+fn cosine_column(normal: [f64; 3], (e, n): (f64, f64), horizon: f64) -> f64 {
+    let tilt = normal[0] * e + normal[1] * n;
+    // The tangent plane's own elevation in this azimuth.
+    let plane = (-tilt / normal[2]).atan();
+    let h = horizon.max(plane);
+    let (s2, c) = ((2.0 * h).sin(), h.cos());
+    tilt * (std::f64::consts::FRAC_PI_4 - h / 2.0 - s2 / 4.0) + normal[2] * c * c / 2.0
+}
+
+/// Azimuth samples (unit vectors and weights in radians) of one band, for
+/// the cosine integral: at least one per `max_step` degrees.
+#[derive(Debug, Clone)]
+pub struct BandSamples {
+    pub units: Vec<(f64, f64)>,
+    pub weight: f64,
+}
+
+impl BandSamples {
+    pub fn new(lo: f64, hi: f64, max_step: f64) -> Self {
+        let m = ((hi - lo) / max_step).ceil().max(1.0) as usize;
+        let width = (hi - lo) / m as f64;
+        Self {
+            units: (0..m)
+                .map(|j| compass(lo + (j as f64 + 0.5) * width))
+                .collect(),
+            weight: width.to_radians(),
+        }
+    }
+}
+
+/// Running sums of the three derived layers over the bands of one post.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct SkySums {
+    sin_sum: f64,
+    zenith_sum: f64,
+    cosine_sum: f64,
+}
+
+impl SkySums {
+    /// Adds a band with horizon `h_deg` covering `fraction` of the circle.
+    pub fn add(&mut self, h_deg: f64, fraction: f64, samples: &BandSamples, normal: [f64; 3]) {
+        let h = h_deg.to_radians();
+        self.sin_sum += fraction * h.max(0.0).sin();
+        self.zenith_sum += fraction * (90.0 - h_deg);
+        self.cosine_sum += samples
+            .units
+            .iter()
+            .map(|&u| cosine_column(normal, u, h))
+            .sum::<f64>()
+            * samples.weight;
+    }
+
+    pub fn svf(&self) -> f64 {
+        1.0 - self.sin_sum
+    }
+    pub fn svf_cosine(&self) -> f64 {
+        self.cosine_sum / std::f64::consts::PI
+    }
+    pub fn openness(&self) -> f64 {
+        self.zenith_sum
+    }
+}
+
+/// A sky radiance distribution tabulated for Stewart's direct primary
+/// irradiance: per azimuth sample and per elevation bin, the cumulative
+/// integral from the zenith down of `L(u) u cos(el)` (three components), so
+/// that a post's irradiance is three lookups per azimuth sample.
+#[derive(Debug, Clone)]
+pub struct SkyTable {
+    /// Azimuth samples: unit (east, north) and band index.
+    units: Vec<((f64, f64), usize)>,
+    bins: usize,
+    /// `[sample][bin]`: integral over elevations from bin's lower edge to 90.
+    cumulative: Vec<[f64; 3]>,
+}
+
+impl SkyTable {
+    /// Tabulates `radiance(azimuth_deg, elevation_deg)` over bands
+    /// `[lo, hi]` (degrees), `per_band` azimuth samples each, elevation in
+    /// `bins` bins from -90 to 90.
+    pub fn new(
+        bands: &[(f64, f64)],
+        per_band: usize,
+        bins: usize,
+        radiance: impl Fn(f64, f64) -> f64,
+    ) -> Self {
+        let mut units = Vec::new();
+        let mut cumulative = Vec::new();
+        let del = 180.0 / bins as f64;
+        for (band, &(lo, hi)) in bands.iter().enumerate() {
+            let dphi = (hi - lo) / per_band as f64;
+            for j in 0..per_band {
+                let az = lo + (j as f64 + 0.5) * dphi;
+                let (e, n) = compass(az);
+                units.push(((e, n), band));
+                let mut acc = [0.0; 3];
+                let mut column = vec![[0.0; 3]; bins + 1];
+                for bin in (0..bins).rev() {
+                    let el = -90.0 + (bin as f64 + 0.5) * del;
+                    let (se, ce) = el.to_radians().sin_cos();
+                    let l = radiance(az, el) * ce * del.to_radians() * dphi.to_radians();
+                    acc[0] += l * ce * e;
+                    acc[1] += l * ce * n;
+                    acc[2] += l * se;
+                    column[bin] = acc;
+                }
+                cumulative.extend(column);
+            }
+        }
+        Self {
+            units,
+            bins,
+            cumulative,
+        }
+    }
+
+    /// Direct sky irradiance `integral over visible sky of L(u) N.u dOmega`
+    /// at a post with unit `normal` and band horizons `horizon_deg`.
+    pub fn irradiance(&self, normal: [f64; 3], horizon_deg: &[f32]) -> f64 {
+        let mut total = 0.0;
+        for (j, &((e, n), band)) in self.units.iter().enumerate() {
+            let tilt = normal[0] * e + normal[1] * n;
+            let plane = (-tilt / normal[2]).atan().to_degrees();
+            let h = f64::from(horizon_deg[band]).max(plane);
+            let bin = (((h + 90.0) / 180.0 * self.bins as f64).round() as usize).min(self.bins);
+            let c = self.cumulative[j * (self.bins + 1) + bin];
+            total += normal[0] * c[0] + normal[1] * c[1] + normal[2] * c[2];
+        }
+        total.max(0.0)
+    }
+}
+
+/// Stewart and Langer's radiosity (Stewart 1998, sec. VI-A): outgoing
+/// radiance of a Lambertian post of albedo `rho` with direct irradiance
+/// `irradiance` and cosine sky-view factor `svf_cosine`, the terrain it sees
+/// assumed as bright as itself.
+pub fn radiosity(irradiance: f64, svf_cosine: f64, rho: f64) -> f64 {
+    rho * irradiance / std::f64::consts::PI / (1.0 - rho * (1.0 - svf_cosine))
+}
+
+/// Stewart's sky for Fig. 9: `L = cos^exponent(angle to the sun)` over the
+/// sky, plus a uniform `ambient`.
+pub fn sun_glow(
+    sun_azimuth: f64,
+    sun_elevation: f64,
+    exponent: i32,
+    ambient: f64,
+) -> impl Fn(f64, f64) -> f64 {
+    let unit = |az: f64, el: f64| {
+        let (e, n) = compass(az);
+        let (s, c) = el.to_radians().sin_cos();
+        [e * c, n * c, s]
+    };
+    let sun = unit(sun_azimuth, sun_elevation);
+    move |az, el| {
+        if el < 0.0 {
+            return 0.0;
+        }
+        let u = unit(az, el);
+        let cos = (u[0] * sun[0] + u[1] * sun[1] + u[2] * sun[2]).max(0.0);
+        cos.powi(exponent) + ambient
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn uniform_bands(k: usize) -> Vec<(f64, f64)> {
+        let w = 360.0 / k as f64;
+        (0..k)
+            .map(|i| (i as f64 * w - w / 2.0, i as f64 * w + w / 2.0))
+            .collect()
+    }
+
+    #[test]
+    fn flat_open_ground_sees_the_whole_sky() {
+        let bands = uniform_bands(16);
+        let mut sums = SkySums::default();
+        for &(lo, hi) in &bands {
+            sums.add(
+                0.0,
+                (hi - lo) / 360.0,
+                &BandSamples::new(lo, hi, 4.0),
+                [0.0, 0.0, 1.0],
+            );
+        }
+        assert!((sums.svf() - 1.0).abs() < 1e-12);
+        assert!((sums.svf_cosine() - 1.0).abs() < 1e-9);
+        assert!((sums.openness() - 90.0).abs() < 1e-12);
+        let table = SkyTable::new(&bands, 4, 512, |_, el| if el >= 0.0 { 1.0 } else { 0.0 });
+        let e = table.irradiance([0.0, 0.0, 1.0], &[0.0; 16]);
+        assert!((e - std::f64::consts::PI).abs() < 1e-3, "{e}");
+    }
+
+    #[test]
+    fn a_uniform_horizon_leaves_cos_squared() {
+        // Horizon at 30 degrees all round: svf = 1 - sin 30, cosine svf = cos^2 30.
+        let bands = uniform_bands(64);
+        let mut sums = SkySums::default();
+        for &(lo, hi) in &bands {
+            sums.add(
+                30.0,
+                (hi - lo) / 360.0,
+                &BandSamples::new(lo, hi, 1.0),
+                [0.0, 0.0, 1.0],
+            );
+        }
+        assert!((sums.svf() - 0.5).abs() < 1e-12);
+        assert!((sums.svf_cosine() - 0.75).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_tilted_plane_alone_has_cosine_svf_of_its_tilt() {
+        // A surface tilted by 30 degrees on open flat ground (horizon at the
+        // horizontal): (1 + cos 30) / 2; with no ground at all (horizon
+        // -90) the whole hemisphere over the surface: 1.
+        let tilt = 30f64.to_radians();
+        let normal = [tilt.sin(), 0.0, tilt.cos()];
+        let bands = uniform_bands(64);
+        let mut sums = SkySums::default();
+        for &(lo, hi) in &bands {
+            sums.add(
+                0.0,
+                (hi - lo) / 360.0,
+                &BandSamples::new(lo, hi, 0.25),
+                normal,
+            );
+        }
+        let expected = (1.0 + tilt.cos()) / 2.0;
+        assert!(
+            (sums.svf_cosine() - expected).abs() < 1e-4,
+            "{}",
+            sums.svf_cosine()
+        );
+        let mut open = SkySums::default();
+        for &(lo, hi) in &bands {
+            open.add(
+                -90.0,
+                (hi - lo) / 360.0,
+                &BandSamples::new(lo, hi, 0.25),
+                normal,
+            );
+        }
+        assert!(
+            (open.svf_cosine() - 1.0).abs() < 1e-4,
+            "{}",
+            open.svf_cosine()
+        );
+    }
+}

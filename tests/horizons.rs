@@ -1,0 +1,363 @@
+//! Horizons against their definitions, by brute force at every post: `line`
+//! against the surface sampled at every crossing of the post's own line
+//! (`horizon::brute::line_horizon`), `sector` against every post of the DEM
+//! tested for membership of the closed wedge (`horizon::brute::
+//! sector_horizon`), on every synthetic terrain and a crop of the real DEM,
+//! for s in {4, 7, 16, 64, 256}; then the failure cases the papers name,
+//! each measured.
+
+mod common;
+
+use terrabake::horizon::brute;
+use terrabake::horizon::line::{self, GridDirection};
+use terrabake::horizon::sector::{sector_horizons, NarrowStencil, SectorFrame};
+use terrabake::horizon::terrain::{curvature_coefficient, Terrain};
+use terrabake::horizon::{band_horizons, plan_bands, BandKind, BandOptions, Method};
+use terrabake::ingest::{ingest, IngestOptions};
+use terrabake::progress::Progress;
+use terrabake::synth::{self, SynthKind};
+use terrabake_format::Asset;
+
+const COUNTS: [usize; 5] = [4, 7, 16, 64, 256];
+
+fn synth_grid(kind: SynthKind, w: usize, h: usize, seed: u64) -> Vec<f32> {
+    let mut z = Vec::with_capacity(w * h);
+    for y in 0..h {
+        for x in 0..w {
+            z.push(synth::height(
+                kind, x as u32, y as u32, w as u32, h as u32, seed,
+            ));
+        }
+    }
+    z
+}
+
+fn srtm_crop(w: u32, h: u32) -> (Vec<f32>, f64, f64) {
+    let dir = tempfile::tempdir().unwrap();
+    let full = dir.path().join("srtm.tbake");
+    ingest(
+        &common::repo_file("data/srtm3_n07w006_geographic_int16.tif"),
+        &full,
+        &IngestOptions::default(),
+        Progress::hidden(),
+    )
+    .unwrap();
+    let srtm = Asset::open(&full).unwrap();
+    let mut crop = vec![0f32; (w * h) as usize];
+    srtm.height()
+        .unwrap()
+        .read_window(0, 600, 400, w, h, &mut crop)
+        .unwrap();
+    let cs = &srtm.manifest().cell_size;
+    (crop, cs.dx, cs.dy)
+}
+
+/// Same angle, or both nodata. Without curvature the fast methods and the
+/// references evaluate the same slope formula at the same point, so they
+/// agree to the last bit of f32 but for rounding in the crossing heights.
+fn same(a: f32, b: f32, tol: f32) -> bool {
+    (a.is_nan() && b.is_nan()) || (a - b).abs() <= tol
+}
+
+fn check_line(name: &str, t: &Terrain, dir: &GridDirection, tol: f32) {
+    let mut out = vec![0f32; t.z.len()];
+    line::line_horizons(t, dir, &mut out);
+    for row in 0..t.height {
+        for col in 0..t.width {
+            let got = out[row * t.width + col];
+            let want = brute::line_horizon(t, (col, row), dir.step);
+            assert!(
+                same(got, want, tol),
+                "{name}: line {:?} at ({col}, {row}): sweep {got}, brute force {want}",
+                dir.step
+            );
+        }
+    }
+}
+
+fn check_sector(name: &str, t: &Terrain, index: usize, count: usize, narrow: bool, tol: f32) {
+    let mut out = vec![0f32; t.z.len()];
+    sector_horizons(t, index, count, narrow, &mut out);
+    let frame = SectorFrame::new(index, count, t.dx, t.dy);
+    let stencil = narrow.then(|| NarrowStencil::new(&frame, count, t.dx, t.dy));
+    for row in 0..t.height {
+        for col in 0..t.width {
+            let got = out[row * t.width + col];
+            let want = brute::sector_horizon(t, (col, row), &frame, stencil.as_ref());
+            assert!(
+                same(got, want, tol),
+                "{name}: sector {index}/{count} (narrow {narrow}) at ({col}, {row}): tree {got}, brute force {want}"
+            );
+        }
+    }
+}
+
+fn check_all(name: &str, t: &Terrain) {
+    for count in COUNTS {
+        for band in plan_bands(Method::Line, count, t.dx, t.dy, None) {
+            let BandKind::Line(dir) = &band.kind else {
+                unreachable!()
+            };
+            check_line(name, t, dir, 1e-4);
+        }
+        for index in 0..count {
+            check_sector(name, t, index, count, count == 256, 1e-4);
+        }
+    }
+}
+
+#[test]
+fn line_and_sector_equal_brute_force_on_every_synthetic_terrain() {
+    for (i, kind) in SynthKind::ALL.into_iter().enumerate() {
+        // Non-square cells on odd kinds: directions off the grid diagonals.
+        let (w, h) = (23, 19);
+        let z = synth_grid(kind, w, h, 5 + i as u64);
+        let dy = if i % 2 == 1 { 20.0 } else { 30.0 };
+        let t = Terrain::new(&z, w, h, 30.0, dy);
+        check_all(&format!("{kind:?}"), &t);
+    }
+}
+
+#[test]
+fn line_and_sector_equal_brute_force_on_the_real_dem_with_curvature() {
+    let (z, dx, dy) = srtm_crop(24, 20);
+    let t = Terrain::new(&z, 24, 20, dx, dy);
+    check_all("SRTM crop", &t);
+    // Curvature and refraction: the hull of z - c t^2 against the drop
+    // applied post by post (rounding differs, hence the tolerance).
+    let curved = t.with_curvature(curvature_coefficient(0.13));
+    for count in [7, 16] {
+        for band in plan_bands(Method::Line, count, dx, dy, None) {
+            let BandKind::Line(dir) = &band.kind else {
+                unreachable!()
+            };
+            check_line("SRTM crop, curved", &curved, dir, 1e-3);
+        }
+        for index in 0..count {
+            check_sector("SRTM crop, curved", &curved, index, count, true, 1e-3);
+        }
+    }
+}
+
+#[test]
+fn a_flat_dem_has_every_horizon_at_zero() {
+    let z = vec![100f32; 30 * 20];
+    let t = Terrain::new(&z, 30, 20, 30.0, 30.0);
+    for method in [Method::Line, Method::Sector, Method::Sampled] {
+        for band in plan_bands(method, 16, 30.0, 30.0, None) {
+            let (out, _) = band_horizons(
+                &t,
+                &band,
+                BandOptions {
+                    max_distance: None,
+                    narrow_check: true,
+                },
+            );
+            for (i, &a) in out.iter().enumerate() {
+                // Posts on the edge facing out see nothing: -90.
+                assert!(
+                    a == 0.0 || a == -90.0,
+                    "{method:?} {} post {i}: {a}",
+                    band.azimuth
+                );
+            }
+            assert!(out.iter().filter(|&&a| a == 0.0).count() > out.len() / 2);
+        }
+    }
+    // With curvature the flat earth drops away: every horizon below zero.
+    let curved = t.with_curvature(curvature_coefficient(0.13));
+    let band = &plan_bands(Method::Line, 4, 30.0, 30.0, None)[1];
+    let (out, _) = band_horizons(
+        &curved,
+        band,
+        BandOptions {
+            max_distance: None,
+            narrow_check: true,
+        },
+    );
+    assert!(out.iter().all(|&a| a < 0.0));
+}
+
+#[test]
+fn points_exactly_on_sector_boundaries_belong_to_both_sectors() {
+    // s = 4 puts the boundaries on the grid diagonals (sec. IV-D).
+    let (w, h) = (9, 9);
+    let mut z = vec![0f32; w * h];
+    z[2 * w + 6] = 100.0; // post (6, 2)
+    let t = Terrain::new(&z, w, h, 10.0, 10.0);
+    let sectors: Vec<Vec<f32>> = (0..4)
+        .map(|i| {
+            let mut out = vec![0f32; w * h];
+            sector_horizons(&t, i, 4, false, &mut out);
+            out
+        })
+        .collect();
+    let sees = |post: usize, sector: usize| sectors[sector][post] > 45.0;
+    // From (4, 4) the spike is 2 east, 2 north: on the ray between N and E,
+    // in both; the elevation is taken in each centre plane (20 m along).
+    let ne = 4 * w + 4;
+    let expected = (100f64 / 20.0).atan().to_degrees() as f32;
+    assert_eq!(sectors[0][ne], expected);
+    assert_eq!(sectors[1][ne], expected);
+    assert!(!sees(ne, 2) && !sees(ne, 3));
+    // From (8, 0) it is 2 west, 2 south: in S and W, and not in N or E,
+    // although it lies on the line of their shared boundary, behind the apex.
+    let sw = 8;
+    assert!(sees(sw, 2) && sees(sw, 3));
+    assert!(!sees(sw, 0) && !sees(sw, 1));
+}
+
+#[test]
+fn the_spike_centre_line_sampling_misses_and_sectors_darken() {
+    // Stewart's Fig. 8: flat ground, one tall spike. Sampling along the
+    // sector centres misses it from most posts around; the sector method
+    // sees it from every post whose wedge holds it, over the whole sector.
+    let (w, h) = (61, 61);
+    let mut z = vec![0f32; w * h];
+    z[10 * w + 10] = 500.0;
+    let t = Terrain::new(&z, w, h, 10.0, 10.0);
+    let opts = BandOptions {
+        max_distance: None,
+        narrow_check: true,
+    };
+    let count = 16;
+    let mut shadowed = [0usize; 3];
+    for (m, method) in [Method::Sampled, Method::Line, Method::Sector]
+        .into_iter()
+        .enumerate()
+    {
+        for band in plan_bands(method, count, 10.0, 10.0, None) {
+            let (out, _) = band_horizons(&t, &band, opts);
+            shadowed[m] += out.iter().filter(|&&a| a > 5.0).count();
+        }
+    }
+    let [sampled, line, sector] = shadowed;
+    // Every post sees the spike in exactly one or two sectors (boundaries).
+    assert!(sector >= w * h - 1, "sector: {sector}");
+    assert!(sampled < sector / 4, "sampled {sampled} vs sector {sector}");
+    assert!(line < sector / 4, "line {line} vs sector {sector}");
+    eprintln!(
+        "spike, posts x bands above 5 degrees: sampled {sampled}, line {line}, sector {sector}"
+    );
+}
+
+#[test]
+fn narrow_sectors_need_stewarts_check() {
+    // s = 256, sector 5 (centre 7.03 degrees, 6.33..7.73): the first post
+    // inside the wedge from (4, 20) is (5, 12), 8 rows north. A tall post 3
+    // rows due north is outside the wedge, but its cell is crossed by it:
+    // Stewart's IV-E check (Fig. 6) counts it; the bare wedge does not.
+    let (w, h) = (12, 24);
+    let mut z = vec![0f32; w * h];
+    z[17 * w + 4] = 50.0;
+    let t = Terrain::new(&z, w, h, 10.0, 10.0);
+    let frame = SectorFrame::new(5, 256, 10.0, 10.0);
+    let stencil = NarrowStencil::new(&frame, 256, 10.0, 10.0);
+    assert!(stencil.offsets.contains(&(0, -3)));
+    let receiver = (4, 20);
+    let with = brute::sector_horizon(&t, receiver, &frame, Some(&stencil));
+    let without = brute::sector_horizon(&t, receiver, &frame, None);
+    assert!(with > 50.0, "with the check: {with}");
+    assert_eq!(without, 0.0);
+    let mut out = vec![0f32; w * h];
+    sector_horizons(&t, 5, 256, true, &mut out);
+    assert_eq!(out[receiver.1 * w + receiver.0], with);
+    sector_horizons(&t, 5, 256, false, &mut out);
+    assert_eq!(out[receiver.1 * w + receiver.0], without);
+}
+
+#[test]
+fn the_bowl_is_timonens_worst_case_and_stays_linear_per_vertex() {
+    // Timonen sec. 6: a bowl is the worst case of the hull tree. The stack
+    // sweep pops every vertex at most once: pops <= vertices on any DEM.
+    for kind in [SynthKind::Bowl, SynthKind::Fractal, SynthKind::Noise] {
+        let z = synth_grid(kind, 200, 200, 1);
+        let t = Terrain::new(&z, 200, 200, 30.0, 30.0);
+        for band in plan_bands(Method::Line, 16, 30.0, 30.0, None) {
+            let BandKind::Line(dir) = &band.kind else {
+                unreachable!()
+            };
+            let mut out = vec![0f32; z.len()];
+            let stats = line::line_horizons(&t, dir, &mut out);
+            assert!(stats.pops <= stats.vertices, "{kind:?}: {stats:?}");
+            assert_eq!(stats.posts, 200 * 200);
+        }
+    }
+}
+
+#[test]
+fn nodata_neither_occludes_nor_receives() {
+    let (w, h) = (21, 15);
+    let mut z = synth_grid(SynthKind::Fractal, w, h, 3);
+    // A tall block, then the same block as nodata.
+    let mut holed = z.clone();
+    for row in 5..9 {
+        for col in 10..14 {
+            z[row * w + col] = 5000.0;
+            holed[row * w + col] = f32::NAN;
+        }
+    }
+    let t = Terrain::new(&holed, w, h, 30.0, 30.0);
+    check_all("holes", &t);
+    let tall = Terrain::new(&z, w, h, 30.0, 30.0);
+    let band = &plan_bands(Method::Line, 4, 30.0, 30.0, None)[1]; // east
+    let (with_block, _) = band_horizons(
+        &tall,
+        band,
+        BandOptions {
+            max_distance: None,
+            narrow_check: true,
+        },
+    );
+    let (with_hole, _) = band_horizons(
+        &t,
+        band,
+        BandOptions {
+            max_distance: None,
+            narrow_check: true,
+        },
+    );
+    let receiver = 6 * w + 4;
+    assert!(with_block[receiver] > 60.0);
+    assert!(with_hole[receiver] < with_block[receiver]);
+    assert!(with_hole[6 * w + 11].is_nan());
+}
+
+#[test]
+fn max_distance_cuts_the_horizon_where_it_should() {
+    let z = synth_grid(SynthKind::Fractal, 60, 50, 9);
+    let t = Terrain::new(&z, 60, 50, 30.0, 30.0);
+    for band in plan_bands(Method::Line, 7, 30.0, 30.0, None) {
+        let BandKind::Line(dir) = &band.kind else {
+            unreachable!()
+        };
+        let (far, _) = band_horizons(
+            &t,
+            &band,
+            BandOptions {
+                max_distance: Some(1e9),
+                narrow_check: true,
+            },
+        );
+        let (all, _) = band_horizons(
+            &t,
+            &band,
+            BandOptions {
+                max_distance: None,
+                narrow_check: true,
+            },
+        );
+        let (near, _) = band_horizons(
+            &t,
+            &band,
+            BandOptions {
+                max_distance: Some(300.0),
+                narrow_check: true,
+            },
+        );
+        for i in 0..z.len() {
+            assert!(same(far[i], all[i], 1e-4), "{:?} {i}", dir.step);
+            assert!(near[i] <= all[i] + 1e-4);
+        }
+    }
+}
