@@ -63,13 +63,13 @@ impl GeoTags {
     }
 }
 
-/// Writes a float32 GeoTIFF of `width x height`, strip by strip: `fill`
-/// gets the first row and a buffer of whole rows to fill (NaN = nodata, which
-/// is written as `tags.nodata` when that is set). BigTIFF past 4 GB.
+/// Writes a float32 GeoTIFF of `width x height` and `bands` samples per
+/// pixel (interleaved), strip by strip: `fill` gets the first row and a
+/// buffer of whole rows to fill (NaN = nodata, which is written as
+/// `tags.nodata` when that is set). BigTIFF past 4 GB.
 pub fn write_geotiff_f32(
     path: &Path,
-    width: u32,
-    height: u32,
+    (width, height, bands): (u32, u32, u16),
     tags: &GeoTags,
     mut fill: impl FnMut(u32, &mut [f32]) -> Result<()>,
 ) -> Result<()> {
@@ -79,7 +79,7 @@ pub fn write_geotiff_f32(
         .and_then(crate::source::parse_nodata)
         .map(|v| v as f32);
     write_atomically(path, |out| {
-        let big = u64::from(width) * u64::from(height) * 4 > 3_900_000_000;
+        let big = u64::from(width) * u64::from(height) * u64::from(bands) * 4 > 3_900_000_000;
         let fill = |y0: u32, rows: &mut [f32]| -> Result<()> {
             fill(y0, rows)?;
             if let Some(nd) = nodata_value {
@@ -88,17 +88,16 @@ pub fn write_geotiff_f32(
             Ok(())
         };
         if big {
-            write_tiff::<_, TiffKindBig>(out, width, height, tags, fill)
+            write_tiff::<_, TiffKindBig>(out, (width, height, bands), tags, fill)
         } else {
-            write_tiff::<_, TiffKindStandard>(out, width, height, tags, fill)
+            write_tiff::<_, TiffKindStandard>(out, (width, height, bands), tags, fill)
         }
     })
 }
 
 fn write_tiff<W: Write + Seek, K: TiffKind>(
     out: W,
-    width: u32,
-    height: u32,
+    (width, height, bands): (u32, u32, u16),
     tags: &GeoTags,
     mut fill: impl FnMut(u32, &mut [f32]) -> Result<()>,
 ) -> Result<()> {
@@ -107,8 +106,14 @@ fn write_tiff<W: Write + Seek, K: TiffKind>(
     let mut image = encoder
         .new_image::<colortype::Gray32Float>(width, height)
         .map_err(tiff_err)?;
+    // Bands past the first are TIFF extra samples (GDAL reads them as bands).
+    if bands > 1 {
+        let extra = vec![tiff::tags::ExtraSamples::Unspecified; usize::from(bands) - 1];
+        image.extra_samples(&extra).map_err(tiff_err)?;
+    }
+    let row_samples = width * u32::from(bands);
     // Strips of about 1 MiB: small enough to stream, large enough to be fast.
-    let rows_per_strip = ((1u32 << 18) / width.max(1)).clamp(1, height);
+    let rows_per_strip = ((1u32 << 18) / row_samples.max(1)).clamp(1, height);
     image.rows_per_strip(rows_per_strip).map_err(tiff_err)?;
     if let Some(g) = &tags.georef {
         let t = g.geotransform;
@@ -145,11 +150,11 @@ fn write_tiff<W: Write + Seek, K: TiffKind>(
             .write_tag(Tag::GdalNodata, nd.as_str())
             .map_err(tiff_err)?;
     }
-    let mut strip = vec![0f32; (rows_per_strip * width) as usize];
+    let mut strip = vec![0f32; (rows_per_strip * row_samples) as usize];
     let mut y0 = 0;
     while y0 < height {
         let rows = rows_per_strip.min(height - y0);
-        let buf = &mut strip[..(rows * width) as usize];
+        let buf = &mut strip[..(rows * row_samples) as usize];
         fill(y0, buf)?;
         image.write_strip(buf).map_err(tiff_err)?;
         y0 += rows;
@@ -191,39 +196,103 @@ pub enum PngStyle {
     Relief,
 }
 
-/// Exports band 0 of `layer` (f32 layers) to `out`.
+/// Rows `y0..` of band `band` of any layer as f32: f32 as stored, horizon
+/// angles decoded to degrees (NaN for nodata), other quantised layers
+/// through their `Quantization`, integers as numbers.
+pub fn read_rows_f32(layer: &Layer<Mmap>, band: u32, y0: u32, out: &mut [f32]) -> Result<()> {
+    use terrabake_format::horizons::{AngleEncoding, HORIZON};
+    use terrabake_format::ElemType;
+    let w = layer.width();
+    let n = (out.len() / w as usize) as u32;
+    let entry = layer.entry();
+    let angles = (entry.name == HORIZON).then_some(()).and(match entry.elem {
+        ElemType::U8 => Some(AngleEncoding::U8),
+        ElemType::U16 => Some(AngleEncoding::U16),
+        _ => None,
+    });
+    let q = entry.quantization;
+    let decode = |code: u32| -> f32 {
+        if let Some(enc) = angles {
+            enc.decode(code).map_or(f32::NAN, |d| d as f32)
+        } else if let Some(q) = q {
+            (q.offset + q.scale * f64::from(code)) as f32
+        } else {
+            code as f32
+        }
+    };
+    match entry.elem {
+        ElemType::F32 => layer.read_window(band, 0, y0, w, n, out)?,
+        ElemType::U8 => {
+            let mut codes = vec![0u8; out.len()];
+            layer.read_window(band, 0, y0, w, n, &mut codes)?;
+            out.iter_mut()
+                .zip(codes)
+                .for_each(|(o, c)| *o = decode(u32::from(c)));
+        }
+        ElemType::U16 => {
+            let mut codes = vec![0u16; out.len()];
+            layer.read_window(band, 0, y0, w, n, &mut codes)?;
+            out.iter_mut()
+                .zip(codes)
+                .for_each(|(o, c)| *o = decode(u32::from(c)));
+        }
+        other => bail!(
+            "layer {} holds {}; export reads f32, u16 and u8 layers",
+            entry.key(),
+            other.name()
+        ),
+    }
+    Ok(())
+}
+
+/// Exports `layer` to `out`: every band to GeoTIFF (one TIFF band each) and
+/// OpenEXR (one channel each, `B0`, `B1`, ...), band `band` to a PNG.
 pub fn export_layer(
     asset: &Asset<Mmap>,
     layer: &Layer<Mmap>,
     out: &Path,
     style: PngStyle,
+    band: u32,
     progress: Progress,
 ) -> Result<()> {
-    let (w, h) = (layer.width(), layer.height());
-    if layer.entry().elem != terrabake_format::ElemType::F32 {
+    let (w, h, bands) = (layer.width(), layer.height(), layer.bands());
+    if band >= bands {
         bail!(
-            "layer {} holds {:?}; export handles f32 layers",
-            layer.entry().key(),
-            layer.entry().elem
+            "layer {} has {bands} band(s); --band {band} is past them",
+            layer.entry().key()
         );
     }
+    let bands16 =
+        u16::try_from(bands).map_err(|_| anyhow!("{bands} bands is more than TIFF holds"))?;
     let manifest = asset.manifest();
+    // All bands of rows y0.., pixel-interleaved.
     let read = |y0: u32, rows: &mut [f32]| -> Result<()> {
-        let n = (rows.len() / w as usize) as u32;
-        layer.read_window(0, 0, y0, w, n, rows).map_err(Into::into)
+        if bands == 1 {
+            return read_rows_f32(layer, 0, y0, rows);
+        }
+        let n = rows.len() / bands as usize;
+        let mut one = vec![0f32; n];
+        for b in 0..bands as usize {
+            read_rows_f32(layer, b as u32, y0, &mut one)?;
+            for (i, v) in one.iter().enumerate() {
+                rows[i * bands as usize + b] = *v;
+            }
+        }
+        Ok(())
     };
+    // The source's nodata value only for heights (a real horizon or svf
+    // could equal it); NaN for the rest.
+    let height_like = layer.entry().name == terrabake_format::HEIGHT_LAYER
+        || layer.entry().name.starts_with("pyramid");
     match ExportKind::from_path(out)? {
         ExportKind::GeoTiff => {
-            let nodata = Some(
-                manifest
-                    .nodata
-                    .source_value
-                    .clone()
-                    .unwrap_or_else(|| "nan".into()),
-            );
+            let nodata = Some(match (&manifest.nodata.source_value, height_like) {
+                (Some(v), true) => v.clone(),
+                _ => "nan".into(),
+            });
             let tags = GeoTags::for_level(manifest.georef.as_ref(), nodata, layer.entry().level);
             let bar = progress.bar(u64::from(h), "export", "rows");
-            write_geotiff_f32(out, w, h, &tags, |y0, rows| {
+            write_geotiff_f32(out, (w, h, bands16), &tags, |y0, rows| {
                 read(y0, rows)?;
                 bar.set_position(u64::from(y0));
                 Ok(())
@@ -233,25 +302,35 @@ pub fn export_layer(
         }
         ExportKind::Exr => {
             // The exr crate encodes whole images: bound what we hold.
-            if u64::from(w) * u64::from(h) > 1 << 28 {
-                bail!("layer {} is {w} x {h}: EXR export holds the whole layer and is limited to 2^28 posts; export GeoTIFF instead", layer.entry().key());
+            if u64::from(w) * u64::from(h) * u64::from(bands) > 1 << 28 {
+                bail!("layer {} is {w} x {h} x {bands}: EXR export holds the whole layer and is limited to 2^28 values; export GeoTIFF instead", layer.entry().key());
             }
-            let mut all = vec![0f32; w as usize * h as usize];
-            read(0, &mut all)?;
+            let mut channels = Vec::new();
+            for b in 0..bands {
+                let mut all = vec![0f32; w as usize * h as usize];
+                read_rows_f32(layer, b, 0, &mut all)?;
+                let name = if bands == 1 {
+                    "Y".to_string()
+                } else {
+                    format!("B{b}")
+                };
+                channels.push((name, all));
+            }
             write_atomically(out, |file| {
                 use exr::prelude::*;
-                let channel = AnyChannel::new("Y", FlatSamples::F32(all));
-                let image = Image::from_channels(
-                    (w as usize, h as usize),
-                    AnyChannels::sort(SmallVec::from_vec(vec![channel])),
-                );
+                let channels = channels
+                    .into_iter()
+                    .map(|(name, all)| AnyChannel::new(name.as_str(), FlatSamples::F32(all)))
+                    .collect();
+                let image =
+                    Image::from_channels((w as usize, h as usize), AnyChannels::sort(channels));
                 image
                     .write()
                     .to_buffered(file)
                     .map_err(|e| anyhow!("writing EXR: {e}"))
             })
         }
-        ExportKind::Png => write_png_preview(out, layer, manifest, style),
+        ExportKind::Png => write_png_preview(out, layer, manifest, style, band, height_like),
     }
 }
 
@@ -263,22 +342,40 @@ fn write_png_preview(
     layer: &Layer<Mmap>,
     manifest: &terrabake_format::Manifest,
     style: PngStyle,
+    band: u32,
+    height_like: bool,
 ) -> Result<()> {
     let (w, h) = (layer.width(), layer.height());
     let step = w.max(h).div_ceil(PREVIEW_MAX_SIDE).max(1);
     let (pw, ph) = (w.div_ceil(step), h.div_ceil(step));
-    let range = manifest.height_range.map_or((0.0, 1.0), |r| (r.min, r.max));
+    let row_at = |y: u32| -> Result<Vec<f32>> {
+        let mut full = vec![0f32; w as usize];
+        read_rows_f32(layer, band, y.min(h - 1), &mut full)?;
+        Ok((0..pw).map(|x| full[(x * step) as usize]).collect())
+    };
+    // Heights scale by the DEM's range; other layers by their own.
+    let range = match (height_like, manifest.height_range) {
+        (true, Some(r)) => (r.min, r.max),
+        _ => {
+            let mut range = (f32::INFINITY, f32::NEG_INFINITY);
+            for py in 0..ph {
+                for v in row_at(py * step)?.into_iter().filter(|v| !v.is_nan()) {
+                    range = (range.0.min(v), range.1.max(v));
+                }
+            }
+            if range.0 > range.1 {
+                (0.0, 1.0)
+            } else {
+                range
+            }
+        }
+    };
     let span = (range.1 - range.0).max(1e-6);
     // Metres per preview pixel, for the hillshade's slopes.
     let (dx, dy) = (
         manifest.cell_size.dx * f64::from(step),
         manifest.cell_size.dy * f64::from(step),
     );
-    let row_at = |y: u32| -> Result<Vec<f32>> {
-        let mut full = vec![0f32; w as usize];
-        layer.read_window(0, 0, y.min(h - 1), w, 1, &mut full)?;
-        Ok((0..pw).map(|x| full[(x * step) as usize]).collect())
-    };
     write_atomically(out, |file| {
         let mut enc = png::Encoder::new(file, pw, ph);
         match style {

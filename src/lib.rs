@@ -13,7 +13,10 @@
 //! - [`cones`]: the parameter-plane stage (cone apex and slope per cell),
 //!   for parametric tracing.
 //! - [`edt`]: exact Euclidean distance transforms (the cone stage's slices).
+//! - [`horizon`]: the horizons stage (line, sector and sampled horizon maps,
+//!   sky-view factors, openness) and its algorithms.
 //! - [`render`]: perspective views traced through an asset (any method).
+//! - [`shade`]: overhead maps shaded from stored horizons (sky, sun).
 //! - [`bench`]: the cone planes' speed against their bake time.
 //! - [`synth`]: synthetic terrains for tests and benchmarks.
 //! - [`export`]: layers out as GeoTIFF, OpenEXR or a PNG preview.
@@ -29,6 +32,7 @@ pub mod ingest;
 pub mod progress;
 pub mod pyramid;
 pub mod render;
+pub mod shade;
 pub mod source;
 pub mod stage;
 pub mod synth;

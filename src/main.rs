@@ -8,6 +8,7 @@ use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
 use terrabake::cones::{ConesStage, SliceChoice};
 use terrabake::export::{export_layer, PngStyle};
+use terrabake::horizon::{AngleChoice, HorizonsStage, Method as HorizonMethod};
 use terrabake::ingest::{ingest, IngestOptions, DEFAULT_TILE};
 use terrabake::progress::Progress;
 use terrabake::pyramid::PyramidStage;
@@ -16,6 +17,7 @@ use terrabake::source::{ByteOrder, RawSampleType, RawSpec};
 use terrabake::stage::{bake, run_stage, Recipe, StageOutcome};
 use terrabake::synth::SynthKind;
 use terrabake_format::cones::{ConeEncoding, CONE_APEX};
+use terrabake_format::horizons::{AngleEncoding, HORIZON};
 use terrabake_format::trace::{Method, Tracer};
 use terrabake_format::{Asset, Codec};
 
@@ -78,6 +80,12 @@ enum Command {
         json: bool,
     },
     /// Write a layer as GeoTIFF (.tif, georeferenced, with nodata), OpenEXR (.exr) or a PNG preview (.png).
+    ///
+    /// GeoTIFF and EXR carry every band (a horizon layer: one band per azimuth, in degrees, in
+    /// compass order); quantised layers are decoded. A PNG shows one band (--band).
+    #[command(after_help = "Examples:\n  terrabake export dem.tbake -o dem.tif\n  \
+terrabake export dem.tbake --layer horizon -o horizon.tif\n  \
+terrabake export dem.tbake --layer svf --style gray -o svf.png")]
     Export {
         asset: PathBuf,
         /// Layer name (see `terrabake info`).
@@ -90,6 +98,9 @@ enum Command {
         /// `gray` (16-bit, min to max).
         #[arg(long, value_enum, default_value = "relief")]
         style: PngStyle,
+        /// The band a PNG shows (GeoTIFF and EXR carry all bands).
+        #[arg(long, default_value_t = 0)]
+        band: u32,
         #[arg(short, long)]
         output: PathBuf,
     },
@@ -152,6 +163,65 @@ terrabake cones dem.tbake --slices 256 --encoding u16 --json"
         #[arg(long)]
         json: bool,
     },
+    /// Add horizon maps: the horizon's elevation angle at every post in S azimuths, plus sky-view
+    /// factors and openness.
+    ///
+    /// --method line (default): the steepest sight line along the straight line from each post on
+    /// the same surface the tracers use, exact; directions are grid directions within a tolerance
+    /// of i * 360 / S (listed per band in the manifest). --method sector: Stewart's maximum over
+    /// each closed azimuth wedge, exact (a spike anywhere in a wedge sets the whole sector).
+    /// --method sampled: centre-line sampling with nearest-post heights, what GRASS r.horizon and
+    /// SAGA do (a baseline). Angles are compass-ordered bands of the `horizon` layer, degrees,
+    /// stored in the smallest encoding within --max-error; the stage also writes `svf` (Zakšek:
+    /// 1 - mean sin h), `svf_cosine` (view factor from the tilted surface), `openness` and
+    /// `horizon_edge` (bands the DEM's edge may cut). Earth curvature is on by default for
+    /// georeferenced DEMs (docs/HORIZONS.md).
+    #[command(
+        after_help = "Examples:\n  terrabake horizons dem.tbake --sectors 16\n  \
+terrabake horizons dem.tbake --sectors 64 --method sector\n  \
+terrabake horizons dem.tbake --sectors 32 --aoi 100,100,400,400 --max-error 0.01 --json\n  \
+terrabake export dem.tbake --layer horizon -o horizon.tif"
+    )]
+    Horizons {
+        asset: PathBuf,
+        /// Number of azimuths (bands), 3..=4096; band i is centred on i * 360 / S degrees.
+        #[arg(long, default_value_t = 16)]
+        sectors: usize,
+        /// line (exact sight lines), sector (Stewart's wedges) or sampled (baseline).
+        #[arg(long, value_enum, default_value = "line")]
+        method: HorizonMethod,
+        /// Look no farther than this many metres (line and sampled; default: the whole DEM).
+        #[arg(long, value_parser = parse_positive)]
+        max_distance: Option<f64>,
+        /// Earth curvature, drop d^2 (1 - k) / 2R: on, off (default: on for georeferenced DEMs).
+        #[arg(long, value_parser = parse_on_off)]
+        curvature: Option<bool>,
+        /// Refraction coefficient k of the curvature drop.
+        #[arg(long, default_value_t = terrabake::horizon::terrain::DEFAULT_REFRACTION)]
+        refraction: f64,
+        /// Only compute posts in columns X0..X1 and rows Y0..Y1 (end exclusive); every post of the
+        /// DEM still occludes.
+        #[arg(long, value_parser = parse_aoi)]
+        aoi: Option<[u32; 4]>,
+        /// Largest angular error of the stored angles, degrees: picks u8 (0.354), u16 (0.0014) or
+        /// f32.
+        #[arg(long, default_value_t = 0.5, conflicts_with = "encoding")]
+        max_error: f64,
+        /// Store angles as u8, u16 or f32 regardless of --max-error.
+        #[arg(long)]
+        encoding: Option<AngleEncoding>,
+        /// Leave out Stewart's narrow-sector check (sec. IV-E) with --method sector.
+        #[arg(long)]
+        no_narrow_check: bool,
+        /// How far a line direction may sit from i * 360 / S, degrees (default: spacing / 8).
+        #[arg(long, value_parser = parse_positive)]
+        direction_tolerance: Option<f64>,
+        /// Recompute even if the asset already has up-to-date horizons.
+        #[arg(long)]
+        force: bool,
+        #[arg(long)]
+        json: bool,
+    },
     /// Chart the parametric tracer's speed against the cone planes' bake time (replaces the asset's planes).
     ///
     /// For every slice count and encoding: bake the planes (all cores), then trace the sixteen
@@ -192,6 +262,11 @@ terrabake cones dem.tbake --slices 256 --encoding u16 --json"
     /// oblique views of the tracing benchmark, or --camera and --look-at.
     Render {
         asset: PathBuf,
+        /// Instead of a perspective view: an overhead map shaded from the stored horizons alone,
+        /// `sky` (overcast sky, radiosity) or `sun:AZ,EL` (sun disc and Stewart's sky); needs the
+        /// horizons stage.
+        #[arg(long, conflicts_with_all = ["view", "camera"])]
+        shade: Option<terrabake::shade::Shade>,
         /// Camera position X,Y,Z (local metres).
         #[arg(long, value_parser = parse_point, allow_hyphen_values = true, requires = "look_at", conflicts_with = "view")]
         camera: Option<[f64; 3]>,
@@ -375,6 +450,24 @@ fn parse_positive(s: &str) -> Result<f64, String> {
     }
 }
 
+fn parse_on_off(s: &str) -> Result<bool, String> {
+    match s {
+        "on" => Ok(true),
+        "off" => Ok(false),
+        _ => Err(format!("{s:?}: expected on or off")),
+    }
+}
+
+fn parse_aoi(s: &str) -> Result<[u32; 4], String> {
+    let v: Vec<u32> = s
+        .split(',')
+        .map(|p| p.trim().parse::<u32>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("{s:?}: expected X0,Y0,X1,Y1 in posts"))?;
+    v.try_into()
+        .map_err(|_| format!("{s:?}: expected four numbers X0,Y0,X1,Y1"))
+}
+
 fn parse_codec(s: &str) -> Result<Codec, String> {
     match s {
         "raw" => Ok(Codec::Raw),
@@ -469,11 +562,12 @@ fn run(cli: Cli) -> Result<ExitCode> {
             layer,
             level,
             style,
+            band,
             output,
         } => {
             let opened = open_asset(&asset)?;
             let l = opened.layer(&layer, level)?;
-            export_layer(&opened, l, &output, style, progress)?;
+            export_layer(&opened, l, &output, style, band, progress)?;
             say(format!("wrote {}", output.display()));
         }
         Command::Synth {
@@ -493,6 +587,17 @@ fn run(cli: Cli) -> Result<ExitCode> {
         }
         Command::Render {
             asset,
+            shade: Some(shade),
+            output,
+            ..
+        } => {
+            let opened = open_asset(&asset)?;
+            terrabake::shade::write_shade_png(&opened, shade, &output, 4096)?;
+            say(format!("wrote {}", output.display()));
+        }
+        Command::Render {
+            asset,
+            shade: None,
             camera,
             look_at,
             view,
@@ -649,6 +754,54 @@ fn run(cli: Cli) -> Result<ExitCode> {
             }
             say(describe_outcome(&outcome));
             say(how);
+        }
+        Command::Horizons {
+            asset,
+            sectors,
+            method,
+            max_distance,
+            curvature,
+            refraction,
+            aoi,
+            max_error,
+            encoding,
+            no_narrow_check,
+            direction_tolerance,
+            force,
+            json,
+        } => {
+            let stage = HorizonsStage {
+                sectors,
+                method,
+                max_distance,
+                curvature,
+                refraction,
+                aoi,
+                encoding: match encoding {
+                    Some(e) => AngleChoice::Fixed(e),
+                    None => AngleChoice::MaxError(max_error),
+                },
+                narrow_check: !no_narrow_check,
+                direction_tolerance,
+            };
+            let outcome = run_stage(&asset, &stage, force, progress)?;
+            let opened = open_asset(&asset)?;
+            let entry = opened.manifest().layer(HORIZON, 0).cloned();
+            if json {
+                let mut v = serde_json::to_value(&outcome)?;
+                if let Some(e) = &entry {
+                    v["horizon"] = serde_json::json!({
+                        "description": e.description,
+                        "encoding": e.elem.name(),
+                        "band_azimuths": e.band_azimuths,
+                    });
+                }
+                println!("{}", serde_json::to_string_pretty(&v)?);
+            }
+            say(describe_outcome(&outcome));
+            if let Some(e) = entry {
+                say(e.description);
+            }
         }
         Command::BenchCones {
             asset,

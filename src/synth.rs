@@ -181,7 +181,7 @@ pub fn write_geotiff(
         nodata: Some("-9999".into()),
     };
     let bar = progress.bar(u64::from(height_), "synth", "rows");
-    crate::export::write_geotiff_f32(path, width, height_, &tags, |y0, rows| {
+    crate::export::write_geotiff_f32(path, (width, height_, 1), &tags, |y0, rows| {
         fill_rows(kind, y0, rows, width, height_, seed);
         bar.inc((rows.len() / width as usize) as u64);
         Ok(())

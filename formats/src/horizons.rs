@@ -52,7 +52,19 @@ pub enum AngleEncoding {
     F32,
 }
 
+impl std::str::FromStr for AngleEncoding {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        Self::ALL
+            .into_iter()
+            .find(|e| e.name() == s)
+            .ok_or_else(|| format!("unknown angle encoding {s:?} (u8, u16, f32)"))
+    }
+}
+
 impl AngleEncoding {
+    pub const ALL: [AngleEncoding; 3] = [Self::U8, Self::U16, Self::F32];
+
     pub fn name(self) -> &'static str {
         match self {
             Self::U8 => "u8",
@@ -152,6 +164,23 @@ pub fn disc_fraction_above(elevation: f64, horizon: f64, radius: f64) -> f64 {
     1.0 - (d.acos() - d * (1.0 - d * d).sqrt()) / std::f64::consts::PI
 }
 
+/// The two bands on either side of `azimuth` (compass degrees; `azimuths`
+/// ascending) and how far from the first to the second it lies, in 0..1:
+/// the horizon there is `h[i] + f * (h[j] - h[i])`.
+pub fn bands_around(azimuths: &[f64], azimuth: f64) -> (usize, usize, f64) {
+    let n = azimuths.len();
+    let az = azimuth.rem_euclid(360.0);
+    let after = azimuths.partition_point(|&a| a <= az);
+    let (i, j) = ((after + n - 1) % n, after % n);
+    let span = (azimuths[j] - azimuths[i]).rem_euclid(360.0);
+    let f = if span == 0.0 {
+        0.0
+    } else {
+        (az - azimuths[i]).rem_euclid(360.0) / span
+    };
+    (i, j, f)
+}
+
 /// Distance in metres from post `(x, y)` to the DEM's edge, going in the
 /// compass direction `azimuth` on a `width x height` grid of `dx x dy`
 /// metres: how far the DEM can see. A horizon whose terrain could rise past
@@ -238,18 +267,7 @@ impl<'a, D: AsRef<[u8]>> HorizonMap<'a, D> {
     /// The horizon at `azimuth` (compass degrees), linear between the two
     /// nearest band azimuths (cyclically).
     pub fn horizon_at(&self, x: u32, y: u32, azimuth: f64) -> Result<Option<f64>> {
-        let n = self.azimuths.len();
-        let az = azimuth.rem_euclid(360.0);
-        // The band at or before `az`, cyclically (azimuths ascend).
-        let after = self.azimuths.partition_point(|&a| a <= az);
-        let (i, j) = ((after + n - 1) % n, after % n);
-        let (a0, a1) = (self.azimuths[i], self.azimuths[j]);
-        let span = (a1 - a0).rem_euclid(360.0);
-        let f = if span == 0.0 {
-            0.0
-        } else {
-            (az - a0).rem_euclid(360.0) / span
-        };
+        let (i, j, f) = bands_around(&self.azimuths, azimuth);
         let (Some(h0), Some(h1)) = (self.angle(x, y, i as u32)?, self.angle(x, y, j as u32)?)
         else {
             return Ok(None);
@@ -314,6 +332,15 @@ mod tests {
             .map(|i| disc_fraction_above(9.73 + i as f64 * 0.027, 10.0, 0.27))
             .collect();
         assert!(f.windows(2).all(|w| w[0] <= w[1]));
+    }
+
+    #[test]
+    fn bands_around_wraps() {
+        let az = [0.0, 90.0, 180.0, 270.0];
+        assert_eq!(bands_around(&az, 45.0), (0, 1, 0.5));
+        assert_eq!(bands_around(&az, 315.0), (3, 0, 0.5));
+        assert_eq!(bands_around(&az, -45.0), (3, 0, 0.5));
+        assert_eq!(bands_around(&az, 90.0), (1, 2, 0.0));
     }
 
     #[test]

@@ -89,6 +89,19 @@ pub enum BandKind {
     Sampled,
 }
 
+/// The azimuth interval each band stands for: half way to its neighbours
+/// (for sectors, exactly the sector).
+pub fn band_bounds(azimuths: &[f64]) -> Vec<(f64, f64)> {
+    let n = azimuths.len();
+    (0..n)
+        .map(|i| {
+            let back = (azimuths[i] - azimuths[(i + n - 1) % n]).rem_euclid(360.0);
+            let ahead = (azimuths[(i + 1) % n] - azimuths[i]).rem_euclid(360.0);
+            (azimuths[i] - back / 2.0, azimuths[i] + ahead / 2.0)
+        })
+        .collect()
+}
+
 /// The bands of `count` azimuths for `method` on posts `dx x dy` apart.
 /// `tolerance`: how far (degrees) a line direction may sit from its nominal
 /// azimuth (default: an eighth of the spacing).
@@ -99,45 +112,37 @@ pub fn plan_bands(
     dy: f64,
     tolerance: Option<f64>,
 ) -> Vec<Band> {
-    let width = 360.0 / count as f64;
-    match method {
-        Method::Sector | Method::Sampled => (0..count)
+    let kinds: Vec<(f64, BandKind)> = match method {
+        Method::Sector => (0..count)
             .map(|i| {
-                let az = i as f64 * width;
-                Band {
-                    azimuth: az,
-                    lo: az - width / 2.0,
-                    hi: az + width / 2.0,
-                    kind: if method == Method::Sector {
-                        BandKind::Sector { index: i, count }
-                    } else {
-                        BandKind::Sampled
-                    },
-                }
+                (
+                    i as f64 * 360.0 / count as f64,
+                    BandKind::Sector { index: i, count },
+                )
             })
+            .collect(),
+        Method::Sampled => (0..count)
+            .map(|i| (i as f64 * 360.0 / count as f64, BandKind::Sampled))
             .collect(),
         Method::Line => {
             let tol = tolerance.unwrap_or_else(|| line::default_tolerance(count));
-            let dirs = line::grid_directions(count, dx, dy, tol);
-            let az: Vec<f64> = dirs.iter().map(|d| d.azimuth).collect();
-            dirs.into_iter()
-                .enumerate()
-                .map(|(i, d)| {
-                    // Half way to each neighbour, unwrapped around `az[i]`.
-                    let prev = az[(i + count - 1) % count];
-                    let next = az[(i + 1) % count];
-                    let back = (az[i] - prev).rem_euclid(360.0);
-                    let ahead = (next - az[i]).rem_euclid(360.0);
-                    Band {
-                        azimuth: az[i],
-                        lo: az[i] - back / 2.0,
-                        hi: az[i] + ahead / 2.0,
-                        kind: BandKind::Line(d),
-                    }
-                })
+            line::grid_directions(count, dx, dy, tol)
+                .into_iter()
+                .map(|d| (d.azimuth, BandKind::Line(d)))
                 .collect()
         }
-    }
+    };
+    let azimuths: Vec<f64> = kinds.iter().map(|k| k.0).collect();
+    kinds
+        .into_iter()
+        .zip(band_bounds(&azimuths))
+        .map(|((azimuth, kind), (lo, hi))| Band {
+            azimuth,
+            lo,
+            hi,
+            kind,
+        })
+        .collect()
 }
 
 /// Options that change every band's values.
@@ -380,25 +385,23 @@ impl Stage for HorizonsStage {
                 .map(|band| band_horizons(&terrain, band, opts))
                 .collect();
             for (band, (mut angles, _work)) in batch.iter().zip(results) {
-                let samples = sky::BandSamples::new(band.lo, band.hi, 2.0);
-                let fraction = (band.hi - band.lo) / 360.0;
+                let integrals = sky::BandIntegrals::new(band.lo, band.hi);
                 sums.par_chunks_mut(w)
                     .zip(edge_count.par_chunks_mut(w))
                     .zip(angles.par_chunks_mut(w))
                     .enumerate()
                     .for_each(|(row, ((sums, edges), angles))| {
                         for col in 0..w {
-                            let i = row * w + col;
-                            if !in_aoi(i) {
+                            if !in_aoi(row * w + col) {
                                 angles[col] = f32::NAN;
                                 continue;
                             }
-                            let hz = angles[col];
+                            let hz = f64::from(angles[col]);
                             if hz.is_nan() {
                                 continue;
                             }
                             let normal = terrain.normal(col, row).expect("valid post");
-                            sums[col].add(f64::from(hz), fraction, &samples, normal);
+                            sums[col].add(hz, &integrals, normal);
                             // Could terrain no higher than the DEM's top,
                             // just past the edge, rise above this horizon?
                             let d = edge_distance(
@@ -407,9 +410,10 @@ impl Stage for HorizonsStage {
                                 (col as f64, row as f64),
                                 band.azimuth,
                             );
-                            let zp = f64::from(terrain.at(col, row));
-                            let rise = (z_max - zp - curvature * d * d) / d;
-                            if d == 0.0 || rise.atan().to_degrees() > f64::from(hz) {
+                            let rise =
+                                (z_max - f64::from(terrain.at(col, row)) - curvature * d * d) / d;
+                            let (sh, ch) = hz.to_radians().sin_cos();
+                            if d == 0.0 || rise * ch > sh {
                                 edges[col] += 1;
                             }
                         }

@@ -192,6 +192,12 @@ pub struct SectorStats {
     pub inserts: u64,
 }
 
+#[derive(Debug, Clone, Copy, Default)]
+struct Node {
+    remaining: u32,
+    len: u32,
+}
+
 /// Inserts `(t, w)` into an upper hull sorted by `t`.
 fn hull_insert(hull: &mut Vec<[f64; 2]>, t: f64, w: f64) {
     let i = hull.partition_point(|q| q[0] < t);
@@ -289,13 +295,17 @@ pub fn sector_horizons(
     }
     drop(by_rank);
 
+    // The tree: per node, how many of its leaves are still to be processed
+    // and how many points its hull holds, packed so that a query's walk up
+    // the tree touches one small array (the hulls themselves are read only
+    // where non-empty; this walk is where the time goes).
     let leaves = n.next_power_of_two().max(1);
     let mut hulls: Vec<Vec<[f64; 2]>> = vec![Vec::new(); 2 * leaves];
-    let mut remaining = vec![0u32; 2 * leaves];
+    let mut nodes = vec![Node::default(); 2 * leaves];
     for leaf in 0..n {
         let mut v = leaves + leaf;
         while v >= 1 {
-            remaining[v] += 1;
+            nodes[v].remaining += 1;
             v >>= 1;
         }
     }
@@ -309,11 +319,13 @@ pub fn sector_horizons(
         let mut best = f64::NEG_INFINITY;
         let mut v = leaves + k;
         while v >= 1 {
-            if !hulls[v].is_empty() {
+            let node = &mut nodes[v];
+            if node.len > 0 {
                 best = best.max(hull_tangent(&hulls[v], tp, wp, &mut stats.tangent_steps));
             }
-            remaining[v] -= 1;
-            if remaining[v] == 0 {
+            node.remaining -= 1;
+            if node.remaining == 0 && node.len > 0 {
+                node.len = 0;
                 hulls[v] = Vec::new();
             }
             v >>= 1;
@@ -338,8 +350,10 @@ pub fn sector_horizons(
         // the ranks below k, whose posts have p on their b side.
         let mut v = leaves + k;
         while v > 1 {
-            if v & 1 == 1 && remaining[v - 1] > 0 {
-                hull_insert(&mut hulls[v - 1], tp, wp);
+            if v & 1 == 1 && nodes[v - 1].remaining > 0 {
+                let hull = &mut hulls[v - 1];
+                hull_insert(hull, tp, wp);
+                nodes[v - 1].len = hull.len() as u32;
                 stats.inserts += 1;
             }
             v >>= 1;

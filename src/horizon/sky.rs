@@ -22,34 +22,27 @@
 
 use super::terrain::compass;
 
-/// Integral over elevation `h'..90` of `N.u cos(el)` for azimuth unit
-/// `(e, n)`, with `h'` the horizon raised to the tangent plane.
-fn cosine_column(normal: [f64; 3], (e, n): (f64, f64), horizon: f64) -> f64 {
-    let tilt = normal[0] * e + normal[1] * n;
-    // The tangent plane's own elevation in this azimuth.
-    let plane = (-tilt / normal[2]).atan();
-    let h = horizon.max(plane);
-    let (s2, c) = ((2.0 * h).sin(), h.cos());
-    tilt * (std::f64::consts::FRAC_PI_4 - h / 2.0 - s2 / 4.0) + normal[2] * c * c / 2.0
+/// What the derived layers need of one band `[lo, hi]` (degrees): its
+/// share of the circle and the azimuth integrals of the tilt term.
+#[derive(Debug, Clone, Copy)]
+pub struct BandIntegrals {
+    fraction: f64,
+    width: f64,
+    /// Integrals over the band of sin(phi) and cos(phi), phi in radians.
+    sin: f64,
+    cos: f64,
+    centre: (f64, f64),
 }
 
-/// Azimuth samples (unit vectors and weights in radians) of one band, for
-/// the cosine integral: at least one per `max_step` degrees.
-#[derive(Debug, Clone)]
-pub struct BandSamples {
-    pub units: Vec<(f64, f64)>,
-    pub weight: f64,
-}
-
-impl BandSamples {
-    pub fn new(lo: f64, hi: f64, max_step: f64) -> Self {
-        let m = ((hi - lo) / max_step).ceil().max(1.0) as usize;
-        let width = (hi - lo) / m as f64;
+impl BandIntegrals {
+    pub fn new(lo: f64, hi: f64) -> Self {
+        let (l, h) = (lo.to_radians(), hi.to_radians());
         Self {
-            units: (0..m)
-                .map(|j| compass(lo + (j as f64 + 0.5) * width))
-                .collect(),
-            weight: width.to_radians(),
+            fraction: (hi - lo) / 360.0,
+            width: h - l,
+            sin: l.cos() - h.cos(),
+            cos: h.sin() - l.sin(),
+            centre: compass((lo + hi) / 2.0),
         }
     }
 }
@@ -63,17 +56,28 @@ pub struct SkySums {
 }
 
 impl SkySums {
-    /// Adds a band with horizon `h_deg` covering `fraction` of the circle.
-    pub fn add(&mut self, h_deg: f64, fraction: f64, samples: &BandSamples, normal: [f64; 3]) {
+    /// Adds a band whose horizon is `h_deg`, at a post with unit `normal`.
+    /// The cosine integral is exact in elevation and in azimuth; only the
+    /// clip to the tangent plane is taken at the band's centre.
+    pub fn add(&mut self, h_deg: f64, band: &BandIntegrals, normal: [f64; 3]) {
         let h = h_deg.to_radians();
-        self.sin_sum += fraction * h.max(0.0).sin();
-        self.zenith_sum += fraction * (90.0 - h_deg);
-        self.cosine_sum += samples
-            .units
-            .iter()
-            .map(|&u| cosine_column(normal, u, h))
-            .sum::<f64>()
-            * samples.weight;
+        let (sh, ch) = h.sin_cos();
+        self.sin_sum += band.fraction * sh.max(0.0);
+        self.zenith_sum += band.fraction * (90.0 - h_deg);
+        let [nx, ny, nz] = normal;
+        // The tangent plane's elevation at the band's centre: tan p = -A / nz.
+        let tan_plane = -(nx * band.centre.0 + ny * band.centre.1) / nz;
+        let (h, sh, ch) = if sh >= tan_plane * ch {
+            (h, sh, ch)
+        } else {
+            let p = tan_plane.atan();
+            let (sp, cp) = p.sin_cos();
+            (p, sp, cp)
+        };
+        let cos_squared_integral = std::f64::consts::FRAC_PI_4 - h / 2.0 - sh * ch / 2.0;
+        let sin_cos_integral = ch * ch / 2.0;
+        self.cosine_sum += (nx * band.sin + ny * band.cos) * cos_squared_integral
+            + nz * sin_cos_integral * band.width;
     }
 
     pub fn svf(&self) -> f64 {
@@ -204,12 +208,7 @@ mod tests {
         let bands = uniform_bands(16);
         let mut sums = SkySums::default();
         for &(lo, hi) in &bands {
-            sums.add(
-                0.0,
-                (hi - lo) / 360.0,
-                &BandSamples::new(lo, hi, 4.0),
-                [0.0, 0.0, 1.0],
-            );
+            sums.add(0.0, &BandIntegrals::new(lo, hi), [0.0, 0.0, 1.0]);
         }
         assert!((sums.svf() - 1.0).abs() < 1e-12);
         assert!((sums.svf_cosine() - 1.0).abs() < 1e-9);
@@ -225,12 +224,7 @@ mod tests {
         let bands = uniform_bands(64);
         let mut sums = SkySums::default();
         for &(lo, hi) in &bands {
-            sums.add(
-                30.0,
-                (hi - lo) / 360.0,
-                &BandSamples::new(lo, hi, 1.0),
-                [0.0, 0.0, 1.0],
-            );
+            sums.add(30.0, &BandIntegrals::new(lo, hi), [0.0, 0.0, 1.0]);
         }
         assert!((sums.svf() - 0.5).abs() < 1e-12);
         assert!((sums.svf_cosine() - 0.75).abs() < 1e-9);
@@ -246,30 +240,20 @@ mod tests {
         let bands = uniform_bands(64);
         let mut sums = SkySums::default();
         for &(lo, hi) in &bands {
-            sums.add(
-                0.0,
-                (hi - lo) / 360.0,
-                &BandSamples::new(lo, hi, 0.25),
-                normal,
-            );
+            sums.add(0.0, &BandIntegrals::new(lo, hi), normal);
         }
         let expected = (1.0 + tilt.cos()) / 2.0;
         assert!(
-            (sums.svf_cosine() - expected).abs() < 1e-4,
+            (sums.svf_cosine() - expected).abs() < 1e-3,
             "{}",
             sums.svf_cosine()
         );
         let mut open = SkySums::default();
         for &(lo, hi) in &bands {
-            open.add(
-                -90.0,
-                (hi - lo) / 360.0,
-                &BandSamples::new(lo, hi, 0.25),
-                normal,
-            );
+            open.add(-90.0, &BandIntegrals::new(lo, hi), normal);
         }
         assert!(
-            (open.svf_cosine() - 1.0).abs() < 1e-4,
+            (open.svf_cosine() - 1.0).abs() < 1e-3,
             "{}",
             open.svf_cosine()
         );

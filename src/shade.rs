@@ -1,0 +1,155 @@
+//! Overhead shaded maps from stored horizons alone, as Stewart's (1998)
+//! Figs. 9-10: no ray is traced, so a day's worth of sun positions costs one
+//! horizon bake.
+//!
+//! - `sky`: Stewart and Langer's radiosity (sec. VI-A) of every post under a
+//!   uniform overcast sky, albedo 0.5: valleys darken by what they cannot
+//!   see of the sky and by what they see of each other.
+//! - `sun:AZ,EL`: the sun's disc (radius 0.27 degrees) through
+//!   `lit_fraction` times `N.s`, plus Stewart's sky of Fig. 9 (`cos^20` of
+//!   the angle to the sun, and a faint uniform part), through the same
+//!   radiosity model.
+
+use std::path::Path;
+
+use anyhow::Result;
+use rayon::prelude::*;
+use terrabake_format::horizons::{bands_around, disc_fraction_above};
+use terrabake_format::{Asset, Mmap};
+
+use crate::horizon::sky::{radiosity, sun_glow, SkyTable};
+use crate::horizon::terrain::Terrain;
+use crate::horizon::{band_bounds, read_heights, read_horizons};
+use crate::render::{Image, Sun};
+
+/// What lights the map.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Shade {
+    Sky,
+    Sun(Sun),
+}
+
+impl std::str::FromStr for Shade {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        if s == "sky" {
+            return Ok(Shade::Sky);
+        }
+        let rest = s
+            .strip_prefix("sun:")
+            .ok_or_else(|| format!("{s:?}: expected sky or sun:AZIMUTH,ELEVATION"))?;
+        let (az, el) = rest
+            .split_once(',')
+            .ok_or_else(|| format!("{s:?}: expected sun:AZIMUTH,ELEVATION"))?;
+        let parse = |v: &str| v.trim().parse::<f64>().map_err(|e| format!("{v:?}: {e}"));
+        let (azimuth, elevation) = (parse(az)?, parse(el)?);
+        if !(-90.0..=90.0).contains(&elevation) {
+            return Err(format!(
+                "sun elevation {elevation} is not between -90 and 90"
+            ));
+        }
+        Ok(Shade::Sun(Sun { azimuth, elevation }))
+    }
+}
+
+const ALBEDO: f64 = 0.5;
+const SUN_RADIUS: f64 = 0.27;
+
+/// Brightness in 0..1 of every post (NaN for nodata or no horizon), row-major.
+pub fn shade_posts(asset: &Asset<Mmap>, shade: Shade) -> Result<(Vec<f32>, usize, usize)> {
+    let (z, w, h) = read_heights(asset)?;
+    let (bands, azimuths) = read_horizons(asset)?;
+    let cs = &asset.manifest().cell_size;
+    let terrain = Terrain::new(&z, w, h, cs.dx, cs.dy);
+    let bounds = band_bounds(&azimuths);
+    let per_band = (64 / azimuths.len()).clamp(1, 8);
+    let uniform = SkyTable::new(
+        &bounds,
+        per_band,
+        256,
+        |_, el| if el >= 0.0 { 1.0 } else { 0.0 },
+    );
+    let glow = match shade {
+        Shade::Sky => None,
+        Shade::Sun(sun) => Some((
+            sun,
+            SkyTable::new(
+                &bounds,
+                per_band,
+                256,
+                sun_glow(sun.azimuth, sun.elevation, 20, 0.05),
+            ),
+        )),
+    };
+    let mut out = vec![f32::NAN; w * h];
+    out.par_chunks_mut(w).enumerate().for_each(|(row, out)| {
+        let mut horizon = vec![0f32; bands.len()];
+        for (col, o) in out.iter_mut().enumerate() {
+            let i = row * w + col;
+            for (b, band) in bands.iter().enumerate() {
+                horizon[b] = band[i];
+            }
+            let Some(normal) = terrain.normal(col, row) else {
+                continue;
+            };
+            if horizon.iter().any(|v| v.is_nan()) {
+                continue;
+            }
+            let svf_cosine = uniform.irradiance(normal, &horizon) / std::f64::consts::PI;
+            let value = match &glow {
+                None => radiosity(std::f64::consts::PI * svf_cosine, svf_cosine, ALBEDO),
+                Some((sun, table)) => {
+                    let (a, b, f) = bands_around(&azimuths, sun.azimuth);
+                    let hz = f64::from(horizon[a]) + f * f64::from(horizon[b] - horizon[a]);
+                    let lit = disc_fraction_above(sun.elevation, hz, SUN_RADIUS);
+                    let s = sun.direction();
+                    let direct =
+                        lit * (normal[0] * s[0] + normal[1] * s[1] + normal[2] * s[2]).max(0.0);
+                    let sky = table.irradiance(normal, &horizon);
+                    radiosity(std::f64::consts::PI * direct + sky, svf_cosine, ALBEDO)
+                }
+            };
+            *o = value as f32;
+        }
+    });
+    // Stretch the 1st..99th percentiles to black..white: the map shows
+    // relative light, as Stewart's figures do.
+    let mut sorted: Vec<f32> = out.iter().copied().filter(|v| !v.is_nan()).collect();
+    if !sorted.is_empty() {
+        sorted.sort_unstable_by(f32::total_cmp);
+        let at = |p: usize| sorted[(sorted.len() * p / 100).min(sorted.len() - 1)];
+        let (lo, hi) = (at(1), at(99));
+        let span = (hi - lo).max(1e-9);
+        out.iter_mut()
+            .for_each(|v| *v = ((*v - lo) / span).clamp(0.0, 1.0));
+    }
+    Ok((out, w, h))
+}
+
+/// Writes the shaded map as a PNG (nodata black), subsampled to at most
+/// `max_side` pixels across.
+pub fn write_shade_png(asset: &Asset<Mmap>, shade: Shade, out: &Path, max_side: u32) -> Result<()> {
+    let (values, w, h) = shade_posts(asset, shade)?;
+    let step = (w.max(h) as u32).div_ceil(max_side).max(1) as usize;
+    let (pw, ph) = (w.div_ceil(step), h.div_ceil(step));
+    let mut rgb = Vec::with_capacity(pw * ph * 3);
+    for y in (0..h).step_by(step) {
+        for x in (0..w).step_by(step) {
+            let v = values[y * w + x];
+            let g = if v.is_nan() {
+                0
+            } else {
+                (v * 255.0).round() as u8
+            };
+            rgb.extend_from_slice(&[g, g, g]);
+        }
+    }
+    crate::render::write_png(
+        out,
+        &Image {
+            width: pw as u32,
+            height: ph as u32,
+            rgb,
+        },
+    )
+}
