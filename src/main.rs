@@ -222,6 +222,42 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
         #[arg(long)]
         json: bool,
     },
+    /// Chart the horizon methods' accuracy against their time, and time them on the whole DEM.
+    ///
+    /// Accuracy: on a centred crop, every method and band count against a reference of 1024
+    /// exact sight-line directions: RMS error of the horizon angle and of the sky-view factor
+    /// (central half of the crop). Speed: all bands of the whole DEM, all cores, for the runs in
+    /// --speed. Prints tables; --chart writes PREFIX_horizon.svg and PREFIX_svf.svg.
+    #[command(
+        after_help = "Example:\n  terrabake bench-horizons srtm.tbake --chart docs/charts/horizons"
+    )]
+    BenchHorizons {
+        asset: PathBuf,
+        /// Band counts for the accuracy study, comma-separated.
+        #[arg(long, value_delimiter = ',', default_value = "8,16,32,64,128,256")]
+        counts: Vec<usize>,
+        /// Methods for the accuracy study, comma-separated.
+        #[arg(long, value_delimiter = ',', default_value = "line,sector,sampled")]
+        methods: Vec<HorizonMethod>,
+        /// Directions of the reference.
+        #[arg(long, default_value_t = 1024)]
+        reference: usize,
+        /// Side of the centred crop for the accuracy study, posts.
+        #[arg(long, default_value_t = 256)]
+        crop: usize,
+        /// Whole-DEM speed runs METHOD:COUNT, comma-separated (none: skip).
+        #[arg(
+            long,
+            value_delimiter = ',',
+            default_value = "line:16,line:64,sector:16,sector:64,sampled:16"
+        )]
+        speed: Vec<String>,
+        /// Write PREFIX_horizon.svg and PREFIX_svf.svg.
+        #[arg(long)]
+        chart: Option<PathBuf>,
+        #[arg(long)]
+        json: bool,
+    },
     /// Chart the parametric tracer's speed against the cone planes' bake time (replaces the asset's planes).
     ///
     /// For every slice count and encoding: bake the planes (all cores), then trace the sixteen
@@ -801,6 +837,78 @@ fn run(cli: Cli) -> Result<ExitCode> {
             say(describe_outcome(&outcome));
             if let Some(e) = entry {
                 say(e.description);
+            }
+        }
+        Command::BenchHorizons {
+            asset,
+            counts,
+            methods,
+            reference,
+            crop,
+            speed,
+            chart,
+            json,
+        } => {
+            use terrabake::horizon::bench;
+            use terrabake::horizon::terrain::Terrain;
+            let opened = open_asset(&asset)?;
+            let (z, w, h) = terrabake::horizon::read_heights(&opened)?;
+            let cs = &opened.manifest().cell_size;
+            let runs = speed
+                .iter()
+                .map(|r| {
+                    let (m, k) = r.split_once(':').context("--speed takes METHOD:COUNT")?;
+                    let m = <HorizonMethod as clap::ValueEnum>::from_str(m, true)
+                        .map_err(|e| anyhow::anyhow!("--speed {r}: {e}"))?;
+                    Ok((m, k.parse::<usize>().context("--speed METHOD:COUNT")?))
+                })
+                .collect::<Result<Vec<_>>>()?;
+            let opts = terrabake::horizon::BandOptions {
+                max_distance: None,
+                narrow_check: true,
+            };
+            let whole = Terrain::new(&z, w, h, cs.dx, cs.dy);
+            let speed_rows = bench::speed(&whole, &runs, opts);
+            let side = crop.min(w).min(h);
+            let (x0, y0) = ((w - side) / 2, (h - side) / 2);
+            let cropped: Vec<f32> = (y0..y0 + side)
+                .flat_map(|r| z[r * w + x0..r * w + x0 + side].iter().copied())
+                .collect();
+            let small = Terrain::new(&cropped, side, side, cs.dx, cs.dy);
+            let reference_bands = bench::Reference::new(&small, reference);
+            let mut rows = Vec::new();
+            for &m in &methods {
+                for &k in &counts {
+                    rows.push(bench::accuracy(&small, &reference_bands, m, k));
+                }
+            }
+            if json {
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(&serde_json::json!({
+                        "speed": speed_rows,
+                        "crop": side,
+                        "reference_directions": reference,
+                        "reference_seconds": reference_bands.seconds,
+                        "accuracy": rows,
+                    }))?
+                );
+            } else {
+                print!("{}", bench::speed_table_markdown(&speed_rows));
+                println!();
+                println!(
+                    "accuracy on a {side} x {side} crop, reference {reference} directions ({:.1} s):",
+                    reference_bands.seconds
+                );
+                print!("{}", bench::accuracy_table_markdown(&rows));
+            }
+            if let Some(prefix) = chart {
+                bench::accuracy_charts(&prefix, &rows)?;
+                say(format!(
+                    "wrote {}_horizon.svg and {}_svf.svg",
+                    prefix.display(),
+                    prefix.display()
+                ));
             }
         }
         Command::BenchCones {

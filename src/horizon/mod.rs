@@ -21,6 +21,7 @@
 //! arrive, so that the stage never holds more than a few bands. Out of
 //! core (DEMs larger than memory) is not done yet: see docs/HORIZONS.md.
 
+pub mod bench;
 pub mod brute;
 pub mod line;
 pub mod sampled;

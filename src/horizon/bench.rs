@@ -1,0 +1,254 @@
+//! The horizon methods' speed against their accuracy (`terrabake
+//! bench-horizons`): the chart a user reads to choose a method and `S`.
+//!
+//! **Reference.** Line horizons in 1024 grid directions (each within 0.1
+//! degree of `i * 360 / 1024`): exact sight lines, dense in azimuth.
+//! **Error.** On the central half of a crop (every post of the crop
+//! occludes), each method's horizon at each reference azimuth against the
+//! reference there: a sector's value is its wedge's, as its definition
+//! says; line and sampled directions interpolate linearly between their
+//! two neighbours, as `lit_fraction` does. Sky-view factor (Zakšek's, the
+//! GIS one) from each method's own bands against the reference's.
+//! **Time.** Wall seconds for all bands of the crop on all cores.
+
+use std::path::Path;
+use std::time::Instant;
+
+use anyhow::Result;
+use rayon::prelude::*;
+use serde::Serialize;
+use terrabake_format::horizons::bands_around;
+
+use super::sky::{BandIntegrals, SkySums};
+use super::terrain::Terrain;
+use super::{band_horizons, plan_bands, Band, BandKind, BandOptions, Method};
+use crate::chart::{log_log_svg, Series};
+
+/// Every band of `bands` on `terrain` (all cores), the wall time and the
+/// work counted by the algorithms.
+pub fn all_bands(
+    terrain: &Terrain,
+    bands: &[Band],
+    opts: BandOptions,
+) -> (Vec<Vec<f32>>, f64, u64) {
+    let start = Instant::now();
+    let results: Vec<(Vec<f32>, u64)> = bands
+        .par_iter()
+        .map(|b| band_horizons(terrain, b, opts))
+        .collect();
+    let seconds = start.elapsed().as_secs_f64();
+    let work = results.iter().map(|r| r.1).sum();
+    (results.into_iter().map(|r| r.0).collect(), seconds, work)
+}
+
+/// One method and band count, timed on a whole DEM.
+#[derive(Debug, Clone, Serialize)]
+pub struct SpeedRow {
+    pub method: String,
+    pub bands: usize,
+    pub posts: usize,
+    pub seconds: f64,
+    /// Post-bands per second, all cores.
+    pub post_bands_per_second: f64,
+    /// Hull vertices (line) or tree steps and inserts (sector) per post-band.
+    pub work_per_post_band: f64,
+}
+
+pub fn speed(terrain: &Terrain, runs: &[(Method, usize)], opts: BandOptions) -> Vec<SpeedRow> {
+    runs.iter()
+        .map(|&(method, count)| {
+            let bands = plan_bands(method, count, terrain.dx, terrain.dy, None);
+            let (_, seconds, work) = all_bands(terrain, &bands, opts);
+            let pb = (terrain.z.len() * count) as f64;
+            SpeedRow {
+                method: method.name().into(),
+                bands: count,
+                posts: terrain.z.len(),
+                seconds,
+                post_bands_per_second: pb / seconds,
+                work_per_post_band: work as f64 / pb,
+            }
+        })
+        .collect()
+}
+
+/// One method and band count against the reference.
+#[derive(Debug, Clone, Serialize)]
+pub struct AccuracyRow {
+    pub method: String,
+    pub bands: usize,
+    pub seconds: f64,
+    /// Root mean square and mean (bias) of the horizon angle error, degrees.
+    pub horizon_rms_deg: f64,
+    pub horizon_bias_deg: f64,
+    /// Root mean square and largest error of the sky-view factor.
+    pub svf_rms: f64,
+    pub svf_max: f64,
+}
+
+fn svf_of(bands: &[Band], values: &[Vec<f32>], post: usize) -> f64 {
+    let mut sums = SkySums::default();
+    for (band, v) in bands.iter().zip(values) {
+        sums.add(
+            f64::from(v[post]),
+            &BandIntegrals::new(band.lo, band.hi),
+            [0.0, 0.0, 1.0],
+        );
+    }
+    sums.svf()
+}
+
+/// The reference's bands and values on `terrain`.
+#[derive(Debug)]
+pub struct Reference {
+    bands: Vec<Band>,
+    values: Vec<Vec<f32>>,
+    pub seconds: f64,
+}
+
+impl Reference {
+    pub fn new(terrain: &Terrain, count: usize) -> Self {
+        let bands = plan_bands(Method::Line, count, terrain.dx, terrain.dy, Some(0.1));
+        let opts = BandOptions {
+            max_distance: None,
+            narrow_check: true,
+        };
+        let (values, seconds, _) = all_bands(terrain, &bands, opts);
+        Self {
+            bands,
+            values,
+            seconds,
+        }
+    }
+}
+
+/// Errors of `method` with `count` bands against `reference`, on the posts
+/// of the central half of `terrain`.
+pub fn accuracy(
+    terrain: &Terrain,
+    reference: &Reference,
+    method: Method,
+    count: usize,
+) -> AccuracyRow {
+    let bands = plan_bands(method, count, terrain.dx, terrain.dy, None);
+    let opts = BandOptions {
+        max_distance: None,
+        narrow_check: true,
+    };
+    let (values, seconds, _) = all_bands(terrain, &bands, opts);
+    let azimuths: Vec<f64> = bands.iter().map(|b| b.azimuth).collect();
+    let (w, h) = (terrain.width, terrain.height);
+    let posts: Vec<usize> = (h / 4..h - h / 4)
+        .flat_map(|r| (w / 4..w - w / 4).map(move |c| r * w + c))
+        .filter(|&i| !terrain.z[i].is_nan())
+        .collect();
+    let estimate = |post: usize, az: f64| -> f64 {
+        match bands[0].kind {
+            BandKind::Sector { count, .. } => {
+                let i = (az / (360.0 / count as f64)).round() as usize % count;
+                f64::from(values[i][post])
+            }
+            _ => {
+                let (i, j, f) = bands_around(&azimuths, az);
+                let (a, b) = (f64::from(values[i][post]), f64::from(values[j][post]));
+                a + f * (b - a)
+            }
+        }
+    };
+    let (mut sq, mut sum, mut n) = (0.0, 0.0, 0usize);
+    for (rb, rv) in reference.bands.iter().zip(&reference.values) {
+        for &p in &posts {
+            let d = estimate(p, rb.azimuth) - f64::from(rv[p]);
+            sq += d * d;
+            sum += d;
+            n += 1;
+        }
+    }
+    let (mut svf_sq, mut svf_max) = (0.0, 0f64);
+    for &p in &posts {
+        let d = svf_of(&bands, &values, p) - svf_of(&reference.bands, &reference.values, p);
+        svf_sq += d * d;
+        svf_max = svf_max.max(d.abs());
+    }
+    AccuracyRow {
+        method: method.name().into(),
+        bands: count,
+        seconds,
+        horizon_rms_deg: (sq / n as f64).sqrt(),
+        horizon_bias_deg: sum / n as f64,
+        svf_rms: (svf_sq / posts.len() as f64).sqrt(),
+        svf_max,
+    }
+}
+
+pub fn speed_table_markdown(rows: &[SpeedRow]) -> String {
+    let mut s = String::from("| method | bands | posts | time (s) | post-bands / s | work / post-band |\n| --- | --- | --- | --- | --- | --- |\n");
+    for r in rows {
+        s += &format!(
+            "| {} | {} | {} | {:.3} | {:.3e} | {:.1} |\n",
+            r.method, r.bands, r.posts, r.seconds, r.post_bands_per_second, r.work_per_post_band
+        );
+    }
+    s
+}
+
+pub fn accuracy_table_markdown(rows: &[AccuracyRow]) -> String {
+    let mut s = String::from("| method | bands | time (s) | horizon RMS error (deg) | horizon bias (deg) | svf RMS error | svf max error |\n| --- | --- | --- | --- | --- | --- | --- |\n");
+    for r in rows {
+        s += &format!(
+            "| {} | {} | {:.3} | {:.3} | {:+.3} | {:.5} | {:.4} |\n",
+            r.method,
+            r.bands,
+            r.seconds,
+            r.horizon_rms_deg,
+            r.horizon_bias_deg,
+            r.svf_rms,
+            r.svf_max
+        );
+    }
+    s
+}
+
+/// `PREFIX_horizon.svg` and `PREFIX_svf.svg`: error against time, one line
+/// per method through its band counts.
+pub fn accuracy_charts(prefix: &Path, rows: &[AccuracyRow]) -> Result<()> {
+    let series = |value: &dyn Fn(&AccuracyRow) -> f64| -> Vec<Series> {
+        let mut methods: Vec<&str> = Vec::new();
+        for r in rows {
+            if !methods.contains(&r.method.as_str()) {
+                methods.push(&r.method);
+            }
+        }
+        methods
+            .into_iter()
+            .map(|m| Series {
+                name: match m {
+                    "line" => "line (exact sight lines), K = 8 .. 256".into(),
+                    "sector" => "sector (Stewart's wedges), s = 8 .. 256".into(),
+                    _ => "sampled (centre line, nearest post), K = 8 .. 256".into(),
+                },
+                points: rows
+                    .iter()
+                    .filter(|r| r.method == m)
+                    .map(|r| (r.seconds, value(r)))
+                    .collect(),
+            })
+            .collect()
+    };
+    let path =
+        |suffix: &str| std::path::PathBuf::from(format!("{}_{suffix}.svg", prefix.display()));
+    log_log_svg(
+        &path("horizon"),
+        "Horizon angle error against time (reference: 1024 exact sight lines)",
+        "time for all bands (s, 2 cores)",
+        "RMS horizon angle error (degrees)",
+        &series(&|r| r.horizon_rms_deg),
+    )?;
+    log_log_svg(
+        &path("svf"),
+        "Sky-view factor error against time (reference: 1024 exact sight lines)",
+        "time for all bands (s, 2 cores)",
+        "RMS sky-view factor error",
+        &series(&|r| r.svf_rms),
+    )
+}
