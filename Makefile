@@ -22,10 +22,15 @@ demo: build
 	$(BIN) export $(OUT)/srtm.tbake --layer height --style relief -o $(OUT)/srtm_relief.png
 	$(BIN) export $(OUT)/srtm.tbake --layer height --style gray -o $(OUT)/srtm_gray16.png
 	$(BIN) render $(OUT)/srtm.tbake --camera 30000,8000,4500 --look-at 55000,60000,500 --fov 60 --sun 290,10 --exaggerate 8 --size 1024x640 --method parametric --stats -o $(OUT)/srtm_view.png
+	$(BIN) export $(OUT)/srtm.tbake --layer horizon -o $(OUT)/srtm_horizon.tif
+	$(BIN) export $(OUT)/srtm.tbake --layer svf --style gray -o $(OUT)/srtm_svf.png
+	$(BIN) render $(OUT)/srtm.tbake --shade sky -o $(OUT)/srtm_sky.png
+	$(BIN) render $(OUT)/srtm.tbake --shade sun:250,15 -o $(OUT)/srtm_sun.png
 	@echo
 	@echo "asset:    $(OUT)/srtm.tbake"
 	@echo "summary:  $(OUT)/srtm.summary.txt ($(OUT)/srtm.summary.json)"
 	@echo "previews: $(OUT)/srtm_relief.png $(OUT)/srtm_gray16.png $(OUT)/srtm_view.png"
+	@echo "horizons: $(OUT)/srtm_horizon.tif (16 bands, degrees) $(OUT)/srtm_svf.png $(OUT)/srtm_sky.png $(OUT)/srtm_sun.png"
 
 ## Every test, optimised ([profile.test] opt-level = 3).
 test:

@@ -365,3 +365,91 @@ fn cones_from_the_command_line_and_from_recipes() {
     assert_eq!(bad.status.code(), Some(1));
     assert!(stderr(&bad).contains("'slice'"), "{}", stderr(&bad));
 }
+
+#[test]
+fn horizons_from_the_command_line_export_shade_and_recipes() {
+    use terrabake_format::horizons::{HorizonMap, HORIZON, SVF};
+    let dir = tempfile::tempdir().unwrap();
+    let tif = dir.path().join("t.tif");
+    ok(&["synth", "fractal", "--size", "70x50", "-o", s(&tif), "-q"]);
+    let asset = dir.path().join("t.tbake");
+    ok(&["ingest", s(&tif), "-o", s(&asset), "--tile", "32", "-q"]);
+    let out: serde_json::Value = serde_json::from_str(&ok(&[
+        "horizons", s(&asset), "--sectors", "8", "--max-error", "0.01", "--json", "-q",
+    ]))
+    .unwrap();
+    assert_eq!(out["horizon"]["encoding"], "u16", "{out}");
+    let azimuths = out["horizon"]["band_azimuths"].as_array().unwrap();
+    assert_eq!(azimuths.len(), 8);
+    assert_eq!(azimuths[2], 90.0);
+
+    // The loader: lit_fraction agrees with the stored horizon.
+    let a = Asset::open(&asset).unwrap();
+    let map = HorizonMap::open(&a).unwrap();
+    let h = map.angle(35, 25, 2).unwrap().unwrap();
+    assert_eq!(map.lit_fraction(35, 25, 90.0, h + 1.0, 0.27).unwrap(), Some(1.0));
+    assert_eq!(map.lit_fraction(35, 25, 90.0, h - 1.0, 0.27).unwrap(), Some(0.0));
+    let half = map.lit_fraction(35, 25, 90.0, h, 0.27).unwrap().unwrap();
+    assert!((half - 0.5).abs() < 1e-9);
+    for layer in [SVF, "svf_cosine", "openness", "horizon_edge"] {
+        assert!(a.layer(layer, 0).is_ok(), "{layer}");
+    }
+    ok(&["verify", s(&asset)]);
+
+    // Export: one GeoTIFF band per sector, decoded to degrees.
+    let hz = dir.path().join("hz.tif");
+    ok(&["export", s(&asset), "--layer", HORIZON, "-o", s(&hz), "-q"]);
+    let decoder = tiff::decoder::Decoder::new(std::fs::File::open(&hz).unwrap()).unwrap();
+    let mut decoder = decoder;
+    assert_eq!(decoder.dimensions().unwrap(), (70, 50));
+    let tiff::decoder::DecodingResult::F32(values) = decoder.read_image().unwrap() else {
+        panic!("f32 expected")
+    };
+    assert_eq!(values.len(), 70 * 50 * 8);
+    let stored = values[(25 * 70 + 35) * 8 + 2];
+    assert!((f64::from(stored) - h).abs() < 1e-4, "{stored} vs {h}");
+    ok(&["export", s(&asset), "--layer", SVF, "--style", "gray", "-o", s(&dir.path().join("svf.png")), "-q"]);
+    ok(&["render", s(&asset), "--shade", "sky", "-o", s(&dir.path().join("sky.png")), "-q"]);
+    ok(&["render", s(&asset), "--shade", "sun:120,20", "-o", s(&dir.path().join("sun.png")), "-q"]);
+
+    // An area of interest: the same angles inside, nothing outside.
+    let aoi = dir.path().join("aoi.tbake");
+    ok(&["ingest", s(&tif), "-o", s(&aoi), "--tile", "32", "-q"]);
+    ok(&["horizons", s(&aoi), "--sectors", "8", "--max-error", "0.01", "--aoi", "30,20,50,40", "-q"]);
+    let b = Asset::open(&aoi).unwrap();
+    let inner = HorizonMap::open(&b).unwrap();
+    assert_eq!(inner.angle(35, 25, 2).unwrap(), Some(h));
+    assert_eq!(inner.angle(10, 10, 2).unwrap(), None);
+
+    // Bad input: a clear error and a non-zero exit, the asset untouched.
+    for (args, says) in [
+        (vec!["--sectors", "2"], "--sectors 2"),
+        (vec!["--aoi", "0,0,500,10"], "--aoi"),
+        (vec!["--method", "sector", "--max-distance", "1000"], "--max-distance"),
+    ] {
+        let mut all = vec!["horizons", s(&aoi), "--force"];
+        all.extend(args);
+        let bad = terrabake(&all);
+        assert_eq!(bad.status.code(), Some(1), "{all:?}");
+        assert!(stderr(&bad).contains(says), "{all:?}: {}", stderr(&bad));
+    }
+    ok(&["verify", s(&aoi)]);
+    let bare = dir.path().join("bare.tbake");
+    ok(&["ingest", s(&tif), "-o", s(&bare), "-q"]);
+    let bad = terrabake(&["render", s(&bare), "--shade", "sky", "-o", s(&dir.path().join("x.png"))]);
+    assert_eq!(bad.status.code(), Some(1));
+    assert!(stderr(&bad).contains("horizons"), "{}", stderr(&bad));
+
+    // A recipe step, and its typo caught before any work.
+    let recipe = dir.path().join("r.toml");
+    std::fs::write(&recipe, "[[stage]]\nname = \"horizons\"\nsectors = 7\nmethod = \"sector\"\nencoding = \"f32\"\n").unwrap();
+    ok(&["bake", s(&tif), "-o", s(&asset), "--recipe", s(&recipe), "-q"]);
+    let a = Asset::open(&asset).unwrap();
+    let entry = a.layer(HORIZON, 0).unwrap().entry();
+    assert_eq!(entry.bands, 7);
+    assert!(entry.description.contains("Stewart"));
+    std::fs::write(&recipe, "[[stage]]\nname = \"horizons\"\nsector = 7\n").unwrap();
+    let bad = terrabake(&["bake", s(&tif), "-o", s(&asset), "--recipe", s(&recipe)]);
+    assert_eq!(bad.status.code(), Some(1));
+    assert!(stderr(&bad).contains("'sector'"), "{}", stderr(&bad));
+}
