@@ -5,7 +5,7 @@ BIN := target/release/terrabake
 DEMO_DEM := data/srtm3_n07w006_geographic_int16.tif
 OUT ?= out
 
-.PHONY: all build demo test bench-ingest-ooc bench-trace bench-cones bench-reader fixtures fmt lint clean
+.PHONY: all build demo test bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-reader fixtures fmt lint clean
 
 all: build
 
@@ -43,6 +43,15 @@ bench-ingest-ooc: build
 ## Tracing: Table 1 on the SRTM tile, cost by azimuth, scaling with DEM size.
 bench-trace: build
 	BIN=$(BIN) bash pipelines/bench_trace.sh
+
+## Horizons: speed and the accuracy chart on the SRTM tile, time and
+## memory against DEM size (docs/charts/horizons_*.svg).
+bench-horizons: build
+	BIN=$(BIN) bash pipelines/bench_horizons.sh
+
+## Out-of-core line horizons: a 1 GiB DEM in a 512 MiB cgroup (root).
+bench-horizons-ooc: build
+	BIN=$(BIN) bash pipelines/bench_horizons_out_of_core.sh
 
 ## Cone planes: bake time against DEM size and slices; speed against bake
 ## time on the SRTM tile (table and docs/charts/cones_*.svg).

@@ -3,7 +3,7 @@
 //! it here, which pads, encodes (in parallel) and appends the tiles in order.
 
 use rayon::prelude::*;
-use terrabake_format::{encode_tile, Codec, Element, LayerWriter};
+use terrabake_format::{encode_tile, Codec, Element, EncodedTile, LayerWriter};
 use zerocopy::IntoBytes;
 
 /// zstd level for tiles: 3 is zstd's default, fast to write and to read.
@@ -20,10 +20,25 @@ pub fn push_tile_row<T: Element>(
     codec: Codec,
 ) -> terrabake_format::Result<()> {
     let ts = writer.spec().tile_size as usize;
+    for tile in encode_tile_row(band, width, ts, fill, codec) {
+        writer.push(tile)?;
+    }
+    Ok(())
+}
+
+/// The tiles (west to east) of one row band, encoded in parallel: for
+/// [`LayerWriter::push_at`] when tile rows come out of order.
+pub fn encode_tile_row<T: Element>(
+    band: &[T],
+    width: usize,
+    ts: usize,
+    fill: T,
+    codec: Codec,
+) -> Vec<EncodedTile> {
     let rows = band.len() / width;
     debug_assert!(rows <= ts && band.len() == rows * width);
     let tiles_x = width.div_ceil(ts);
-    let encoded: Vec<_> = (0..tiles_x)
+    (0..tiles_x)
         .into_par_iter()
         .map(|tx| {
             let x0 = tx * ts;
@@ -34,9 +49,5 @@ pub fn push_tile_row<T: Element>(
             }
             encode_tile(tile.as_bytes(), size_of::<T>(), codec, ZSTD_LEVEL)
         })
-        .collect();
-    for tile in encoded {
-        writer.push(tile)?;
-    }
-    Ok(())
+        .collect()
 }

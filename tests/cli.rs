@@ -375,7 +375,14 @@ fn horizons_from_the_command_line_export_shade_and_recipes() {
     let asset = dir.path().join("t.tbake");
     ok(&["ingest", s(&tif), "-o", s(&asset), "--tile", "32", "-q"]);
     let out: serde_json::Value = serde_json::from_str(&ok(&[
-        "horizons", s(&asset), "--sectors", "8", "--max-error", "0.01", "--json", "-q",
+        "horizons",
+        s(&asset),
+        "--sectors",
+        "8",
+        "--max-error",
+        "0.01",
+        "--json",
+        "-q",
     ]))
     .unwrap();
     assert_eq!(out["horizon"]["encoding"], "u16", "{out}");
@@ -387,8 +394,14 @@ fn horizons_from_the_command_line_export_shade_and_recipes() {
     let a = Asset::open(&asset).unwrap();
     let map = HorizonMap::open(&a).unwrap();
     let h = map.angle(35, 25, 2).unwrap().unwrap();
-    assert_eq!(map.lit_fraction(35, 25, 90.0, h + 1.0, 0.27).unwrap(), Some(1.0));
-    assert_eq!(map.lit_fraction(35, 25, 90.0, h - 1.0, 0.27).unwrap(), Some(0.0));
+    assert_eq!(
+        map.lit_fraction(35, 25, 90.0, h + 1.0, 0.27).unwrap(),
+        Some(1.0)
+    );
+    assert_eq!(
+        map.lit_fraction(35, 25, 90.0, h - 1.0, 0.27).unwrap(),
+        Some(0.0)
+    );
     let half = map.lit_fraction(35, 25, 90.0, h, 0.27).unwrap().unwrap();
     assert!((half - 0.5).abs() < 1e-9);
     for layer in [SVF, "svf_cosine", "openness", "horizon_edge"] {
@@ -408,14 +421,50 @@ fn horizons_from_the_command_line_export_shade_and_recipes() {
     assert_eq!(values.len(), 70 * 50 * 8);
     let stored = values[(25 * 70 + 35) * 8 + 2];
     assert!((f64::from(stored) - h).abs() < 1e-4, "{stored} vs {h}");
-    ok(&["export", s(&asset), "--layer", SVF, "--style", "gray", "-o", s(&dir.path().join("svf.png")), "-q"]);
-    ok(&["render", s(&asset), "--shade", "sky", "-o", s(&dir.path().join("sky.png")), "-q"]);
-    ok(&["render", s(&asset), "--shade", "sun:120,20", "-o", s(&dir.path().join("sun.png")), "-q"]);
+    ok(&[
+        "export",
+        s(&asset),
+        "--layer",
+        SVF,
+        "--style",
+        "gray",
+        "-o",
+        s(&dir.path().join("svf.png")),
+        "-q",
+    ]);
+    ok(&[
+        "render",
+        s(&asset),
+        "--shade",
+        "sky",
+        "-o",
+        s(&dir.path().join("sky.png")),
+        "-q",
+    ]);
+    ok(&[
+        "render",
+        s(&asset),
+        "--shade",
+        "sun:120,20",
+        "-o",
+        s(&dir.path().join("sun.png")),
+        "-q",
+    ]);
 
     // An area of interest: the same angles inside, nothing outside.
     let aoi = dir.path().join("aoi.tbake");
     ok(&["ingest", s(&tif), "-o", s(&aoi), "--tile", "32", "-q"]);
-    ok(&["horizons", s(&aoi), "--sectors", "8", "--max-error", "0.01", "--aoi", "30,20,50,40", "-q"]);
+    ok(&[
+        "horizons",
+        s(&aoi),
+        "--sectors",
+        "8",
+        "--max-error",
+        "0.01",
+        "--aoi",
+        "30,20,50,40",
+        "-q",
+    ]);
     let b = Asset::open(&aoi).unwrap();
     let inner = HorizonMap::open(&b).unwrap();
     assert_eq!(inner.angle(35, 25, 2).unwrap(), Some(h));
@@ -425,7 +474,10 @@ fn horizons_from_the_command_line_export_shade_and_recipes() {
     for (args, says) in [
         (vec!["--sectors", "2"], "--sectors 2"),
         (vec!["--aoi", "0,0,500,10"], "--aoi"),
-        (vec!["--method", "sector", "--max-distance", "1000"], "--max-distance"),
+        (
+            vec!["--method", "sector", "--max-distance", "1000"],
+            "--max-distance",
+        ),
     ] {
         let mut all = vec!["horizons", s(&aoi), "--force"];
         all.extend(args);
@@ -436,14 +488,33 @@ fn horizons_from_the_command_line_export_shade_and_recipes() {
     ok(&["verify", s(&aoi)]);
     let bare = dir.path().join("bare.tbake");
     ok(&["ingest", s(&tif), "-o", s(&bare), "-q"]);
-    let bad = terrabake(&["render", s(&bare), "--shade", "sky", "-o", s(&dir.path().join("x.png"))]);
+    let bad = terrabake(&[
+        "render",
+        s(&bare),
+        "--shade",
+        "sky",
+        "-o",
+        s(&dir.path().join("x.png")),
+    ]);
     assert_eq!(bad.status.code(), Some(1));
     assert!(stderr(&bad).contains("horizons"), "{}", stderr(&bad));
 
     // A recipe step, and its typo caught before any work.
     let recipe = dir.path().join("r.toml");
-    std::fs::write(&recipe, "[[stage]]\nname = \"horizons\"\nsectors = 7\nmethod = \"sector\"\nencoding = \"f32\"\n").unwrap();
-    ok(&["bake", s(&tif), "-o", s(&asset), "--recipe", s(&recipe), "-q"]);
+    std::fs::write(
+        &recipe,
+        "[[stage]]\nname = \"horizons\"\nsectors = 7\nmethod = \"sector\"\nencoding = \"f32\"\n",
+    )
+    .unwrap();
+    ok(&[
+        "bake",
+        s(&tif),
+        "-o",
+        s(&asset),
+        "--recipe",
+        s(&recipe),
+        "-q",
+    ]);
     let a = Asset::open(&asset).unwrap();
     let entry = a.layer(HORIZON, 0).unwrap().entry();
     assert_eq!(entry.bands, 7);

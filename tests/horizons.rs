@@ -361,3 +361,70 @@ fn max_distance_cuts_the_horizon_where_it_should() {
         }
     }
 }
+
+#[test]
+fn line_sweeps_by_bands_equal_one_band() {
+    use terrabake::horizon::line::{grid_direction, BandedSweep};
+    // Out of core, a direction is swept over bands of rows with each line's
+    // hull carried across: the result must not depend on the band height.
+    let (w, h) = (41, 37);
+    let mut z = synth_grid(SynthKind::Holes, w, h, 4);
+    z[5 * w + 7] = f32::NAN;
+    let (srtm, sdx, sdy) = srtm_crop(w as u32, h as u32);
+    for (name, z, dx, dy, curvature) in [
+        ("holes", &z, 30.0, 20.0, 0.0),
+        (
+            "SRTM crop, curved",
+            &srtm,
+            sdx,
+            sdy,
+            curvature_coefficient(0.13),
+        ),
+    ] {
+        let whole = Terrain::new(z, w, h, dx, dy).with_curvature(curvature);
+        let mut dirs: Vec<GridDirection> = plan_bands(Method::Line, 16, dx, dy, None)
+            .into_iter()
+            .map(|b| match b.kind {
+                BandKind::Line(d) => d,
+                _ => unreachable!(),
+            })
+            .collect();
+        for step in [(5, -13), (-7, 3), (3, 11)] {
+            let mut d = grid_direction(0.0, dx, dy, 1.0);
+            d.step = step;
+            dirs.push(d);
+        }
+        for dir in &dirs {
+            let mut one = vec![0f32; w * h];
+            line::line_horizons(&whole, dir, &mut one);
+            for rows in [1, 2, 3, 7, 16, h] {
+                let mut sweep = BandedSweep::new(dir, (w, h), (dx, dy), whole.has_nodata());
+                let mut banded = vec![0f32; w * h];
+                for band in sweep.bands(rows) {
+                    let win = sweep.window(&band);
+                    let window = Terrain::window(
+                        &z[win.start * w..win.end * w],
+                        (w, h),
+                        win.start,
+                        (dx, dy),
+                    )
+                    .with_curvature(curvature);
+                    sweep.sweep(
+                        &window,
+                        band.clone(),
+                        &mut banded[band.start * w..band.end * w],
+                    );
+                }
+                for i in 0..w * h {
+                    assert!(
+                        common::same_heights(one[i], banded[i]),
+                        "{name}: {:?} bands of {rows}: post {i}: {} vs {}",
+                        dir.step,
+                        one[i],
+                        banded[i]
+                    );
+                }
+            }
+        }
+    }
+}

@@ -604,6 +604,17 @@ impl Asset<Mmap> {
         let manifest_path = dir.join(MANIFEST_FILE);
         let manifest_bytes = map_file(&manifest_path)?;
         let manifest = parse_manifest(&manifest_path, manifest_bytes.as_ref())?;
+        Self::map_layers(dir, manifest, cache_bytes)
+    }
+
+    /// The asset as `manifest` says it is, before that manifest is
+    /// committed: for a stage that reads back layers it has just written
+    /// (`LayerWriter::finish` has renamed them into place).
+    pub fn open_uncommitted(dir: impl AsRef<Path>, manifest: Manifest) -> Result<Self> {
+        Self::map_layers(dir.as_ref(), manifest, DEFAULT_CACHE_BYTES)
+    }
+
+    fn map_layers(dir: &Path, manifest: Manifest, cache_bytes: u64) -> Result<Self> {
         let mut files = HashMap::new();
         for layer in &manifest.layers {
             files.insert(layer.file.clone(), map_file(&dir.join(&layer.file))?);

@@ -132,7 +132,10 @@ pub struct LayerWriter {
     tmp_path: PathBuf,
     out: Option<BufWriter<File>>,
     pos: u64,
-    index: Vec<ChunkEntry>,
+    /// Per chunk, its entry once pushed (chunks may come in any order).
+    index: Vec<Option<ChunkEntry>>,
+    /// Chunks pushed so far.
+    pushed: u64,
     /// (constant bits, codec) -> the entry that already stores it.
     constants: HashMap<u64, ChunkEntry>,
     constant_chunks: u64,
@@ -175,7 +178,8 @@ impl LayerWriter {
             file_name,
             out: Some(out),
             pos: HEADER_LEN as u64,
-            index: Vec::with_capacity(spec.chunk_count() as usize),
+            index: vec![None; spec.chunk_count() as usize],
+            pushed: 0,
             constants: HashMap::new(),
             constant_chunks: 0,
             stored_bytes: 0,
@@ -189,9 +193,9 @@ impl LayerWriter {
         &self.spec
     }
 
-    /// Chunks appended so far; the next one appended gets this index.
+    /// Chunks pushed so far; [`Self::push`] gives the next one this index.
     pub fn chunks_written(&self) -> u64 {
-        self.index.len() as u64
+        self.pushed
     }
 
     fn at(&self) -> Location {
@@ -203,9 +207,16 @@ impl LayerWriter {
 
     /// Appends the next chunk in index order (band, tile row, tile column).
     pub fn push(&mut self, tile: EncodedTile) -> Result<()> {
-        if self.index.len() as u64 >= self.spec.chunk_count() {
+        self.push_at(self.pushed, tile)
+    }
+
+    /// Writes chunk number `chunk` (`(band * tiles_y + ty) * tiles_x + tx`),
+    /// in any order: a stage that produces a band's tile rows bottom-up, or
+    /// several bands at once, still writes as it goes. Each chunk once.
+    pub fn push_at(&mut self, chunk: u64, tile: EncodedTile) -> Result<()> {
+        if chunk >= self.spec.chunk_count() || self.index[chunk as usize].is_some() {
             return Err(Error::Spec(format!(
-                "layer {}: more than {} chunks pushed",
+                "layer {}: chunk {chunk} pushed twice or past its {} chunks",
                 self.spec.name,
                 self.spec.chunk_count()
             )));
@@ -218,8 +229,9 @@ impl LayerWriter {
                 self.spec.tile_bytes()
             )));
         }
+        self.pushed += 1;
         if let Some(entry) = tile.constant.and_then(|bits| self.constants.get(&bits)) {
-            self.index.push(*entry);
+            self.index[chunk as usize] = Some(*entry);
             self.constant_chunks += 1;
             return Ok(());
         }
@@ -247,27 +259,32 @@ impl LayerWriter {
             self.constants.insert(bits, entry);
             self.constant_chunks += 1;
         }
-        self.index.push(entry);
+        self.index[chunk as usize] = Some(entry);
         Ok(())
     }
 
     /// Writes the index and footer, fsyncs and renames the file into place.
     /// The returned entry is not yet visible: commit it with a manifest.
     pub fn finish(mut self) -> Result<LayerEntry> {
-        if self.index.len() as u64 != self.spec.chunk_count() {
+        if self.pushed != self.spec.chunk_count() {
             return Err(Error::Spec(format!(
                 "layer {}: {} of {} chunks pushed",
                 self.spec.name,
-                self.index.len(),
+                self.pushed,
                 self.spec.chunk_count()
             )));
         }
+        let index: Vec<ChunkEntry> = self
+            .index
+            .iter()
+            .map(|e| e.expect("every chunk pushed"))
+            .collect();
         let index_offset = align_up(self.pos);
-        let index_bytes = self.index.as_bytes();
+        let index_bytes = index.as_bytes();
         let index_xxh3 = xxh3(index_bytes);
         let footer = LayerFooter {
             index_offset: index_offset.into(),
-            chunk_count: (self.index.len() as u64).into(),
+            chunk_count: (index.len() as u64).into(),
             index_xxh3: index_xxh3.into(),
             header_xxh3: self.header.header_xxh3,
             version: FORMAT_VERSION.into(),

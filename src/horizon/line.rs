@@ -351,126 +351,6 @@ fn angle_deg(q: Option<[f64; 2]>, t: f64, w: f64, curvature: f64) -> f32 {
     }
 }
 
-/// Lines swept side by side: lines whose far posts are neighbours in a row
-/// are translates of each other, so stepping them in lockstep reads
-/// neighbouring posts (one cache line) instead of one post per line, and
-/// gives the processor independent hulls to work on at once.
-const LANES: usize = 8;
-
-/// One line being swept: its hull and where it has got to.
-#[derive(Debug, Default)]
-struct Lane {
-    hull: Vec<[f64; 2]>,
-    col: i64,
-    row: i64,
-    t: f64,
-    alive: bool,
-}
-
-/// One sweep's fixed inputs.
-struct Sweep<'t> {
-    placed: Placed<'t>,
-    len: f64,
-    nodata: bool,
-}
-
-impl Sweep<'_> {
-    fn w_of(&self, t: f64, z: f64) -> f64 {
-        let c = self.placed.t.curvature;
-        z - c * t * t
-    }
-
-    /// Pushes crossing `k` of the step that ends at the lane's post.
-    #[inline]
-    fn push_crossing(&self, lane: &mut Lane, k: usize, stats: &mut SweepStats) {
-        let v = &self.placed.stencil.vertices[k];
-        let (nc, nr) = (lane.col, lane.row);
-        let z = if self.nodata {
-            self.placed.vertex((nc, nr), k)
-        } else {
-            Some(self.placed.height_unchecked(
-                (nc + v.a.0, nr + v.a.1),
-                (nc + v.b.0, nr + v.b.1),
-                v.wb,
-            ))
-        };
-        if let Some(z) = z {
-            let t = lane.t + v.s * self.len;
-            push(&mut lane.hull, t, self.w_of(t, z), &mut stats.pops);
-            stats.vertices += 1;
-        }
-    }
-
-    /// The lane's post takes its horizon from the hull and joins it.
-    #[inline]
-    fn receive(&self, lane: &mut Lane, out: &mut [f32], stats: &mut SweepStats) {
-        let t = self.placed.t;
-        let zp = t.at(lane.col as usize, lane.row as usize);
-        let idx = lane.row as usize * t.width + lane.col as usize;
-        if zp.is_nan() {
-            out[idx] = f32::NAN;
-            return;
-        }
-        stats.posts += 1;
-        let wp = self.w_of(lane.t, f64::from(zp));
-        let q = if !self.nodata || self.placed.post_exists((lane.col, lane.row)) {
-            stats.vertices += 1;
-            push(&mut lane.hull, lane.t, wp, &mut stats.pops)
-        } else {
-            tangent(&lane.hull, lane.t, wp)
-        };
-        out[idx] = angle_deg(q, lane.t, wp, t.curvature);
-    }
-
-    /// Sweeps the lines whose far posts are `lanes.len()` neighbours of a
-    /// row starting at `(col, row)`.
-    fn lanes(
-        &self,
-        lanes: &mut [Lane],
-        (col, row): (i64, i64),
-        out: &mut [f32],
-        stats: &mut SweepStats,
-    ) {
-        let n = self.placed.stencil.vertices.len();
-        let (a, b) = self.placed.stencil.step;
-        let terrain = self.placed.t;
-        for (i, lane) in lanes.iter_mut().enumerate() {
-            lane.hull.clear();
-            (lane.col, lane.row, lane.t, lane.alive) = (col + i as i64, row, 0.0, true);
-            // Crossings beyond the far post that are still on the DEM.
-            for k in (0..n - 1).rev() {
-                if let Some(z) = self.placed.vertex((lane.col, lane.row), k) {
-                    let t = self.placed.stencil.vertices[k].s * self.len;
-                    push(&mut lane.hull, t, self.w_of(t, z), &mut stats.pops);
-                    stats.vertices += 1;
-                }
-            }
-            self.receive(lane, out, stats);
-        }
-        loop {
-            let mut any = false;
-            for lane in lanes.iter_mut().filter(|l| l.alive) {
-                (lane.col, lane.row, lane.t) = (lane.col - a, lane.row - b, lane.t - self.len);
-                lane.alive = terrain.contains(lane.col, lane.row);
-                any |= lane.alive;
-            }
-            if !any {
-                return;
-            }
-            // The crossings between each lane's new post and its last one,
-            // far first.
-            for lane in lanes.iter_mut().filter(|l| l.alive) {
-                for k in (0..n - 1).rev() {
-                    self.push_crossing(lane, k, stats);
-                }
-            }
-            for lane in lanes.iter_mut().filter(|l| l.alive) {
-                self.receive(lane, out, stats);
-            }
-        }
-    }
-}
-
 /// `atan(x)` in degrees, as f32: Cephes' `atanf` reduction and polynomial
 /// in f64, within 2e-7 radians (about two f32 steps of an angle near 45
 /// degrees, far below any stored encoding's step) and branch-light, where
@@ -496,41 +376,254 @@ pub fn atan_deg(x: f64) -> f32 {
     (sign * (base + poly)).to_degrees() as f32
 }
 
-/// Line horizons in direction `dir` at every post of `terrain`, in degrees
-/// (NaN for nodata posts), into `out` (one value per post).
-pub fn line_horizons(terrain: &Terrain, dir: &GridDirection, out: &mut [f32]) -> SweepStats {
-    assert_eq!(out.len(), terrain.z.len());
-    let stencil = Stencil::new(dir.step);
-    let sweep = Sweep {
-        placed: Placed {
-            t: terrain,
-            stencil: &stencil,
-        },
-        len: dir.step_length(terrain.dx, terrain.dy),
-        nodata: terrain.has_nodata(),
-    };
-    let (a, b) = dir.step;
-    let mut stats = SweepStats::default();
-    let mut lanes: Vec<Lane> = (0..LANES).map(|_| Lane::default()).collect();
-    let (w, h) = (terrain.width as i64, terrain.height as i64);
-    // A line starts at its far post: the one whose next step leaves.
-    let far = |col: i64, row: i64| !terrain.contains(col + a, row + b);
-    for row in 0..h {
-        let mut col = 0;
-        while col < w {
-            if !far(col, row) {
-                col += 1;
-                continue;
+/// One line being swept: its hull and the post it has got to.
+#[derive(Debug)]
+struct Lane {
+    hull: Vec<[f64; 2]>,
+    col: i64,
+    row: i64,
+    t: f64,
+}
+
+/// A sweep of one direction's lines over a band of rows.
+struct Sweep<'t> {
+    placed: Placed<'t>,
+    len: f64,
+    nodata: bool,
+}
+
+impl Sweep<'_> {
+    fn w_of(&self, t: f64, z: f64) -> f64 {
+        let c = self.placed.t.curvature;
+        z - c * t * t
+    }
+
+    /// Pushes the crossings of the step that ends at the lane's post, far
+    /// first.
+    #[inline]
+    fn push_crossings(&self, lane: &mut Lane, stats: &mut SweepStats) {
+        let n = self.placed.stencil.vertices.len();
+        let (nc, nr) = (lane.col, lane.row);
+        for k in (0..n - 1).rev() {
+            let v = &self.placed.stencil.vertices[k];
+            let z = if self.nodata {
+                self.placed.vertex((nc, nr), k)
+            } else {
+                Some(self.placed.height_unchecked(
+                    (nc + v.a.0, nr + v.a.1),
+                    (nc + v.b.0, nr + v.b.1),
+                    v.wb,
+                ))
+            };
+            if let Some(z) = z {
+                let t = lane.t + v.s * self.len;
+                push(&mut lane.hull, t, self.w_of(t, z), &mut stats.pops);
+                stats.vertices += 1;
             }
-            let mut run = 1;
-            while run < LANES && col + (run as i64) < w && far(col + run as i64, row) {
-                run += 1;
-            }
-            sweep.lanes(&mut lanes[..run], (col, row), out, &mut stats);
-            col += run as i64;
         }
     }
-    stats
+
+    /// The lane's post takes its horizon from the hull and joins it;
+    /// `out` holds the rows from `row0` on.
+    #[inline]
+    fn receive(&self, lane: &mut Lane, (out, row0): (&mut [f32], usize), stats: &mut SweepStats) {
+        let t = self.placed.t;
+        let zp = t.at(lane.col as usize, lane.row as usize);
+        let idx = (lane.row as usize - row0) * t.width + lane.col as usize;
+        if zp.is_nan() {
+            out[idx] = f32::NAN;
+            return;
+        }
+        stats.posts += 1;
+        let wp = self.w_of(lane.t, f64::from(zp));
+        let q = if !self.nodata || self.placed.post_exists((lane.col, lane.row)) {
+            stats.vertices += 1;
+            push(&mut lane.hull, lane.t, wp, &mut stats.pops)
+        } else {
+            tangent(&lane.hull, lane.t, wp)
+        };
+        out[idx] = angle_deg(q, lane.t, wp, t.curvature);
+    }
+
+    /// Starts the line whose far post is `(col, row)`: the crossings beyond
+    /// it that are still on the DEM, then the post.
+    fn start(
+        &self,
+        (col, row): (i64, i64),
+        out: (&mut [f32], usize),
+        stats: &mut SweepStats,
+    ) -> Lane {
+        let mut lane = Lane {
+            hull: Vec::new(),
+            col,
+            row,
+            t: 0.0,
+        };
+        let n = self.placed.stencil.vertices.len();
+        for k in (0..n - 1).rev() {
+            if let Some(z) = self.placed.vertex((col, row), k) {
+                let t = self.placed.stencil.vertices[k].s * self.len;
+                push(&mut lane.hull, t, self.w_of(t, z), &mut stats.pops);
+                stats.vertices += 1;
+            }
+        }
+        self.receive(&mut lane, out, stats);
+        lane
+    }
+
+    /// Steps the lane towards the near end while its next post is in rows
+    /// `rows`; whether the line goes on past them.
+    fn run(
+        &self,
+        lane: &mut Lane,
+        rows: &std::ops::Range<usize>,
+        out: (&mut [f32], usize),
+        stats: &mut SweepStats,
+    ) -> bool {
+        let (a, b) = self.placed.stencil.step;
+        let t = self.placed.t;
+        loop {
+            let (nc, nr) = (lane.col - a, lane.row - b);
+            if !t.contains(nc, nr) {
+                return false;
+            }
+            if !rows.contains(&(nr as usize)) {
+                return true;
+            }
+            (lane.col, lane.row, lane.t) = (nc, nr, lane.t - self.len);
+            self.push_crossings(lane, stats);
+            self.receive(lane, (&mut *out.0, out.1), stats);
+        }
+    }
+}
+
+/// One direction's lines swept over the DEM band by band, each line's hull
+/// carried from band to band, so that a DEM larger than memory is swept
+/// with a band of rows and the hulls in memory, and gives the same bits as
+/// one band holding the whole DEM (each line does the same arithmetic in
+/// the same order either way).
+///
+/// Bands go in sweep order: north to south when the lines' far ends are in
+/// the north (`step.1 < 0`), south to north otherwise. For output rows
+/// `r0..r1` the sweep reads the rows [`BandedSweep::window`] names: `|b|`
+/// rows behind the band for the crossings of steps that enter it, and one
+/// more row each side for the cells beside them.
+#[derive(Debug)]
+pub struct BandedSweep {
+    stencil: Stencil,
+    len: f64,
+    width: usize,
+    height: usize,
+    nodata: bool,
+    /// Lines that go on into the next band.
+    lanes: Vec<Lane>,
+    pub stats: SweepStats,
+}
+
+impl BandedSweep {
+    /// `nodata`: whether the DEM has any nodata post (then crossings are
+    /// checked against the cells beside them).
+    pub fn new(
+        dir: &GridDirection,
+        (width, height): (usize, usize),
+        (dx, dy): (f64, f64),
+        nodata: bool,
+    ) -> Self {
+        Self {
+            stencil: Stencil::new(dir.step),
+            len: dir.step_length(dx, dy),
+            width,
+            height,
+            nodata,
+            lanes: Vec::new(),
+            stats: SweepStats::default(),
+        }
+    }
+
+    /// Whether bands go from the south edge up.
+    pub fn from_south(&self) -> bool {
+        self.stencil.step.1 > 0
+    }
+
+    /// The output row bands of `rows` rows each, in sweep order.
+    pub fn bands(&self, rows: usize) -> Vec<std::ops::Range<usize>> {
+        let mut bands: Vec<_> = (0..self.height)
+            .step_by(rows)
+            .map(|r0| r0..(r0 + rows).min(self.height))
+            .collect();
+        if self.from_south() {
+            bands.reverse();
+        }
+        bands
+    }
+
+    /// The rows the sweep reads for output rows `band`.
+    pub fn window(&self, band: &std::ops::Range<usize>) -> std::ops::Range<usize> {
+        let b = self.stencil.step.1;
+        let behind = b.unsigned_abs() as usize;
+        let (lo, hi) = if b < 0 {
+            (band.start.saturating_sub(behind + 1), band.end + 1)
+        } else {
+            (band.start.saturating_sub(1), band.end + behind + 1)
+        };
+        lo..hi.min(self.height)
+    }
+
+    /// Sweeps output rows `band` (the next in [`Self::bands`] order), with
+    /// `window` the terrain of rows [`Self::window`] (and the DEM's full
+    /// size), into `out` (`band.len()` rows of angles in degrees).
+    pub fn sweep(&mut self, window: &Terrain, band: std::ops::Range<usize>, out: &mut [f32]) {
+        assert_eq!(out.len(), band.len() * self.width);
+        let sweep = Sweep {
+            placed: Placed {
+                t: window,
+                stencil: &self.stencil,
+            },
+            len: self.len,
+            nodata: self.nodata,
+        };
+        let stats = &mut self.stats;
+        // Lines from earlier bands first, then the lines whose far posts
+        // are in this band; each in its own order of steps, as in one band.
+        let mut going_on = Vec::with_capacity(self.lanes.len());
+        for mut lane in self.lanes.drain(..) {
+            if sweep.run(&mut lane, &band, (&mut *out, band.start), stats) {
+                going_on.push(lane);
+            }
+        }
+        let (a, b) = self.stencil.step;
+        for row in band.clone() {
+            for col in 0..self.width as i64 {
+                if window.contains(col + a, row as i64 + b) {
+                    continue;
+                }
+                let mut lane = sweep.start((col, row as i64), (&mut *out, band.start), stats);
+                if sweep.run(&mut lane, &band, (&mut *out, band.start), stats) {
+                    going_on.push(lane);
+                }
+            }
+        }
+        self.lanes = going_on;
+    }
+
+    /// Points held in the hulls of lines that go on (the sweep's state).
+    pub fn hull_points(&self) -> usize {
+        self.lanes.iter().map(|l| l.hull.len()).sum()
+    }
+}
+
+/// Line horizons in direction `dir` at every post of `terrain`, in degrees
+/// (NaN for nodata posts), into `out` (one value per post): one band.
+pub fn line_horizons(terrain: &Terrain, dir: &GridDirection, out: &mut [f32]) -> SweepStats {
+    assert_eq!(out.len(), terrain.z.len());
+    let mut sweep = BandedSweep::new(
+        dir,
+        (terrain.width, terrain.height),
+        (terrain.dx, terrain.dy),
+        terrain.has_nodata(),
+    );
+    sweep.sweep(terrain, 0..terrain.height, out);
+    sweep.stats
 }
 
 /// The line horizon (degrees) of one post, looking no farther than

@@ -30,6 +30,7 @@ pub mod sky;
 pub mod terrain;
 
 use std::path::Path;
+use std::sync::Mutex;
 
 use anyhow::{bail, Context, Result};
 use rayon::prelude::*;
@@ -41,7 +42,7 @@ use terrabake_format::{Asset, Codec, LayerEntry, LayerSpec, LayerWriter, Mmap};
 
 use crate::progress::Progress;
 use crate::stage::Stage;
-use crate::tiling::push_tile_row;
+use crate::tiling::{encode_tile_row, push_tile_row};
 use line::GridDirection;
 use terrain::Terrain;
 
@@ -317,7 +318,12 @@ impl Stage for HorizonsStage {
 
     fn run(&self, asset: &Asset<Mmap>, dir: &Path, progress: Progress) -> Result<Vec<LayerEntry>> {
         let m = asset.manifest();
-        let (z, w, h) = read_heights(asset)?;
+        let height = asset.height()?;
+        let (w, h, ts) = (
+            height.width() as usize,
+            height.height() as usize,
+            height.tile_size() as usize,
+        );
         self.check(w, h)?;
         let curvature = if self.curvature_on(asset) {
             terrain::curvature_coefficient(self.refraction)
@@ -325,34 +331,12 @@ impl Stage for HorizonsStage {
             0.0
         };
         let (dx, dy) = (m.cell_size.dx, m.cell_size.dy);
-        let terrain = Terrain::new(&z, w, h, dx, dy).with_curvature(curvature);
         let bands = plan_bands(self.method, self.sectors, dx, dy, self.direction_tolerance);
         let enc = self.encoding.resolve();
-        let opts = BandOptions {
-            max_distance: self.max_distance,
-            narrow_check: self.narrow_check,
-        };
-        let [ax0, ay0, ax1, ay1] = self
+        let aoi = self
             .aoi
             .unwrap_or([0, 0, w as u32, h as u32])
             .map(|v| v as usize);
-        let in_aoi = |i: usize| (ax0..ax1).contains(&(i % w)) && (ay0..ay1).contains(&(i / w));
-        let z_max = m.height_range.map_or(f64::INFINITY, |r| f64::from(r.max));
-        let ts = m.tile_size;
-
-        let spec = |name: &str, elem, bands: u32, description: String| LayerSpec {
-            name: name.into(),
-            level: 0,
-            elem,
-            bands,
-            width: w as u32,
-            height: h as u32,
-            tile_size: ts,
-            codec: Codec::Raw,
-            fill_bits: 0,
-            stage: "horizons".into(),
-            description,
-        };
         let method_text = match self.method {
             Method::Line => "line: steepest sight line along the grid direction of the band (exact on the two-triangle surface)",
             Method::Sector => if self.narrow_check {
@@ -362,151 +346,293 @@ impl Stage for HorizonsStage {
             },
             Method::Sampled => "sampled: centre-line sampling, nearest post, one spacing per step (baseline)",
         };
-        let mut horizon_writer = LayerWriter::create(
-            dir,
-            spec(
-                HORIZON,
-                enc.elem(),
-                bands.len() as u32,
-                format!(
-                    "horizon elevation angle, degrees, band per azimuth (band_azimuths), {}; {method_text}; curvature {}",
-                    enc.name(),
-                    if curvature > 0.0 { format!("on, refraction {}", self.refraction) } else { "off".into() }
-                ),
-            ),
-        )?;
-
+        let description = format!(
+            "horizon elevation angle, degrees, band per azimuth (band_azimuths), {}; {method_text}; curvature {}",
+            enc.name(),
+            if curvature > 0.0 { format!("on, refraction {}", self.refraction) } else { "off".into() }
+        );
+        let spec = LayerSpec {
+            name: HORIZON.into(),
+            level: 0,
+            elem: enc.elem(),
+            bands: bands.len() as u32,
+            width: w as u32,
+            height: h as u32,
+            tile_size: ts as u32,
+            codec: Codec::Raw,
+            fill_bits: 0,
+            stage: "horizons".into(),
+            description,
+        };
+        let out = BandWriter {
+            writer: Mutex::new(LayerWriter::create(dir, spec)?),
+            enc,
+            width: w,
+            tile_size: ts,
+            tiles: (w.div_ceil(ts), h.div_ceil(ts)),
+            aoi,
+        };
         let bar = progress.bar(bands.len() as u64, "horizons", "bands");
-        let mut sums = vec![sky::SkySums::default(); w * h];
-        let mut edge_count = vec![0u16; w * h];
-        let per_batch = rayon::current_num_threads().max(1);
-        for batch in bands.chunks(per_batch) {
-            let results: Vec<(Vec<f32>, u64)> = batch
+        let opts = BandOptions {
+            max_distance: self.max_distance,
+            narrow_check: self.narrow_check,
+        };
+        if self.method == Method::Line && self.max_distance.is_none() {
+            // Out of core: each direction swept over tile-row bands of the
+            // DEM, its lines' hulls carried from band to band.
+            bands
                 .par_iter()
-                .map(|band| band_horizons(&terrain, band, opts))
-                .collect();
-            for (band, (mut angles, _work)) in batch.iter().zip(results) {
-                let integrals = sky::BandIntegrals::new(band.lo, band.hi);
-                sums.par_chunks_mut(w)
-                    .zip(edge_count.par_chunks_mut(w))
-                    .zip(angles.par_chunks_mut(w))
-                    .enumerate()
-                    .for_each(|(row, ((sums, edges), angles))| {
-                        for col in 0..w {
-                            if !in_aoi(row * w + col) {
-                                angles[col] = f32::NAN;
-                                continue;
-                            }
-                            let hz = f64::from(angles[col]);
-                            if hz.is_nan() {
-                                continue;
-                            }
-                            let normal = terrain.normal(col, row).expect("valid post");
-                            sums[col].add(hz, &integrals, normal);
-                            // Could terrain no higher than the DEM's top,
-                            // just past the edge, rise above this horizon?
-                            let d = edge_distance(
-                                (w as u32, h as u32),
-                                (dx, dy),
-                                (col as f64, row as f64),
-                                band.azimuth,
-                            );
-                            let rise =
-                                (z_max - f64::from(terrain.at(col, row)) - curvature * d * d) / d;
-                            let (sh, ch) = hz.to_radians().sin_cos();
-                            if d == 0.0 || rise * ch > sh {
-                                edges[col] += 1;
-                            }
-                        }
-                    });
-                write_band(&mut horizon_writer, &angles, w, enc)?;
-                bar.inc(1);
+                .enumerate()
+                .try_for_each(|(i, band)| -> Result<()> {
+                    let BandKind::Line(dir) = &band.kind else {
+                        unreachable!("line bands")
+                    };
+                    let mut sweep =
+                        line::BandedSweep::new(dir, (w, h), (dx, dy), m.nodata.count > 0);
+                    let mut rows_buf = Vec::new();
+                    for rows in sweep.bands(ts) {
+                        let window = sweep.window(&rows);
+                        rows_buf.resize(window.len() * w, 0f32);
+                        height.read_window(
+                            0,
+                            0,
+                            window.start as u32,
+                            w as u32,
+                            window.len() as u32,
+                            &mut rows_buf,
+                        )?;
+                        let terrain = Terrain::window(&rows_buf, (w, h), window.start, (dx, dy))
+                            .with_curvature(curvature);
+                        let mut angles = vec![0f32; rows.len() * w];
+                        sweep.sweep(&terrain, rows.clone(), &mut angles);
+                        out.write(i, rows.start, &mut angles)?;
+                    }
+                    bar.inc(1);
+                    Ok(())
+                })?;
+        } else {
+            let (z, _, _) = read_heights(asset)?;
+            let terrain = Terrain::new(&z, w, h, dx, dy).with_curvature(curvature);
+            let threads = rayon::current_num_threads().max(1);
+            for (b, batch) in bands.chunks(threads).enumerate() {
+                let results: Vec<(Vec<f32>, u64)> = batch
+                    .par_iter()
+                    .map(|band| band_horizons(&terrain, band, opts))
+                    .collect();
+                for (j, (mut angles, _)) in results.into_iter().enumerate() {
+                    for (k, rows) in angles.chunks_mut(ts * w).enumerate() {
+                        out.write(b * threads + j, k * ts, rows)?;
+                    }
+                    bar.inc(1);
+                }
             }
         }
         bar.finish_and_clear();
-        let mut horizon = horizon_writer.finish()?;
+        let mut horizon = out
+            .writer
+            .into_inner()
+            .expect("no panic while writing")
+            .finish()?;
         horizon.quantization = enc.quantization();
         horizon.band_azimuths = bands.iter().map(|b| b.azimuth).collect();
 
-        let derived = |name: &str,
-                       description: &str,
-                       value: &dyn Fn(&sky::SkySums) -> f64|
-         -> Result<LayerEntry> {
-            let mut writer = LayerWriter::create(
-                dir,
-                spec(name, terrabake_format::ElemType::F32, 1, description.into()),
-            )?;
-            let values: Vec<f32> = (0..w * h)
+        // The derived layers, tile row by tile row, from the stored angles.
+        let mut manifest = m.clone();
+        manifest.upsert_layer(horizon.clone());
+        let fresh = Asset::open_uncommitted(dir, manifest)?;
+        let mut entries = vec![horizon];
+        entries.extend(sky_layers(&fresh, dir, &bands, aoi, curvature, progress)?);
+        Ok(entries)
+    }
+}
+
+/// Writes a band's rows of angles into the horizon layer as they come (in
+/// any order), masked to the area of interest.
+struct BandWriter {
+    writer: Mutex<LayerWriter>,
+    enc: AngleEncoding,
+    width: usize,
+    tile_size: usize,
+    tiles: (usize, usize),
+    aoi: [usize; 4],
+}
+
+impl BandWriter {
+    /// Rows `y0..` of band `band` (whole tile rows, `y0` on a tile edge).
+    fn write(&self, band: usize, y0: usize, angles: &mut [f32]) -> Result<()> {
+        let (w, ts, [x0, ay0, x1, ay1]) = (self.width, self.tile_size, self.aoi);
+        for (r, row) in angles.chunks_mut(w).enumerate() {
+            let y = y0 + r;
+            for (x, v) in row.iter_mut().enumerate() {
+                if !(x0..x1).contains(&x) || !(ay0..ay1).contains(&y) {
+                    *v = f32::NAN;
+                }
+            }
+        }
+        let codes = |f: &dyn Fn(f32) -> u32| angles.iter().map(|&a| f(a)).collect::<Vec<u32>>();
+        let tiles = match self.enc {
+            AngleEncoding::F32 => encode_tile_row(angles, w, ts, f32::NAN, Codec::Raw),
+            AngleEncoding::U16 => {
+                let c: Vec<u16> = codes(&|a| self.enc.encode(f64::from(a)))
+                    .into_iter()
+                    .map(|c| c as u16)
+                    .collect();
+                encode_tile_row(&c, w, ts, 0u16, Codec::Raw)
+            }
+            AngleEncoding::U8 => {
+                let c: Vec<u8> = codes(&|a| self.enc.encode(f64::from(a)))
+                    .into_iter()
+                    .map(|c| c as u8)
+                    .collect();
+                encode_tile_row(&c, w, ts, 0u8, Codec::Raw)
+            }
+        };
+        let ty = y0 / ts;
+        let mut writer = self.writer.lock().expect("no panic while writing");
+        for (tx, tile) in tiles.into_iter().enumerate() {
+            let chunk = (band * self.tiles.1 + ty) * self.tiles.0 + tx;
+            writer.push_at(chunk as u64, tile)?;
+        }
+        Ok(())
+    }
+}
+
+/// `svf`, `svf_cosine`, `openness` and `horizon_edge` from the stored
+/// horizons of `asset`, one tile row at a time (heights with a row above
+/// and below for the normals, every band's angles for the row).
+fn sky_layers(
+    asset: &Asset<Mmap>,
+    dir: &Path,
+    bands: &[Band],
+    [ax0, ay0, ax1, ay1]: [usize; 4],
+    curvature: f64,
+    progress: Progress,
+) -> Result<Vec<LayerEntry>> {
+    use terrabake_format::ElemType;
+    let m = asset.manifest();
+    let height = asset.height()?;
+    let horizon = asset.layer(HORIZON, 0)?;
+    let (w, h, ts) = (
+        height.width() as usize,
+        height.height() as usize,
+        height.tile_size() as usize,
+    );
+    let (dx, dy) = (m.cell_size.dx, m.cell_size.dy);
+    let z_max = m.height_range.map_or(f64::INFINITY, |r| f64::from(r.max));
+    let create = |name: &str, elem, description: &str| {
+        LayerWriter::create(
+            dir,
+            LayerSpec {
+                name: name.into(),
+                level: 0,
+                elem,
+                bands: 1,
+                width: w as u32,
+                height: h as u32,
+                tile_size: ts as u32,
+                codec: Codec::Raw,
+                fill_bits: 0,
+                stage: "horizons".into(),
+                description: description.into(),
+            },
+        )
+    };
+    let mut svf = create(SVF, ElemType::F32, "sky-view factor, solid angle of visible sky over the hemisphere above the horizontal: 1 - mean sin(max(h, 0)) (Zakšek 2011)")?;
+    let mut svf_cosine = create(SVF_COSINE, ElemType::F32, "sky-view factor, cosine-weighted from the tilted surface: (1/pi) integral of N.u over the visible sky (Dozier-Frew 1990, Stewart 1998 sec. VI)")?;
+    let mut openness = create(
+        OPENNESS,
+        ElemType::F32,
+        "positive openness, degrees: mean zenith angle of the horizon (Yokoyama 2002)",
+    )?;
+    let mut edge = create(HORIZON_EDGE, ElemType::U16, "bands in which terrain beyond the DEM's edge, no higher than the DEM's highest post, could rise above the horizon")?;
+    let integrals: Vec<sky::BandIntegrals> = bands
+        .iter()
+        .map(|b| sky::BandIntegrals::new(b.lo, b.hi))
+        .collect();
+    let bar = progress.bar(h.div_ceil(ts) as u64, "sky layers", "tile rows");
+    for y0 in (0..h).step_by(ts) {
+        let rows = ts.min(h - y0);
+        let (r0, r1) = (y0.saturating_sub(1), (y0 + rows + 1).min(h));
+        let mut z = vec![0f32; (r1 - r0) * w];
+        height.read_window(0, 0, r0 as u32, w as u32, (r1 - r0) as u32, &mut z)?;
+        let terrain = Terrain::window(&z, (w, h), r0, (dx, dy));
+        let mut sums = vec![sky::SkySums::default(); rows * w];
+        let mut edges = vec![0u16; rows * w];
+        let mut angles = vec![0f32; rows * w];
+        for (b, band) in bands.iter().enumerate() {
+            crate::export::read_rows_f32(horizon, b as u32, y0 as u32, &mut angles)?;
+            sums.par_chunks_mut(w)
+                .zip(edges.par_chunks_mut(w))
+                .zip(angles.par_chunks(w))
+                .enumerate()
+                .for_each(|(r, ((sums, edges), angles))| {
+                    let row = y0 + r;
+                    for col in 0..w {
+                        let hz = f64::from(angles[col]);
+                        if hz.is_nan() {
+                            continue;
+                        }
+                        let normal = terrain
+                            .normal(col, row)
+                            .expect("a post with a horizon has a height");
+                        sums[col].add(hz, &integrals[b], normal);
+                        // Could terrain no higher than the DEM's top, just
+                        // past the edge, rise above this horizon?
+                        let d = edge_distance(
+                            (w as u32, h as u32),
+                            (dx, dy),
+                            (col as f64, row as f64),
+                            band.azimuth,
+                        );
+                        let rise =
+                            (z_max - f64::from(terrain.at(col, row)) - curvature * d * d) / d;
+                        let (sh, ch) = hz.to_radians().sin_cos();
+                        if d == 0.0 || rise * ch > sh {
+                            edges[col] += 1;
+                        }
+                    }
+                });
+        }
+        let inside = |i: usize| {
+            let (x, y) = (i % w, y0 + i / w);
+            (ax0..ax1).contains(&x) && (ay0..ay1).contains(&y) && !terrain.at(x, y).is_nan()
+        };
+        let layer = |value: &dyn Fn(&sky::SkySums) -> f64| -> Vec<f32> {
+            (0..rows * w)
                 .map(|i| {
-                    if in_aoi(i) && !z[i].is_nan() {
+                    if inside(i) {
                         value(&sums[i]) as f32
                     } else {
                         f32::NAN
                     }
                 })
-                .collect();
-            for rows in values.chunks(ts as usize * w) {
-                push_tile_row(&mut writer, rows, w, f32::NAN, Codec::Raw)?;
-            }
-            Ok(writer.finish()?)
+                .collect()
         };
-        let svf = derived(SVF, "sky-view factor, solid angle of visible sky over the hemisphere above the horizontal: 1 - mean sin(max(h, 0)) (Zakšek 2011)", &|s| s.svf())?;
-        let svf_cosine = derived(SVF_COSINE, "sky-view factor, cosine-weighted from the tilted surface: (1/pi) integral of N.u over the visible sky (Dozier-Frew 1990, Stewart 1998 sec. VI)", &|s| s.svf_cosine())?;
-        let openness = derived(
-            OPENNESS,
-            "positive openness, degrees: mean zenith angle of the horizon (Yokoyama 2002)",
-            &|s| s.openness(),
+        push_tile_row(&mut svf, &layer(&|s| s.svf()), w, f32::NAN, Codec::Raw)?;
+        push_tile_row(
+            &mut svf_cosine,
+            &layer(&|s| s.svf_cosine()),
+            w,
+            f32::NAN,
+            Codec::Raw,
         )?;
-        let mut edge_writer = LayerWriter::create(
-            dir,
-            spec(
-                HORIZON_EDGE,
-                terrabake_format::ElemType::U16,
-                1,
-                "bands in which terrain beyond the DEM's edge, no higher than the DEM's highest post, could rise above the horizon".into(),
-            ),
+        push_tile_row(
+            &mut openness,
+            &layer(&|s| s.openness()),
+            w,
+            f32::NAN,
+            Codec::Raw,
         )?;
-        for rows in edge_count.chunks(ts as usize * w) {
-            push_tile_row(&mut edge_writer, rows, w, 0u16, Codec::Raw)?;
-        }
-        Ok(vec![
-            horizon,
-            svf,
-            svf_cosine,
-            openness,
-            edge_writer.finish()?,
-        ])
+        push_tile_row(&mut edge, &edges, w, 0u16, Codec::Raw)?;
+        bar.inc(1);
     }
-}
-
-/// Appends one band of angles (degrees) in the layer's encoding.
-fn write_band(
-    writer: &mut LayerWriter,
-    angles: &[f32],
-    w: usize,
-    enc: AngleEncoding,
-) -> Result<()> {
-    let ts = writer.spec().tile_size as usize;
-    for rows in angles.chunks(ts * w) {
-        match enc {
-            AngleEncoding::F32 => push_tile_row(writer, rows, w, f32::NAN, Codec::Raw)?,
-            AngleEncoding::U16 => {
-                let codes: Vec<u16> = rows
-                    .iter()
-                    .map(|&a| enc.encode(f64::from(a)) as u16)
-                    .collect();
-                push_tile_row(writer, &codes, w, 0u16, Codec::Raw)?
-            }
-            AngleEncoding::U8 => {
-                let codes: Vec<u8> = rows
-                    .iter()
-                    .map(|&a| enc.encode(f64::from(a)) as u8)
-                    .collect();
-                push_tile_row(writer, &codes, w, 0u8, Codec::Raw)?
-            }
-        }
-    }
-    Ok(())
+    bar.finish_and_clear();
+    Ok(vec![
+        svf.finish()?,
+        svf_cosine.finish()?,
+        openness.finish()?,
+        edge.finish()?,
+    ])
 }
 
 /// `[[stage]] name = "horizons"` with optional `sectors`, `method`,

@@ -16,13 +16,16 @@ pub fn curvature_coefficient(refraction: f64) -> f64 {
 
 /// A row-major grid of posts; row 0 is the north edge, column 0 the west.
 /// Post `(col, row)` stands at `col * dx` metres east and `row * dy` metres
-/// south of post `(0, 0)`.
+/// south of post `(0, 0)`. It may hold only a window of rows of the DEM
+/// (out-of-core sweeps): `z` is rows `row0..` of a `width x height` grid.
 #[derive(Debug, Clone, Copy)]
 pub struct Terrain<'a> {
-    /// Heights in metres, NaN for nodata.
+    /// Heights in metres, NaN for nodata, from row `row0` on.
     pub z: &'a [f32],
     pub width: usize,
+    /// Rows of the whole DEM.
     pub height: usize,
+    pub row0: usize,
     pub dx: f64,
     pub dy: f64,
     /// `c` of the curvature drop `c * d^2` over horizontal distance `d`
@@ -38,10 +41,30 @@ impl<'a> Terrain<'a> {
             z,
             width,
             height,
+            row0: 0,
             dx,
             dy,
             curvature: 0.0,
         }
+    }
+
+    /// Rows `row0..row0 + z.len() / width` of a `width x height` DEM.
+    pub fn window(
+        z: &'a [f32],
+        (width, height): (usize, usize),
+        row0: usize,
+        (dx, dy): (f64, f64),
+    ) -> Self {
+        assert!(z.len() % width == 0 && row0 + z.len() / width <= height);
+        Self {
+            row0,
+            ..Self::new(z, width, z.len() / width, dx, dy)
+        }
+        .with_height(height)
+    }
+
+    fn with_height(self, height: usize) -> Self {
+        Self { height, ..self }
     }
 
     pub fn with_curvature(self, curvature: f64) -> Self {
@@ -51,7 +74,7 @@ impl<'a> Terrain<'a> {
     /// Height of post `(col, row)`, NaN for nodata.
     #[inline]
     pub fn at(&self, col: usize, row: usize) -> f32 {
-        self.z[row * self.width + col]
+        self.z[(row - self.row0) * self.width + col]
     }
 
     pub fn contains(&self, col: i64, row: i64) -> bool {

@@ -1,0 +1,29 @@
+#!/usr/bin/env bash
+# Horizons (docs/BENCHMARKS.md): speed on the bundled SRTM tile and the
+# accuracy chart (bench-horizons), then time and peak memory of the whole
+# stage against DEM size and sector count on fractal DEMs.
+# Usage: bash pipelines/bench_horizons.sh [WORK=/tmp/terrabake-horizons]
+set -euo pipefail
+BIN=${BIN:-target/release/terrabake}
+WORK=${WORK:-/tmp/terrabake-horizons}
+mkdir -p "$WORK"
+"$BIN" ingest data/srtm3_n07w006_geographic_int16.tif -o "$WORK/srtm.tbake" -q
+"$BIN" bench-horizons "$WORK/srtm.tbake" --chart docs/charts/horizons
+echo
+echo "| DEM | method | sectors | time (s) | peak RSS (MiB) |"
+echo "| --- | --- | --- | --- | --- |"
+run() { # side method sectors
+  local asset="$WORK/fractal_$1.tbake"
+  if [ ! -d "$asset" ]; then
+    "$BIN" synth fractal --size "$1x$1" -o "$WORK/f.tif" -q
+    "$BIN" ingest "$WORK/f.tif" -o "$asset" -q
+    rm -f "$WORK/f.tif"
+  fi
+  /usr/bin/time -f "%e %M" -o "$WORK/time.txt" "$BIN" horizons "$asset" --method "$2" --sectors "$3" --force -q
+  read -r secs kb < "$WORK/time.txt"
+  echo "| $1^2 | $2 | $3 | $secs | $((kb / 1024)) |"
+}
+for n in 1024 2048 4096 8192; do run $n line 16; done
+for n in 1024 2048 4096; do run $n line 64; done
+for n in 1024 2048 4096; do run $n sector 16; done
+for n in 1024 2048; do run $n sector 64; done
