@@ -40,21 +40,30 @@ fn log_ticks(lo: f64, hi: f64) -> Vec<f64> {
     ticks
 }
 
-/// The upper corner with fewer points under it (in log space), for the legend.
+/// The corner with the fewest points near it (in log space), for the
+/// legend; upper corners win ties.
 fn legend_corner(
     points: &[(f64, f64)],
     (x0, x1): (f64, f64),
     (y0, y1): (f64, f64),
 ) -> SeriesLabelPosition {
     let (xm, ym) = ((x0 * x1).sqrt(), (y0 * y1).sqrt());
-    let upper = points.iter().filter(|p| p.1 >= ym);
-    let left = upper.clone().filter(|p| p.0 < xm).count();
-    let right = upper.count() - left;
-    if left <= right {
-        SeriesLabelPosition::UpperLeft
-    } else {
-        SeriesLabelPosition::UpperRight
-    }
+    let count = |upper: bool, left: bool| {
+        points
+            .iter()
+            .filter(|p| (p.1 >= ym) == upper && (p.0 < xm) == left)
+            .count()
+    };
+    [
+        (count(true, true), SeriesLabelPosition::UpperLeft),
+        (count(true, false), SeriesLabelPosition::UpperRight),
+        (count(false, true), SeriesLabelPosition::LowerLeft),
+        (count(false, false), SeriesLabelPosition::LowerRight),
+    ]
+    .into_iter()
+    .min_by_key(|(n, _)| *n)
+    .map(|(_, corner)| corner)
+    .expect("four corners")
 }
 
 /// A log-log line chart of `series`, written to `path` (SVG).

@@ -9,6 +9,7 @@
 mod common;
 
 use terrabake::horizon::brute;
+use terrabake::horizon::hull_tree::{local_horizons_brute, HullTree};
 use terrabake::horizon::line::{self, GridDirection};
 use terrabake::horizon::sector::{sector_horizons, NarrowStencil, SectorFrame};
 use terrabake::horizon::terrain::{curvature_coefficient, Terrain};
@@ -270,9 +271,12 @@ fn narrow_sectors_need_stewarts_check() {
 fn the_bowl_is_timonens_worst_case_and_stays_linear_per_vertex() {
     // Timonen sec. 6: a bowl is the worst case of the hull tree. The stack
     // sweep pops every vertex at most once: pops <= vertices on any DEM.
+    // Recorded (docs/BENCHMARKS.md): `cargo test --release --test horizons
+    // bowl -- --nocapture`.
     for kind in [SynthKind::Bowl, SynthKind::Fractal, SynthKind::Noise] {
         let z = synth_grid(kind, 200, 200, 1);
         let t = Terrain::new(&z, 200, 200, 30.0, 30.0);
+        let mut total = line::SweepStats::default();
         for band in plan_bands(Method::Line, 16, 30.0, 30.0, None) {
             let BandKind::Line(dir) = &band.kind else {
                 unreachable!()
@@ -281,7 +285,49 @@ fn the_bowl_is_timonens_worst_case_and_stays_linear_per_vertex() {
             let stats = line::line_horizons(&t, dir, &mut out);
             assert!(stats.pops <= stats.vertices, "{kind:?}: {stats:?}");
             assert_eq!(stats.posts, 200 * 200);
+            total += stats;
         }
+        eprintln!(
+            "{kind:?}: per post and direction {:.2} hull pushes, {:.2} pops",
+            total.vertices as f64 / total.posts as f64,
+            total.pops as f64 / total.posts as f64
+        );
+        // Timonen's tree along every row (Table 2's m_a and t_a): the local
+        // horizons of every post equal brute force, and the iterations stay
+        // within his bound 2m + n (m: horizons, n: points).
+        let (mut iterations, mut horizons, mut points) = (0u64, 0usize, 0usize);
+        for row in 0..200 {
+            let mut tree = HullTree::new();
+            let mut profile = Vec::new();
+            for col in 0..200 {
+                // Timonen's worst case is a bowl with every other point
+                // depressed: serrate the bowl.
+                let dent = if kind == SynthKind::Bowl && col % 2 == 1 {
+                    20.0
+                } else {
+                    0.0
+                };
+                let p = [col as f64 * 30.0, f64::from(z[row * 200 + col]) - dent];
+                profile.push(p);
+                tree.push(p[0], p[1]);
+                if col > 0 {
+                    let got = tree.horizons();
+                    assert_eq!(
+                        got,
+                        local_horizons_brute(&profile),
+                        "{kind:?} row {row} col {col}"
+                    );
+                    horizons += got.len();
+                }
+            }
+            iterations += tree.iterations;
+            points += 200;
+        }
+        eprintln!(
+            "{kind:?} (serrated if a bowl): hull tree along rows: {:.2} local horizons and {:.2} iterations per point",
+            horizons as f64 / points as f64,
+            iterations as f64 / points as f64
+        );
     }
 }
 

@@ -23,6 +23,7 @@
 
 pub mod bench;
 pub mod brute;
+pub mod hull_tree;
 pub mod line;
 pub mod sampled;
 pub mod sector;
