@@ -15,29 +15,13 @@ if [ ! -d "$WORK/fractal_$N.tbake" ]; then
   "$BIN" ingest "$WORK/fractal_$N.tif" -o "$WORK/fractal_$N.tbake" -q
   rm -f "$WORK/fractal_$N.tif"
 fi
-CG=/sys/fs/cgroup/memory/terrabake-bench
-if mkdir -p "$CG" 2>/dev/null && echo $((512 << 20)) > "$CG/memory.limit_in_bytes" 2>/dev/null; then
-  echo 0 > "$CG/memory.max_usage_in_bytes"
-  # Pages cached before the run are charged to whoever read them first:
-  # start cold, so that every page the bake maps counts against the limit.
-  sync && echo 3 > /proc/sys/vm/drop_caches
-  bash -c "echo \$\$ > $CG/cgroup.procs && exec /usr/bin/time -v $BIN cones $WORK/fractal_$N.tbake --slices 16 --max-memory 256 --force" \
-    > "$WORK/ooc.log" 2>&1 &
-  # Peak anonymous memory (the process's own: windows, bands), sampled from
-  # the cgroup; the rest of its usage is page cache of the mapped layers,
-  # which the limit keeps reclaiming.
-  peak=0
-  while kill -0 $! 2>/dev/null; do
-    rss=$(awk '$1 == "rss" { print $2 }' "$CG/memory.stat")
-    [ "$rss" -gt "$peak" ] && peak=$rss
-    sleep 0.2
-  done
-  wait $!
-  grep -E "cones|Elapsed|Maximum resident" "$WORK/ooc.log"
-  echo "cgroup limit 512 MiB; peak anonymous memory $((peak >> 20)) MiB; peak usage with page cache $(( $(cat "$CG/memory.max_usage_in_bytes") >> 20 )) MiB"
+RUN="$BIN cones $WORK/fractal_$N.tbake --slices 16 --max-memory 256 --force"
+source "$(dirname "$0")/cgroup_run.sh"
+if run_in_cgroup 512 "$WORK/ooc.log" $RUN; then
+  grep -E "cones|Elapsed|Maximum resident|Exit" "$WORK/ooc.log"
+  echo "cgroup limit 512 MiB; peak anonymous memory $PEAK_ANON_MIB MiB; peak usage with page cache $PEAK_CGROUP_MIB MiB"
 else
   echo "(no memory cgroup: peak RSS only)"
-  /usr/bin/time -v "$BIN" cones "$WORK/fractal_$N.tbake" --slices 16 --max-memory 256 --force 2>&1 |
-    grep -E "cones|Elapsed|Maximum resident"
+  /usr/bin/time -v $RUN 2>&1 | grep -E "cones|Elapsed|Maximum resident"
 fi
 du -sh "$WORK/fractal_$N.tbake"

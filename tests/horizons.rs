@@ -14,10 +14,7 @@ use terrabake::horizon::line::{self, GridDirection};
 use terrabake::horizon::sector::{sector_horizons, NarrowStencil, SectorFrame};
 use terrabake::horizon::terrain::{curvature_coefficient, Terrain};
 use terrabake::horizon::{band_horizons, plan_bands, BandKind, BandOptions, Method};
-use terrabake::ingest::{ingest, IngestOptions};
-use terrabake::progress::Progress;
 use terrabake::synth::{self, SynthKind};
-use terrabake_format::Asset;
 
 const COUNTS: [usize; 5] = [4, 7, 16, 64, 256];
 
@@ -31,26 +28,6 @@ fn synth_grid(kind: SynthKind, w: usize, h: usize, seed: u64) -> Vec<f32> {
         }
     }
     z
-}
-
-fn srtm_crop(w: u32, h: u32) -> (Vec<f32>, f64, f64) {
-    let dir = tempfile::tempdir().unwrap();
-    let full = dir.path().join("srtm.tbake");
-    ingest(
-        &common::repo_file("data/srtm3_n07w006_geographic_int16.tif"),
-        &full,
-        &IngestOptions::default(),
-        Progress::hidden(),
-    )
-    .unwrap();
-    let srtm = Asset::open(&full).unwrap();
-    let mut crop = vec![0f32; (w * h) as usize];
-    srtm.height()
-        .unwrap()
-        .read_window(0, 600, 400, w, h, &mut crop)
-        .unwrap();
-    let cs = &srtm.manifest().cell_size;
-    (crop, cs.dx, cs.dy)
 }
 
 /// Same angle, or both nodata. Without curvature the fast methods and the
@@ -121,7 +98,7 @@ fn line_and_sector_equal_brute_force_on_every_synthetic_terrain() {
 
 #[test]
 fn line_and_sector_equal_brute_force_on_the_real_dem_with_curvature() {
-    let (z, dx, dy) = srtm_crop(24, 20);
+    let (z, dx, dy) = common::srtm_crop((600, 400), (24, 20));
     let t = Terrain::new(&z, 24, 20, dx, dy);
     check_all("SRTM crop", &t);
     // Curvature and refraction: the hull of z - c t^2 against the drop
@@ -416,7 +393,7 @@ fn line_sweeps_by_bands_equal_one_band() {
     let (w, h) = (41, 37);
     let mut z = synth_grid(SynthKind::Holes, w, h, 4);
     z[5 * w + 7] = f32::NAN;
-    let (srtm, sdx, sdy) = srtm_crop(w as u32, h as u32);
+    let (srtm, sdx, sdy) = common::srtm_crop((600, 400), (w as u32, h as u32));
     for (name, z, dx, dy, curvature) in [
         ("holes", &z, 30.0, 20.0, 0.0),
         (

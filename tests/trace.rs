@@ -383,21 +383,8 @@ fn every_method_equals_brute_force_on_every_synthetic_terrain() {
 fn every_method_equals_brute_force_on_the_real_dem() {
     // A 96 x 80 crop of the bundled SRTM tile, with its own cell size.
     let dir = tempfile::tempdir().unwrap();
-    let full = dir.path().join("srtm.tbake");
-    ingest(
-        &common::repo_file("data/srtm3_n07w006_geographic_int16.tif"),
-        &full,
-        &IngestOptions::default(),
-        Progress::hidden(),
-    )
-    .unwrap();
-    let srtm = Asset::open(&full).unwrap();
     let (w, h) = (96u32, 80u32);
-    let mut crop = vec![0f32; (w * h) as usize];
-    srtm.height()
-        .unwrap()
-        .read_window(0, 500, 300, w, h, &mut crop)
-        .unwrap();
+    let (crop, dx, dy) = common::srtm_crop((500, 300), (w, h));
     let raw = dir.path().join("crop.f32");
     std::fs::write(
         &raw,
@@ -414,7 +401,6 @@ fn every_method_equals_brute_force_on_the_real_dem() {
     };
     let sub = dir.path().join("crop");
     std::fs::create_dir(&sub).unwrap();
-    let (dx, dy) = (srtm.manifest().cell_size.dx, srtm.manifest().cell_size.dy);
     let asset = build_asset(&sub, &raw, Some(spec), (dx, dy), 0);
     check_terrain("SRTM crop", &asset, rays_per_terrain(), 77);
 }

@@ -352,19 +352,13 @@ impl Stage for HorizonsStage {
             enc.name(),
             if curvature > 0.0 { format!("on, refraction {}", self.refraction) } else { "off".into() }
         );
-        let spec = LayerSpec {
-            name: HORIZON.into(),
-            level: 0,
-            elem: enc.elem(),
-            bands: bands.len() as u32,
-            width: w as u32,
-            height: h as u32,
-            tile_size: ts as u32,
-            codec: Codec::Raw,
-            fill_bits: 0,
-            stage: "horizons".into(),
+        let spec = post_layer(
+            HORIZON,
+            enc.elem(),
+            bands.len() as u32,
+            (w, h, ts),
             description,
-        };
+        );
         let out = BandWriter {
             writer: Mutex::new(LayerWriter::create(dir, spec)?),
             enc,
@@ -447,6 +441,29 @@ impl Stage for HorizonsStage {
     }
 }
 
+/// A layer of the stage: one element per post, raw tiles like the heights.
+fn post_layer(
+    name: &str,
+    elem: terrabake_format::ElemType,
+    bands: u32,
+    (w, h, ts): (usize, usize, usize),
+    description: String,
+) -> LayerSpec {
+    LayerSpec {
+        name: name.into(),
+        level: 0,
+        elem,
+        bands,
+        width: w as u32,
+        height: h as u32,
+        tile_size: ts as u32,
+        codec: Codec::Raw,
+        fill_bits: 0,
+        stage: "horizons".into(),
+        description,
+    }
+}
+
 /// Writes a band's rows of angles into the horizon layer as they come (in
 /// any order), masked to the area of interest.
 struct BandWriter {
@@ -523,19 +540,7 @@ fn sky_layers(
     let create = |name: &str, elem, description: &str| {
         LayerWriter::create(
             dir,
-            LayerSpec {
-                name: name.into(),
-                level: 0,
-                elem,
-                bands: 1,
-                width: w as u32,
-                height: h as u32,
-                tile_size: ts as u32,
-                codec: Codec::Raw,
-                fill_bits: 0,
-                stage: "horizons".into(),
-                description: description.into(),
-            },
+            post_layer(name, elem, 1, (w, h, ts), description.into()),
         )
     };
     let mut svf = create(SVF, ElemType::F32, "sky-view factor, solid angle of visible sky over the hemisphere above the horizontal: 1 - mean sin(max(h, 0)) (Zakšek 2011)")?;

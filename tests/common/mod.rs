@@ -92,3 +92,25 @@ pub fn synth_with_pyramid(
     .unwrap();
     out
 }
+
+/// A `w x h` window at `(x0, y0)` of the bundled SRTM tile, with the tile's
+/// post spacing in metres.
+pub fn srtm_crop((x0, y0): (u32, u32), (w, h): (u32, u32)) -> (Vec<f32>, f64, f64) {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let full = dir.path().join("srtm.tbake");
+    terrabake::ingest::ingest(
+        &repo_file("data/srtm3_n07w006_geographic_int16.tif"),
+        &full,
+        &terrabake::ingest::IngestOptions::default(),
+        terrabake::progress::Progress::hidden(),
+    )
+    .expect("ingest the bundled tile");
+    let srtm = Asset::open(&full).expect("open");
+    let mut crop = vec![0f32; (w * h) as usize];
+    srtm.height()
+        .expect("height")
+        .read_window(0, x0, y0, w, h, &mut crop)
+        .expect("read");
+    let cs = &srtm.manifest().cell_size;
+    (crop, cs.dx, cs.dy)
+}

@@ -1,0 +1,26 @@
+# Sourced by the out-of-core benchmarks. run_in_cgroup LIMIT_MIB LOG CMD...
+# runs CMD under /usr/bin/time -v (output to LOG) inside a cgroup v1 memory
+# limit of LIMIT_MIB, after dropping the page cache so that every page the
+# run maps is charged to it, and sets PEAK_ANON_MIB (the process's own
+# memory, sampled from the cgroup's rss every 0.2 s; the rest of its usage
+# is page cache of mapped files, which the limit keeps reclaiming) and
+# PEAK_CGROUP_MIB. Returns 1 without running anything where there is no
+# cgroup to use (not root, or no v1 memory controller).
+run_in_cgroup() {
+  local limit=$1 log=$2
+  shift 2
+  local cg=/sys/fs/cgroup/memory/terrabake-bench
+  mkdir -p "$cg" 2>/dev/null && echo $((limit << 20)) > "$cg/memory.limit_in_bytes" 2>/dev/null || return 1
+  echo 0 > "$cg/memory.max_usage_in_bytes"
+  sync && echo 3 > /proc/sys/vm/drop_caches
+  bash -c "echo \$\$ > $cg/cgroup.procs && exec /usr/bin/time -v $*" > "$log" 2>&1 &
+  local peak=0 rss
+  while kill -0 $! 2>/dev/null; do
+    rss=$(awk '$1 == "rss" { print $2 }' "$cg/memory.stat")
+    [ "$rss" -gt "$peak" ] && peak=$rss
+    sleep 0.2
+  done
+  wait $!
+  PEAK_ANON_MIB=$((peak >> 20))
+  PEAK_CGROUP_MIB=$(( $(cat "$cg/memory.max_usage_in_bytes") >> 20 ))
+}
