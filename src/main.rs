@@ -12,7 +12,7 @@ use terrabake::horizon::{AngleChoice, HorizonsStage, Method as HorizonMethod};
 use terrabake::ingest::{ingest, IngestOptions, DEFAULT_TILE};
 use terrabake::progress::Progress;
 use terrabake::pyramid::PyramidStage;
-use terrabake::render::{builtin_views, render, write_png, Camera, RenderOptions, Sun};
+use terrabake::render::{builtin_views, render, write_png, Camera, RenderOptions, Shadows, Sun};
 use terrabake::source::{ByteOrder, RawSampleType, RawSpec};
 use terrabake::stage::{bake, run_stage, Recipe, StageOutcome};
 use terrabake::synth::SynthKind;
@@ -331,6 +331,10 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
         /// No shadow rays.
         #[arg(long)]
         no_shadows: bool,
+        /// Sun shadows from the stored horizons (lit_fraction, soft, no shadow rays; needs the
+        /// horizons stage) instead of shadow rays.
+        #[arg(long, conflicts_with = "no_shadows")]
+        horizon_shadows: bool,
         /// Vertical exaggeration (camera heights are then in exaggerated metres).
         #[arg(long, default_value_t = 1.0)]
         exaggerate: f64,
@@ -643,6 +647,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             sun,
             every,
             no_shadows,
+            horizon_shadows,
             exaggerate,
             output,
             stats,
@@ -676,7 +681,11 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 method,
                 sun,
                 every,
-                shadows: !no_shadows,
+                shadows: match (no_shadows, horizon_shadows) {
+                    (true, _) => Shadows::Off,
+                    (false, true) => Shadows::Horizons,
+                    (false, false) => Shadows::Rays,
+                },
                 exaggeration: exaggerate,
             };
             let (image, st) = render(&opened, &tracer, &cam, &opts)?;

@@ -137,11 +137,53 @@ pub struct RenderOptions {
     /// Trace only every `every`-th pixel in x and y (1: all); the rest are
     /// filled from the traced ones, for quick previews and the benchmark.
     pub every: u32,
-    /// Trace shadow rays (off for benchmarks of primary rays alone).
-    pub shadows: bool,
+    /// Sun shadows: shadow rays, the stored horizons, or none (benchmarks
+    /// of primary rays alone).
+    pub shadows: Shadows,
     /// Vertical exaggeration of the terrain (1: true heights). The camera
     /// and look-at heights are in exaggerated metres.
     pub exaggeration: f64,
+}
+
+/// Where sun shadows come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Shadows {
+    Off,
+    /// A shadow ray from every lit hit towards the sun (exact).
+    Rays,
+    /// The horizons stage's angles: the share of the sun's disc above the
+    /// horizon (`lit_fraction`, radius 0.27 degrees), bilinear between the
+    /// four posts around the hit. No ray; soft edges; the true terrain's
+    /// horizons whatever the exaggeration.
+    Horizons,
+}
+
+/// The lit share of the sun's disc at fractional post `(col, row)`:
+/// `lit_fraction` of the four posts around it, bilinear (nodata posts left
+/// out).
+fn lit_between_posts<D: AsRef<[u8]>>(
+    map: &terrabake_format::horizons::HorizonMap<'_, D>,
+    (col, row): (f64, f64),
+    sun: Sun,
+) -> terrabake_format::Result<f64> {
+    let (c0, r0) = (col.floor().max(0.0), row.floor().max(0.0));
+    let (fc, fr) = ((col - c0).clamp(0.0, 1.0), (row - r0).clamp(0.0, 1.0));
+    let (mut sum, mut weight) = (0.0, 0.0);
+    for (dc, dr, w) in [
+        (0.0, 0.0, (1.0 - fc) * (1.0 - fr)),
+        (1.0, 0.0, fc * (1.0 - fr)),
+        (0.0, 1.0, (1.0 - fc) * fr),
+        (1.0, 1.0, fc * fr),
+    ] {
+        let (c, r) = ((c0 + dc) as u32, (r0 + dr) as u32);
+        if w > 0.0 {
+            if let Ok(Some(lit)) = map.lit_fraction(c, r, sun.azimuth, sun.elevation, 0.27) {
+                sum += w * lit;
+                weight += w;
+            }
+        }
+    }
+    Ok(if weight > 0.0 { sum / weight } else { 1.0 })
 }
 
 /// Renders `camera`'s view. Errors only when the asset cannot be read.
@@ -162,6 +204,16 @@ pub fn render(
     } else {
         1.0
     };
+    let horizons = match opts.shadows {
+        Shadows::Horizons => Some(terrabake_format::horizons::HorizonMap::open(asset).map_err(
+            |e| {
+                anyhow::anyhow!("{e}: horizon shadows need the horizons stage (terrabake horizons)")
+            },
+        )?),
+        _ => None,
+    };
+    let m = asset.manifest();
+    let (cell, rows_max) = ((m.cell_size.dx, m.cell_size.dy), f64::from(m.height - 1));
     let start = std::time::Instant::now();
     let projector = camera.projector(w, h);
     let traced_rows: Vec<u32> = (0..h).step_by(every as usize).collect();
@@ -183,24 +235,38 @@ pub fn render(
                         let n = hit.normal.map(f64::from);
                         let n = normalize([n[0] * e, n[1] * e, n[2]]);
                         let lambert = (n[0] * sun[0] + n[1] * sun[1] + n[2] * sun[2]).max(0.0);
-                        let lit = if lambert > 0.0 && opts.shadows {
-                            shadow_rays += 1;
-                            // Start just above the hit so the ray leaves its own triangle.
-                            let lift = 1e-3 * (range.1 - range.0).max(1.0);
-                            let origin = [hit.point[0], hit.point[1], hit.point[2] + lift];
-                            let shadow = Ray {
-                                origin,
-                                dir: sun,
-                                t_min: 0.0,
-                                t_max: f64::INFINITY,
-                            };
-                            tracer.trace(&shadow, opts.method)?.0.is_none()
+                        let lit = if lambert <= 0.0 {
+                            0.0
                         } else {
-                            lambert > 0.0
+                            match (opts.shadows, &horizons) {
+                                (Shadows::Rays, _) => {
+                                    shadow_rays += 1;
+                                    // Start just above the hit so the ray leaves its own triangle.
+                                    let lift = 1e-3 * (range.1 - range.0).max(1.0);
+                                    let origin = [hit.point[0], hit.point[1], hit.point[2] + lift];
+                                    let shadow = Ray {
+                                        origin,
+                                        dir: sun,
+                                        t_min: 0.0,
+                                        t_max: f64::INFINITY,
+                                    };
+                                    if tracer.trace(&shadow, opts.method)?.0.is_none() {
+                                        1.0
+                                    } else {
+                                        0.0
+                                    }
+                                }
+                                (Shadows::Horizons, Some(map)) => {
+                                    let (col, row) =
+                                        (hit.point[0] / cell.0, rows_max - hit.point[1] / cell.1);
+                                    lit_between_posts(map, (col, row), opts.sun)?
+                                }
+                                _ => 1.0,
+                            }
                         };
                         let t = ((hit.point[2] - range.0) / (range.1 - range.0).max(1e-9)) as f32;
                         let tint = crate::export::hypsometric(t);
-                        let light = 0.25 + 0.75 * if lit { lambert as f32 } else { 0.0 };
+                        let light = 0.25 + 0.75 * (lit * lambert) as f32;
                         tint.map(|c| (c * light).clamp(0.0, 255.0) as u8)
                     }
                 };
@@ -375,7 +441,7 @@ pub fn bench_views(
                 elevation: 45.0,
             },
             every: every * 4,
-            shadows: false,
+            shadows: Shadows::Off,
             exaggeration: 1.0,
         };
         render(asset, &tracer, cam, &warm)?;
@@ -391,7 +457,7 @@ pub fn bench_views(
                 elevation: 35.0,
             },
             every,
-            shadows: false,
+            shadows: Shadows::Off,
             exaggeration: 1.0,
         };
         let (mut rays, mut hits, mut seconds, mut steps, mut cells, mut nodes) =

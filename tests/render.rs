@@ -51,7 +51,7 @@ fn every_method_renders_the_same_picture() {
                     elevation: 4.0,
                 },
                 every: 1,
-                shadows: true,
+                shadows: terrabake::render::Shadows::Rays,
                 exaggeration: 1.0,
             };
             let (image, stats) = render(&asset, &tracer, &views[view], &opts).unwrap();
@@ -211,4 +211,74 @@ fn render_command_writes_a_png_and_statistics() {
     );
     let out = free_camera(&["--method", "incremental"]);
     assert!(out.status.success(), "{}", common::stderr(&out));
+}
+
+#[test]
+fn horizon_shadows_agree_with_shadow_rays() {
+    // The same view of a fractal DEM lit with shadow rays and with the
+    // stored horizons (32 exact sight-line directions, f32 angles, no
+    // curvature: the tracer's geometry): the pictures agree but for soft edges and the sun's
+    // azimuth falling between two directions.
+    let dir = tempfile::tempdir().unwrap();
+    let out = common::synth_with_pyramid(
+        dir.path(),
+        SynthKind::Fractal,
+        160,
+        160,
+        3,
+        IngestOptions::default(),
+    );
+    let stage = terrabake::horizon::HorizonsStage {
+        sectors: 32,
+        curvature: Some(false),
+        encoding: terrabake::horizon::AngleChoice::Fixed(
+            terrabake_format::horizons::AngleEncoding::F32,
+        ),
+        ..Default::default()
+    };
+    run_stage(&out, &stage, false, Progress::hidden()).unwrap();
+    let asset = Asset::open(&out).unwrap();
+    let tracer = Tracer::new(&asset).unwrap();
+    let views = builtin_views(&tracer, &asset);
+    let picture = |view: &terrabake::render::Camera, shadows| {
+        let opts = RenderOptions {
+            width: 160,
+            height: 100,
+            method: Method::Hierarchical,
+            sun: Sun {
+                azimuth: 250.0,
+                elevation: 8.0,
+            },
+            every: 1,
+            shadows,
+            exaggeration: 1.0,
+        };
+        render(&asset, &tracer, view, &opts).unwrap().0.rgb
+    };
+    use terrabake::render::Shadows;
+    let differ = |a: &[u8], b: &[u8]| {
+        a.chunks(3)
+            .zip(b.chunks(3))
+            .filter(|(p, q)| p.iter().zip(q.iter()).any(|(x, y)| x.abs_diff(*y) > 3))
+            .count()
+    };
+    // The built-in view with the most shadow in it.
+    let (shadowed, view, rays) = views
+        .iter()
+        .map(|v| {
+            let rays = picture(v, Shadows::Rays);
+            (differ(&rays, &picture(v, Shadows::Off)), v, rays)
+        })
+        .max_by_key(|r| r.0)
+        .unwrap();
+    assert!(
+        shadowed > 160 * 100 / 50,
+        "the views have shadows: {shadowed}"
+    );
+    let disagree = differ(&rays, &picture(view, Shadows::Horizons));
+    eprintln!("{disagree} of {shadowed} shadowed pixels disagree");
+    assert!(
+        disagree * 10 < shadowed,
+        "{disagree} pixels disagree, {shadowed} shadowed"
+    );
 }
