@@ -31,8 +31,13 @@
 //! post is pushed, the hull vertex it lands next to is its horizon (the
 //! tangent from the leftmost point of an upper hull is its neighbour), so a
 //! line of `n` vertices costs `O(n)` in all. Timonen's convex hull tree keeps
-//! the popped branches to list every local horizon; the horizon alone needs
-//! only the stack, which is what this sweep keeps.
+//! the popped branches to list every local horizon ([`super::hull_tree`]);
+//! the horizon alone needs only the stack, which is what this sweep keeps.
+//!
+//! **Out of core.** [`BandedSweep`] walks the lines band of rows by band of
+//! rows, each line's hull carried from band to band; one band holding the
+//! whole DEM is the in-core case ([`line_horizons`]), and any banding gives
+//! the same bits.
 //!
 //! **Nodata and edges.** A vertex exists when a segment beside it lies in a
 //! cell with a surface; nodata posts receive nothing (NaN). A post with no

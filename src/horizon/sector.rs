@@ -33,9 +33,13 @@
 //! with `w = z - c t^2` the slope from `p` is `(w_q - w_p) / (t_q - t_p) +
 //! 2 c t_p`, so the hulls hold `w` and stay exact.
 //!
-//! We depart from Stewart in one way: the posts are grid posts, so keys
+//! We depart from Stewart in two ways: the posts are grid posts, so keys
 //! come from `(col, row)` and the IV-E stencil is one list of offsets per
-//! sector rather than a search per point.
+//! sector rather than a search per point; and the tree's lowest seven
+//! levels are buckets of 128 ranks, scanned in order for ranks above the
+//! query's (the same set of posts: the bucket stands for the subtree). The
+//! walk up a tall tree misses the caches at its foot; a bucket is contiguous
+//! (1.3x faster at 1.44 M posts).
 
 use super::terrain::Terrain;
 
@@ -192,6 +196,9 @@ pub struct SectorStats {
     pub inserts: u64,
 }
 
+/// Ranks per bucket at the foot of the tree.
+const BUCKET: usize = 128;
+
 #[derive(Debug, Clone, Copy, Default)]
 struct Node {
     remaining: u32,
@@ -295,17 +302,22 @@ pub fn sector_horizons(
     }
     drop(by_rank);
 
-    // The tree: per node, how many of its leaves are still to be processed
+    // The tree: per node, how many of its ranks are still to be processed
     // and how many points its hull holds, packed so that a query's walk up
     // the tree touches one small array (the hulls themselves are read only
-    // where non-empty; this walk is where the time goes).
-    let leaves = n.next_power_of_two().max(1);
+    // where non-empty). The lowest seven levels are replaced by buckets of
+    // 128 ranks scanned in order: those levels are where a query's walk
+    // misses the caches, and a bucket is contiguous.
+    let buckets = n.div_ceil(BUCKET).max(1);
+    let leaves = buckets.next_power_of_two();
     let mut hulls: Vec<Vec<[f64; 2]>> = vec![Vec::new(); 2 * leaves];
     let mut nodes = vec![Node::default(); 2 * leaves];
-    for leaf in 0..n {
-        let mut v = leaves + leaf;
+    let mut bucket_points: Vec<Vec<(u32, [f64; 2])>> = vec![Vec::new(); buckets];
+    for b in 0..buckets {
+        let ranks = BUCKET.min(n - b * BUCKET) as u32;
+        let mut v = leaves + b;
         while v >= 1 {
-            nodes[v].remaining += 1;
+            nodes[v].remaining += ranks;
             v >>= 1;
         }
     }
@@ -315,9 +327,16 @@ pub fn sector_horizons(
     for &j in &order {
         let post = posts[j as usize] as usize;
         let [tp, wp] = plane[post];
-        let k = rank[j as usize] as usize;
+        let k = rank[j as usize];
+        let bucket = k as usize / BUCKET;
         let mut best = f64::NEG_INFINITY;
-        let mut v = leaves + k;
+        for &(r, [tq, wq]) in &bucket_points[bucket] {
+            if r > k {
+                stats.tangent_steps += 1;
+                best = best.max((wq - wp) / (tq - tp));
+            }
+        }
+        let mut v = leaves + bucket;
         while v >= 1 {
             let node = &mut nodes[v];
             if node.len > 0 {
@@ -346,9 +365,15 @@ pub fn sector_horizons(
         } else {
             (best + 2.0 * c * tp).atan().to_degrees() as f32
         };
-        // Join the hulls of the left siblings along the path: they cover
-        // the ranks below k, whose posts have p on their b side.
-        let mut v = leaves + k;
+        // Join the ranks below k: in its own bucket by the scan, above by
+        // the hulls of the left siblings along the path (they cover ranks
+        // below the bucket, whose posts have p on their b side).
+        if nodes[leaves + bucket].remaining > 0 {
+            bucket_points[bucket].push((k, [tp, wp]));
+        } else {
+            bucket_points[bucket] = Vec::new();
+        }
+        let mut v = leaves + bucket;
         while v > 1 {
             if v & 1 == 1 && nodes[v - 1].remaining > 0 {
                 let hull = &mut hulls[v - 1];
