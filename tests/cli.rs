@@ -23,6 +23,14 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
+/// Writes `text` as a recipe next to `asset` and bakes `tif` into `asset`
+/// with it.
+fn bake_recipe(tif: &Path, asset: &Path, text: &str) -> std::process::Output {
+    let recipe = asset.with_extension("toml");
+    std::fs::write(&recipe, text).unwrap();
+    terrabake(&["bake", s(tif), "-o", s(asset), "--recipe", s(&recipe), "-q"])
+}
+
 #[test]
 fn every_synthetic_kind_ingests_verifies_and_round_trips_through_geotiff() {
     let dir = tempfile::tempdir().unwrap();
@@ -334,21 +342,12 @@ fn cones_from_the_command_line_and_from_recipes() {
     assert_eq!(bad.status.code(), Some(1));
     assert!(stderr(&bad).contains("--apex-gap"), "{}", stderr(&bad));
 
-    let recipe = dir.path().join("r.toml");
-    std::fs::write(
-        &recipe,
+    let baked = bake_recipe(
+        &tif,
+        &asset,
         "[[stage]]\nname = \"cones\"\nslices = 64\nencoding = \"u16\"\n",
-    )
-    .unwrap();
-    ok(&[
-        "bake",
-        s(&tif),
-        "-o",
-        s(&asset),
-        "--recipe",
-        s(&recipe),
-        "-q",
-    ]);
+    );
+    assert!(baked.status.success(), "{}", stderr(&baked));
     let a = Asset::open(&asset).unwrap();
     let slope = a.layer("cone_slope", 0).unwrap().entry();
     assert_eq!(slope.elem, terrabake_format::ElemType::U16);
@@ -360,8 +359,7 @@ fn cones_from_the_command_line_and_from_recipes() {
         .quantization
         .is_some());
 
-    std::fs::write(&recipe, "[[stage]]\nname = \"cones\"\nslice = 64\n").unwrap();
-    let bad = terrabake(&["bake", s(&tif), "-o", s(&asset), "--recipe", s(&recipe)]);
+    let bad = bake_recipe(&tif, &asset, "[[stage]]\nname = \"cones\"\nslice = 64\n");
     assert_eq!(bad.status.code(), Some(1));
     assert!(stderr(&bad).contains("'slice'"), "{}", stderr(&bad));
 }
@@ -500,27 +498,17 @@ fn horizons_from_the_command_line_export_shade_and_recipes() {
     assert!(stderr(&bad).contains("horizons"), "{}", stderr(&bad));
 
     // A recipe step, and its typo caught before any work.
-    let recipe = dir.path().join("r.toml");
-    std::fs::write(
-        &recipe,
+    let baked = bake_recipe(
+        &tif,
+        &asset,
         "[[stage]]\nname = \"horizons\"\nsectors = 7\nmethod = \"sector\"\nencoding = \"f32\"\n",
-    )
-    .unwrap();
-    ok(&[
-        "bake",
-        s(&tif),
-        "-o",
-        s(&asset),
-        "--recipe",
-        s(&recipe),
-        "-q",
-    ]);
+    );
+    assert!(baked.status.success(), "{}", stderr(&baked));
     let a = Asset::open(&asset).unwrap();
     let entry = a.layer(HORIZON, 0).unwrap().entry();
     assert_eq!(entry.bands, 7);
     assert!(entry.description.contains("Stewart"));
-    std::fs::write(&recipe, "[[stage]]\nname = \"horizons\"\nsector = 7\n").unwrap();
-    let bad = terrabake(&["bake", s(&tif), "-o", s(&asset), "--recipe", s(&recipe)]);
+    let bad = bake_recipe(&tif, &asset, "[[stage]]\nname = \"horizons\"\nsector = 7\n");
     assert_eq!(bad.status.code(), Some(1));
     assert!(stderr(&bad).contains("'sector'"), "{}", stderr(&bad));
 }

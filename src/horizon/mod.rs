@@ -487,22 +487,17 @@ impl BandWriter {
                 }
             }
         }
-        let codes = |f: &dyn Fn(f32) -> u32| angles.iter().map(|&a| f(a)).collect::<Vec<u32>>();
-        let tiles = match self.enc {
+        let enc = self.enc;
+        let code = |a: &f32| enc.encode(f64::from(*a));
+        let tiles = match enc {
             AngleEncoding::F32 => encode_tile_row(angles, w, ts, f32::NAN, Codec::Raw),
             AngleEncoding::U16 => {
-                let c: Vec<u16> = codes(&|a| self.enc.encode(f64::from(a)))
-                    .into_iter()
-                    .map(|c| c as u16)
-                    .collect();
-                encode_tile_row(&c, w, ts, 0u16, Codec::Raw)
+                let codes: Vec<u16> = angles.iter().map(|a| code(a) as u16).collect();
+                encode_tile_row(&codes, w, ts, 0u16, Codec::Raw)
             }
             AngleEncoding::U8 => {
-                let c: Vec<u8> = codes(&|a| self.enc.encode(f64::from(a)))
-                    .into_iter()
-                    .map(|c| c as u8)
-                    .collect();
-                encode_tile_row(&c, w, ts, 0u8, Codec::Raw)
+                let codes: Vec<u8> = angles.iter().map(|a| code(a) as u8).collect();
+                encode_tile_row(&codes, w, ts, 0u8, Codec::Raw)
             }
         };
         let ty = y0 / ts;
