@@ -1051,6 +1051,15 @@ fn describe(path: &Path, m: &terrabake_format::Manifest) -> String {
             l.chunks,
             l.file
         );
+        if !l.band_azimuths.is_empty() {
+            let azimuths: Vec<String> = l.band_azimuths.iter().map(|a| format!("{a:.2}")).collect();
+            let _ = writeln!(
+                s,
+                "  {:<16} band azimuths (deg): {}",
+                "",
+                azimuths.join(" ")
+            );
+        }
     }
     let _ = writeln!(
         s,
