@@ -9,17 +9,14 @@ set -euo pipefail
 BIN=${BIN:-target/release/terrabake}
 WORK=${WORK:-/tmp/terrabake-cones}
 mkdir -p "$WORK"
+source "$(dirname "$0")/bench_common.sh"
 echo "| side | cells | slices | bake (s) | peak RSS (MiB) | ns per cell per slice |"
 echo "| --- | --- | --- | --- | --- | --- |"
 for n in 1024 2048 4096 8192; do
-  if [ ! -d "$WORK/fractal_$n.tbake" ]; then
-    "$BIN" synth fractal --size "${n}x${n}" -o "$WORK/fractal_$n.tif" -q
-    "$BIN" ingest "$WORK/fractal_$n.tif" -o "$WORK/fractal_$n.tbake" -q
-    rm -f "$WORK/fractal_$n.tif"
-  fi
+  asset=$(fractal_asset "$n")
   cells=$(( (n - 1) * (n - 1) ))
   for k in 16 64 256 exact; do
-    /usr/bin/time -f "%e %M" -o "$WORK/time" "$BIN" cones "$WORK/fractal_$n.tbake" --slices "$k" --force -q
+    /usr/bin/time -f "%e %M" -o "$WORK/time" "$BIN" cones "$asset" --slices "$k" --force -q
     read -r secs kb < "$WORK/time"
     per=$( [ "$k" = exact ] && echo "-" || awk -v s="$secs" -v c="$cells" -v k="$k" 'BEGIN { printf "%.2f", s * 1e9 / c / k }')
     echo "| $n | $cells | $k | $secs | $(( kb / 1024 )) | $per |"

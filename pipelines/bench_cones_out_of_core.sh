@@ -10,13 +10,9 @@ BIN=${BIN:-target/release/terrabake}
 WORK=${WORK:-/tmp/terrabake-cones}
 N=16384
 mkdir -p "$WORK"
-if [ ! -d "$WORK/fractal_$N.tbake" ]; then
-  "$BIN" synth fractal --size "${N}x${N}" -o "$WORK/fractal_$N.tif" -q
-  "$BIN" ingest "$WORK/fractal_$N.tif" -o "$WORK/fractal_$N.tbake" -q
-  rm -f "$WORK/fractal_$N.tif"
-fi
-RUN="$BIN cones $WORK/fractal_$N.tbake --slices 16 --max-memory 256 --force"
-source "$(dirname "$0")/cgroup_run.sh"
+source "$(dirname "$0")/bench_common.sh"
+ASSET=$(fractal_asset "$N")
+RUN="$BIN cones $ASSET --slices 16 --max-memory 256 --force"
 if run_in_cgroup 512 "$WORK/ooc.log" $RUN; then
   grep -E "cones|Elapsed|Maximum resident|Exit" "$WORK/ooc.log"
   echo "cgroup limit 512 MiB; peak anonymous memory $PEAK_ANON_MIB MiB; peak usage with page cache $PEAK_CGROUP_MIB MiB"
@@ -24,4 +20,4 @@ else
   echo "(no memory cgroup: peak RSS only)"
   /usr/bin/time -v $RUN 2>&1 | grep -E "cones|Elapsed|Maximum resident"
 fi
-du -sh "$WORK/fractal_$N.tbake"
+du -sh "$ASSET"

@@ -12,13 +12,10 @@ mkdir -p "$WORK"
 echo
 echo "| DEM | method | sectors | time (s) | peak RSS (MiB) |"
 echo "| --- | --- | --- | --- | --- |"
+source "$(dirname "$0")/bench_common.sh"
 run() { # side method sectors
-  local asset="$WORK/fractal_$1.tbake"
-  if [ ! -d "$asset" ]; then
-    "$BIN" synth fractal --size "$1x$1" -o "$WORK/f.tif" -q
-    "$BIN" ingest "$WORK/f.tif" -o "$asset" -q
-    rm -f "$WORK/f.tif"
-  fi
+  local asset
+  asset=$(fractal_asset "$1")
   /usr/bin/time -f "%e %M" -o "$WORK/time.txt" "$BIN" horizons "$asset" --method "$2" --sectors "$3" --force -q
   read -r secs kb < "$WORK/time.txt"
   echo "| $1^2 | $2 | $3 | $secs | $((kb / 1024)) |"

@@ -196,51 +196,39 @@ pub enum PngStyle {
     Relief,
 }
 
-/// Rows `y0..` of band `band` of any layer as f32: f32 as stored, horizon
-/// angles decoded to degrees (NaN for nodata), other quantised layers
-/// through their `Quantization`, integers as numbers.
+/// Rows `y0..` of band `band` of any layer as f32: f32 as stored,
+/// quantised layers through their `Quantization` (its nodata code to NaN),
+/// other integers as numbers.
 pub fn read_rows_f32(layer: &Layer<Mmap>, band: u32, y0: u32, out: &mut [f32]) -> Result<()> {
-    use terrabake_format::horizons::{AngleEncoding, HORIZON};
-    use terrabake_format::ElemType;
-    let w = layer.width();
-    let n = (out.len() / w as usize) as u32;
+    use terrabake_format::{ElemType, Element};
+    fn codes<T: Element + Into<u64>>(
+        layer: &Layer<Mmap>,
+        band: u32,
+        y0: u32,
+        rows: u32,
+    ) -> Result<Vec<u64>> {
+        let w = layer.width();
+        let mut raw = vec![T::new_zeroed(); (w * rows) as usize];
+        layer.read_window(band, 0, y0, w, rows, &mut raw)?;
+        Ok(raw.into_iter().map(Into::into).collect())
+    }
     let entry = layer.entry();
-    let angles = (entry.name == HORIZON).then_some(()).and(match entry.elem {
-        ElemType::U8 => Some(AngleEncoding::U8),
-        ElemType::U16 => Some(AngleEncoding::U16),
-        _ => None,
-    });
-    let q = entry.quantization;
-    let decode = |code: u32| -> f32 {
-        if let Some(enc) = angles {
-            enc.decode(code).map_or(f32::NAN, |d| d as f32)
-        } else if let Some(q) = q {
-            (q.offset + q.scale * f64::from(code)) as f32
-        } else {
-            code as f32
-        }
-    };
-    match entry.elem {
-        ElemType::F32 => layer.read_window(band, 0, y0, w, n, out)?,
-        ElemType::U8 => {
-            let mut codes = vec![0u8; out.len()];
-            layer.read_window(band, 0, y0, w, n, &mut codes)?;
-            out.iter_mut()
-                .zip(codes)
-                .for_each(|(o, c)| *o = decode(u32::from(c)));
-        }
-        ElemType::U16 => {
-            let mut codes = vec![0u16; out.len()];
-            layer.read_window(band, 0, y0, w, n, &mut codes)?;
-            out.iter_mut()
-                .zip(codes)
-                .for_each(|(o, c)| *o = decode(u32::from(c)));
-        }
+    let rows = (out.len() / layer.width() as usize) as u32;
+    let codes = match entry.elem {
+        ElemType::F32 => return Ok(layer.read_window(band, 0, y0, layer.width(), rows, out)?),
+        ElemType::U8 => codes::<u8>(layer, band, y0, rows)?,
+        ElemType::U16 => codes::<u16>(layer, band, y0, rows)?,
         other => bail!(
             "layer {} holds {}; export reads f32, u16 and u8 layers",
             entry.key(),
             other.name()
         ),
+    };
+    for (o, code) in out.iter_mut().zip(codes) {
+        *o = match entry.quantization {
+            Some(q) => q.value(code).map_or(f32::NAN, |v| v as f32),
+            None => code as f32,
+        };
     }
     Ok(())
 }

@@ -872,34 +872,18 @@ fn run(cli: Cli) -> Result<ExitCode> {
                     Ok((m, k.parse::<usize>().context("--speed METHOD:COUNT")?))
                 })
                 .collect::<Result<Vec<_>>>()?;
-            let opts = terrabake::horizon::BandOptions {
-                max_distance: None,
-                narrow_check: true,
-            };
             let whole = Terrain::new(&z, w, h, cs.dx, cs.dy);
-            let speed_rows = bench::speed(&whole, &runs, opts);
-            let side = crop.min(w).min(h);
-            let (x0, y0) = ((w - side) / 2, (h - side) / 2);
-            let cropped: Vec<f32> = (y0..y0 + side)
-                .flat_map(|r| z[r * w + x0..r * w + x0 + side].iter().copied())
-                .collect();
-            let small = Terrain::new(&cropped, side, side, cs.dx, cs.dy);
-            let reference_bands = bench::Reference::new(&small, reference);
-            let mut rows = Vec::new();
-            for &m in &methods {
-                for &k in &counts {
-                    rows.push(bench::accuracy(&small, &reference_bands, m, k));
-                }
-            }
+            let speed_rows = bench::speed(&whole, &runs);
+            let study = bench::accuracy_study(&whole, crop, reference, &methods, &counts);
             if json {
                 println!(
                     "{}",
                     serde_json::to_string_pretty(&serde_json::json!({
                         "speed": speed_rows,
-                        "crop": side,
-                        "reference_directions": reference,
-                        "reference_seconds": reference_bands.seconds,
-                        "accuracy": rows,
+                        "crop": study.crop,
+                        "reference_directions": study.reference_directions,
+                        "reference_seconds": study.reference_seconds,
+                        "accuracy": study.rows,
                     }))?
                 );
             } else {
@@ -907,12 +891,13 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 println!();
                 println!(
                     "accuracy on a {side} x {side} crop, reference {reference} directions ({:.1} s):",
-                    reference_bands.seconds
+                    study.reference_seconds,
+                    side = study.crop
                 );
-                print!("{}", bench::accuracy_table_markdown(&rows));
+                print!("{}", bench::accuracy_table_markdown(&study.rows));
             }
             if let Some(prefix) = chart {
-                bench::accuracy_charts(&prefix, &rows)?;
+                bench::accuracy_charts(&prefix, &study.rows)?;
                 say(format!(
                     "wrote {}_horizon.svg and {}_svf.svg",
                     prefix.display(),

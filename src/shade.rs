@@ -57,61 +57,57 @@ const SUN_RADIUS: f64 = 0.27;
 
 /// Brightness in 0..1 of every post (NaN for nodata or no horizon), row-major.
 pub fn shade_posts(asset: &Asset<Mmap>, shade: Shade) -> Result<(Vec<f32>, usize, usize)> {
-    let (z, w, h) = read_heights(asset)?;
-    let (bands, azimuths) = read_horizons(asset)?;
-    let cs = &asset.manifest().cell_size;
-    let terrain = Terrain::new(&z, w, h, cs.dx, cs.dy);
-    let bounds = band_bounds(&azimuths);
-    let per_band = (64 / azimuths.len()).clamp(1, 8);
-    let uniform = SkyTable::new(
-        &bounds,
-        per_band,
-        256,
-        |_, el| if el >= 0.0 { 1.0 } else { 0.0 },
-    );
-    let glow = match shade {
-        Shade::Sky => None,
-        Shade::Sun(sun) => Some((
-            sun,
-            SkyTable::new(
-                &bounds,
-                per_band,
-                256,
-                sun_glow(sun.azimuth, sun.elevation, 20, 0.05),
-            ),
-        )),
-    };
-    let mut out = vec![f32::NAN; w * h];
-    out.par_chunks_mut(w).enumerate().for_each(|(row, out)| {
-        let mut horizon = vec![0f32; bands.len()];
-        for (col, o) in out.iter_mut().enumerate() {
-            let i = row * w + col;
-            for (b, band) in bands.iter().enumerate() {
-                horizon[b] = band[i];
-            }
-            let Some(normal) = terrain.normal(col, row) else {
-                continue;
-            };
-            if horizon.iter().any(|v| v.is_nan()) {
-                continue;
-            }
-            let svf_cosine = uniform.irradiance(normal, &horizon) / std::f64::consts::PI;
-            let value = match &glow {
-                None => radiosity(std::f64::consts::PI * svf_cosine, svf_cosine, ALBEDO),
-                Some((sun, table)) => {
-                    let (a, b, f) = bands_around(&azimuths, sun.azimuth);
-                    let hz = f64::from(horizon[a]) + f * f64::from(horizon[b] - horizon[a]);
-                    let lit = disc_fraction_above(sun.elevation, hz, SUN_RADIUS);
-                    let s = sun.direction();
-                    let direct =
-                        lit * (normal[0] * s[0] + normal[1] * s[1] + normal[2] * s[2]).max(0.0);
-                    let sky = table.irradiance(normal, &horizon);
-                    radiosity(std::f64::consts::PI * direct + sky, svf_cosine, ALBEDO)
+    use std::f64::consts::PI;
+    // The stage's cosine sky-view factor is the uniform sky's irradiance / pi.
+    let svf_layer = asset
+        .layer(terrabake_format::horizons::SVF_COSINE, 0)
+        .map_err(|e| {
+            anyhow::anyhow!("{e}: shaded maps need the horizons stage (terrabake horizons)")
+        })?;
+    let (w, h) = (svf_layer.width() as usize, svf_layer.height() as usize);
+    let mut svf_cosine = vec![0f32; w * h];
+    crate::export::read_rows_f32(svf_layer, 0, 0, &mut svf_cosine)?;
+    let mut out: Vec<f32> = svf_cosine
+        .iter()
+        .map(|&f| radiosity(PI * f64::from(f), f64::from(f), ALBEDO) as f32)
+        .collect();
+    if let Shade::Sun(sun) = shade {
+        let (z, _, _) = read_heights(asset)?;
+        let (bands, azimuths) = read_horizons(asset)?;
+        let cs = &asset.manifest().cell_size;
+        let terrain = Terrain::new(&z, w, h, cs.dx, cs.dy);
+        let per_band = (64 / azimuths.len()).clamp(1, 8);
+        let table = SkyTable::new(
+            &band_bounds(&azimuths),
+            per_band,
+            256,
+            sun_glow(sun.azimuth, sun.elevation, 20, 0.05),
+        );
+        let s = sun.direction();
+        // The sun's azimuth between two bands, as `lit_fraction` takes it.
+        let (a, b, f) = bands_around(&azimuths, sun.azimuth);
+        out.par_chunks_mut(w).enumerate().for_each(|(row, out)| {
+            let mut horizon = vec![0f32; bands.len()];
+            for (col, o) in out.iter_mut().enumerate() {
+                let i = row * w + col;
+                for (b, band) in bands.iter().enumerate() {
+                    horizon[b] = band[i];
                 }
-            };
-            *o = value as f32;
-        }
-    });
+                let Some(normal) = terrain.normal(col, row) else {
+                    continue;
+                };
+                if o.is_nan() || horizon.iter().any(|v| v.is_nan()) {
+                    continue;
+                }
+                let hz = f64::from(horizon[a]) + f * f64::from(horizon[b] - horizon[a]);
+                let lit = disc_fraction_above(sun.elevation, hz, SUN_RADIUS);
+                let direct =
+                    lit * (normal[0] * s[0] + normal[1] * s[1] + normal[2] * s[2]).max(0.0);
+                let sky = table.irradiance(normal, &horizon);
+                *o = radiosity(PI * direct + sky, f64::from(svf_cosine[i]), ALBEDO) as f32;
+            }
+        });
+    }
     // Stretch the 1st..99th percentiles to black..white: the map shows
     // relative light, as Stewart's figures do.
     let mut sorted: Vec<f32> = out.iter().copied().filter(|v| !v.is_nan()).collect();

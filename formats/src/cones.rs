@@ -139,6 +139,7 @@ pub fn apex_quantization(z_lo: f64, z_hi: f64, enc: ConeEncoding) -> Option<Quan
         ConeEncoding::F16 => Some(Quantization {
             offset: z_lo,
             scale: 1.0,
+            nodata: None,
         }),
         // Code 65534 already reaches the top, so that rounding up never
         // runs out of codes.
@@ -149,6 +150,7 @@ pub fn apex_quantization(z_lo: f64, z_hi: f64, enc: ConeEncoding) -> Option<Quan
             } else {
                 1.0
             },
+            nodata: None,
         }),
     }
 }

@@ -24,7 +24,8 @@
 //! | `f32` | the angle, NaN = nodata | itself | rounding |
 //!
 //! The layer's [`Quantization`] says the same (`offset = -90 - step`,
-//! `scale = step`), so generic readers decode it without this module.
+//! `scale = step`, `nodata = 0`), so generic readers decode it without this
+//! module.
 
 use crate::error::{Error, Result};
 use crate::manifest::Quantization;
@@ -117,6 +118,7 @@ impl AngleEncoding {
         self.codes().map(|_| Quantization {
             offset: -90.0 - step,
             scale: step,
+            nodata: Some(0),
         })
     }
 
@@ -309,8 +311,9 @@ mod tests {
                     "{enc:?} {deg} {back}"
                 );
                 if let Some(q) = enc.quantization() {
-                    let code = f64::from(enc.encode(deg));
-                    assert!((q.offset + q.scale * code - back).abs() < 1e-9);
+                    let value = q.value(u64::from(enc.encode(deg))).unwrap();
+                    assert!((value - back).abs() < 1e-9);
+                    assert_eq!(q.value(u64::from(enc.encode(f64::NAN))), None);
                 }
             }
         }

@@ -166,11 +166,21 @@ pub struct LayerEntry {
 
 /// An affine map from stored to real values: `real = offset + scale * stored`
 /// (`stored` being the element read as a number: a `u16` as an integer, an
-/// `f16` as its float value).
+/// `f16` as its float value), with an optional stored value that means
+/// nodata (horizon angles keep code 0 for it).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Quantization {
     pub offset: f64,
     pub scale: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub nodata: Option<u64>,
+}
+
+impl Quantization {
+    /// The real value of integer code `code`; `None` for the nodata code.
+    pub fn value(&self, code: u64) -> Option<f64> {
+        (self.nodata != Some(code)).then_some(self.offset + self.scale * code as f64)
+    }
 }
 
 impl LayerEntry {

@@ -54,11 +54,11 @@ pub struct SpeedRow {
     pub work_per_post_band: f64,
 }
 
-pub fn speed(terrain: &Terrain, runs: &[(Method, usize)], opts: BandOptions) -> Vec<SpeedRow> {
+pub fn speed(terrain: &Terrain, runs: &[(Method, usize)]) -> Vec<SpeedRow> {
     runs.iter()
         .map(|&(method, count)| {
             let bands = plan_bands(method, count, terrain.dx, terrain.dy, None);
-            let (_, seconds, work) = all_bands(terrain, &bands, opts);
+            let (_, seconds, work) = all_bands(terrain, &bands, BandOptions::default());
             let pb = (terrain.z.len() * count) as f64;
             SpeedRow {
                 method: method.name().into(),
@@ -86,37 +86,52 @@ pub struct AccuracyRow {
     pub svf_max: f64,
 }
 
-fn svf_of(bands: &[Band], values: &[Vec<f32>], post: usize) -> f64 {
+fn svf_of(integrals: &[BandIntegrals], values: &[Vec<f32>], post: usize) -> f64 {
     let mut sums = SkySums::default();
-    for (band, v) in bands.iter().zip(values) {
-        sums.add(
-            f64::from(v[post]),
-            &BandIntegrals::new(band.lo, band.hi),
-            [0.0, 0.0, 1.0],
-        );
+    for (band, v) in integrals.iter().zip(values) {
+        let h = f64::from(v[post]);
+        sums.add(h, h.to_radians().sin_cos(), band, [0.0, 0.0, 1.0]);
     }
     sums.svf()
 }
 
-/// The reference's bands and values on `terrain`.
+fn integrals(bands: &[Band]) -> Vec<BandIntegrals> {
+    bands
+        .iter()
+        .map(|b| BandIntegrals::new(b.lo, b.hi))
+        .collect()
+}
+
+/// The reference on `terrain`: its bands and values, the posts the errors
+/// are taken at (the central half) and its sky-view factor there.
 #[derive(Debug)]
 pub struct Reference {
     bands: Vec<Band>,
     values: Vec<Vec<f32>>,
+    posts: Vec<usize>,
+    svf: Vec<f64>,
     pub seconds: f64,
 }
 
 impl Reference {
     pub fn new(terrain: &Terrain, count: usize) -> Self {
         let bands = plan_bands(Method::Line, count, terrain.dx, terrain.dy, Some(0.1));
-        let opts = BandOptions {
-            max_distance: None,
-            narrow_check: true,
-        };
-        let (values, seconds, _) = all_bands(terrain, &bands, opts);
+        let (values, seconds, _) = all_bands(terrain, &bands, BandOptions::default());
+        let (w, h) = (terrain.width, terrain.height);
+        let posts: Vec<usize> = (h / 4..h - h / 4)
+            .flat_map(|r| (w / 4..w - w / 4).map(move |c| r * w + c))
+            .filter(|&i| !terrain.z[i].is_nan())
+            .collect();
+        let integrals = integrals(&bands);
+        let svf = posts
+            .iter()
+            .map(|&p| svf_of(&integrals, &values, p))
+            .collect();
         Self {
             bands,
             values,
+            posts,
+            svf,
             seconds,
         }
     }
@@ -131,17 +146,8 @@ pub fn accuracy(
     count: usize,
 ) -> AccuracyRow {
     let bands = plan_bands(method, count, terrain.dx, terrain.dy, None);
-    let opts = BandOptions {
-        max_distance: None,
-        narrow_check: true,
-    };
-    let (values, seconds, _) = all_bands(terrain, &bands, opts);
+    let (values, seconds, _) = all_bands(terrain, &bands, BandOptions::default());
     let azimuths: Vec<f64> = bands.iter().map(|b| b.azimuth).collect();
-    let (w, h) = (terrain.width, terrain.height);
-    let posts: Vec<usize> = (h / 4..h - h / 4)
-        .flat_map(|r| (w / 4..w - w / 4).map(move |c| r * w + c))
-        .filter(|&i| !terrain.z[i].is_nan())
-        .collect();
     let estimate = |post: usize, az: f64| -> f64 {
         match bands[0].kind {
             BandKind::Sector { count, .. } => {
@@ -155,18 +161,20 @@ pub fn accuracy(
             }
         }
     };
+    let posts = &reference.posts;
     let (mut sq, mut sum, mut n) = (0.0, 0.0, 0usize);
     for (rb, rv) in reference.bands.iter().zip(&reference.values) {
-        for &p in &posts {
+        for &p in posts {
             let d = estimate(p, rb.azimuth) - f64::from(rv[p]);
             sq += d * d;
             sum += d;
             n += 1;
         }
     }
+    let integrals = integrals(&bands);
     let (mut svf_sq, mut svf_max) = (0.0, 0f64);
-    for &p in &posts {
-        let d = svf_of(&bands, &values, p) - svf_of(&reference.bands, &reference.values, p);
+    for (&p, reference_svf) in posts.iter().zip(&reference.svf) {
+        let d = svf_of(&integrals, &values, p) - reference_svf;
         svf_sq += d * d;
         svf_max = svf_max.max(d.abs());
     }
@@ -178,6 +186,44 @@ pub fn accuracy(
         horizon_bias_deg: sum / n as f64,
         svf_rms: (svf_sq / posts.len() as f64).sqrt(),
         svf_max,
+    }
+}
+
+/// The accuracy study: on a centred `side x side` crop of `whole` (or all
+/// of it when smaller), the reference with `reference` directions and every
+/// method and count against it.
+#[derive(Debug, Serialize)]
+pub struct AccuracyStudy {
+    pub crop: usize,
+    pub reference_directions: usize,
+    pub reference_seconds: f64,
+    pub rows: Vec<AccuracyRow>,
+}
+
+pub fn accuracy_study(
+    whole: &Terrain,
+    side: usize,
+    reference: usize,
+    methods: &[Method],
+    counts: &[usize],
+) -> AccuracyStudy {
+    let side = side.min(whole.width).min(whole.height);
+    let (x0, y0) = ((whole.width - side) / 2, (whole.height - side) / 2);
+    let cropped: Vec<f32> = (y0..y0 + side)
+        .flat_map(|r| whole.z[r * whole.width + x0..][..side].iter().copied())
+        .collect();
+    let small = Terrain::new(&cropped, side, side, whole.dx, whole.dy);
+    let reference_bands = Reference::new(&small, reference);
+    let rows = methods
+        .iter()
+        .flat_map(|&m| counts.iter().map(move |&k| (m, k)))
+        .map(|(m, k)| accuracy(&small, &reference_bands, m, k))
+        .collect();
+    AccuracyStudy {
+        crop: side,
+        reference_directions: reference,
+        reference_seconds: reference_bands.seconds,
+        rows,
     }
 }
 

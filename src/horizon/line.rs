@@ -403,15 +403,17 @@ impl Sweep<'_> {
         z - c * t * t
     }
 
-    /// Pushes the crossings of the step that ends at the lane's post, far
-    /// first.
+    /// Pushes the crossings of the step from the lane's post to the one
+    /// before it (farther), far first. `checked`: the step may leave the
+    /// DEM (a line's first step), so every crossing is checked as with
+    /// nodata.
     #[inline]
-    fn push_crossings(&self, lane: &mut Lane, stats: &mut SweepStats) {
+    fn push_crossings(&self, lane: &mut Lane, checked: bool, stats: &mut SweepStats) {
         let n = self.placed.stencil.vertices.len();
         let (nc, nr) = (lane.col, lane.row);
         for k in (0..n - 1).rev() {
             let v = &self.placed.stencil.vertices[k];
-            let z = if self.nodata {
+            let z = if self.nodata || checked {
                 self.placed.vertex((nc, nr), k)
             } else {
                 Some(self.placed.height_unchecked(
@@ -464,14 +466,7 @@ impl Sweep<'_> {
             row,
             t: 0.0,
         };
-        let n = self.placed.stencil.vertices.len();
-        for k in (0..n - 1).rev() {
-            if let Some(z) = self.placed.vertex((col, row), k) {
-                let t = self.placed.stencil.vertices[k].s * self.len;
-                push(&mut lane.hull, t, self.w_of(t, z), &mut stats.pops);
-                stats.vertices += 1;
-            }
-        }
+        self.push_crossings(&mut lane, true, stats);
         self.receive(&mut lane, out, stats);
         lane
     }
@@ -496,7 +491,7 @@ impl Sweep<'_> {
                 return true;
             }
             (lane.col, lane.row, lane.t) = (nc, nr, lane.t - self.len);
-            self.push_crossings(lane, stats);
+            self.push_crossings(lane, false, stats);
             self.receive(lane, (&mut *out.0, out.1), stats);
         }
     }

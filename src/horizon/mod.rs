@@ -148,13 +148,23 @@ pub fn plan_bands(
         .collect()
 }
 
-/// Options that change every band's values.
+/// Options that change every band's values; the default is exact: the
+/// whole DEM, with Stewart's narrow-sector check.
 #[derive(Debug, Clone, Copy)]
 pub struct BandOptions {
     /// Metres; `None`: the whole DEM (exact).
     pub max_distance: Option<f64>,
     /// Stewart's narrow-sector check (sec. IV-E), for `sector`.
     pub narrow_check: bool,
+}
+
+impl Default for BandOptions {
+    fn default() -> Self {
+        Self {
+            max_distance: None,
+            narrow_check: true,
+        }
+    }
 }
 
 /// The horizon angles (degrees; NaN for nodata) of one band at every post,
@@ -557,6 +567,12 @@ fn sky_layers(
         let mut z = vec![0f32; (r1 - r0) * w];
         height.read_window(0, 0, r0 as u32, w as u32, (r1 - r0) as u32, &mut z)?;
         let terrain = Terrain::window(&z, (w, h), r0, (dx, dy));
+        // Per post of the row: its normal (once, not once per band) and how
+        // far the terrain could rise past the DEM's edge per metre of reach.
+        let normals: Vec<Option<[f64; 3]>> = (0..rows * w)
+            .into_par_iter()
+            .map(|i| terrain.normal(i % w, y0 + i / w))
+            .collect();
         let mut sums = vec![sky::SkySums::default(); rows * w];
         let mut edges = vec![0u16; rows * w];
         let mut angles = vec![0f32; rows * w];
@@ -570,13 +586,11 @@ fn sky_layers(
                     let row = y0 + r;
                     for col in 0..w {
                         let hz = f64::from(angles[col]);
-                        if hz.is_nan() {
+                        let Some(normal) = normals[r * w + col].filter(|_| !hz.is_nan()) else {
                             continue;
-                        }
-                        let normal = terrain
-                            .normal(col, row)
-                            .expect("a post with a horizon has a height");
-                        sums[col].add(hz, &integrals[b], normal);
+                        };
+                        let (sh, ch) = hz.to_radians().sin_cos();
+                        sums[col].add(hz, (sh, ch), &integrals[b], normal);
                         // Could terrain no higher than the DEM's top, just
                         // past the edge, rise above this horizon?
                         let d = edge_distance(
@@ -587,7 +601,6 @@ fn sky_layers(
                         );
                         let rise =
                             (z_max - f64::from(terrain.at(col, row)) - curvature * d * d) / d;
-                        let (sh, ch) = hz.to_radians().sin_cos();
                         if d == 0.0 || rise * ch > sh {
                             edges[col] += 1;
                         }
@@ -695,32 +708,12 @@ pub fn read_horizons(asset: &Asset<Mmap>) -> Result<(Vec<Vec<f32>>, Vec<f64>)> {
     let map = terrabake_format::horizons::HorizonMap::open(asset)
         .context("the asset has no usable horizon layer; run `terrabake horizons` first")?;
     let layer = asset.layer(HORIZON, 0)?;
-    let (w, h) = (layer.width(), layer.height());
-    let enc = map.encoding();
-    let mut bands = Vec::new();
-    for b in 0..layer.bands() {
-        let decoded: Vec<f32> = match enc {
-            AngleEncoding::F32 => {
-                let mut v = vec![0f32; (w * h) as usize];
-                layer.read_window(b, 0, 0, w, h, &mut v)?;
-                v
-            }
-            AngleEncoding::U16 => {
-                let mut v = vec![0u16; (w * h) as usize];
-                layer.read_window(b, 0, 0, w, h, &mut v)?;
-                v.iter()
-                    .map(|&c| enc.decode(u32::from(c)).map_or(f32::NAN, |d| d as f32))
-                    .collect()
-            }
-            AngleEncoding::U8 => {
-                let mut v = vec![0u8; (w * h) as usize];
-                layer.read_window(b, 0, 0, w, h, &mut v)?;
-                v.iter()
-                    .map(|&c| enc.decode(u32::from(c)).map_or(f32::NAN, |d| d as f32))
-                    .collect()
-            }
-        };
-        bands.push(decoded);
-    }
+    let bands = (0..layer.bands())
+        .map(|b| {
+            let mut v = vec![0f32; layer.width() as usize * layer.height() as usize];
+            crate::export::read_rows_f32(layer, b, 0, &mut v)?;
+            Ok(v)
+        })
+        .collect::<Result<Vec<_>>>()?;
     Ok((bands, map.azimuths().to_vec()))
 }

@@ -56,12 +56,18 @@ pub struct SkySums {
 }
 
 impl SkySums {
-    /// Adds a band whose horizon is `h_deg`, at a post with unit `normal`.
+    /// Adds a band whose horizon is `h_deg` (with `(sh, ch)` its sine and
+    /// cosine, which callers often need too), at a post with unit `normal`.
     /// The cosine integral is exact in elevation and in azimuth; only the
     /// clip to the tangent plane is taken at the band's centre.
-    pub fn add(&mut self, h_deg: f64, band: &BandIntegrals, normal: [f64; 3]) {
+    pub fn add(
+        &mut self,
+        h_deg: f64,
+        (sh, ch): (f64, f64),
+        band: &BandIntegrals,
+        normal: [f64; 3],
+    ) {
         let h = h_deg.to_radians();
-        let (sh, ch) = h.sin_cos();
         self.sin_sum += band.fraction * sh.max(0.0);
         self.zenith_sum += band.fraction * (90.0 - h_deg);
         let [nx, ny, nz] = normal;
@@ -208,7 +214,12 @@ mod tests {
         let bands = uniform_bands(16);
         let mut sums = SkySums::default();
         for &(lo, hi) in &bands {
-            sums.add(0.0, &BandIntegrals::new(lo, hi), [0.0, 0.0, 1.0]);
+            sums.add(
+                0.0,
+                0.0f64.to_radians().sin_cos(),
+                &BandIntegrals::new(lo, hi),
+                [0.0, 0.0, 1.0],
+            );
         }
         assert!((sums.svf() - 1.0).abs() < 1e-12);
         assert!((sums.svf_cosine() - 1.0).abs() < 1e-9);
@@ -224,7 +235,12 @@ mod tests {
         let bands = uniform_bands(64);
         let mut sums = SkySums::default();
         for &(lo, hi) in &bands {
-            sums.add(30.0, &BandIntegrals::new(lo, hi), [0.0, 0.0, 1.0]);
+            sums.add(
+                30.0,
+                30.0f64.to_radians().sin_cos(),
+                &BandIntegrals::new(lo, hi),
+                [0.0, 0.0, 1.0],
+            );
         }
         assert!((sums.svf() - 0.5).abs() < 1e-12);
         assert!((sums.svf_cosine() - 0.75).abs() < 1e-9);
@@ -240,7 +256,12 @@ mod tests {
         let bands = uniform_bands(64);
         let mut sums = SkySums::default();
         for &(lo, hi) in &bands {
-            sums.add(0.0, &BandIntegrals::new(lo, hi), normal);
+            sums.add(
+                0.0,
+                0.0f64.to_radians().sin_cos(),
+                &BandIntegrals::new(lo, hi),
+                normal,
+            );
         }
         let expected = (1.0 + tilt.cos()) / 2.0;
         assert!(
@@ -250,7 +271,12 @@ mod tests {
         );
         let mut open = SkySums::default();
         for &(lo, hi) in &bands {
-            open.add(-90.0, &BandIntegrals::new(lo, hi), normal);
+            open.add(
+                -90.0,
+                (-90.0f64).to_radians().sin_cos(),
+                &BandIntegrals::new(lo, hi),
+                normal,
+            );
         }
         assert!(
             (open.svf_cosine() - 1.0).abs() < 1e-3,

@@ -36,16 +36,7 @@ pub struct Terrain<'a> {
 impl<'a> Terrain<'a> {
     pub fn new(z: &'a [f32], width: usize, height: usize, dx: f64, dy: f64) -> Self {
         assert_eq!(z.len(), width * height, "{width} x {height} posts");
-        assert!(dx > 0.0 && dy > 0.0, "post spacing {dx} x {dy}");
-        Self {
-            z,
-            width,
-            height,
-            row0: 0,
-            dx,
-            dy,
-            curvature: 0.0,
-        }
+        Self::window(z, (width, height), 0, (dx, dy))
     }
 
     /// Rows `row0..row0 + z.len() / width` of a `width x height` DEM.
@@ -56,15 +47,16 @@ impl<'a> Terrain<'a> {
         (dx, dy): (f64, f64),
     ) -> Self {
         assert!(z.len() % width == 0 && row0 + z.len() / width <= height);
+        assert!(dx > 0.0 && dy > 0.0, "post spacing {dx} x {dy}");
         Self {
+            z,
+            width,
+            height,
             row0,
-            ..Self::new(z, width, z.len() / width, dx, dy)
+            dx,
+            dy,
+            curvature: 0.0,
         }
-        .with_height(height)
-    }
-
-    fn with_height(self, height: usize) -> Self {
-        Self { height, ..self }
     }
 
     pub fn with_curvature(self, curvature: f64) -> Self {

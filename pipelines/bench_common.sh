@@ -1,4 +1,18 @@
-# Sourced by the out-of-core benchmarks. run_in_cgroup LIMIT_MIB LOG CMD...
+# Sourced by the benchmark scripts (BIN and WORK set).
+#
+# fractal_asset N: the path of an N x N fractal asset in $WORK, made once
+# (synth, ingest, the GeoTIFF removed).
+fractal_asset() {
+  local asset="$WORK/fractal_$1.tbake"
+  if [ ! -d "$asset" ]; then
+    "$BIN" synth fractal --size "$1x$1" -o "$WORK/fractal_$1.tif" -q
+    "$BIN" ingest "$WORK/fractal_$1.tif" -o "$asset" -q
+    rm -f "$WORK/fractal_$1.tif"
+  fi
+  echo "$asset"
+}
+
+# run_in_cgroup LIMIT_MIB LOG CMD...
 # runs CMD under /usr/bin/time -v (output to LOG) inside a cgroup v1 memory
 # limit of LIMIT_MIB, after dropping the page cache so that every page the
 # run maps is charged to it, and sets PEAK_ANON_MIB (the process's own
