@@ -66,23 +66,34 @@ pub fn linear_unit_metres(dir: &[u16]) -> f64 {
     }
 }
 
+/// Metres per radian of longitude and of latitude at latitude `phi`
+/// (radians) on the WGS84 ellipsoid: the parallel's radius and the
+/// meridian's radius of curvature.
+fn metres_per_radian(phi: f64) -> (f64, f64) {
+    let w = (1.0 - WGS84_E2 * phi.sin().powi(2)).sqrt();
+    let prime_vertical = WGS84_A / w;
+    let meridional = WGS84_A * (1.0 - WGS84_E2) / (w * w * w);
+    (prime_vertical * phi.cos(), meridional)
+}
+
+/// Latitude (radians) of row `row` of a geographic grid.
+fn row_latitude(georef: &Georef, row: f64) -> f64 {
+    georef.post_to_world(0.0, row).1.to_radians()
+}
+
 /// Metric post spacing (dx, dy) of a georeferenced grid of `height` rows.
 /// Geographic grids are measured at the centre row on the WGS84 ellipsoid:
-/// the spacing varies with latitude, and stages that care (horizons) take it
-/// per row from the geotransform.
+/// the east-west spacing varies with latitude, and the horizon stage takes
+/// it per row ([`row_scale`]).
 pub fn cell_size(georef: &Georef, height: u32, linear_unit_m: f64) -> CellSize {
     let t = &georef.geotransform;
     let (sx, sy) = (t[1].hypot(t[4]), t[2].hypot(t[5]));
     match georef.crs_kind {
         CrsKind::Geographic => {
-            let (_, lat) = georef.post_to_world(0.0, f64::from(height) / 2.0);
-            let phi = lat.to_radians();
-            let w = (1.0 - WGS84_E2 * phi.sin().powi(2)).sqrt();
-            let prime_vertical = WGS84_A / w;
-            let meridional = WGS84_A * (1.0 - WGS84_E2) / (w * w * w);
+            let (east, north) = metres_per_radian(row_latitude(georef, f64::from(height) / 2.0));
             CellSize {
-                dx: sx.to_radians() * prime_vertical * phi.cos(),
-                dy: sy.to_radians() * meridional,
+                dx: sx.to_radians() * east,
+                dy: sy.to_radians() * north,
                 source: "geographic-centre".into(),
             }
         }
@@ -92,6 +103,20 @@ pub fn cell_size(georef: &Georef, height: u32, linear_unit_m: f64) -> CellSize {
             source: "projected".into(),
         },
     }
+}
+
+/// The east-west post spacing of every half row relative to the centre
+/// row's (`cell_size`'s `dx`), for `horizon::terrain::RowScale`: entry `2 r`
+/// at row `r`, `2 r + 1` midway to row `r + 1`. Empty (uniform) unless the
+/// grid is geographic.
+pub fn row_scale(georef: Option<&Georef>, height: u32) -> Vec<f64> {
+    let Some(georef) = georef.filter(|g| g.crs_kind == CrsKind::Geographic) else {
+        return Vec::new();
+    };
+    let centre = metres_per_radian(row_latitude(georef, f64::from(height) / 2.0)).0;
+    (0..(2 * height).saturating_sub(1))
+        .map(|half| metres_per_radian(row_latitude(georef, f64::from(half) / 2.0)).0 / centre)
+        .collect()
 }
 
 /// A GeoKey directory for a local metric grid with no named CRS (synthetic
@@ -144,6 +169,16 @@ mod tests {
         g.geotransform[3] = 60.5;
         let c = cell_size(&g, 1200, 1.0);
         assert!((c.dx - 46.50).abs() < 0.05, "{}", c.dx);
+        // Per row (posts at cell centres, half a cell in): about 60.5 N at
+        // the top, 59.5 N at the bottom, 1 at the centre row.
+        let s = row_scale(Some(&g), 1200);
+        assert_eq!(s.len(), 2399);
+        assert_eq!(s[1200], 1.0);
+        let half: f64 = 0.5 / 1200.0;
+        let ratio = |lat: f64| lat.to_radians().cos() / (60.0f64 - half).to_radians().cos();
+        assert!((s[0] - ratio(60.5 - half)).abs() < 1e-4, "{}", s[0]);
+        assert!((s[2398] - ratio(59.5 + half)).abs() < 1e-4, "{}", s[2398]);
+        assert!(row_scale(None, 10).is_empty());
     }
 
     #[test]

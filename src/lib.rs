@@ -17,7 +17,7 @@
 //!   sky-view factors, openness) and its algorithms.
 //! - [`render`]: perspective views traced through an asset (any method).
 //! - [`shade`]: overhead maps shaded from stored horizons (sky, sun).
-//! - [`bench`]: the cone planes' speed against their bake time.
+//! - [`bench`](mod@bench): the cone planes' speed against their bake time.
 //! - [`synth`]: synthetic terrains for tests and benchmarks.
 //! - [`export`]: layers out as GeoTIFF, OpenEXR or a PNG preview.
 

@@ -859,7 +859,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             json,
         } => {
             use terrabake::horizon::bench;
-            use terrabake::horizon::terrain::Terrain;
+            use terrabake::horizon::terrain::{RowScale, Terrain};
             let opened = open_asset(&asset)?;
             let (z, w, h) = terrabake::horizon::read_heights(&opened)?;
             let cs = &opened.manifest().cell_size;
@@ -872,7 +872,10 @@ fn run(cli: Cli) -> Result<ExitCode> {
                     Ok((m, k.parse::<usize>().context("--speed METHOD:COUNT")?))
                 })
                 .collect::<Result<Vec<_>>>()?;
-            let whole = Terrain::new(&z, w, h, cs.dx, cs.dy);
+            let georef = opened.manifest().georef.as_ref();
+            let row_scale = terrabake::geo::row_scale(georef, h as u32);
+            let whole =
+                Terrain::new(&z, w, h, cs.dx, cs.dy).with_row_scale(RowScale::new(&row_scale));
             let speed_rows = bench::speed(&whole, &runs);
             let study = bench::accuracy_study(&whole, crop, reference, &methods, &counts);
             if json {

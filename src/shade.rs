@@ -18,7 +18,7 @@ use terrabake_format::horizons::{bands_around, disc_fraction_above};
 use terrabake_format::{Asset, Mmap};
 
 use crate::horizon::sky::{radiosity, sun_glow, SkyTable};
-use crate::horizon::terrain::Terrain;
+use crate::horizon::terrain::{RowScale, Terrain};
 use crate::horizon::{band_bounds, read_heights, read_horizons};
 use crate::render::{Image, Sun};
 
@@ -75,7 +75,9 @@ pub fn shade_posts(asset: &Asset<Mmap>, shade: Shade) -> Result<(Vec<f32>, usize
         let (z, _, _) = read_heights(asset)?;
         let (bands, azimuths) = read_horizons(asset)?;
         let cs = &asset.manifest().cell_size;
-        let terrain = Terrain::new(&z, w, h, cs.dx, cs.dy);
+        let row_scale = crate::geo::row_scale(asset.manifest().georef.as_ref(), h as u32);
+        let terrain =
+            Terrain::new(&z, w, h, cs.dx, cs.dy).with_row_scale(RowScale::new(&row_scale));
         let per_band = (64 / azimuths.len()).clamp(1, 8);
         let table = SkyTable::new(
             &band_bounds(&azimuths),

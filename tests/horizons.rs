@@ -12,7 +12,7 @@ use terrabake::horizon::brute;
 use terrabake::horizon::hull_tree::{local_horizons_brute, HullTree};
 use terrabake::horizon::line::{self, GridDirection};
 use terrabake::horizon::sector::{sector_horizons, NarrowStencil, SectorFrame};
-use terrabake::horizon::terrain::{curvature_coefficient, Terrain};
+use terrabake::horizon::terrain::{curvature_coefficient, RowScale, Terrain};
 use terrabake::horizon::{band_horizons, plan_bands, BandKind, BandOptions, Method};
 use terrabake::synth::{self, SynthKind};
 
@@ -113,6 +113,74 @@ fn line_and_sector_equal_brute_force_on_the_real_dem_with_curvature() {
         }
         for index in 0..count {
             check_sector("SRTM crop, curved", &curved, index, count, true, 1e-3);
+        }
+    }
+}
+
+/// The half-row scales of a geographic grid whose `h` rows run from
+/// latitude `lat0` down by `dlat` degrees a row (`geo::row_scale`, the
+/// stage's own).
+fn geographic_scale(h: usize, lat0: f64, dlat: f64) -> Vec<f64> {
+    use terrabake::geo::{georef_from_keys, row_scale, GT_MODEL_TYPE};
+    let georef = georef_from_keys(
+        vec![1, 1, 0, 1, GT_MODEL_TYPE, 0, 1, 2],
+        vec![],
+        String::new(),
+        [0.0, 1.0 / 1200.0, 0.0, lat0, 0.0, -dlat],
+    );
+    row_scale(Some(&georef), h as u32)
+}
+
+#[test]
+fn line_and_sector_equal_brute_force_on_geographic_grids() {
+    // Rows from 70 N to 41.5 N: the east-west spacing more than doubles
+    // from top to bottom (far beyond any real tile, to make every error in
+    // the per-row geometry show).
+    let (w, h) = (23, 20);
+    let scale = geographic_scale(h, 70.0, 1.5);
+    assert!(scale[2 * (h - 1)] / scale[0] > 2.0);
+    for (i, kind) in [SynthKind::Fractal, SynthKind::Noise, SynthKind::Holes]
+        .into_iter()
+        .enumerate()
+    {
+        let z = synth_grid(kind, w, h, 11 + i as u64);
+        let t = Terrain::new(&z, w, h, 30.0, 25.0).with_row_scale(RowScale::new(&scale));
+        check_all(&format!("{kind:?}, geographic"), &t);
+        let curved = t.with_curvature(curvature_coefficient(0.13));
+        for band in plan_bands(Method::Line, 16, t.dx, t.dy, None) {
+            let BandKind::Line(dir) = &band.kind else {
+                unreachable!()
+            };
+            check_line("geographic, curved", &curved, dir, 1e-3);
+        }
+    }
+}
+
+#[test]
+fn geographic_rows_measure_east_west_distance_at_their_own_latitude() {
+    // A wall 50 m high along the east edge: from a post k columns west of it,
+    // looking east, the horizon is atan(50 / (k dx(row))), where dx(row) is
+    // the spacing at the row's latitude, not the centre row's.
+    let (w, h) = (12, 41);
+    let scale = geographic_scale(h, 60.0, 0.5);
+    // Rows from 60 N to 40 N.
+    let mut z = vec![0f32; w * h];
+    for row in 0..h {
+        z[row * w + w - 1] = 50.0;
+    }
+    let t = Terrain::new(&z, w, h, 30.0, 30.0).with_row_scale(RowScale::new(&scale));
+    // 60 N to 40 N: a degree of longitude is 0.65 times as long at the top.
+    assert!(t.dx_at(0) < 0.7 * t.dx_at(h - 1));
+    let east = plan_bands(Method::Line, 4, 30.0, 30.0, None).remove(1);
+    let (out, _) = band_horizons(&t, &east, BandOptions::default());
+    for row in [0, h / 2, h - 1] {
+        for k in [1, 6] {
+            let want = (50.0 / (k as f64 * t.dx_at(row))).atan().to_degrees();
+            let got = f64::from(out[row * w + w - 1 - k]);
+            assert!(
+                (got - want).abs() < 1e-4,
+                "row {row}, {k} west: {got} vs {want}"
+            );
         }
     }
 }
@@ -394,17 +462,29 @@ fn line_sweeps_by_bands_equal_one_band() {
     let mut z = synth_grid(SynthKind::Holes, w, h, 4);
     z[5 * w + 7] = f32::NAN;
     let (srtm, sdx, sdy) = common::srtm_crop((600, 400), (w as u32, h as u32));
-    for (name, z, dx, dy, curvature) in [
-        ("holes", &z, 30.0, 20.0, 0.0),
+    let scale = geographic_scale(h, 70.0, 1.0);
+    for (name, z, dx, dy, curvature, row_scale) in [
+        ("holes", &z, 30.0, 20.0, 0.0, RowScale::default()),
         (
             "SRTM crop, curved",
             &srtm,
             sdx,
             sdy,
             curvature_coefficient(0.13),
+            RowScale::default(),
+        ),
+        (
+            "holes, geographic",
+            &z,
+            30.0,
+            20.0,
+            0.0,
+            RowScale::new(&scale),
         ),
     ] {
-        let whole = Terrain::new(z, w, h, dx, dy).with_curvature(curvature);
+        let whole = Terrain::new(z, w, h, dx, dy)
+            .with_row_scale(row_scale)
+            .with_curvature(curvature);
         let mut dirs: Vec<GridDirection> = plan_bands(Method::Line, 16, dx, dy, None)
             .into_iter()
             .map(|b| match b.kind {
@@ -421,7 +501,8 @@ fn line_sweeps_by_bands_equal_one_band() {
             let mut one = vec![0f32; w * h];
             line::line_horizons(&whole, dir, &mut one);
             for rows in [1, 2, 3, 7, 16, h] {
-                let mut sweep = BandedSweep::new(dir, (w, h), (dx, dy), whole.has_nodata());
+                let mut sweep =
+                    BandedSweep::new(dir, (w, h), (dx, dy), row_scale, whole.has_nodata());
                 let mut banded = vec![0f32; w * h];
                 for band in sweep.bands(rows) {
                     let win = sweep.window(&band);
@@ -431,6 +512,7 @@ fn line_sweeps_by_bands_equal_one_band() {
                         win.start,
                         (dx, dy),
                     )
+                    .with_row_scale(row_scale)
                     .with_curvature(curvature);
                     sweep.sweep(
                         &window,

@@ -212,7 +212,8 @@ pub fn accuracy_study(
     let cropped: Vec<f32> = (y0..y0 + side)
         .flat_map(|r| whole.z[r * whole.width + x0..][..side].iter().copied())
         .collect();
-    let small = Terrain::new(&cropped, side, side, whole.dx, whole.dy);
+    let small = Terrain::new(&cropped, side, side, whole.dx, whole.dy)
+        .with_row_scale(whole.row_scale.crop(y0..y0 + side));
     let reference_bands = Reference::new(&small, reference);
     let rows = methods
         .iter()

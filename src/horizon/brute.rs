@@ -76,11 +76,19 @@ pub fn line_horizon(t: &Terrain, (col, row): (usize, usize), (a, b): (i64, i64))
             }
         }
     }
-    let step_len = (a * t.dx).hypot(b * t.dy);
+    // Metres from the post to parameter s: whole steps, each with the
+    // east-west spacing at its middle row, then the fraction of the next.
+    let step_len = |k: f64| {
+        (a * t.dx * t.row_scale.at_half((2.0 * pr + (2.0 * k + 1.0) * b) as i64)).hypot(b * t.dy)
+    };
+    let distance = |s: f64| {
+        let whole = s.floor();
+        (0..whole as i64).map(|k| step_len(k as f64)).sum::<f64>() + (s - whole) * step_len(whole)
+    };
     let mut best = f64::NEG_INFINITY;
     for s in crossings {
         if let Some(z) = surface_at(t, pc + a * s, pr + b * s) {
-            let d = s * step_len;
+            let d = distance(s);
             best = best.max((z - t.curvature * d * d - f64::from(zp)) / d);
         }
     }
@@ -103,18 +111,20 @@ pub fn sector_horizon(
     if zp.is_nan() {
         return f32::NAN;
     }
-    let kp = frame.keys(col, row);
-    let tp = frame.along(col, row);
+    let kp = frame.keys(t.key_position(col, row));
+    let tp = frame.along(t.key_position(col, row));
     let c = t.curvature;
     let slope = |qc: usize, qr: usize| {
-        let tq = frame.along(qc, qr);
+        let tq = frame.along(t.key_position(qc, qr));
         let dz = f64::from(t.at(qc, qr)) - c * (tq - tp) * (tq - tp) - f64::from(zp);
         dz / (tq - tp)
     };
     let mut best = f64::NEG_INFINITY;
     for qr in 0..t.height {
         for qc in 0..t.width {
-            if !t.at(qc, qr).is_nan() && SectorFrame::contains(&kp, &frame.keys(qc, qr)) {
+            if !t.at(qc, qr).is_nan()
+                && SectorFrame::contains(&kp, &frame.keys(t.key_position(qc, qr)))
+            {
                 best = best.max(slope(qc, qr));
             }
         }
@@ -123,7 +133,7 @@ pub fn sector_horizon(
         let (qc, qr) = (col as i64 + dc, row as i64 + dr);
         if t.contains(qc, qr)
             && !t.at(qc as usize, qr as usize).is_nan()
-            && frame.along(qc as usize, qr as usize) > tp
+            && frame.along(t.key_position(qc as usize, qr as usize)) > tp
         {
             best = best.max(slope(qc as usize, qr as usize));
         }

@@ -25,6 +25,11 @@
 //! is `(w_q - w_p) / (t_q - t_p) + 2 c t_p`, so one hull of `w` serves every
 //! post of the line, exactly.
 //!
+//! **Geographic grids.** A step's length uses the east-west spacing at its
+//! middle row ([`step_lengths`], [`RowScale`]), and `t` along a line sums
+//! the steps: the line stays straight in posts, its metric length exact to
+//! the spacing's variation within a step.
+//!
 //! **Sweep.** Each line is walked from its far end towards the near end;
 //! every vertex is pushed on a stack that is the upper hull of everything
 //! farther along the line, popping what falls below (Graham's scan). When a
@@ -47,7 +52,7 @@
 //! (far vertices must leave it), so [`line_horizon_within`] walks each post's
 //! line up to the distance instead: `O(distance)` per post.
 
-use super::terrain::Terrain;
+use super::terrain::{RowScale, Terrain};
 
 /// Largest `|a|`, `|b|` of a grid step considered.
 pub const MAX_STEP: i64 = 64;
@@ -63,11 +68,19 @@ pub struct GridDirection {
     pub nominal: f64,
 }
 
-impl GridDirection {
-    /// Metres between consecutive posts of a line.
-    pub fn step_length(&self, dx: f64, dy: f64) -> f64 {
-        (self.step.0 as f64 * dx).hypot(self.step.1 as f64 * dy)
-    }
+/// Metres of each step of direction `step` on a DEM of `height` rows:
+/// entry `r` is the step from a post on row `r` to the next post farther
+/// along (row `r + step.1`), with the east-west spacing at the step's middle
+/// row ([`RowScale`]; every step the same on a uniform grid).
+pub fn step_lengths(
+    (a, b): (i64, i64),
+    height: usize,
+    (dx, dy): (f64, f64),
+    row_scale: RowScale,
+) -> Vec<f64> {
+    (0..height as i64)
+        .map(|r| (a as f64 * dx * row_scale.at_half(2 * r + b)).hypot(b as f64 * dy))
+        .collect()
 }
 
 /// Compass azimuth (degrees) of the grid step `(a, b)`.
@@ -393,7 +406,8 @@ struct Lane {
 /// A sweep of one direction's lines over a band of rows.
 struct Sweep<'t> {
     placed: Placed<'t>,
-    len: f64,
+    /// [`step_lengths`] of the direction.
+    lengths: &'t [f64],
     nodata: bool,
 }
 
@@ -411,6 +425,7 @@ impl Sweep<'_> {
     fn push_crossings(&self, lane: &mut Lane, checked: bool, stats: &mut SweepStats) {
         let n = self.placed.stencil.vertices.len();
         let (nc, nr) = (lane.col, lane.row);
+        let len = self.lengths[nr as usize];
         for k in (0..n - 1).rev() {
             let v = &self.placed.stencil.vertices[k];
             let z = if self.nodata || checked {
@@ -423,7 +438,7 @@ impl Sweep<'_> {
                 ))
             };
             if let Some(z) = z {
-                let t = lane.t + v.s * self.len;
+                let t = lane.t + v.s * len;
                 push(&mut lane.hull, t, self.w_of(t, z), &mut stats.pops);
                 stats.vertices += 1;
             }
@@ -490,7 +505,7 @@ impl Sweep<'_> {
             if !rows.contains(&(nr as usize)) {
                 return true;
             }
-            (lane.col, lane.row, lane.t) = (nc, nr, lane.t - self.len);
+            (lane.col, lane.row, lane.t) = (nc, nr, lane.t - self.lengths[nr as usize]);
             self.push_crossings(lane, false, stats);
             self.receive(lane, (&mut *out.0, out.1), stats);
         }
@@ -511,7 +526,7 @@ impl Sweep<'_> {
 #[derive(Debug)]
 pub struct BandedSweep {
     stencil: Stencil,
-    len: f64,
+    lengths: Vec<f64>,
     width: usize,
     height: usize,
     nodata: bool,
@@ -526,12 +541,13 @@ impl BandedSweep {
     pub fn new(
         dir: &GridDirection,
         (width, height): (usize, usize),
-        (dx, dy): (f64, f64),
+        spacing: (f64, f64),
+        row_scale: RowScale,
         nodata: bool,
     ) -> Self {
         Self {
             stencil: Stencil::new(dir.step),
-            len: dir.step_length(dx, dy),
+            lengths: step_lengths(dir.step, height, spacing, row_scale),
             width,
             height,
             nodata,
@@ -579,7 +595,7 @@ impl BandedSweep {
                 t: window,
                 stencil: &self.stencil,
             },
-            len: self.len,
+            lengths: &self.lengths,
             nodata: self.nodata,
         };
         let stats = &mut self.stats;
@@ -620,6 +636,7 @@ pub fn line_horizons(terrain: &Terrain, dir: &GridDirection, out: &mut [f32]) ->
         dir,
         (terrain.width, terrain.height),
         (terrain.dx, terrain.dy),
+        terrain.row_scale,
         terrain.has_nodata(),
     );
     sweep.sweep(terrain, 0..terrain.height, out);
@@ -627,11 +644,12 @@ pub fn line_horizons(terrain: &Terrain, dir: &GridDirection, out: &mut [f32]) ->
 }
 
 /// The line horizon (degrees) of one post, looking no farther than
-/// `max_distance` metres: a walk along the post's line. NaN for nodata.
+/// `max_distance` metres: a walk along the post's line ([`step_lengths`] of
+/// its direction in `lengths`). NaN for nodata.
 pub fn line_horizon_within(
     terrain: &Terrain,
     stencil: &Stencil,
-    len: f64,
+    lengths: &[f64],
     (col, row): (i64, i64),
     max_distance: f64,
 ) -> f32 {
@@ -649,6 +667,7 @@ pub fn line_horizon_within(
     let mut base = (col, row);
     let mut t0 = 0.0;
     'walk: loop {
+        let len = lengths[base.1 as usize];
         for (k, v) in stencil.vertices.iter().enumerate() {
             let d = t0 + v.s * len;
             if d > max_distance {

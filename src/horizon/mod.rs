@@ -3,7 +3,7 @@
 //!
 //! Three methods, each exact for its own definition (see the modules):
 //!
-//! - [`line`]: the steepest sight line along the straight line from the
+//! - [`line`](mod@line): the steepest sight line along the straight line from the
 //!   post, on the surface the tracers use (Timonen 2013's sweeps, along grid
 //!   directions so that every post is on a line);
 //! - [`sector`]: Stewart's (1998) maximum over the closed azimuth wedge,
@@ -14,12 +14,15 @@
 //! [`brute`] has one-post-at-a-time references for `line` and `sector`,
 //! which the tests hold the fast algorithms to.
 //!
-//! **Stage.** The DEM is held in memory (4 bytes per post) with one band
-//! of output per worker; bands are computed in parallel (rayon), written
-//! band-major (sector-major) in compass order, and folded into the derived
-//! layers (`svf`, `svf_cosine`, `openness`) and the edge count as they
-//! arrive, so that the stage never holds more than a few bands. Out of
-//! core (DEMs larger than memory) is not done yet: see docs/HORIZONS.md.
+//! **Stage.** `line` without a maximum distance runs out of core: each
+//! direction is swept over tile-row bands of the DEM with every line's hull
+//! carried across ([`line::BandedSweep`]), directions in parallel. The other
+//! methods hold the DEM in memory (4 bytes per post) and one band of output
+//! per worker. Bands are written band-major (sector-major) in compass
+//! order; the derived layers (`svf`, `svf_cosine`, `openness`,
+//! `horizon_edge`) are then computed tile row by tile row from the stored
+//! angles (`sky_layers`). Geographic grids take their east-west spacing
+//! row by row ([`terrain::RowScale`]).
 
 pub mod bench;
 pub mod brute;
@@ -45,7 +48,7 @@ use crate::progress::Progress;
 use crate::stage::Stage;
 use crate::tiling::{encode_tile_row, push_tile_row};
 use line::GridDirection;
-use terrain::Terrain;
+use terrain::{RowScale, Terrain};
 
 /// Layer counting, per post, the bands whose horizon the DEM's edge may cut.
 pub const HORIZON_EDGE: &str = "horizon_edge";
@@ -176,7 +179,12 @@ pub fn band_horizons(terrain: &Terrain, band: &Band, opts: BandOptions) -> (Vec<
             None => line::line_horizons(terrain, dir, &mut out).vertices,
             Some(max) => {
                 let stencil = line::Stencil::new(dir.step);
-                let len = dir.step_length(terrain.dx, terrain.dy);
+                let lengths = line::step_lengths(
+                    dir.step,
+                    terrain.height,
+                    (terrain.dx, terrain.dy),
+                    terrain.row_scale,
+                );
                 out.par_chunks_mut(terrain.width)
                     .enumerate()
                     .for_each(|(row, out)| {
@@ -184,7 +192,7 @@ pub fn band_horizons(terrain: &Terrain, band: &Band, opts: BandOptions) -> (Vec<
                             *v = line::line_horizon_within(
                                 terrain,
                                 &stencil,
-                                len,
+                                &lengths,
                                 (col as i64, row as i64),
                                 max,
                             );
@@ -342,6 +350,8 @@ impl Stage for HorizonsStage {
             0.0
         };
         let (dx, dy) = (m.cell_size.dx, m.cell_size.dy);
+        let row_scale = crate::geo::row_scale(m.georef.as_ref(), h as u32);
+        let row_scale = RowScale::new(&row_scale);
         let bands = plan_bands(self.method, self.sectors, dx, dy, self.direction_tolerance);
         let enc = self.encoding.resolve();
         let aoi = self
@@ -392,8 +402,13 @@ impl Stage for HorizonsStage {
                     let BandKind::Line(dir) = &band.kind else {
                         unreachable!("line bands")
                     };
-                    let mut sweep =
-                        line::BandedSweep::new(dir, (w, h), (dx, dy), m.nodata.count > 0);
+                    let mut sweep = line::BandedSweep::new(
+                        dir,
+                        (w, h),
+                        (dx, dy),
+                        row_scale,
+                        m.nodata.count > 0,
+                    );
                     let mut rows_buf = Vec::new();
                     for rows in sweep.bands(ts) {
                         let window = sweep.window(&rows);
@@ -407,6 +422,7 @@ impl Stage for HorizonsStage {
                             &mut rows_buf,
                         )?;
                         let terrain = Terrain::window(&rows_buf, (w, h), window.start, (dx, dy))
+                            .with_row_scale(row_scale)
                             .with_curvature(curvature);
                         let mut angles = vec![0f32; rows.len() * w];
                         sweep.sweep(&terrain, rows.clone(), &mut angles);
@@ -417,7 +433,9 @@ impl Stage for HorizonsStage {
                 })?;
         } else {
             let (z, _, _) = read_heights(asset)?;
-            let terrain = Terrain::new(&z, w, h, dx, dy).with_curvature(curvature);
+            let terrain = Terrain::new(&z, w, h, dx, dy)
+                .with_row_scale(row_scale)
+                .with_curvature(curvature);
             let threads = rayon::current_num_threads().max(1);
             for (b, batch) in bands.chunks(threads).enumerate() {
                 let results: Vec<(Vec<f32>, u64)> = batch
@@ -541,6 +559,7 @@ fn sky_layers(
         height.tile_size() as usize,
     );
     let (dx, dy) = (m.cell_size.dx, m.cell_size.dy);
+    let row_scale = crate::geo::row_scale(m.georef.as_ref(), h as u32);
     let z_max = m.height_range.map_or(f64::INFINITY, |r| f64::from(r.max));
     let create = |name: &str, elem, description: &str| {
         LayerWriter::create(
@@ -566,7 +585,8 @@ fn sky_layers(
         let (r0, r1) = (y0.saturating_sub(1), (y0 + rows + 1).min(h));
         let mut z = vec![0f32; (r1 - r0) * w];
         height.read_window(0, 0, r0 as u32, w as u32, (r1 - r0) as u32, &mut z)?;
-        let terrain = Terrain::window(&z, (w, h), r0, (dx, dy));
+        let terrain =
+            Terrain::window(&z, (w, h), r0, (dx, dy)).with_row_scale(RowScale::new(&row_scale));
         // Per post of the row: its normal (once, not once per band) and how
         // far the terrain could rise past the DEM's edge per metre of reach.
         let normals: Vec<Option<[f64; 3]>> = (0..rows * w)
@@ -595,7 +615,7 @@ fn sky_layers(
                         // past the edge, rise above this horizon?
                         let d = edge_distance(
                             (w as u32, h as u32),
-                            (dx, dy),
+                            (terrain.dx_at(row), dy),
                             (col as f64, row as f64),
                             band.azimuth,
                         );

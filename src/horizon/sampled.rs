@@ -14,8 +14,10 @@ pub fn sampled_horizons(terrain: &Terrain, azimuth: f64, max_distance: f64, out:
     assert_eq!(out.len(), w * h);
     let (e, n) = compass(azimuth);
     let step = terrain.dx.min(terrain.dy);
-    // Posts per sample, columns east and rows south.
-    let (sc, sr) = (e * step / terrain.dx, -n * step / terrain.dy);
+    // Per sample: rows south, and east in units of the centre row's `dx`
+    // ([`Terrain::key_position`]: each row has its own spacing).
+    let (se, sr) = (e * step / terrain.dx, -n * step / terrain.dy);
+    let centre = (w / 2) as f64;
     let c = terrain.curvature;
     for row in 0..h {
         for col in 0..w {
@@ -24,11 +26,14 @@ pub fn sampled_horizons(terrain: &Terrain, azimuth: f64, max_distance: f64, out:
                 out[row * w + col] = f32::NAN;
                 continue;
             }
+            let east = terrain.key_position(col, row).0;
             let mut best = f64::NEG_INFINITY;
             let mut k = 1.0;
             loop {
                 let d = k * step;
-                let (qc, qr) = ((col as f64 + k * sc).round(), (row as f64 + k * sr).round());
+                let qr = (row as f64 + k * sr).round();
+                let scale = terrain.row_scale.at_half(2 * qr as i64);
+                let qc = (centre + (east + k * se) / scale).round();
                 if d > max_distance || !terrain.contains(qc as i64, qr as i64) {
                     break;
                 }

@@ -47,7 +47,7 @@ use super::terrain::Terrain;
 #[derive(Debug, Clone, Copy)]
 pub struct SectorFrame {
     /// Unit-ish (east, north) of the clockwise boundary `a` and the
-    /// counter-clockwise one `b`, in the key frame (see [`Self::key_point`]).
+    /// counter-clockwise one `b`, in key units ([`Terrain::key_position`]).
     lo: (f64, f64),
     hi: (f64, f64),
     /// Unit (east, north) of the centre line, metres.
@@ -98,14 +98,15 @@ impl SectorFrame {
         index as f64 * 360.0 / count as f64
     }
 
-    fn key_point(&self, col: f64, row: f64) -> (f64, f64) {
-        (col, -row * self.aspect)
+    /// An offset of `(dcol, drow)` posts in key units, at the spacing of
+    /// the centre row.
+    fn key_offset(&self, dcol: f64, drow: f64) -> (f64, f64) {
+        (dcol, -drow * self.aspect)
     }
 
-    /// The four keys of a post: along `a_perp` and `a` (order), along
-    /// `b_perp` and `b` (rank).
-    pub fn keys(&self, col: usize, row: usize) -> [f64; 4] {
-        let (e, n) = self.key_point(col as f64, row as f64);
+    /// The four keys of a post at `key_position` ([`Terrain::key_position`]):
+    /// along `a_perp` and `a` (order), along `b_perp` and `b` (rank).
+    pub fn keys(&self, (e, n): (f64, f64)) -> [f64; 4] {
         let (a, b) = (self.lo, self.hi);
         // `+ 0.0` turns -0 into 0, so that sorting and comparing agree.
         [
@@ -117,10 +118,9 @@ impl SectorFrame {
         .map(|k| k + 0.0)
     }
 
-    /// Metres along the centre line.
-    pub fn along(&self, col: usize, row: usize) -> f64 {
-        let (e, n) = (col as f64 * self.dx, -(row as f64) * self.dx * self.aspect);
-        self.centre.0 * e + self.centre.1 * n
+    /// Metres along the centre line of the post at `key_position`.
+    pub fn along(&self, (e, n): (f64, f64)) -> f64 {
+        (self.centre.0 * e + self.centre.1 * n) * self.dx
     }
 
     /// Whether post `q` (keys `kq`) is in the closed wedge of post `p`.
@@ -177,7 +177,7 @@ impl NarrowStencil {
                 if (dc, dr) == (0, 0) || e.hypot(n) > radius {
                     continue;
                 }
-                let centre = frame.key_point(dc as f64, dr as f64);
+                let centre = frame.key_offset(dc as f64, dr as f64);
                 if frame.touches_rect(centre, (0.5, 0.5 * frame.aspect)) {
                     offsets.push((dc, dr));
                 }
@@ -274,14 +274,12 @@ pub fn sector_horizons(
         .map(|i| i as u32)
         .collect();
     let n = posts.len();
-    let keys: Vec<[f64; 4]> = posts
-        .iter()
-        .map(|&i| frame.keys(i as usize % w, i as usize / w))
-        .collect();
+    let position = |i: u32| terrain.key_position(i as usize % w, i as usize / w);
+    let keys: Vec<[f64; 4]> = posts.iter().map(|&i| frame.keys(position(i))).collect();
     // Centre-plane coordinates (t, w) per post (NaN where nodata).
     let mut plane = vec![[f64::NAN; 2]; w * h];
     for &i in &posts {
-        let t = frame.along(i as usize % w, i as usize / w);
+        let t = frame.along(position(i));
         plane[i as usize] = [t, f64::from(terrain.z[i as usize]) - c * t * t];
     }
     // Processing order: a_perp descending, ties by a descending (IV-D).
@@ -412,12 +410,15 @@ mod tests {
         let f = SectorFrame::new(0, 4, 1.0, 1.0);
         assert_eq!(f.lo, (-1.0, 1.0));
         assert_eq!(f.hi, (1.0, 1.0));
+        let z = [0f32; 100];
+        let t = Terrain::new(&z, 10, 10, 1.0, 1.0);
+        let keys = |col, row| f.keys(t.key_position(col, row));
         // The post one up and one right of (5, 5) is on the hi boundary.
-        let (p, q) = (f.keys(5, 5), f.keys(6, 4));
+        let (p, q) = (keys(5, 5), keys(6, 4));
         assert!(SectorFrame::contains(&p, &q));
         // ... and so is the one up-left; the ones behind are not.
-        assert!(SectorFrame::contains(&p, &f.keys(4, 4)));
-        assert!(!SectorFrame::contains(&p, &f.keys(4, 6)));
-        assert!(!SectorFrame::contains(&p, &f.keys(5, 5)));
+        assert!(SectorFrame::contains(&p, &keys(4, 4)));
+        assert!(!SectorFrame::contains(&p, &keys(4, 6)));
+        assert!(!SectorFrame::contains(&p, &keys(5, 5)));
     }
 }

@@ -14,10 +14,58 @@ pub fn curvature_coefficient(refraction: f64) -> f64 {
     (1.0 - refraction) / (2.0 * EARTH_RADIUS)
 }
 
+/// The east-west post spacing row by row, relative to [`Terrain::dx`].
+///
+/// On a geographic (latitude/longitude) grid a column step is a fixed
+/// fraction of a degree of longitude, whose length shrinks with the cosine
+/// of latitude: 1.8 % from edge to edge of a one-degree tile at 45 N. The
+/// horizon methods place post `(col, row)` at `((col - c) * dx(row), -row *
+/// dy)` metres, `c` the centre column (the sinusoidal projection about the
+/// DEM's central meridian, exact along every row and along the central
+/// meridian), and measure a line's steps with the spacing at each step's
+/// middle. Uniform (every scale 1) on projected and local grids.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct RowScale<'a> {
+    /// Entry `2 r` is row `r`, entry `2 r + 1` midway between rows `r` and
+    /// `r + 1`; empty: 1 everywhere.
+    half_rows: &'a [f64],
+}
+
+impl<'a> RowScale<'a> {
+    /// Scales at every half row of an `h`-row DEM: `2 h - 1` entries.
+    pub fn new(half_rows: &'a [f64]) -> Self {
+        Self { half_rows }
+    }
+
+    pub fn is_uniform(&self) -> bool {
+        self.half_rows.is_empty()
+    }
+
+    /// The scales of rows `rows` alone (a crop of the DEM).
+    pub fn crop(&self, rows: std::ops::Range<usize>) -> Self {
+        if self.is_uniform() || rows.is_empty() {
+            return *self;
+        }
+        Self::new(&self.half_rows[2 * rows.start..2 * rows.end - 1])
+    }
+
+    /// The scale at half row `half` (row `half / 2`), clamped to the DEM's
+    /// rows (a line's first step may reach past the edge).
+    #[inline]
+    pub fn at_half(&self, half: i64) -> f64 {
+        match self.half_rows.len() {
+            0 => 1.0,
+            n => self.half_rows[half.clamp(0, n as i64 - 1) as usize],
+        }
+    }
+}
+
 /// A row-major grid of posts; row 0 is the north edge, column 0 the west.
-/// Post `(col, row)` stands at `col * dx` metres east and `row * dy` metres
-/// south of post `(0, 0)`. It may hold only a window of rows of the DEM
-/// (out-of-core sweeps): `z` is rows `row0..` of a `width x height` grid.
+/// Post `(col, row)` stands `row * dy` metres south of row 0 and
+/// `(col - c) * dx * scale(row)` metres east of the centre column `c`
+/// ([`RowScale`]).
+/// It may hold only a window of rows of the DEM (out-of-core sweeps): `z` is
+/// rows `row0..` of a `width x height` grid.
 #[derive(Debug, Clone, Copy)]
 pub struct Terrain<'a> {
     /// Heights in metres, NaN for nodata, from row `row0` on.
@@ -26,8 +74,11 @@ pub struct Terrain<'a> {
     /// Rows of the whole DEM.
     pub height: usize,
     pub row0: usize,
+    /// Metres between columns (on the centre row of a geographic grid).
     pub dx: f64,
     pub dy: f64,
+    /// East-west spacing per row relative to `dx` (geographic grids).
+    pub row_scale: RowScale<'a>,
     /// `c` of the curvature drop `c * d^2` over horizontal distance `d`
     /// (0: a flat earth). See [`curvature_coefficient`].
     pub curvature: f64,
@@ -55,8 +106,15 @@ impl<'a> Terrain<'a> {
             row0,
             dx,
             dy,
+            row_scale: RowScale::default(),
             curvature: 0.0,
         }
+    }
+
+    pub fn with_row_scale(self, row_scale: RowScale<'a>) -> Self {
+        let n = row_scale.half_rows.len();
+        assert!(n == 0 || n == 2 * self.height - 1, "{n} half rows");
+        Self { row_scale, ..self }
     }
 
     pub fn with_curvature(self, curvature: f64) -> Self {
@@ -87,9 +145,18 @@ impl<'a> Terrain<'a> {
         self.z.iter().any(|v| v.is_nan())
     }
 
-    /// Metres east and north of post `(col, row)` from post `(0, 0)`.
-    pub fn east_north(&self, col: f64, row: f64) -> (f64, f64) {
-        (col * self.dx, -row * self.dy)
+    /// Metres between columns on row `row`.
+    pub fn dx_at(&self, row: usize) -> f64 {
+        self.dx * self.row_scale.at_half(2 * row as i64)
+    }
+
+    /// Where post `(col, row)` stands, in units of `dx`: east of the centre
+    /// column and north of row 0. On a uniform grid both are integers times
+    /// exact factors (east exactly `col - c`), so that posts on a grid
+    /// diagonal tie exactly.
+    pub fn key_position(&self, col: usize, row: usize) -> (f64, f64) {
+        let east = (col as f64 - (self.width / 2) as f64) * self.row_scale.at_half(2 * row as i64);
+        (east, -(row as f64) * (self.dy / self.dx))
     }
 
     /// The surface normal at a post (unit, upward), from central
@@ -115,7 +182,7 @@ impl<'a> Terrain<'a> {
         let dz_east = slope(
             sample(col.checked_sub(1), Some(row)),
             sample(Some(col + 1), Some(row)),
-            self.dx,
+            self.dx_at(row),
         );
         // Rows grow southwards: north is row - 1.
         let dz_north = slope(
