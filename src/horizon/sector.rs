@@ -199,6 +199,50 @@ pub struct SectorStats {
 /// Ranks per bucket at the foot of the tree.
 const BUCKET: usize = 128;
 
+/// The processed posts of one bucket: rank (as f64, exact) and centre-plane
+/// `(t, w)`, column by column so that a scan runs in SIMD lanes.
+#[derive(Debug, Clone, Default)]
+struct Bucket {
+    rank: Vec<f64>,
+    t: Vec<f64>,
+    w: Vec<f64>,
+}
+
+impl Bucket {
+    fn push(&mut self, rank: f64, t: f64, w: f64) {
+        self.rank.push(rank);
+        self.t.push(t);
+        self.w.push(w);
+    }
+
+    /// Steepest slope from `(tp, wp)` to the posts ranked above `rank`:
+    /// every entry, the others masked out (a branch on the rank would go
+    /// either way at random), in four independent lanes.
+    fn steepest_above(&self, rank: f64, tp: f64, wp: f64) -> f64 {
+        const LANES: usize = 4;
+        let mut best = [f64::NEG_INFINITY; LANES];
+        let lane = |best: &mut f64, r: f64, t: f64, w: f64| {
+            let slope = (w - wp) / (t - tp);
+            *best = steeper(*best, if r > rank { slope } else { f64::NEG_INFINITY });
+        };
+        let (r, t, w) = (&self.rank, &self.t, &self.w);
+        let whole = r.len() / LANES * LANES;
+        for ((r, t), w) in r[..whole]
+            .chunks_exact(LANES)
+            .zip(t[..whole].chunks_exact(LANES))
+            .zip(w[..whole].chunks_exact(LANES))
+        {
+            for l in 0..LANES {
+                lane(&mut best[l], r[l], t[l], w[l]);
+            }
+        }
+        for i in whole..r.len() {
+            lane(&mut best[0], r[i], t[i], w[i]);
+        }
+        best.into_iter().fold(f64::NEG_INFINITY, steeper)
+    }
+}
+
 #[derive(Debug, Clone, Copy, Default)]
 struct Node {
     remaining: u32,
@@ -246,6 +290,17 @@ fn hull_tangent(hull: &[[f64; 2]], t: f64, w: f64, steps: &mut u64) -> f64 {
     best
 }
 
+/// The larger of two slopes, NaN-blind (one `maxsd`; `f64::max` adds NaN
+/// handling that the hull walks never need).
+#[inline]
+fn steeper(a: f64, b: f64) -> f64 {
+    if b > a {
+        b
+    } else {
+        a
+    }
+}
+
 /// Order-preserving `u64` of an `f64` (for radix-friendly sorting keys).
 fn ordered(v: f64) -> u64 {
     let bits = v.to_bits();
@@ -275,30 +330,32 @@ pub fn sector_horizons(
         .collect();
     let n = posts.len();
     let position = |i: u32| terrain.key_position(i as usize % w, i as usize / w);
-    let keys: Vec<[f64; 4]> = posts.iter().map(|&i| frame.keys(position(i))).collect();
     // Centre-plane coordinates (t, w) per post (NaN where nodata).
     let mut plane = vec![[f64::NAN; 2]; w * h];
     for &i in &posts {
         let t = frame.along(position(i));
         plane[i as usize] = [t, f64::from(terrain.z[i as usize]) - c * t * t];
     }
-    // Processing order: a_perp descending, ties by a descending (IV-D).
-    let mut order: Vec<u32> = (0..n as u32).collect();
-    order.sort_unstable_by_key(|&j| {
-        let k = &keys[j as usize];
-        std::cmp::Reverse((ordered(k[0]), ordered(k[1])))
-    });
-    // Ranks: b_perp ascending, ties by b ascending.
-    let mut by_rank: Vec<u32> = (0..n as u32).collect();
-    by_rank.sort_unstable_by_key(|&j| {
-        let k = &keys[j as usize];
-        (ordered(k[2]), ordered(k[3]))
-    });
+    // The two orders, sorted with their keys in place (sorting indices by
+    // keys looked up elsewhere misses the cache on every comparison).
+    let mut by_a = Vec::with_capacity(n);
+    let mut by_b = Vec::with_capacity(n);
+    for (j, &i) in posts.iter().enumerate() {
+        let k = frame.keys(position(i)).map(ordered);
+        // Processing order: a_perp descending, ties by a descending (IV-D);
+        // `!` reverses an order-preserving key.
+        by_a.push((!k[0], !k[1], j as u32));
+        // Ranks: b_perp ascending, ties by b ascending.
+        by_b.push((k[2], k[3], j as u32));
+    }
+    by_a.sort_unstable();
+    by_b.sort_unstable();
+    let order: Vec<u32> = by_a.into_iter().map(|(_, _, j)| j).collect();
     let mut rank = vec![0u32; n];
-    for (r, &j) in by_rank.iter().enumerate() {
+    for (r, &(_, _, j)) in by_b.iter().enumerate() {
         rank[j as usize] = r as u32;
     }
-    drop(by_rank);
+    drop(by_b);
 
     // The tree: per node, how many of its ranks are still to be processed
     // and how many points its hull holds, packed so that a query's walk up
@@ -310,7 +367,7 @@ pub fn sector_horizons(
     let leaves = buckets.next_power_of_two();
     let mut hulls: Vec<Vec<[f64; 2]>> = vec![Vec::new(); 2 * leaves];
     let mut nodes = vec![Node::default(); 2 * leaves];
-    let mut bucket_points: Vec<Vec<(u32, [f64; 2])>> = vec![Vec::new(); buckets];
+    let mut bucket_points: Vec<Bucket> = vec![Bucket::default(); buckets];
     for b in 0..buckets {
         let ranks = BUCKET.min(n - b * BUCKET) as u32;
         let mut v = leaves + b;
@@ -327,18 +384,17 @@ pub fn sector_horizons(
         let [tp, wp] = plane[post];
         let k = rank[j as usize];
         let bucket = k as usize / BUCKET;
-        let mut best = f64::NEG_INFINITY;
-        for &(r, [tq, wq]) in &bucket_points[bucket] {
-            if r > k {
-                stats.tangent_steps += 1;
-                best = best.max((wq - wp) / (tq - tp));
-            }
-        }
+        let kf = f64::from(k);
+        let mut best = bucket_points[bucket].steepest_above(kf, tp, wp);
+        stats.tangent_steps += bucket_points[bucket].rank.len() as u64;
         let mut v = leaves + bucket;
         while v >= 1 {
             let node = &mut nodes[v];
             if node.len > 0 {
-                best = best.max(hull_tangent(&hulls[v], tp, wp, &mut stats.tangent_steps));
+                best = steeper(
+                    best,
+                    hull_tangent(&hulls[v], tp, wp, &mut stats.tangent_steps),
+                );
             }
             node.remaining -= 1;
             if node.remaining == 0 && node.len > 0 {
@@ -353,7 +409,7 @@ pub fn sector_horizons(
                 if terrain.contains(col + dc, row + dr) {
                     let [tq, wq] = plane[(row + dr) as usize * w + (col + dc) as usize];
                     if tq > tp {
-                        best = best.max((wq - wp) / (tq - tp));
+                        best = steeper(best, (wq - wp) / (tq - tp));
                     }
                 }
             }
@@ -367,9 +423,9 @@ pub fn sector_horizons(
         // the hulls of the left siblings along the path (they cover ranks
         // below the bucket, whose posts have p on their b side).
         if nodes[leaves + bucket].remaining > 0 {
-            bucket_points[bucket].push((k, [tp, wp]));
+            bucket_points[bucket].push(kf, tp, wp);
         } else {
-            bucket_points[bucket] = Vec::new();
+            bucket_points[bucket] = Bucket::default();
         }
         let mut v = leaves + bucket;
         while v > 1 {
