@@ -190,7 +190,9 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
         /// line (exact sight lines), sector (Stewart's wedges) or sampled (baseline).
         #[arg(long, value_enum, default_value = "line")]
         method: HorizonMethod,
-        /// Look no farther than this many metres (line and sampled; default: the whole DEM).
+        /// Look no farther than this many metres (default: the whole DEM, exact). Bounded
+        /// line and sector horizons walk or scan each post's reach: O(M) and O(M^2 / S) per post;
+        /// bounded sector runs out of core.
         #[arg(long, value_parser = parse_positive)]
         max_distance: Option<f64>,
         /// Earth curvature, drop d^2 (1 - k) / 2R: on, off (default: on for georeferenced DEMs).

@@ -472,10 +472,6 @@ fn horizons_from_the_command_line_export_shade_and_recipes() {
     for (args, says) in [
         (vec!["--sectors", "2"], "--sectors 2"),
         (vec!["--aoi", "0,0,500,10"], "--aoi"),
-        (
-            vec!["--method", "sector", "--max-distance", "1000"],
-            "--max-distance",
-        ),
     ] {
         let mut all = vec!["horizons", s(&aoi), "--force"];
         all.extend(args);
@@ -511,4 +507,48 @@ fn horizons_from_the_command_line_export_shade_and_recipes() {
     let bad = bake_recipe(&tif, &asset, "[[stage]]\nname = \"horizons\"\nsector = 7\n");
     assert_eq!(bad.status.code(), Some(1));
     assert!(stderr(&bad).contains("'sector'"), "{}", stderr(&bad));
+
+    // Bounded sectors, out of core tile row by tile row (32-post tiles,
+    // 3 rows of reach): the library's answer on the whole DEM in memory.
+    use terrabake::horizon::{band_horizons, plan_bands, read_heights, terrain::Terrain};
+    let bounded = dir.path().join("bounded.tbake");
+    ok(&["ingest", s(&tif), "-o", s(&bounded), "--tile", "32", "-q"]);
+    ok(&[
+        "horizons",
+        s(&bounded),
+        "--method",
+        "sector",
+        "--sectors",
+        "7",
+        "--max-distance",
+        "100",
+        "--curvature",
+        "off",
+        "--encoding",
+        "f32",
+        "-q",
+    ]);
+    let c = Asset::open(&bounded).unwrap();
+    let stored = HorizonMap::open(&c).unwrap();
+    let (z, w, h) = read_heights(&c).unwrap();
+    let cs = &c.manifest().cell_size;
+    let terrain = Terrain::new(&z, w, h, cs.dx, cs.dy);
+    let opts = terrabake::horizon::BandOptions {
+        max_distance: Some(100.0),
+        narrow_check: true,
+    };
+    let bands = plan_bands(terrabake::horizon::Method::Sector, 7, cs.dx, cs.dy, None);
+    for (b, band) in bands.iter().enumerate() {
+        let (want, _) = band_horizons(&terrain, band, opts);
+        for (i, want) in want.iter().enumerate() {
+            let got = stored
+                .angle((i % w) as u32, (i / w) as u32, b as u32)
+                .unwrap()
+                .unwrap();
+            assert!(
+                (got - f64::from(*want)).abs() < 1e-5,
+                "band {b} post {i}: {got} vs {want}"
+            );
+        }
+    }
 }

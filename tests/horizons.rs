@@ -61,7 +61,7 @@ fn check_sector(name: &str, t: &Terrain, index: usize, count: usize, narrow: boo
     for row in 0..t.height {
         for col in 0..t.width {
             let got = out[row * t.width + col];
-            let want = brute::sector_horizon(t, (col, row), &frame, stencil.as_ref());
+            let want = brute::sector_horizon(t, (col, row), &frame, stencil.as_ref(), None);
             assert!(
                 same(got, want, tol),
                 "{name}: sector {index}/{count} (narrow {narrow}) at ({col}, {row}): tree {got}, brute force {want}"
@@ -301,8 +301,8 @@ fn narrow_sectors_need_stewarts_check() {
     let stencil = NarrowStencil::new(&frame, 256, 10.0, 10.0);
     assert!(stencil.offsets.contains(&(0, -3)));
     let receiver = (4, 20);
-    let with = brute::sector_horizon(&t, receiver, &frame, Some(&stencil));
-    let without = brute::sector_horizon(&t, receiver, &frame, None);
+    let with = brute::sector_horizon(&t, receiver, &frame, Some(&stencil), None);
+    let without = brute::sector_horizon(&t, receiver, &frame, None, None);
     assert!(with > 50.0, "with the check: {with}");
     assert_eq!(without, 0.0);
     let mut out = vec![0f32; w * h];
@@ -449,6 +449,88 @@ fn max_distance_cuts_the_horizon_where_it_should() {
         for i in 0..z.len() {
             assert!(same(far[i], all[i], 1e-4), "{:?} {i}", dir.step);
             assert!(near[i] <= all[i] + 1e-4);
+        }
+    }
+}
+
+#[test]
+fn sector_within_a_distance_equals_brute_force_band_by_band() {
+    use terrabake::horizon::sector::sector_horizons_within;
+    let (w, h) = (23, 19);
+    let scale = geographic_scale(h, 60.0, 0.5);
+    let noise = synth_grid(SynthKind::Noise, w, h, 2);
+    let holes = synth_grid(SynthKind::Holes, w, h, 3);
+    let fractal = synth_grid(SynthKind::Fractal, w, h, 4);
+    let cases = [
+        ("fractal", Terrain::new(&fractal, w, h, 30.0, 30.0)),
+        (
+            "noise, 30 x 20 m, curved",
+            Terrain::new(&noise, w, h, 30.0, 20.0).with_curvature(curvature_coefficient(0.13)),
+        ),
+        (
+            "holes, geographic",
+            Terrain::new(&holes, w, h, 30.0, 25.0).with_row_scale(RowScale::new(&scale)),
+        ),
+    ];
+    for (name, t) in cases {
+        for count in COUNTS {
+            let narrow = count >= 64;
+            // Every sector up to 64; a spread of the 256.
+            for index in (0..count).step_by(if count == 256 { 17 } else { 1 }) {
+                let frame = SectorFrame::new(index, count, t.dx, t.dy);
+                let stencil = narrow.then(|| NarrowStencil::new(&frame, count, t.dx, t.dy));
+                let mut tree = vec![0f32; w * h];
+                sector_horizons(&t, index, count, narrow, &mut tree);
+                for max in [45.0, 200.0, 1e9] {
+                    let mut got = vec![0f32; w * h];
+                    sector_horizons_within(&t, (index, count), narrow, max, 0..h, &mut got);
+                    for (i, &scan) in got.iter().enumerate() {
+                        let (col, row) = (i % w, i / w);
+                        let want = brute::sector_horizon(
+                            &t,
+                            (col, row),
+                            &frame,
+                            stencil.as_ref(),
+                            Some(max),
+                        );
+                        assert!(
+                            same(scan, want, 1e-4),
+                            "{name}: sector {index}/{count} within {max} m at ({col}, {row}): scan {scan}, brute force {want}"
+                        );
+                        if max == 1e9 {
+                            assert!(
+                                same(scan, tree[i], 1e-4),
+                                "{name}: past the DEM, the tree's"
+                            );
+                        }
+                    }
+                    // Bands of 4 rows from windows of the rows within reach:
+                    // the same bits.
+                    let halo = (max / t.dy).floor() as usize;
+                    let mut banded = vec![0f32; w * h];
+                    for r0 in (0..h).step_by(4) {
+                        let band = r0..(r0 + 4).min(h);
+                        let win = r0.saturating_sub(halo)..(band.end + halo).min(h);
+                        let window = Terrain::window(
+                            &t.z[win.start * w..win.end * w],
+                            (w, h),
+                            win.start,
+                            (t.dx, t.dy),
+                        )
+                        .with_row_scale(t.row_scale)
+                        .with_curvature(t.curvature);
+                        let out = &mut banded[band.start * w..band.end * w];
+                        sector_horizons_within(&window, (index, count), narrow, max, band, out);
+                    }
+                    assert!(
+                        banded
+                            .iter()
+                            .zip(&got)
+                            .all(|(a, b)| common::same_heights(*a, *b)),
+                        "{name}: sector {index}/{count} within {max} m by bands"
+                    );
+                }
+            }
         }
     }
 }

@@ -100,20 +100,26 @@ pub fn line_horizon(t: &Terrain, (col, row): (usize, usize), (a, b): (i64, i64))
 }
 
 /// Stewart's sector horizon of post `(col, row)` in the sector of `frame`,
-/// from every post of the DEM (plus the IV-E posts of `narrow`), degrees.
+/// from every post of the DEM (plus the IV-E posts of `narrow`) no farther
+/// than `max_distance` metres, degrees.
 pub fn sector_horizon(
     t: &Terrain,
     (col, row): (usize, usize),
     frame: &SectorFrame,
     narrow: Option<&NarrowStencil>,
+    max_distance: Option<f64>,
 ) -> f32 {
     let zp = t.at(col, row);
     if zp.is_nan() {
         return f32::NAN;
     }
-    let kp = frame.keys(t.key_position(col, row));
-    let tp = frame.along(t.key_position(col, row));
+    let pp = t.key_position(col, row);
+    let kp = frame.keys(pp);
+    let tp = frame.along(pp);
     let c = t.curvature;
+    let near = |qc: usize, qr: usize| {
+        max_distance.is_none_or(|m| t.key_distance(pp, t.key_position(qc, qr)) <= m)
+    };
     let slope = |qc: usize, qr: usize| {
         let tq = frame.along(t.key_position(qc, qr));
         let dz = f64::from(t.at(qc, qr)) - c * (tq - tp) * (tq - tp) - f64::from(zp);
@@ -124,6 +130,7 @@ pub fn sector_horizon(
         for qc in 0..t.width {
             if !t.at(qc, qr).is_nan()
                 && SectorFrame::contains(&kp, &frame.keys(t.key_position(qc, qr)))
+                && near(qc, qr)
             {
                 best = best.max(slope(qc, qr));
             }
@@ -134,6 +141,7 @@ pub fn sector_horizon(
         if t.contains(qc, qr)
             && !t.at(qc as usize, qr as usize).is_nan()
             && frame.along(t.key_position(qc as usize, qr as usize)) > tp
+            && near(qc as usize, qr as usize)
         {
             best = best.max(slope(qc as usize, qr as usize));
         }

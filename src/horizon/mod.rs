@@ -14,11 +14,12 @@
 //! [`brute`] has one-post-at-a-time references for `line` and `sector`,
 //! which the tests hold the fast algorithms to.
 //!
-//! **Stage.** `line` without a maximum distance runs out of core: each
-//! direction is swept over tile-row bands of the DEM with every line's hull
-//! carried across ([`line::BandedSweep`]), directions in parallel. The other
-//! methods hold the DEM in memory (4 bytes per post) and one band of output
-//! per worker. Bands are written band-major (sector-major) in compass
+//! **Stage.** Two cases run out of core, bands in parallel: `line` without
+//! a maximum distance sweeps each direction over tile-row bands of the DEM
+//! with every line's hull carried across ([`line::BandedSweep`]); `sector`
+//! with one reads each tile row with the rows within reach
+//! ([`sector::sector_horizons_within`]). The other cases hold the DEM in
+//! memory (4 bytes per post) and one band of output per worker. Bands are written band-major (sector-major) in compass
 //! order; the derived layers (`svf`, `svf_cosine`, `openness`,
 //! `horizon_edge`) are then computed tile row by tile row from the stored
 //! angles (`sky_layers`). Geographic grids take their east-west spacing
@@ -202,7 +203,19 @@ pub fn band_horizons(terrain: &Terrain, band: &Band, opts: BandOptions) -> (Vec<
             }
         },
         BandKind::Sector { index, count } => {
-            let s = sector::sector_horizons(terrain, *index, *count, opts.narrow_check, &mut out);
+            let s = match opts.max_distance {
+                None => {
+                    sector::sector_horizons(terrain, *index, *count, opts.narrow_check, &mut out)
+                }
+                Some(max) => sector::sector_horizons_within(
+                    terrain,
+                    (*index, *count),
+                    opts.narrow_check,
+                    max,
+                    0..terrain.height,
+                    &mut out,
+                ),
+            };
             s.tangent_steps + s.inserts
         }
         BandKind::Sampled => {
@@ -286,9 +299,6 @@ impl HorizonsStage {
                 self.sectors
             );
         }
-        if self.method == Method::Sector && self.max_distance.is_some() {
-            bail!("--max-distance applies to the line and sampled methods; Stewart's sector tree covers the whole DEM");
-        }
         if let Some(d) = self.max_distance {
             if d.is_nan() || d <= 0.0 {
                 bail!("--max-distance {d}: give a positive distance in metres");
@@ -300,6 +310,35 @@ impl HorizonsStage {
             }
         }
         Ok(())
+    }
+
+    /// How `band` is computed out of core, if it is: `line` without a
+    /// maximum distance sweeps tile-row bands with every line's hull carried
+    /// across; `sector` within a maximum distance reads each tile row with
+    /// the rows within the distance. The rest hold the DEM in memory.
+    fn row_bands(
+        &self,
+        band: &Band,
+        dims: (usize, usize),
+        spacing: (f64, f64),
+        row_scale: RowScale,
+        nodata: bool,
+    ) -> Option<Box<dyn RowBands>> {
+        match (&band.kind, self.max_distance) {
+            (BandKind::Line(dir), None) => Some(Box::new(line::BandedSweep::new(
+                dir, dims, spacing, row_scale, nodata,
+            ))),
+            (&BandKind::Sector { index, count }, Some(max_distance)) => {
+                Some(Box::new(BoundedSector {
+                    sector: (index, count),
+                    narrow: self.narrow_check,
+                    max_distance,
+                    halo: (max_distance / spacing.1).floor() as usize,
+                    height: dims.1,
+                }))
+            }
+            _ => None,
+        }
     }
 
     fn curvature_on(&self, asset: &Asset<Mmap>) -> bool {
@@ -392,23 +431,14 @@ impl Stage for HorizonsStage {
             max_distance: self.max_distance,
             narrow_check: self.narrow_check,
         };
-        if self.method == Method::Line && self.max_distance.is_none() {
-            // Out of core: each direction swept over tile-row bands of the
-            // DEM, its lines' hulls carried from band to band.
+        let nodata = m.nodata.count > 0;
+        let row_bands = |band: &Band| self.row_bands(band, (w, h), (dx, dy), row_scale, nodata);
+        if bands.first().and_then(row_bands).is_some() {
             bands
                 .par_iter()
                 .enumerate()
                 .try_for_each(|(i, band)| -> Result<()> {
-                    let BandKind::Line(dir) = &band.kind else {
-                        unreachable!("line bands")
-                    };
-                    let mut sweep = line::BandedSweep::new(
-                        dir,
-                        (w, h),
-                        (dx, dy),
-                        row_scale,
-                        m.nodata.count > 0,
-                    );
+                    let mut sweep = row_bands(band).expect("every band out of core");
                     let mut rows_buf = Vec::new();
                     for rows in sweep.bands(ts) {
                         let window = sweep.window(&rows);
@@ -466,6 +496,66 @@ impl Stage for HorizonsStage {
         let mut entries = vec![horizon];
         entries.extend(sky_layers(&fresh, dir, &bands, aoi, curvature, progress)?);
         Ok(entries)
+    }
+}
+
+/// One band computed out of core: output rows in bands, each from a window
+/// of the DEM's rows, in the order the bands must go.
+trait RowBands {
+    /// The bands of at most `rows` output rows, in order.
+    fn bands(&self, rows: usize) -> Vec<std::ops::Range<usize>>;
+    /// The DEM rows that output rows `band` need.
+    fn window(&self, band: &std::ops::Range<usize>) -> std::ops::Range<usize>;
+    /// Angles of output rows `band` from `window`, the rows [`Self::window`] named.
+    fn sweep(&mut self, window: &Terrain, band: std::ops::Range<usize>, out: &mut [f32]);
+}
+
+impl RowBands for line::BandedSweep {
+    fn bands(&self, rows: usize) -> Vec<std::ops::Range<usize>> {
+        line::BandedSweep::bands(self, rows)
+    }
+
+    fn window(&self, band: &std::ops::Range<usize>) -> std::ops::Range<usize> {
+        line::BandedSweep::window(self, band)
+    }
+
+    fn sweep(&mut self, window: &Terrain, band: std::ops::Range<usize>, out: &mut [f32]) {
+        line::BandedSweep::sweep(self, window, band, out)
+    }
+}
+
+/// `sector` within a maximum distance: every post depends only on the rows
+/// within the distance, so bands go north to south, each reading `halo`
+/// rows either side.
+struct BoundedSector {
+    sector: (usize, usize),
+    narrow: bool,
+    max_distance: f64,
+    halo: usize,
+    height: usize,
+}
+
+impl RowBands for BoundedSector {
+    fn bands(&self, rows: usize) -> Vec<std::ops::Range<usize>> {
+        (0..self.height)
+            .step_by(rows)
+            .map(|r0| r0..(r0 + rows).min(self.height))
+            .collect()
+    }
+
+    fn window(&self, band: &std::ops::Range<usize>) -> std::ops::Range<usize> {
+        band.start.saturating_sub(self.halo)..(band.end + self.halo).min(self.height)
+    }
+
+    fn sweep(&mut self, window: &Terrain, band: std::ops::Range<usize>, out: &mut [f32]) {
+        sector::sector_horizons_within(
+            window,
+            self.sector,
+            self.narrow,
+            self.max_distance,
+            band,
+            out,
+        );
     }
 }
 

@@ -145,6 +145,15 @@ impl<'a> Terrain<'a> {
         self.z.iter().any(|v| v.is_nan())
     }
 
+    /// Horizontal metres between two posts at key positions `p` and `q`
+    /// ([`Self::key_position`]).
+    pub fn key_distance(&self, p: (f64, f64), q: (f64, f64)) -> f64 {
+        // Not `hypot`: its care for overflow (which key offsets of a DEM
+        // cannot reach) cost a third of a bounded sector scan.
+        let (de, dn) = (q.0 - p.0, q.1 - p.1);
+        (de * de + dn * dn).sqrt() * self.dx
+    }
+
     /// Metres between columns on row `row`.
     pub fn dx_at(&self, row: usize) -> f64 {
         self.dx * self.row_scale.at_half(2 * row as i64)
