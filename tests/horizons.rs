@@ -43,7 +43,7 @@ fn check_line(name: &str, t: &Terrain, dir: &GridDirection, tol: f32) {
     for row in 0..t.height {
         for col in 0..t.width {
             let got = out[row * t.width + col];
-            let want = brute::line_horizon(t, (col, row), dir.step);
+            let want = brute::line_horizon(t, (col, row), dir.step, None);
             assert!(
                 same(got, want, tol),
                 "{name}: line {:?} at ({col}, {row}): sweep {got}, brute force {want}",
@@ -418,6 +418,36 @@ fn nodata_neither_occludes_nor_receives() {
 fn max_distance_cuts_the_horizon_where_it_should() {
     let z = synth_grid(SynthKind::Fractal, 60, 50, 9);
     let t = Terrain::new(&z, 60, 50, 30.0, 30.0);
+    // Bounded line walks against the brute force with the same bound
+    // (between crossings, so that rounding cannot flip one in or out), on a
+    // square grid and a curved geographic one.
+    let scale = geographic_scale(50, 60.0, 0.5);
+    let geographic = Terrain::new(&z, 60, 50, 30.0, 25.0)
+        .with_row_scale(RowScale::new(&scale))
+        .with_curvature(curvature_coefficient(0.13));
+    for (name, t) in [("square", t), ("geographic, curved", geographic)] {
+        for band in plan_bands(Method::Line, 7, t.dx, t.dy, None) {
+            let BandKind::Line(dir) = &band.kind else {
+                unreachable!()
+            };
+            for max in [61.3, 301.7] {
+                let opts = BandOptions {
+                    max_distance: Some(max),
+                    narrow_check: true,
+                };
+                let (walk, _) = band_horizons(&t, &band, opts);
+                for (i, got) in walk.iter().enumerate() {
+                    let (col, row) = (i % t.width, i / t.width);
+                    let want = brute::line_horizon(&t, (col, row), dir.step, Some(max));
+                    assert!(
+                        same(*got, want, 1e-4),
+                        "{name}: {:?} within {max} at ({col}, {row}): walk {got}, brute force {want}",
+                        dir.step
+                    );
+                }
+            }
+        }
+    }
     for band in plan_bands(Method::Line, 7, 30.0, 30.0, None) {
         let BandKind::Line(dir) = &band.kind else {
             unreachable!()

@@ -38,9 +38,15 @@ fn surface_at(t: &Terrain, col: f64, row: f64) -> Option<f64> {
     None
 }
 
-/// The line horizon of post `(col, row)` along grid step `(a, b)`, degrees
-/// (NaN for nodata, -90 when no surface lies ahead).
-pub fn line_horizon(t: &Terrain, (col, row): (usize, usize), (a, b): (i64, i64)) -> f32 {
+/// The line horizon of post `(col, row)` along grid step `(a, b)` from the
+/// crossings no farther than `max_distance` metres, degrees (NaN for
+/// nodata, -90 when no surface lies ahead).
+pub fn line_horizon(
+    t: &Terrain,
+    (col, row): (usize, usize),
+    (a, b): (i64, i64),
+    max_distance: Option<f64>,
+) -> f32 {
     let zp = t.at(col, row);
     if zp.is_nan() {
         return f32::NAN;
@@ -89,6 +95,9 @@ pub fn line_horizon(t: &Terrain, (col, row): (usize, usize), (a, b): (i64, i64))
     for s in crossings {
         if let Some(z) = surface_at(t, pc + a * s, pr + b * s) {
             let d = distance(s);
+            if max_distance.is_some_and(|m| d > m) {
+                continue;
+            }
             best = best.max((z - t.curvature * d * d - f64::from(zp)) / d);
         }
     }

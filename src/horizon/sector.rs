@@ -472,10 +472,11 @@ pub fn sector_horizons_within(
     let stencil = narrow.then(|| NarrowStencil::new(&frame, count, terrain.dx, terrain.dy));
     let window = terrain.row0..terrain.row0 + terrain.z.len() / w;
     let (c, aspect) = (terrain.curvature, terrain.dy / terrain.dx);
-    let reach = max_distance / terrain.dx; // key units
-                                           // Rows the wedge can reach: from the north components of its
-                                           // directions (its two boundaries, and due north or south if inside),
-                                           // a row of margin each way.
+    // The distance in key units (`dx` metres).
+    let reach = max_distance / terrain.dx;
+    // Rows the wedge can reach: from the north components of its directions
+    // (its two boundaries, and due north or south if inside), a row of
+    // margin each way.
     let (mid, width) = (
         SectorFrame::centre_azimuth(index, count),
         360.0 / count as f64,
