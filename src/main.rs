@@ -218,6 +218,11 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
         /// How far a line direction may sit from i * 360 / S, degrees (default: spacing / 8).
         #[arg(long, value_parser = parse_positive)]
         direction_tolerance: Option<f64>,
+        /// Working memory in MiB for the methods that hold the DEM in memory (sector
+        /// without --max-distance, sampled, line with --max-distance); a DEM that needs more
+        /// is refused with the out-of-core routes named.
+        #[arg(long, default_value_t = 8192, value_parser = clap::value_parser!(u64).range(1..))]
+        max_memory: u64,
         /// Recompute even if the asset already has up-to-date horizons.
         #[arg(long)]
         force: bool,
@@ -814,6 +819,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             encoding,
             no_narrow_check,
             direction_tolerance,
+            max_memory,
             force,
             json,
         } => {
@@ -830,6 +836,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 },
                 narrow_check: !no_narrow_check,
                 direction_tolerance,
+                max_memory: max_memory << 20,
             };
             let outcome = run_stage(&asset, &stage, force, progress)?;
             let opened = open_asset(&asset)?;

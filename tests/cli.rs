@@ -508,6 +508,36 @@ fn horizons_from_the_command_line_export_shade_and_recipes() {
     assert_eq!(bad.status.code(), Some(1));
     assert!(stderr(&bad).contains("'sector'"), "{}", stderr(&bad));
 
+    // Unbounded sectors would hold a 300 x 300 DEM in more than 1 MiB:
+    // refused before any work, the routes named; bounded sectors run.
+    let big_tif = dir.path().join("big.tif");
+    ok(&[
+        "synth",
+        "fractal",
+        "--size",
+        "300x300",
+        "-o",
+        s(&big_tif),
+        "-q",
+    ]);
+    let big = dir.path().join("big.tbake");
+    ok(&["ingest", s(&big_tif), "-o", s(&big), "-q"]);
+    let sector = [
+        "horizons",
+        s(&big),
+        "--method",
+        "sector",
+        "--max-memory",
+        "1",
+    ];
+    let refused = terrabake(&sector);
+    assert_eq!(refused.status.code(), Some(1));
+    for says in ["--max-memory 1 MiB", "--max-distance", "--method line"] {
+        assert!(stderr(&refused).contains(says), "{}", stderr(&refused));
+    }
+    assert!(Asset::open(&big).unwrap().layer(HORIZON, 0).is_err());
+    ok(&[&sector[..], &["--max-distance", "60", "-q"]].concat());
+
     // Bounded sectors, out of core tile row by tile row (32-post tiles,
     // 3 rows of reach): the library's answer on the whole DEM in memory.
     use terrabake::horizon::{band_horizons, plan_bands, read_heights, terrain::Terrain};

@@ -264,7 +264,15 @@ pub struct HorizonsStage {
     pub encoding: AngleChoice,
     pub narrow_check: bool,
     pub direction_tolerance: Option<f64>,
+    /// Bytes the methods that hold the DEM in memory may use; more is an
+    /// error that names the out-of-core routes. Results do not depend on it.
+    pub max_memory: u64,
 }
+
+/// Memory of unbounded `sector` per post and sector in flight: the tree's
+/// hulls and buckets, the posts' centre-plane coordinates, both orders and
+/// the ranks (65-75 bytes measured at 1.44 M and 16.7 M posts).
+pub const SECTOR_BYTES_PER_POST: u64 = 80;
 
 impl Default for HorizonsStage {
     fn default() -> Self {
@@ -278,6 +286,7 @@ impl Default for HorizonsStage {
             encoding: AngleChoice::MaxError(0.5),
             narrow_check: true,
             direction_tolerance: None,
+            max_memory: 8 << 30,
         }
     }
 }
@@ -304,12 +313,39 @@ impl HorizonsStage {
                 bail!("--max-distance {d}: give a positive distance in metres");
             }
         }
+        let threads = rayon::current_num_threads() as u64;
+        if let Some(need) = self.in_core_bytes((w * h) as u64, threads) {
+            if need > self.max_memory {
+                let routes = match self.method {
+                    Method::Sector => "give --max-distance M (bounded sectors run out of core), use --method line (exact sight lines, out of core)",
+                    _ => "use --method line without --max-distance (out of core)",
+                };
+                bail!(
+                    "--method {} holds this {w} x {h} DEM in memory: about {} MiB with {threads} bands in flight, over --max-memory {} MiB; {routes}, or raise --max-memory",
+                    self.method.name(),
+                    need >> 20,
+                    self.max_memory >> 20
+                );
+            }
+        }
         if let Some([x0, y0, x1, y1]) = self.aoi {
             if x0 >= x1 || y0 >= y1 || x1 as usize > w || y1 as usize > h {
                 bail!("--aoi {x0},{y0},{x1},{y1} is not a non-empty window of the {w} x {h} DEM");
             }
         }
         Ok(())
+    }
+
+    /// Bytes held in memory for `posts` posts with `threads` bands in
+    /// flight, or `None` where the method runs out of core: the DEM (4
+    /// bytes per post) and per band Stewart's tree ([`SECTOR_BYTES_PER_POST`])
+    /// or one band of angles.
+    pub fn in_core_bytes(&self, posts: u64, threads: u64) -> Option<u64> {
+        match (self.method, self.max_distance) {
+            (Method::Line, None) | (Method::Sector, Some(_)) => None,
+            (Method::Sector, None) => Some(posts * (4 + SECTOR_BYTES_PER_POST * threads)),
+            (Method::Line | Method::Sampled, _) => Some(posts * (4 + 4 * threads)),
+        }
     }
 
     /// How `band` is computed out of core, if it is: `line` without a
@@ -762,7 +798,7 @@ fn sky_layers(
 /// `[[stage]] name = "horizons"` with optional `sectors`, `method`,
 /// `max_distance`, `curvature` (bool), `refraction`, `aoi` ([x0, y0, x1,
 /// y1]), `encoding` ("u8", "u16", "f32"), `max_error_deg`, `narrow_check`,
-/// `direction_tolerance`.
+/// `direction_tolerance`, `max_memory_mib`.
 pub fn from_recipe(params: &toml::Table) -> Result<HorizonsStage> {
     let mut stage = HorizonsStage::default();
     for (key, value) in params {
@@ -807,7 +843,10 @@ pub fn from_recipe(params: &toml::Table) -> Result<HorizonsStage> {
             "max_error_deg" => stage.encoding = AngleChoice::MaxError(float()?),
             "narrow_check" => stage.narrow_check = value.as_bool().ok_or_else(bad)?,
             "direction_tolerance" => stage.direction_tolerance = Some(float()?),
-            other => bail!("stage 'horizons' takes no parameter '{other}' (sectors, method, max_distance, curvature, refraction, aoi, encoding, max_error_deg, narrow_check, direction_tolerance)"),
+            "max_memory_mib" => {
+                stage.max_memory = value.as_integer().filter(|m| *m > 0).ok_or_else(bad)? as u64 * (1 << 20);
+            }
+            other => bail!("stage 'horizons' takes no parameter '{other}' (sectors, method, max_distance, curvature, refraction, aoi, encoding, max_error_deg, narrow_check, direction_tolerance, max_memory_mib)"),
         }
     }
     Ok(stage)
