@@ -38,3 +38,19 @@ run_in_cgroup() {
   PEAK_ANON_MIB=$((peak >> 20))
   PEAK_CGROUP_MIB=$(( $(cat "$cg/memory.max_usage_in_bytes") >> 20 ))
 }
+
+# report_limited LIMIT_MIB LOG PATTERN CMD...
+# runs CMD with run_in_cgroup and prints its lines matching PATTERN, its
+# time, peak RSS and exit status, and the cgroup's peaks; without a cgroup,
+# runs it under /usr/bin/time -v alone and prints peak RSS.
+report_limited() {
+  local limit=$1 log=$2 pattern=$3
+  shift 3
+  if run_in_cgroup "$limit" "$log" "$@"; then
+    grep -E "$pattern|Elapsed|Maximum resident|Exit" "$log"
+    echo "cgroup limit $limit MiB; peak anonymous memory $PEAK_ANON_MIB MiB; peak usage with page cache $PEAK_CGROUP_MIB MiB"
+  else
+    echo "(no memory cgroup: peak RSS only)"
+    /usr/bin/time -v "$@" 2>&1 | grep -E "$pattern|Elapsed|Maximum resident"
+  fi
+}

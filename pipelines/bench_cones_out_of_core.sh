@@ -13,11 +13,5 @@ mkdir -p "$WORK"
 source "$(dirname "$0")/bench_common.sh"
 ASSET=$(fractal_asset "$N")
 RUN="$BIN cones $ASSET --slices 16 --max-memory 256 --force"
-if run_in_cgroup 512 "$WORK/ooc.log" $RUN; then
-  grep -E "cones|Elapsed|Maximum resident|Exit" "$WORK/ooc.log"
-  echo "cgroup limit 512 MiB; peak anonymous memory $PEAK_ANON_MIB MiB; peak usage with page cache $PEAK_CGROUP_MIB MiB"
-else
-  echo "(no memory cgroup: peak RSS only)"
-  /usr/bin/time -v $RUN 2>&1 | grep -E "cones|Elapsed|Maximum resident"
-fi
+report_limited 512 "$WORK/ooc.log" cones $RUN
 du -sh "$ASSET"

@@ -22,13 +22,7 @@ run_limited() {
   shift 3
   local run="$BIN horizons $asset $* --force"
   echo "== $name: $run (limit $limit MiB)"
-  if run_in_cgroup "$limit" "$WORK/ooc_$name.log" $run; then
-    grep -E "horizons|Elapsed|Maximum resident|Exit" "$WORK/ooc_$name.log"
-    echo "cgroup limit $limit MiB; peak anonymous memory $PEAK_ANON_MIB MiB; peak usage with page cache $PEAK_CGROUP_MIB MiB"
-  else
-    echo "(no memory cgroup: peak RSS only)"
-    /usr/bin/time -v $run 2>&1 | grep -E "horizons|Elapsed|Maximum resident"
-  fi
+  report_limited "$limit" "$WORK/ooc_$name.log" horizons $run
   du -sh "$asset"
 }
 
