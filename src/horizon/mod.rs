@@ -19,7 +19,8 @@
 //! with every line's hull carried across ([`line::BandedSweep`]); `sector`
 //! with one reads each tile row with the rows within reach
 //! ([`sector::sector_horizons_within`]). The other cases hold the DEM in
-//! memory (4 bytes per post) and one band of output per worker. Bands are written band-major (sector-major) in compass
+//! memory (4 bytes per post) and one band of output per worker, within
+//! `--max-memory`. Bands are written band-major (sector-major) in compass
 //! order; the derived layers (`svf`, `svf_cosine`, `openness`,
 //! `horizon_edge`) are then computed tile row by tile row from the stored
 //! angles (`sky_layers`). Geographic grids take their east-west spacing
