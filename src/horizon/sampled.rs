@@ -18,6 +18,11 @@ pub fn sampled_horizons(terrain: &Terrain, azimuth: f64, max_distance: f64, out:
     // ([`Terrain::key_position`]: each row has its own spacing).
     let (se, sr) = (e * step / terrain.dx, -n * step / terrain.dy);
     let centre = (w / 2) as f64;
+    // Columns per key unit, row by row (1 on a uniform grid): a multiply
+    // per sample instead of a division.
+    let columns_per_unit: Vec<f64> = (0..h)
+        .map(|r| 1.0 / terrain.row_scale.at_half(2 * r as i64))
+        .collect();
     let c = terrain.curvature;
     for row in 0..h {
         for col in 0..w {
@@ -32,9 +37,11 @@ pub fn sampled_horizons(terrain: &Terrain, azimuth: f64, max_distance: f64, out:
             loop {
                 let d = k * step;
                 let qr = (row as f64 + k * sr).round();
-                let scale = terrain.row_scale.at_half(2 * qr as i64);
-                let qc = (centre + (east + k * se) / scale).round();
-                if d > max_distance || !terrain.contains(qc as i64, qr as i64) {
+                if d > max_distance || !(0.0..h as f64).contains(&qr) {
+                    break;
+                }
+                let qc = (centre + (east + k * se) * columns_per_unit[qr as usize]).round();
+                if !(0.0..w as f64).contains(&qc) {
                     break;
                 }
                 let zq = terrain.at(qc as usize, qr as usize);
