@@ -201,34 +201,40 @@ pub enum PngStyle {
 /// other integers as numbers.
 pub fn read_rows_f32(layer: &Layer<Mmap>, band: u32, y0: u32, out: &mut [f32]) -> Result<()> {
     use terrabake_format::{ElemType, Element};
-    fn codes<T: Element + Into<u64>>(
+    // Codes decoded as they are copied out: no intermediate array of
+    // numbers (the horizons stage reads every band this way, row by row).
+    fn decode<T: Element + Into<u64>>(
         layer: &Layer<Mmap>,
         band: u32,
         y0: u32,
-        rows: u32,
-    ) -> Result<Vec<u64>> {
+        out: &mut [f32],
+    ) -> Result<()> {
         let w = layer.width();
-        let mut raw = vec![T::new_zeroed(); (w * rows) as usize];
-        layer.read_window(band, 0, y0, w, rows, &mut raw)?;
-        Ok(raw.into_iter().map(Into::into).collect())
+        let mut raw = vec![T::new_zeroed(); out.len()];
+        layer.read_window(band, 0, y0, w, (out.len() / w as usize) as u32, &mut raw)?;
+        let q = layer.entry().quantization;
+        for (o, code) in out.iter_mut().zip(raw) {
+            let code: u64 = code.into();
+            *o = match q {
+                Some(q) => q.value(code).map_or(f32::NAN, |v| v as f32),
+                None => code as f32,
+            };
+        }
+        Ok(())
     }
     let entry = layer.entry();
-    let rows = (out.len() / layer.width() as usize) as u32;
-    let codes = match entry.elem {
-        ElemType::F32 => return Ok(layer.read_window(band, 0, y0, layer.width(), rows, out)?),
-        ElemType::U8 => codes::<u8>(layer, band, y0, rows)?,
-        ElemType::U16 => codes::<u16>(layer, band, y0, rows)?,
+    match entry.elem {
+        ElemType::F32 => {
+            let rows = (out.len() / layer.width() as usize) as u32;
+            layer.read_window(band, 0, y0, layer.width(), rows, out)?
+        }
+        ElemType::U8 => decode::<u8>(layer, band, y0, out)?,
+        ElemType::U16 => decode::<u16>(layer, band, y0, out)?,
         other => bail!(
             "layer {} holds {}; export reads f32, u16 and u8 layers",
             entry.key(),
             other.name()
         ),
-    };
-    for (o, code) in out.iter_mut().zip(codes) {
-        *o = match entry.quantization {
-            Some(q) => q.value(code).map_or(f32::NAN, |v| v as f32),
-            None => code as f32,
-        };
     }
     Ok(())
 }

@@ -6,6 +6,15 @@ use rayon::prelude::*;
 use terrabake_format::{encode_tile, Codec, Element, EncodedTile, LayerWriter};
 use zerocopy::IntoBytes;
 
+/// Consecutive bands of at most `rows` rows covering `0..height`, north to
+/// south.
+pub fn row_bands(height: usize, rows: usize) -> Vec<std::ops::Range<usize>> {
+    (0..height)
+        .step_by(rows)
+        .map(|r0| r0..(r0 + rows).min(height))
+        .collect()
+}
+
 /// zstd level for tiles: 3 is zstd's default, fast to write and to read.
 pub const ZSTD_LEVEL: i32 = 3;
 

@@ -52,7 +52,7 @@
 //! (far vertices must leave it), so [`line_horizon_within`] walks each post's
 //! line up to the distance instead: `O(distance)` per post.
 
-use super::terrain::{RowScale, Terrain};
+use super::terrain::{angle_between, RowScale, Terrain};
 
 /// Largest `|a|`, `|b|` of a grid step considered.
 pub const MAX_STEP: i64 = 64;
@@ -89,11 +89,6 @@ pub fn step_azimuth((a, b): (i64, i64), dx: f64, dy: f64) -> f64 {
         .atan2(-(b as f64) * dy)
         .to_degrees()
         .rem_euclid(360.0)
-}
-
-fn angle_between(a: f64, b: f64) -> f64 {
-    let d = (a - b).rem_euclid(360.0);
-    d.min(360.0 - d)
 }
 
 fn gcd(a: i64, b: i64) -> i64 {
@@ -563,10 +558,7 @@ impl BandedSweep {
 
     /// The output row bands of `rows` rows each, in sweep order.
     pub fn bands(&self, rows: usize) -> Vec<std::ops::Range<usize>> {
-        let mut bands: Vec<_> = (0..self.height)
-            .step_by(rows)
-            .map(|r0| r0..(r0 + rows).min(self.height))
-            .collect();
+        let mut bands = crate::tiling::row_bands(self.height, rows);
         if self.from_south() {
             bands.reverse();
         }
@@ -620,11 +612,6 @@ impl BandedSweep {
             }
         }
         self.lanes = going_on;
-    }
-
-    /// Points held in the hulls of lines that go on (the sweep's state).
-    pub fn hull_points(&self) -> usize {
-        self.lanes.iter().map(|l| l.hull.len()).sum()
     }
 }
 

@@ -342,17 +342,26 @@ impl HorizonsStage {
     /// bytes per post) and per band Stewart's tree ([`SECTOR_BYTES_PER_POST`])
     /// or one band of angles.
     pub fn in_core_bytes(&self, posts: u64, threads: u64) -> Option<u64> {
-        match (self.method, self.max_distance) {
-            (Method::Line, None) | (Method::Sector, Some(_)) => None,
-            (Method::Sector, None) => Some(posts * (4 + SECTOR_BYTES_PER_POST * threads)),
-            (Method::Line | Method::Sampled, _) => Some(posts * (4 + 4 * threads)),
-        }
+        let per_band = match self.method {
+            Method::Sector => SECTOR_BYTES_PER_POST,
+            Method::Line | Method::Sampled => 4,
+        };
+        (!self.out_of_core()).then_some(posts * (4 + per_band * threads))
     }
 
-    /// How `band` is computed out of core, if it is: `line` without a
-    /// maximum distance sweeps tile-row bands with every line's hull carried
-    /// across; `sector` within a maximum distance reads each tile row with
-    /// the rows within the distance. The rest hold the DEM in memory.
+    /// Whether the bands run out of core: `line` without a maximum
+    /// distance, `sector` with one ([`Self::row_bands`]).
+    pub fn out_of_core(&self) -> bool {
+        matches!(
+            (self.method, self.max_distance),
+            (Method::Line, None) | (Method::Sector, Some(_))
+        )
+    }
+
+    /// How `band` is computed out of core (where [`Self::out_of_core`]):
+    /// `line` without a maximum distance sweeps tile-row bands with every
+    /// line's hull carried across; `sector` within a maximum distance reads
+    /// each tile row with the rows within the distance.
     fn row_bands(
         &self,
         band: &Band,
@@ -360,21 +369,19 @@ impl HorizonsStage {
         spacing: (f64, f64),
         row_scale: RowScale,
         nodata: bool,
-    ) -> Option<Box<dyn RowBands>> {
+    ) -> Box<dyn RowBands> {
         match (&band.kind, self.max_distance) {
-            (BandKind::Line(dir), None) => Some(Box::new(line::BandedSweep::new(
+            (BandKind::Line(dir), None) => Box::new(line::BandedSweep::new(
                 dir, dims, spacing, row_scale, nodata,
-            ))),
-            (&BandKind::Sector { index, count }, Some(max_distance)) => {
-                Some(Box::new(BoundedSector {
-                    sector: (index, count),
-                    narrow: self.narrow_check,
-                    max_distance,
-                    halo: (max_distance / spacing.1).floor() as usize,
-                    height: dims.1,
-                }))
-            }
-            _ => None,
+            )),
+            (&BandKind::Sector { index, count }, Some(max_distance)) => Box::new(BoundedSector {
+                sector: (index, count),
+                narrow: self.narrow_check,
+                max_distance,
+                halo: sector::rows_within(max_distance, spacing.1),
+                height: dims.1,
+            }),
+            _ => unreachable!("{:?} bands run in memory", self.method),
         }
     }
 
@@ -469,13 +476,12 @@ impl Stage for HorizonsStage {
             narrow_check: self.narrow_check,
         };
         let nodata = m.nodata.count > 0;
-        let row_bands = |band: &Band| self.row_bands(band, (w, h), (dx, dy), row_scale, nodata);
-        if bands.first().and_then(row_bands).is_some() {
+        if self.out_of_core() {
             bands
                 .par_iter()
                 .enumerate()
                 .try_for_each(|(i, band)| -> Result<()> {
-                    let mut sweep = row_bands(band).expect("every band out of core");
+                    let mut sweep = self.row_bands(band, (w, h), (dx, dy), row_scale, nodata);
                     let mut rows_buf = Vec::new();
                     for rows in sweep.bands(ts) {
                         let window = sweep.window(&rows);
@@ -531,7 +537,9 @@ impl Stage for HorizonsStage {
         manifest.upsert_layer(horizon.clone());
         let fresh = Asset::open_uncommitted(dir, manifest)?;
         let mut entries = vec![horizon];
-        entries.extend(sky_layers(&fresh, dir, &bands, aoi, curvature, progress)?);
+        entries.extend(sky_layers(
+            &fresh, dir, &bands, row_scale, aoi, curvature, progress,
+        )?);
         Ok(entries)
     }
 }
@@ -574,10 +582,7 @@ struct BoundedSector {
 
 impl RowBands for BoundedSector {
     fn bands(&self, rows: usize) -> Vec<std::ops::Range<usize>> {
-        (0..self.height)
-            .step_by(rows)
-            .map(|r0| r0..(r0 + rows).min(self.height))
-            .collect()
+        crate::tiling::row_bands(self.height, rows)
     }
 
     fn window(&self, band: &std::ops::Range<usize>) -> std::ops::Range<usize> {
@@ -672,6 +677,7 @@ fn sky_layers(
     asset: &Asset<Mmap>,
     dir: &Path,
     bands: &[Band],
+    row_scale: RowScale,
     [ax0, ay0, ax1, ay1]: [usize; 4],
     curvature: f64,
     progress: Progress,
@@ -686,7 +692,6 @@ fn sky_layers(
         height.tile_size() as usize,
     );
     let (dx, dy) = (m.cell_size.dx, m.cell_size.dy);
-    let row_scale = crate::geo::row_scale(m.georef.as_ref(), h as u32);
     let z_max = m.height_range.map_or(f64::INFINITY, |r| f64::from(r.max));
     let create = |name: &str, elem, description: &str| {
         LayerWriter::create(
@@ -712,8 +717,7 @@ fn sky_layers(
         let (r0, r1) = (y0.saturating_sub(1), (y0 + rows + 1).min(h));
         let mut z = vec![0f32; (r1 - r0) * w];
         height.read_window(0, 0, r0 as u32, w as u32, (r1 - r0) as u32, &mut z)?;
-        let terrain =
-            Terrain::window(&z, (w, h), r0, (dx, dy)).with_row_scale(RowScale::new(&row_scale));
+        let terrain = Terrain::window(&z, (w, h), r0, (dx, dy)).with_row_scale(row_scale);
         // Per post of the row: its normal (once, not once per band) and how
         // far the terrain could rise past the DEM's edge per metre of reach.
         let normals: Vec<Option<[f64; 3]>> = (0..rows * w)

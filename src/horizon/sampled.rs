@@ -17,7 +17,7 @@ pub fn sampled_horizons(terrain: &Terrain, azimuth: f64, max_distance: f64, out:
     // Per sample: rows south, and east in units of the centre row's `dx`
     // ([`Terrain::key_position`]: each row has its own spacing).
     let (se, sr) = (e * step / terrain.dx, -n * step / terrain.dy);
-    let centre = (w / 2) as f64;
+    let centre = terrain.centre_column();
     // Columns per key unit, row by row (1 on a uniform grid): a multiply
     // per sample instead of a division.
     let columns_per_unit: Vec<f64> = (0..h)

@@ -145,6 +145,12 @@ impl<'a> Terrain<'a> {
         self.z.iter().any(|v| v.is_nan())
     }
 
+    /// The column that key positions measure east from (an integer, so
+    /// that uniform grids keep integer keys).
+    pub fn centre_column(&self) -> f64 {
+        (self.width / 2) as f64
+    }
+
     /// Horizontal metres between two posts at key positions `p` and `q`
     /// ([`Self::key_position`]).
     pub fn key_distance(&self, p: (f64, f64), q: (f64, f64)) -> f64 {
@@ -164,7 +170,7 @@ impl<'a> Terrain<'a> {
     /// exact factors (east exactly `col - c`), so that posts on a grid
     /// diagonal tie exactly.
     pub fn key_position(&self, col: usize, row: usize) -> (f64, f64) {
-        let east = (col as f64 - (self.width / 2) as f64) * self.row_scale.at_half(2 * row as i64);
+        let east = (col as f64 - self.centre_column()) * self.row_scale.at_half(2 * row as i64);
         (east, -(row as f64) * (self.dy / self.dx))
     }
 
@@ -203,6 +209,12 @@ impl<'a> Terrain<'a> {
         let len = (n[0] * n[0] + n[1] * n[1] + 1.0).sqrt();
         Some(n.map(|v| v / len))
     }
+}
+
+/// The angle (degrees, 0..=180) between two compass azimuths.
+pub fn angle_between(a: f64, b: f64) -> f64 {
+    let d = (a - b).rem_euclid(360.0);
+    d.min(360.0 - d)
 }
 
 /// Unit vector (east, north) of a compass azimuth in degrees.
