@@ -2,12 +2,14 @@
 //! and QGIS read back the same geotransform), OpenEXR (float, for engines),
 //! and PNG previews for people.
 //!
-//! Every writer here writes to `<out>.tmp` and renames on success, so a
-//! failed export never leaves a half-written file where a good one stood.
+//! Every writer here writes to a fresh, exclusively created temporary file
+//! beside the output and renames it on success, so a failed export never
+//! leaves a half-written file where a good one stood, and a link planted at
+//! a temporary name is never written through.
 
 use std::fs::{self, File};
 use std::io::{BufWriter, Seek, Write};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use anyhow::{anyhow, bail, Context, Result};
 use terrabake_format::manifest::Georef;
@@ -17,16 +19,21 @@ use tiff::tags::Tag;
 
 use crate::progress::Progress;
 
-/// Writes `path` through `<path>.tmp`: `write` fills the temporary file,
-/// which is then fsynced and renamed into place; on error it is removed.
+/// Writes `path` through a temporary file beside it
+/// ([`terrabake_format::fsio::create_temp`]): `write` fills it, and it is
+/// fsynced and renamed into place (replacing a link at `path`, never
+/// writing through one); on error it is removed.
 pub fn write_atomically(
     path: &Path,
     write: impl FnOnce(&mut BufWriter<File>) -> Result<()>,
 ) -> Result<()> {
-    let tmp = PathBuf::from(format!("{}.tmp", path.display()));
+    let (file, tmp) = terrabake_format::fsio::create_temp(path).with_context(|| {
+        format!(
+            "{}: cannot create a temporary file beside it",
+            path.display()
+        )
+    })?;
     let result = (|| -> Result<()> {
-        let file =
-            File::create(&tmp).with_context(|| format!("{}: cannot create", tmp.display()))?;
         let mut out = BufWriter::with_capacity(1 << 20, file);
         write(&mut out)?;
         let file = out.into_inner().map_err(|e| e.into_error())?;

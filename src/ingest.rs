@@ -6,10 +6,11 @@
 //! Ingest creates an asset or replaces one: the new height layer and the new
 //! manifest are written beside the old ones and the manifest's rename is the
 //! commit, so an interrupted ingest leaves the old asset intact (and a new
-//! directory that it created is removed).
+//! directory that it created is removed). It runs under the asset's writer
+//! lock ([`AssetWriter`]).
 
 use std::fs;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::SystemTime;
 
 use anyhow::{bail, Context, Result};
@@ -18,10 +19,10 @@ use terrabake_format::manifest::{
     CellSize, HeightRange, Nodata, Provenance, StageRecord, Vertical, HEIGHT_LAYER,
 };
 use terrabake_format::{
-    commit_manifest, remove_unreferenced, Codec, ElemType, LayerSpec, LayerWriter, Manifest,
-    FORMAT_VERSION, MANIFEST_FILE,
+    commit_manifest, Codec, ElemType, LayerSpec, LayerWriter, Manifest, FORMAT_VERSION,
 };
 
+use crate::asset::{AssetWriter, Wait};
 use crate::progress::Progress;
 use crate::source::{self, parse_nodata, HeightMapping, RawSpec};
 use crate::tiling::push_tile_row;
@@ -41,7 +42,16 @@ pub struct IngestOptions {
     pub z_offset: f64,
     pub codec: Codec,
     pub raw: Option<RawSpec>,
+    /// Bytes the source's reader may hold at once; a source that needs more
+    /// (one strip of the whole DEM, say) is refused from its header. Not a
+    /// parameter of the result, so not recorded.
+    #[serde(skip)]
+    pub max_memory: u64,
 }
+
+/// Default of [`IngestOptions::max_memory`]: 1 GiB. Ingest streams, so
+/// only a source cut into huge strips or tiles (or an EXR) comes near it.
+pub const DEFAULT_INGEST_MEMORY: u64 = 1 << 30;
 
 impl Default for IngestOptions {
     fn default() -> Self {
@@ -53,6 +63,7 @@ impl Default for IngestOptions {
             z_offset: 0.0,
             codec: Codec::Raw,
             raw: None,
+            max_memory: DEFAULT_INGEST_MEMORY,
         }
     }
 }
@@ -74,25 +85,43 @@ pub fn ingest_params(src: &Path, opts: &IngestOptions) -> Result<serde_json::Val
     Ok(params)
 }
 
-/// Ingests `src` into the asset directory `asset_dir` and returns the
-/// committed manifest.
+/// Ingests `src` into the asset directory `asset_dir` (waiting for another
+/// writer, if one holds it) and returns the committed manifest.
 pub fn ingest(
     src: &Path,
     asset_dir: &Path,
     opts: &IngestOptions,
     progress: Progress,
 ) -> Result<Manifest> {
+    let writer = AssetWriter::create(asset_dir, Wait::Wait)?;
+    ingest_into(&writer, src, opts, progress).inspect_err(|_| writer.fail())
+}
+
+fn check_options(opts: &IngestOptions) -> Result<()> {
     if !opts.tile_size.is_power_of_two() || !(16..=4096).contains(&opts.tile_size) {
         bail!(
             "--tile {} is not a power of two between 16 and 4096",
             opts.tile_size
         );
     }
+    Ok(())
+}
+
+/// [`ingest`] under a writer the caller holds. On failure, the caller's
+/// [`AssetWriter::fail`] removes what it wrote; the asset that stood there
+/// before is untouched.
+pub fn ingest_into(
+    writer: &AssetWriter,
+    src: &Path,
+    opts: &IngestOptions,
+    progress: Progress,
+) -> Result<Manifest> {
+    check_options(opts)?;
+    let asset_dir = writer.dir();
     let params = ingest_params(src, opts)?;
-    let mut source = source::open(src, opts.raw.as_ref())?;
+    let mut source = source::open(src, opts.raw.as_ref(), opts.tile_size, opts.max_memory)?;
     let info = source.info().clone();
-    let target = AssetDir::prepare(asset_dir)?;
-    let result = (|| -> Result<Manifest> {
+    {
         let nodata_text = match opts.nodata {
             Some(v) => Some(v.to_string()),
             None => info.nodata.clone(),
@@ -115,9 +144,9 @@ pub fn ingest(
             stage: "ingest".into(),
             description: "terrain height, metres above the source's datum; NaN = nodata".into(),
         };
-        let mut writer = LayerWriter::create(asset_dir, spec)?;
+        let mut layer = LayerWriter::create(asset_dir, spec)?;
         let (width, ts) = (info.width as usize, opts.tile_size);
-        let mut band = vec![0f32; width * ts as usize];
+        let mut band = vec![0f32; width * ts.min(info.height) as usize];
         let (mut nodata_count, mut min, mut max) = (0u64, f32::INFINITY, f32::NEG_INFINITY);
         let bar = progress.bar(u64::from(info.height), "ingest", "rows");
         for y0 in (0..info.height).step_by(ts as usize) {
@@ -138,11 +167,11 @@ pub fn ingest(
                     max = max.max(z);
                 }
             }
-            push_tile_row(&mut writer, band, width, f32::NAN, opts.codec)?;
+            push_tile_row(&mut layer, band, width, f32::NAN, opts.codec)?;
             bar.inc(rows as u64);
         }
         bar.finish_and_clear();
-        let entry = writer.finish()?;
+        let entry = layer.finish()?;
         let cell_size = match (opts.cell_size, &info.georef) {
             (Some((dx, dy)), _) => CellSize {
                 dx,
@@ -156,6 +185,16 @@ pub fn ingest(
                 source: "assumed".into(),
             },
         };
+        let (lo, hi) = terrabake_format::manifest::CELL_SIZE_RANGE;
+        if !(lo..=hi).contains(&cell_size.dx) || !(lo..=hi).contains(&cell_size.dy) {
+            bail!(
+                "{}: post spacing {} x {} m ({}) is outside {lo:e}..={hi:e} m; give the spacing with --cell-size",
+                src.display(),
+                cell_size.dx,
+                cell_size.dy,
+                cell_size.source
+            );
+        }
         let manifest = Manifest {
             format_version: FORMAT_VERSION,
             width: info.width,
@@ -190,19 +229,9 @@ pub fn ingest(
                 }],
             },
             layers: vec![entry],
+            retired: Vec::new(),
         };
-        commit_manifest(asset_dir, &manifest)?;
-        Ok(manifest)
-    })();
-    match result {
-        Ok(manifest) => {
-            remove_unreferenced(asset_dir, &manifest)?;
-            Ok(manifest)
-        }
-        Err(e) => {
-            target.abandon();
-            Err(e)
-        }
+        Ok(commit_manifest(writer.lock_held(), &manifest)?)
     }
 }
 
@@ -210,51 +239,4 @@ pub fn unix_now() -> u64 {
     SystemTime::now()
         .duration_since(SystemTime::UNIX_EPOCH)
         .map_or(0, |d| d.as_secs())
-}
-
-/// The output directory of an ingest, and whether we created it.
-struct AssetDir {
-    path: PathBuf,
-    created: bool,
-}
-
-impl AssetDir {
-    /// Accepts a missing path, an empty directory, or an existing asset;
-    /// refuses anything else rather than writing into a stranger's folder.
-    fn prepare(path: &Path) -> Result<Self> {
-        match fs::metadata(path) {
-            Err(_) => {
-                fs::create_dir_all(path).with_context(|| {
-                    format!("{}: cannot create the asset directory", path.display())
-                })?;
-                Ok(Self {
-                    path: path.into(),
-                    created: true,
-                })
-            }
-            Ok(m) if !m.is_dir() => {
-                bail!("{}: exists and is not an asset directory", path.display())
-            }
-            Ok(_) => {
-                let is_asset = path.join(MANIFEST_FILE).exists();
-                let empty = fs::read_dir(path)?.next().is_none();
-                if !is_asset && !empty {
-                    bail!(
-                        "{}: is a non-empty directory without {MANIFEST_FILE}; refusing to write an asset into it",
-                        path.display()
-                    );
-                }
-                Ok(Self {
-                    path: path.into(),
-                    created: false,
-                })
-            }
-        }
-    }
-
-    fn abandon(self) {
-        if self.created {
-            let _ = fs::remove_dir_all(&self.path);
-        }
-    }
 }

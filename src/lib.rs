@@ -4,6 +4,8 @@
 //! its reader live in `terrabake-format`; this crate reads sources, runs the
 //! bake stages and writes their layers, and hosts the CLI (`src/main.rs`).
 //!
+//! - [`asset`]: an asset open for writing: its directory, its writer lock,
+//!   and the reclaiming of a dead or failed writer's files.
 //! - [`source`]: DEM readers (GeoTIFF, SRTM .hgt, raw, PNG, OpenEXR), row
 //!   band by row band, never holding a whole DEM.
 //! - [`ingest`]: the first stage: a source becomes the asset's `height` layer.
@@ -21,6 +23,7 @@
 //! - [`synth`]: synthetic terrains for tests and benchmarks.
 //! - [`export`]: layers out as GeoTIFF, OpenEXR or a PNG preview.
 
+pub mod asset;
 pub mod bench;
 pub mod chart;
 pub mod cones;

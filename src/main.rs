@@ -6,15 +6,16 @@ use std::process::ExitCode;
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
+use terrabake::asset::{AssetWriter, Wait};
 use terrabake::cones::{ConesStage, SliceChoice};
 use terrabake::export::{export_layer, PngStyle};
 use terrabake::horizon::{AngleChoice, HorizonsStage, Method as HorizonMethod};
-use terrabake::ingest::{ingest, IngestOptions, DEFAULT_TILE};
+use terrabake::ingest::{ingest_into, IngestOptions, DEFAULT_INGEST_MEMORY, DEFAULT_TILE};
 use terrabake::progress::Progress;
 use terrabake::pyramid::PyramidStage;
 use terrabake::render::{builtin_views, render, write_png, Camera, RenderOptions, Shadows, Sun};
 use terrabake::source::{ByteOrder, RawSampleType, RawSpec};
-use terrabake::stage::{bake, run_stage, Recipe, StageOutcome};
+use terrabake::stage::{bake, run_stage_in, Recipe, Stage, StageOutcome};
 use terrabake::synth::SynthKind;
 use terrabake_format::cones::{ConeEncoding, CONE_APEX};
 use terrabake_format::horizons::{AngleEncoding, HORIZON};
@@ -43,6 +44,10 @@ struct Cli {
     /// No progress bars and no summary lines on stderr.
     #[arg(long, short, global = true)]
     quiet: bool,
+    /// When another process is writing the asset, fail at once (naming its
+    /// pid) instead of waiting for it to finish.
+    #[arg(long, global = true)]
+    no_wait: bool,
     #[command(subcommand)]
     command: Command,
 }
@@ -399,6 +404,11 @@ struct IngestArgs {
     /// Tile edge in posts: a power of two from 16 to 4096.
     #[arg(long = "tile", default_value_t = DEFAULT_TILE)]
     tile: u32,
+    /// Memory the source's reader may hold at once, MiB. Ingest streams, so
+    /// only a DEM stored as a few huge strips or tiles (or an OpenEXR, read
+    /// whole) comes near it; such a source is refused from its header.
+    #[arg(long, default_value_t = DEFAULT_INGEST_MEMORY >> 20, value_name = "MIB")]
+    max_memory: u64,
     /// Nodata value of the source, overriding what the file says.
     #[arg(long, allow_hyphen_values = true)]
     nodata: Option<f64>,
@@ -442,6 +452,7 @@ impl IngestArgs {
                 }),
                 _ => None,
             },
+            max_memory: self.max_memory << 20,
         }
     }
 }
@@ -524,6 +535,12 @@ fn parse_codec(s: &str) -> Result<Codec, String> {
 }
 
 fn main() -> ExitCode {
+    // A closed pipe (`terrabake info --json | head -1`) ends the process
+    // quietly, as it does `cat`, instead of a panic in println!.
+    // SAFETY: restoring a signal's default disposition before any thread starts.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = Cli::parse();
     match run(cli) {
         Ok(code) => code,
@@ -536,6 +553,14 @@ fn main() -> ExitCode {
 
 fn run(cli: Cli) -> Result<ExitCode> {
     let progress = Progress::new(cli.quiet);
+    let wait = if cli.no_wait {
+        Wait::NoWait
+    } else {
+        Wait::Wait
+    };
+    let run_stage = |asset: &Path, stage: &dyn Stage, force: bool| -> Result<StageOutcome> {
+        run_stage_in(&AssetWriter::open(asset, wait)?, stage, force, progress)
+    };
     let say = |msg: String| {
         if !cli.quiet {
             eprintln!("{msg}");
@@ -549,7 +574,9 @@ fn run(cli: Cli) -> Result<ExitCode> {
             json,
         } => {
             let start = std::time::Instant::now();
-            let manifest = ingest(&src, &output, &opts.options(), progress)?;
+            let writer = AssetWriter::create(&output, wait)?;
+            let manifest = ingest_into(&writer, &src, &opts.options(), progress)
+                .inspect_err(|_| writer.fail())?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&manifest)?);
             }
@@ -768,7 +795,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             }
         }
         Command::Pyramid { asset, force, json } => {
-            let outcome = run_stage(&asset, &PyramidStage, force, progress)?;
+            let outcome = run_stage(&asset, &PyramidStage, force)?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&outcome)?);
             }
@@ -793,7 +820,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 encoding,
                 max_memory: max_memory << 20,
             };
-            let outcome = run_stage(&asset, &stage, force, progress)?;
+            let outcome = run_stage(&asset, &stage, force)?;
             let how = open_asset(&asset)?
                 .manifest()
                 .layer(CONE_APEX, 0)
@@ -838,7 +865,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 direction_tolerance,
                 max_memory: max_memory << 20,
             };
-            let outcome = run_stage(&asset, &stage, force, progress)?;
+            let outcome = run_stage(&asset, &stage, force)?;
             let opened = open_asset(&asset)?;
             let entry = opened.manifest().layer(HORIZON, 0).cloned();
             if json {
@@ -951,7 +978,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             json,
         } => {
             let recipe_data = Recipe::load(&recipe)?;
-            let outcomes = bake(&src, &output, &recipe_data, progress)?;
+            let outcomes = bake(&src, &output, &recipe_data, wait, progress)?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&outcomes)?);
             }

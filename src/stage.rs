@@ -25,9 +25,10 @@ use std::path::Path;
 use anyhow::{bail, Context, Result};
 use serde::Deserialize;
 use terrabake_format::manifest::StageRecord;
-use terrabake_format::{commit_manifest, remove_unreferenced, Asset, Codec, LayerEntry, Mmap};
+use terrabake_format::{commit_manifest, Asset, Codec, LayerEntry, Mmap};
 
-use crate::ingest::{ingest, ingest_params, unix_now, IngestOptions};
+use crate::asset::{AssetWriter, Wait};
+use crate::ingest::{ingest_into, ingest_params, unix_now, IngestOptions};
 use crate::progress::Progress;
 
 /// One bake stage.
@@ -71,13 +72,40 @@ fn already_done(
     (record.params == *params && present).then(|| record.outputs.clone())
 }
 
-/// Runs `stage` on the asset in `dir` unless it is already done (or `force`).
+/// Runs `stage` on the asset in `dir` unless it is already done (or
+/// `force`), waiting for another writer if one holds the asset.
 pub fn run_stage(
     dir: &Path,
     stage: &dyn Stage,
     force: bool,
     progress: Progress,
 ) -> Result<StageOutcome> {
+    let writer = AssetWriter::open(dir, Wait::Wait)?;
+    run_stage_in(&writer, stage, force, progress)
+}
+
+/// [`run_stage`] under a writer the caller holds. A stage that fails
+/// leaves nothing behind: its files are reclaimed before the error returns.
+pub fn run_stage_in(
+    writer: &AssetWriter,
+    stage: &dyn Stage,
+    force: bool,
+    progress: Progress,
+) -> Result<StageOutcome> {
+    let result = write_stage(writer, stage, force, progress);
+    if result.is_err() {
+        writer.fail();
+    }
+    result
+}
+
+fn write_stage(
+    writer: &AssetWriter,
+    stage: &dyn Stage,
+    force: bool,
+    progress: Progress,
+) -> Result<StageOutcome> {
+    let dir = writer.dir();
     let start = std::time::Instant::now();
     let asset =
         Asset::open(dir).with_context(|| format!("{}: cannot open asset", dir.display()))?;
@@ -112,8 +140,7 @@ pub fn run_stage(
         finished_unix: unix_now(),
         outputs: outputs.clone(),
     });
-    commit_manifest(dir, &manifest)?;
-    remove_unreferenced(dir, &manifest)?;
+    commit_manifest(writer.lock_held(), &manifest)?;
     Ok(StageOutcome {
         stage: stage.name().into(),
         skipped: false,
@@ -196,6 +223,7 @@ impl Recipe {
             z_offset: i.z_offset,
             codec: i.codec,
             raw: None,
+            ..IngestOptions::default()
         }
     }
 }
@@ -259,11 +287,13 @@ fn cones_from_recipe(params: &toml::Table) -> Result<crate::cones::ConesStage> {
     Ok(stage)
 }
 
-/// Ingest (unless the asset already is this ingest) and every recipe stage.
+/// Ingest (unless the asset already is this ingest) and every recipe stage,
+/// all under one hold of the writer lock.
 pub fn bake(
     src: &Path,
     dir: &Path,
     recipe: &Recipe,
+    wait: Wait,
     progress: Progress,
 ) -> Result<Vec<StageOutcome>> {
     // Resolve every stage before any work, so a typo fails in a second.
@@ -274,6 +304,7 @@ pub fn bake(
         .collect::<Result<Vec<_>>>()?;
     let opts = recipe.ingest_options();
     let params = ingest_params(src, &opts)?;
+    let writer = AssetWriter::create(dir, wait)?;
     let current = Asset::open(dir)
         .ok()
         .and_then(|a| already_done(a.manifest(), "ingest", &params));
@@ -287,7 +318,8 @@ pub fn bake(
         }),
         None => {
             let start = std::time::Instant::now();
-            let manifest = ingest(src, dir, &opts, progress)?;
+            let manifest =
+                ingest_into(&writer, src, &opts, progress).inspect_err(|_| writer.fail())?;
             outcomes.push(StageOutcome {
                 stage: "ingest".into(),
                 skipped: false,
@@ -297,7 +329,7 @@ pub fn bake(
         }
     }
     for stage in stages {
-        outcomes.push(run_stage(dir, stage.as_ref(), false, progress)?);
+        outcomes.push(run_stage_in(&writer, stage.as_ref(), false, progress)?);
     }
     Ok(outcomes)
 }

@@ -76,8 +76,13 @@ fn bench(c: &mut Criterion) {
             stages: vec![],
         },
         layers,
+        retired: vec![],
     };
-    commit_manifest(dir.path(), &manifest).unwrap();
+    commit_manifest(
+        &WriteLock::acquire(dir.path(), true, |_| {}).unwrap(),
+        &manifest,
+    )
+    .unwrap();
 
     c.bench_function("open 4096^2 asset (2 layers, 512 chunks)", |b| {
         b.iter(|| Asset::open(dir.path()).unwrap())

@@ -84,6 +84,12 @@ pub enum Error {
     },
     #[error("invalid layer specification: {0}")]
     Spec(String),
+    #[error("{}: another writer holds the asset (pid {}); wait for it, or run again later", dir.display(), pid.map_or("unknown".to_string(), |p| p.to_string()))]
+    Locked {
+        dir: PathBuf,
+        /// The holder's process id, as it recorded it in the lock file.
+        pid: Option<u32>,
+    },
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;

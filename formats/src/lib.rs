@@ -32,6 +32,7 @@
 
 pub mod cones;
 pub mod error;
+pub mod fsio;
 pub mod horizons;
 pub mod layout;
 pub mod manifest;
@@ -46,5 +47,5 @@ pub use manifest::{LayerEntry, Manifest, Quantization, HEIGHT_LAYER};
 pub use memmap2::Mmap;
 pub use reader::{Asset, Element, Layer, Tile, VerifyReport};
 pub use writer::{
-    commit_manifest, encode_tile, remove_unreferenced, EncodedTile, LayerSpec, LayerWriter,
+    commit_manifest, encode_tile, EncodedTile, LayerSpec, LayerWriter, WriteLock, LOCK_FILE,
 };

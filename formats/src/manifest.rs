@@ -26,6 +26,20 @@ pub struct Manifest {
     pub height_range: Option<HeightRange>,
     pub provenance: Provenance,
     pub layers: Vec<LayerEntry>,
+    /// Layer files that an earlier manifest named and this one does not,
+    /// kept for a grace period after the commit that retired them so that a
+    /// reader that read the earlier manifest still finds them. Readers never
+    /// open them; writers remove them once the grace has passed.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub retired: Vec<Retired>,
+}
+
+/// A layer file kept after the commit that stopped naming it.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Retired {
+    pub file: String,
+    /// Seconds since the Unix epoch of the commit that retired it.
+    pub since_unix: u64,
 }
 
 /// Horizontal post spacing in metres.
@@ -187,9 +201,144 @@ impl LayerEntry {
     pub fn key(&self) -> String {
         format!("{}@{}", self.name, self.level)
     }
+
+    /// What [`Manifest::validate`] checks of one layer.
+    fn validate(&self, m: &Manifest) -> std::result::Result<(), String> {
+        let bad = |what: String| Err(format!("layer {}: {what}", self.key()));
+        let name_ok = !self.name.is_empty()
+            && self
+                .name
+                .bytes()
+                .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-');
+        if !name_ok {
+            return bad("names use only letters, digits, '_' and '-'".into());
+        }
+        if let Err(e) = crate::fsio::check_file_name(&self.file) {
+            return bad(e);
+        }
+        if self.width == 0 || self.height == 0 || self.bands == 0 {
+            return bad(format!(
+                "empty grid {} x {} x {}",
+                self.width, self.height, self.bands
+            ));
+        }
+        if self.width > m.width || self.height > m.height {
+            return bad(format!(
+                "{} x {} is larger than the asset's {} x {}",
+                self.width, self.height, m.width, m.height
+            ));
+        }
+        if self.tile_size != m.tile_size {
+            return bad(format!(
+                "tile_size {} is not the asset's {}",
+                self.tile_size, m.tile_size
+            ));
+        }
+        let tiles = u64::from(self.width.div_ceil(self.tile_size))
+            * u64::from(self.height.div_ceil(self.tile_size));
+        if self.chunks != u64::from(self.bands) * tiles || self.constant_chunks > self.chunks {
+            return bad(format!(
+                "{} chunks ({} constant) for {} bands of {tiles} tiles",
+                self.chunks, self.constant_chunks, self.bands
+            ));
+        }
+        if let Some(q) = &self.quantization {
+            if !(q.offset.is_finite() && q.scale.is_finite() && q.scale != 0.0) {
+                return bad("quantization offset and scale must be finite, scale non-zero".into());
+            }
+        }
+        if !self.band_azimuths.is_empty()
+            && (self.band_azimuths.len() != self.bands as usize
+                || self.band_azimuths.iter().any(|a| !(0.0..360.0).contains(a)))
+        {
+            return bad(format!(
+                "{} band_azimuths for {} bands, or one outside [0, 360)",
+                self.band_azimuths.len(),
+                self.bands
+            ));
+        }
+        Ok(())
+    }
 }
 
+/// The post spacings, in metres, a manifest may state. Tracers divide by
+/// them and step with them: a spacing outside this range (a picometre, a
+/// light year) is a corrupt or hostile manifest, not a DEM.
+pub const CELL_SIZE_RANGE: (f64, f64) = (1e-6, 1e7);
+
 impl Manifest {
+    /// Checks every field a reader relies on, before any file is opened:
+    /// the shape, the spacing a tracer divides by, the height range, the
+    /// nodata count, every layer's name, file name, shape, tiling and
+    /// encoding, and that the height layer is there. Returns what is wrong.
+    pub fn validate(&self) -> std::result::Result<(), String> {
+        let (w, h, ts) = (self.width, self.height, self.tile_size);
+        if w == 0 || h == 0 {
+            return Err(format!("empty grid {w} x {h}"));
+        }
+        if !ts.is_power_of_two() || !(16..=4096).contains(&ts) {
+            return Err(format!("tile_size {ts} is not a power of two in 16..=4096"));
+        }
+        let (lo, hi) = CELL_SIZE_RANGE;
+        for (axis, d) in [("dx", self.cell_size.dx), ("dy", self.cell_size.dy)] {
+            if !(lo..=hi).contains(&d) {
+                return Err(format!(
+                    "cell_size.{axis} = {d} m is outside {lo:e}..={hi:e} m"
+                ));
+            }
+        }
+        if !(self.vertical.scale.is_finite() && self.vertical.offset.is_finite()) {
+            return Err("vertical scale and offset must be finite".into());
+        }
+        if let Some(g) = &self.georef {
+            if g.geotransform.iter().any(|v| !v.is_finite()) {
+                return Err("georef.geotransform has a value that is not finite".into());
+            }
+        }
+        if let Some(r) = self.height_range {
+            if !(r.min.is_finite() && r.max.is_finite() && r.min <= r.max) {
+                return Err(format!(
+                    "height_range {}..{} is not a finite range with min <= max",
+                    r.min, r.max
+                ));
+            }
+        }
+        let posts = u64::from(w) * u64::from(h);
+        if self.nodata.count > posts {
+            return Err(format!(
+                "nodata.count {} exceeds the grid's {posts} posts",
+                self.nodata.count
+            ));
+        }
+        if self.nodata.count < posts && self.height_range.is_none() {
+            return Err("height_range is missing though some posts have data".into());
+        }
+        let mut keys = std::collections::HashSet::new();
+        let mut files = std::collections::HashSet::new();
+        for l in &self.layers {
+            l.validate(self)?;
+            if !keys.insert((l.name.as_str(), l.level)) {
+                return Err(format!("layer {} is listed twice", l.key()));
+            }
+            if !files.insert(l.file.as_str()) {
+                return Err(format!("file {} is named by two layers", l.file));
+            }
+        }
+        for r in &self.retired {
+            crate::fsio::check_file_name(&r.file)?;
+        }
+        match self.layer(HEIGHT_LAYER, 0) {
+            None => Err(format!("no {HEIGHT_LAYER}@0 layer")),
+            Some(l) if l.elem != ElemType::F32 || (l.width, l.height) != (w, h) => Err(format!(
+                "{HEIGHT_LAYER}@0 is {} x {} {}, not the grid's {w} x {h} f32",
+                l.width,
+                l.height,
+                l.elem.name()
+            )),
+            Some(_) => Ok(()),
+        }
+    }
+
     pub fn layer(&self, name: &str, level: u32) -> Option<&LayerEntry> {
         self.layers
             .iter()

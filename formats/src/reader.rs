@@ -13,7 +13,6 @@
 //! `memmap2::Mmap` for files, `Vec<u8>` in tests.
 
 use std::collections::HashMap;
-use std::fs::File;
 use std::marker::PhantomData;
 use std::ops::Deref;
 use std::path::{Path, PathBuf};
@@ -184,6 +183,10 @@ impl<D: AsRef<[u8]>> Layer<D> {
         if footer.header_xxh3 != header.header_xxh3 {
             return bad("footer does not belong to this header".into());
         }
+        if header.reserved0.get() != 0 || header.reserved1.get() != 0 || footer.reserved != [0; 20]
+        {
+            return bad("reserved header or footer bytes are not zero".into());
+        }
         if data.len() as u64 != entry.file_len {
             return bad(format!(
                 "file is {} bytes, manifest says {}",
@@ -250,6 +253,7 @@ impl<D: AsRef<[u8]>> Layer<D> {
             let (off, len) = (c.offset.get(), c.stored_len.get());
             let codec = Codec::from_code(c.codec);
             let ok = codec.is_some()
+                && c.reserved == [0; 3]
                 && u64::from(c.raw_len.get()) == tile_bytes
                 && off >= HEADER_LEN as u64
                 && off % CHUNK_ALIGN == 0
@@ -599,12 +603,32 @@ impl Asset<Mmap> {
     }
 
     /// As [`Asset::open`], with the decompressed-tile cache bounded to `cache_bytes`.
+    ///
+    /// A writer may commit while this runs. Files the previous manifest named
+    /// are kept for a grace period after the commit (see
+    /// [`crate::writer`]), and when a layer cannot be opened although the
+    /// manifest has changed since it was read, the open starts again with
+    /// the new manifest (up to [`OPEN_ATTEMPTS`] times): a reader sees one
+    /// whole generation of the asset or the other, never an error of the race.
     pub fn open_with_cache(dir: impl AsRef<Path>, cache_bytes: u64) -> Result<Self> {
         let dir = dir.as_ref();
         let manifest_path = dir.join(MANIFEST_FILE);
-        let manifest_bytes = map_file(&manifest_path)?;
-        let manifest = parse_manifest(&manifest_path, manifest_bytes.as_ref())?;
-        Self::map_layers(dir, manifest, cache_bytes)
+        let mut attempt = 1;
+        loop {
+            let manifest_bytes = read_file(&manifest_path)?;
+            let manifest = parse_manifest(&manifest_path, &manifest_bytes)?;
+            match Self::map_layers(dir, manifest, cache_bytes) {
+                Ok(asset) => return Ok(asset),
+                Err(e) if attempt < OPEN_ATTEMPTS => {
+                    // Only a commit in between excuses a failure: retry then.
+                    if read_file(&manifest_path).ok().as_deref() == Some(&manifest_bytes[..]) {
+                        return Err(e);
+                    }
+                    attempt += 1;
+                }
+                Err(e) => return Err(e),
+            }
+        }
     }
 
     /// The asset as `manifest` says it is, before that manifest is
@@ -615,6 +639,10 @@ impl Asset<Mmap> {
     }
 
     fn map_layers(dir: &Path, manifest: Manifest, cache_bytes: u64) -> Result<Self> {
+        // Every name is checked before the first file is opened.
+        manifest
+            .validate()
+            .map_err(|what| Error::malformed(Location::file(dir.join(MANIFEST_FILE)), what))?;
         let mut files = HashMap::new();
         for layer in &manifest.layers {
             files.insert(layer.file.clone(), map_file(&dir.join(&layer.file))?);
@@ -623,21 +651,48 @@ impl Asset<Mmap> {
     }
 }
 
+/// How many times [`Asset::open`] starts again when commits race it.
+pub const OPEN_ATTEMPTS: u32 = 16;
+
+/// The manifest file's bytes (small: read, not mapped, so that a writer's
+/// rename can never change them under us).
+fn read_file(path: &Path) -> Result<Vec<u8>> {
+    use std::io::Read;
+    let mut bytes = Vec::new();
+    crate::fsio::open_regular(path)?
+        .read_to_end(&mut bytes)
+        .map_err(|source| Error::Io {
+            at: Location::file(path),
+            source,
+        })?;
+    Ok(bytes)
+}
+
 fn map_file(path: &Path) -> Result<Mmap> {
-    let io = |source| Error::Io {
-        at: Location::file(path),
-        source,
-    };
-    let file = File::open(path).map_err(io)?;
+    let file = crate::fsio::open_regular(path)?;
     // SAFETY: terrabake never modifies a file in place: writers create new
     // files and rename them over old names, so a mapping never changes under
     // the reader. Another program truncating the file would break that; we
     // document it and accept it, as every mmap-based reader does.
-    unsafe { Mmap::map(&file) }.map_err(io)
+    unsafe { Mmap::map(&file) }.map_err(|source| Error::Io {
+        at: Location::file(path),
+        source,
+    })
 }
 
-/// Parses the manifest file's bytes (header, checksum, JSON).
+/// Parses the manifest file's bytes (header, checksum, JSON) and checks
+/// every field readers rely on ([`Manifest::validate`]).
 pub fn parse_manifest(path: &Path, bytes: &[u8]) -> Result<Manifest> {
+    let manifest = parse_manifest_unchecked(path, bytes)?;
+    manifest
+        .validate()
+        .map_err(|what| Error::malformed(Location::file(path), what))?;
+    Ok(manifest)
+}
+
+/// [`parse_manifest`] without [`Manifest::validate`]: what a writer needs
+/// to learn which files an older manifest named.
+pub(crate) fn parse_manifest_unchecked(path: &Path, bytes: &[u8]) -> Result<Manifest> {
     let at = || Location::file(path);
     if bytes.len() < MANIFEST_HEADER_LEN {
         return Err(Error::malformed(
@@ -659,6 +714,9 @@ pub fn parse_manifest(path: &Path, bytes: &[u8]) -> Result<Manifest> {
             expected: FORMAT_VERSION,
             got: header.version.get(),
         });
+    }
+    if header.reserved.get() != 0 {
+        return Err(Error::malformed(at(), "reserved header bytes are not zero"));
     }
     let json = &bytes[MANIFEST_HEADER_LEN..];
     if json.len() as u64 != header.json_len.get() {
@@ -721,12 +779,6 @@ impl<D: AsRef<[u8]>> Asset<D> {
         let mut layers = Vec::with_capacity(manifest.layers.len());
         for (id, entry) in manifest.layers.iter().enumerate() {
             let path = dir.join(&entry.file);
-            if entry.file.contains(['/', '\\']) || entry.file.starts_with('.') {
-                return Err(Error::malformed(
-                    Location::file(dir.join(MANIFEST_FILE)),
-                    format!("layer file name {:?} leaves the asset", entry.file),
-                ));
-            }
             let bytes = files.remove(&entry.file).ok_or_else(|| Error::Io {
                 at: Location::layer(&path, entry.key()),
                 source: std::io::ErrorKind::NotFound.into(),
@@ -785,7 +837,10 @@ impl<D: AsRef<[u8]>> Asset<D> {
         }
     }
 
-    /// Checksums every tile of every layer.
+    /// Checksums every tile of every layer, and checks the manifest's
+    /// statements about the heights (nodata count, height range) against
+    /// the heights themselves. (Everything else the manifest states was
+    /// checked when the asset was opened.)
     pub fn verify(&self) -> VerifyReport {
         let mut report = VerifyReport {
             layers: self.layers.len(),
@@ -796,7 +851,56 @@ impl<D: AsRef<[u8]>> Asset<D> {
             report.chunks += layer.entry.chunks;
             report.problems.extend(layer.verify());
         }
+        if report.problems.is_empty() {
+            report.problems.extend(self.verify_heights().err());
+        }
         report
+    }
+
+    /// The manifest's nodata count and height range against the heights.
+    fn verify_heights(&self) -> Result<()> {
+        let height = self.height()?;
+        let (w, h, ts) = (height.width(), height.height(), height.tile_size());
+        let (mut nodata, mut min, mut max) = (0u64, f32::INFINITY, f32::NEG_INFINITY);
+        for ty in 0..height.tiles_y() {
+            for tx in 0..height.tiles_x() {
+                let tile = height.tile::<f32>(0, tx, ty)?;
+                let cols = (ts.min(w - tx * ts)) as usize;
+                for row in tile
+                    .chunks_exact(ts as usize)
+                    .take(ts.min(h - ty * ts) as usize)
+                {
+                    for &z in &row[..cols] {
+                        if z.is_nan() {
+                            nodata += 1;
+                        } else {
+                            min = min.min(z);
+                            max = max.max(z);
+                        }
+                    }
+                }
+            }
+        }
+        let m = &self.manifest;
+        let at = || Location::file(self.dir.join(MANIFEST_FILE));
+        if nodata != m.nodata.count {
+            return Err(Error::malformed(
+                at(),
+                format!(
+                    "nodata.count is {}, the height layer has {nodata} nodata posts",
+                    m.nodata.count
+                ),
+            ));
+        }
+        let range = m.height_range.map(|r| (r.min, r.max));
+        let actual = (min <= max).then_some((min, max));
+        if range != actual {
+            return Err(Error::malformed(
+                at(),
+                format!("height_range is {range:?}, the heights span {actual:?}"),
+            ));
+        }
+        Ok(())
     }
 }
 

@@ -1,26 +1,56 @@
 //! Writing layers and committing manifests, so that a crash at any point
-//! leaves the asset as it was before or as it is after, never in between.
+//! leaves the asset as it was before or as it is after, never in between,
+//! and a reader never sees anything but a whole asset.
 //!
-//! A layer is written to `<file>.tmp`, fsynced, and renamed to a file name
-//! that no earlier version used (it carries a generation number). Only then is
-//! the manifest rewritten, the same way, to point at it: the manifest's rename
-//! is the commit point. Files that no manifest names any more are removed
-//! afterwards by [`remove_unreferenced`]. One writer at a time per asset.
+//! ```text
+//!  WriteLock::acquire ──► reclaim garbage ──► LayerWriter × n ──► commit_manifest
+//!  (writer.lock, flock)   (dead writers'      (unique .tmp,        (manifest.tba: the
+//!                          .tmp and orphans)   fsync, rename to     commit point; old
+//!                                              a fresh generation)  files retired)
+//! ```
+//!
+//! - **One writer at a time.** A writer holds [`WriteLock`], an advisory
+//!   lock (`flock`) on `writer.lock` inside the asset, for its whole run; the
+//!   lock file records the holder's pid for the message a second writer
+//!   gets. The kernel drops the lock when the holder dies, however it dies,
+//!   so a crashed writer never blocks the next one.
+//! - **Layers** are written to a uniquely named temporary file
+//!   ([`crate::fsio::create_temp`]), fsynced, and renamed to a name that no
+//!   earlier version used (it carries a generation number).
+//! - **The commit** ([`commit_manifest`]) writes the manifest the same way;
+//!   its rename is the commit point. Files the previous manifest named and
+//!   this one does not are *retired*: listed in the manifest with the time,
+//!   and kept for [`WriteLock::grace`] (60 s by default) so that a reader
+//!   that read the previous manifest a moment ago still finds them. A reader
+//!   needs them only between reading the manifest and mapping the layers
+//!   (a mapped file stays readable after it is unlinked), and
+//!   [`crate::Asset::open`] also retries when a layer is gone and the
+//!   manifest has changed, so a renderer that opens an asset during any
+//!   number of commits never fails.
+//! - **Garbage** ([`WriteLock::reclaim`]): under the lock, every temporary
+//!   file is a dead writer's, and every layer file that the manifest neither
+//!   names nor keeps as retired is an orphan of a writer that died between
+//!   its layer renames and its commit, or of a stage that failed. The next
+//!   writer removes both when it takes the lock, and a writer whose stage
+//!   fails removes its own before it lets go.
 
-use std::collections::HashMap;
-use std::fs::{self, File};
-use std::io::{BufWriter, Write};
+use std::collections::{HashMap, HashSet};
+use std::fs::{self, File, OpenOptions};
+use std::io::{BufWriter, Read, Seek, Write};
+use std::os::unix::fs::OpenOptionsExt;
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 use zerocopy::IntoBytes;
 
 use crate::error::{Error, Location, Result};
+use crate::fsio::{crash_point, create_temp, sync_dir, TEMP_SUFFIX};
 use crate::layout::{
     align_up, tiles_for, xxh3, ChunkEntry, Codec, ElemType, LayerFooter, LayerHeader,
     ManifestHeader, FOOTER_MAGIC, FORMAT_VERSION, HEADER_LEN, LAYER_MAGIC, MANIFEST_FILE,
     MANIFEST_MAGIC,
 };
-use crate::manifest::{LayerEntry, Manifest};
+use crate::manifest::{LayerEntry, Manifest, Retired};
 
 /// What a layer holds; the writer derives the tiling from it.
 #[derive(Debug, Clone)]
@@ -148,12 +178,15 @@ impl LayerWriter {
     pub fn create(dir: &Path, spec: LayerSpec) -> Result<Self> {
         spec.validate()?;
         let file_name = fresh_layer_file_name(dir, &spec.name, spec.level);
-        let tmp_path = dir.join(format!("{file_name}.tmp"));
+        let final_path = dir.join(&file_name);
+        let (file, tmp_path) = create_temp(&final_path).map_err(|source| Error::Io {
+            at: Location::layer(&final_path, format!("{}@{}", spec.name, spec.level)),
+            source,
+        })?;
         let io_err = |source| Error::Io {
             at: Location::layer(&tmp_path, format!("{}@{}", spec.name, spec.level)),
             source,
         };
-        let file = File::create(&tmp_path).map_err(io_err)?;
         let mut header = LayerHeader {
             magic: LAYER_MAGIC,
             version: FORMAT_VERSION.into(),
@@ -235,6 +268,7 @@ impl LayerWriter {
             self.constant_chunks += 1;
             return Ok(());
         }
+        crash_point();
         let offset = align_up(self.pos);
         let pad = (offset - self.pos) as usize;
         let out = self.out.as_mut().expect("writer used after finish");
@@ -299,6 +333,7 @@ impl LayerWriter {
             out.write_all(index_bytes)?;
             out.write_all(footer.as_bytes())?;
             let file = out.into_inner().map_err(|e| e.into_error())?;
+            crash_point();
             file.sync_all()?;
             Ok(file)
         };
@@ -309,6 +344,7 @@ impl LayerWriter {
         let file_len = file.metadata().map(|m| m.len()).unwrap_or(0);
         drop(file);
         let final_path = self.dir.join(&self.file_name);
+        crash_point();
         fs::rename(&self.tmp_path, &final_path).map_err(|source| Error::Io { at, source })?;
         Ok(LayerEntry {
             name: self.spec.name.clone(),
@@ -359,15 +395,201 @@ fn fresh_layer_file_name(dir: &Path, name: &str, level: u32) -> String {
     format!("{prefix}{}.tbl", highest.map_or(0, |g| g + 1))
 }
 
-/// Writes the manifest atomically: temporary file, fsync, rename, fsync of
-/// the directory. This is the commit point of every change to an asset.
-pub fn commit_manifest(dir: &Path, manifest: &Manifest) -> Result<()> {
+/// File name of the writer lock inside an asset directory.
+pub const LOCK_FILE: &str = "writer.lock";
+
+/// How long a retired layer file is kept after the commit that retired it.
+pub const DEFAULT_RETIRE_GRACE: Duration = Duration::from_secs(60);
+
+/// The asset's writer lock: while one is held, no other process writes the
+/// asset. Dropping it (or the holder dying) releases it.
+#[derive(Debug)]
+pub struct WriteLock {
+    dir: PathBuf,
+    /// The lock belongs to this open file: it lasts as long as the file is open.
+    _file: File,
+    grace: Duration,
+}
+
+impl WriteLock {
+    /// Takes the lock of the asset directory `dir` (which must exist). With
+    /// `wait`, blocks until the holder lets go, calling `on_wait(pid)` first
+    /// with the holder's pid; without, fails at once with [`Error::Locked`].
+    pub fn acquire(dir: &Path, wait: bool, on_wait: impl FnOnce(Option<u32>)) -> Result<Self> {
+        let path = dir.join(LOCK_FILE);
+        let io = |source| Error::Io {
+            at: Location::file(&path),
+            source,
+        };
+        let mut file = OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .mode(0o644)
+            .custom_flags(libc::O_NOFOLLOW | libc::O_CLOEXEC)
+            .open(&path)
+            .map_err(io)?;
+        if !file.metadata().map_err(io)?.file_type().is_file() {
+            return Err(Error::malformed(
+                Location::file(&path),
+                "is not a regular file",
+            ));
+        }
+        match file.try_lock() {
+            Ok(()) => {}
+            Err(fs::TryLockError::WouldBlock) => {
+                let pid = holder_pid(&mut file);
+                if !wait {
+                    return Err(Error::Locked {
+                        dir: dir.to_path_buf(),
+                        pid,
+                    });
+                }
+                on_wait(pid);
+                file.lock().map_err(io)?;
+            }
+            Err(fs::TryLockError::Error(e)) => return Err(io(e)),
+        }
+        // Ours now: say who holds it, for the next writer's message.
+        let mut record = || -> std::io::Result<()> {
+            file.set_len(0)?;
+            file.rewind()?;
+            writeln!(file, "{}", std::process::id())
+        };
+        record().map_err(io)?;
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            _file: file,
+            grace: DEFAULT_RETIRE_GRACE,
+        })
+    }
+
+    /// The same lock with another grace period for retired files (tests).
+    pub fn with_grace(mut self, grace: Duration) -> Self {
+        self.grace = grace;
+        self
+    }
+
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// How long a layer file stays after the commit that retired it.
+    pub fn grace(&self) -> Duration {
+        self.grace
+    }
+
+    /// [`Self::reclaim`] against the committed manifest: everything unnamed
+    /// goes when there is no manifest yet (a first ingest that died); when
+    /// the manifest exists but cannot be parsed, nothing is touched, since
+    /// nothing can then tell garbage from the asset.
+    pub fn reclaim_garbage(&self) -> Result<Vec<String>> {
+        let path = self.dir.join(MANIFEST_FILE);
+        let mut bytes = Vec::new();
+        match crate::fsio::open_regular(&path) {
+            Err(Error::Io { source, .. }) if source.kind() == std::io::ErrorKind::NotFound => {
+                self.reclaim(None)
+            }
+            Err(_) => Ok(Vec::new()),
+            Ok(mut file) => match file.read_to_end(&mut bytes) {
+                Ok(_) => match crate::reader::parse_manifest_unchecked(&path, &bytes) {
+                    Ok(m) => self.reclaim(Some(&m)),
+                    Err(_) => Ok(Vec::new()),
+                },
+                Err(_) => Ok(Vec::new()),
+            },
+        }
+    }
+
+    /// Removes what no writer will finish and no reader can be using:
+    /// every temporary file, and every layer file that `manifest` (the
+    /// committed one, `None` when there is none yet) neither names nor
+    /// retired less than [`Self::grace`] ago. Returns the names removed.
+    pub fn reclaim(&self, manifest: Option<&Manifest>) -> Result<Vec<String>> {
+        let keep: HashSet<&str> = manifest
+            .map(|m| {
+                let now = unix_now();
+                let layers = m.layers.iter().map(|l| l.file.as_str());
+                let retired = m
+                    .retired
+                    .iter()
+                    .filter(|r| now < r.since_unix.saturating_add(self.grace.as_secs()))
+                    .map(|r| r.file.as_str());
+                layers.chain(retired).collect()
+            })
+            .unwrap_or_default();
+        let entries = fs::read_dir(&self.dir).map_err(|source| Error::Io {
+            at: Location::file(&self.dir),
+            source,
+        })?;
+        let mut removed = Vec::new();
+        for entry in entries.flatten() {
+            let Ok(name) = entry.file_name().into_string() else {
+                continue;
+            };
+            let ours = name.ends_with(".tbl") || name.ends_with(TEMP_SUFFIX);
+            // Never a directory, whatever its name (remove_file refuses one).
+            let is_dir = entry.file_type().is_ok_and(|t| t.is_dir());
+            if ours && !is_dir && !keep.contains(name.as_str()) {
+                crash_point();
+                match fs::remove_file(entry.path()) {
+                    Ok(()) => removed.push(name),
+                    Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+                    Err(source) => {
+                        return Err(Error::Io {
+                            at: Location::file(entry.path()),
+                            source,
+                        })
+                    }
+                }
+            }
+        }
+        if !removed.is_empty() {
+            sync_dir(&self.dir).map_err(|source| Error::Io {
+                at: Location::file(&self.dir),
+                source,
+            })?;
+        }
+        removed.sort();
+        Ok(removed)
+    }
+}
+
+/// The pid written in a held lock file, if it is readable.
+fn holder_pid(file: &mut File) -> Option<u32> {
+    let mut text = String::new();
+    file.rewind().ok()?;
+    file.take(32).read_to_string(&mut text).ok()?;
+    text.trim().parse().ok()
+}
+
+fn unix_now() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs())
+}
+
+/// Commits `manifest` atomically (temporary file, fsync, rename, fsync of
+/// the directory: the commit point of every change to an asset), retires
+/// the files the previous manifest named and this one does not, and
+/// reclaims what is past its grace. Returns the manifest as committed (with
+/// its `retired` list).
+pub fn commit_manifest(lock: &WriteLock, manifest: &Manifest) -> Result<Manifest> {
+    let dir = lock.dir();
     let path = dir.join(MANIFEST_FILE);
-    let tmp = dir.join(format!("{MANIFEST_FILE}.tmp"));
-    let json = serde_json::to_vec_pretty(manifest).map_err(|source| Error::Manifest {
-        at: Location::file(&path),
-        source,
+    let at = || Location::file(&path);
+    // A writer never commits what a reader would refuse.
+    manifest.validate().map_err(|what| {
+        Error::Spec(format!(
+            "{}: manifest not committed: {what}",
+            path.display()
+        ))
     })?;
+    let mut manifest = manifest.clone();
+    manifest.retired = retire(dir, &manifest, lock.grace);
+    let json = serde_json::to_vec_pretty(&manifest)
+        .map_err(|source| Error::Manifest { at: at(), source })?;
     let header = ManifestHeader {
         magic: MANIFEST_MAGIC,
         version: FORMAT_VERSION.into(),
@@ -375,45 +597,60 @@ pub fn commit_manifest(dir: &Path, manifest: &Manifest) -> Result<()> {
         json_len: (json.len() as u64).into(),
         json_xxh3: xxh3(&json).into(),
     };
-    let write = || -> std::io::Result<()> {
-        let mut file = File::create(&tmp)?;
+    let mut tmp = None;
+    let mut write = || -> std::io::Result<()> {
+        let (mut file, tmp_path) = create_temp(&path)?;
+        tmp = Some(tmp_path.clone());
+        crash_point();
         file.write_all(header.as_bytes())?;
         file.write_all(&json)?;
+        crash_point();
         file.sync_all()?;
         drop(file);
-        fs::rename(&tmp, &path)?;
+        crash_point();
+        fs::rename(&tmp_path, &path)?;
+        tmp = None;
         // The rename itself must reach the disk before we report success.
-        File::open(dir)?.sync_all()
+        sync_dir(dir)
     };
     write().map_err(|source| {
-        let _ = fs::remove_file(&tmp);
-        Error::Io {
-            at: Location::file(&path),
-            source,
+        if let Some(tmp) = &tmp {
+            let _ = fs::remove_file(tmp);
         }
-    })
+        Error::Io { at: at(), source }
+    })?;
+    lock.reclaim(Some(&manifest))?;
+    Ok(manifest)
 }
 
-/// Removes layer files (and stale temporaries) that `manifest` does not name.
-/// Returns the names removed.
-pub fn remove_unreferenced(dir: &Path, manifest: &Manifest) -> Result<Vec<String>> {
-    let entries = fs::read_dir(dir).map_err(|source| Error::Io {
-        at: Location::file(dir),
-        source,
-    })?;
-    let mut removed = Vec::new();
-    for entry in entries.flatten() {
-        let Ok(name) = entry.file_name().into_string() else {
-            continue;
-        };
-        let ours = name.ends_with(".tbl") || name.ends_with(".tbl.tmp");
-        if ours && !manifest.layers.iter().any(|l| l.file == name) {
-            fs::remove_file(entry.path()).map_err(|source| Error::Io {
-                at: Location::file(entry.path()),
-                source,
-            })?;
-            removed.push(name);
-        }
-    }
-    Ok(removed)
+/// The `retired` list of the manifest about to replace the committed one:
+/// the committed one's files that `next` no longer names (retired now), and
+/// its retired files still within their grace.
+fn retire(dir: &Path, next: &Manifest, grace: Duration) -> Vec<Retired> {
+    let path = dir.join(MANIFEST_FILE);
+    let Some(current) = crate::fsio::open_regular(&path)
+        .ok()
+        .and_then(|mut f| {
+            let mut bytes = Vec::new();
+            f.read_to_end(&mut bytes).ok().map(|_| bytes)
+        })
+        .and_then(|bytes| crate::reader::parse_manifest_unchecked(&path, &bytes).ok())
+    else {
+        return Vec::new();
+    };
+    let named: HashSet<&str> = next.layers.iter().map(|l| l.file.as_str()).collect();
+    let now = unix_now();
+    let mut retired: Vec<Retired> = current
+        .retired
+        .into_iter()
+        .chain(current.layers.into_iter().map(|l| Retired {
+            file: l.file,
+            since_unix: now,
+        }))
+        .filter(|r| now < r.since_unix.saturating_add(grace.as_secs()))
+        .filter(|r| !named.contains(r.file.as_str()))
+        .collect();
+    retired.sort_by(|a, b| a.file.cmp(&b.file));
+    retired.dedup_by(|a, b| a.file == b.file);
+    retired
 }

@@ -26,7 +26,18 @@ fn value(x: u32, y: u32) -> f32 {
     }
 }
 
+fn lock(dir: &Path) -> WriteLock {
+    WriteLock::acquire(dir, true, |_| {}).unwrap()
+}
+
 fn manifest(layers: Vec<LayerEntry>) -> Manifest {
+    let values: Vec<f32> = (0..H)
+        .flat_map(|y| (0..W).map(move |x| value(x, y)))
+        .collect();
+    let valid = values.iter().filter(|z| !z.is_nan());
+    let (min, max) = valid.fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &z| {
+        (a.min(z), b.max(z))
+    });
     Manifest {
         format_version: FORMAT_VERSION,
         width: W,
@@ -45,9 +56,9 @@ fn manifest(layers: Vec<LayerEntry>) -> Manifest {
         },
         nodata: Nodata {
             source_value: None,
-            count: 0,
+            count: values.iter().filter(|z| z.is_nan()).count() as u64,
         },
-        height_range: None,
+        height_range: Some(HeightRange { min, max }),
         provenance: Provenance {
             source: "test".into(),
             source_len: 0,
@@ -56,6 +67,7 @@ fn manifest(layers: Vec<LayerEntry>) -> Manifest {
             stages: vec![],
         },
         layers,
+        retired: vec![],
     }
 }
 
@@ -98,9 +110,10 @@ fn asset_files() -> (tempfile::TempDir, HashMap<String, Vec<u8>>) {
     let dir = tempfile::tempdir().unwrap();
     let raw = write_layer(dir.path(), "height", Codec::Raw);
     let zstd = write_layer(dir.path(), "packed", Codec::Zstd);
-    commit_manifest(dir.path(), &manifest(vec![raw, zstd])).unwrap();
+    commit_manifest(&lock(dir.path()), &manifest(vec![raw, zstd])).unwrap();
     let files = std::fs::read_dir(dir.path())
         .unwrap()
+        .filter(|e| e.as_ref().unwrap().file_name() != LOCK_FILE)
         .map(|e| {
             let e = e.unwrap();
             (
@@ -375,7 +388,7 @@ fn world_coordinates_map_to_posts() {
         geo_double_params: vec![],
         geo_ascii_params: String::new(),
     });
-    commit_manifest(dir.path(), &m).unwrap();
+    commit_manifest(&lock(dir.path()), &m).unwrap();
     let asset = Asset::open(dir.path()).unwrap();
     // Post (40, 50) of a PixelIsArea grid is the centre of pixel (40, 50).
     let (x, y) = (500000.0 + 40.5 * 2.0, 900000.0 - 50.5 * 3.0);

@@ -369,7 +369,7 @@ impl HorizonsStage {
         spacing: (f64, f64),
         row_scale: RowScale,
         nodata: bool,
-    ) -> Box<dyn RowBands> {
+    ) -> Box<dyn RowBands + Send> {
         match (&band.kind, self.max_distance) {
             (BandKind::Line(dir), None) => Box::new(line::BandedSweep::new(
                 dir, dims, spacing, row_scale, nodata,
@@ -477,33 +477,52 @@ impl Stage for HorizonsStage {
         };
         let nodata = m.nodata.count > 0;
         if self.out_of_core() {
-            bands
-                .par_iter()
-                .enumerate()
-                .try_for_each(|(i, band)| -> Result<()> {
-                    let mut sweep = self.row_bands(band, (w, h), (dx, dy), row_scale, nodata);
-                    let mut rows_buf = Vec::new();
-                    for rows in sweep.bands(ts) {
-                        let window = sweep.window(&rows);
-                        rows_buf.resize(window.len() * w, 0f32);
-                        height.read_window(
-                            0,
-                            0,
-                            window.start as u32,
-                            w as u32,
-                            window.len() as u32,
-                            &mut rows_buf,
-                        )?;
-                        let terrain = Terrain::window(&rows_buf, (w, h), window.start, (dx, dy))
-                            .with_row_scale(row_scale)
-                            .with_curvature(curvature);
-                        let mut angles = vec![0f32; rows.len() * w];
-                        sweep.sweep(&terrain, rows.clone(), &mut angles);
-                        out.write(i, rows.start, &mut angles)?;
+            // Bands in batches of a fixed size, advancing in lockstep one row
+            // band at a time, pushed in band order: the layer's bytes are
+            // the same on every run and any number of threads (a free-for-all
+            // of bands would order chunks by thread timing).
+            for (b, batch) in bands.chunks(OUT_OF_CORE_BATCH).enumerate() {
+                let mut sweeps: Vec<_> = batch
+                    .iter()
+                    .map(|band| self.row_bands(band, (w, h), (dx, dy), row_scale, nodata))
+                    .collect();
+                let steps: Vec<Vec<std::ops::Range<usize>>> =
+                    sweeps.iter().map(|s| s.bands(ts)).collect();
+                for k in 0..steps.iter().map(Vec::len).max().unwrap_or(0) {
+                    let results: Vec<Option<(usize, Vec<f32>)>> = sweeps
+                        .par_iter_mut()
+                        .zip(&steps)
+                        .map(|(sweep, steps)| -> Result<Option<(usize, Vec<f32>)>> {
+                            let Some(rows) = steps.get(k) else {
+                                return Ok(None);
+                            };
+                            let window = sweep.window(rows);
+                            let mut rows_buf = vec![0f32; window.len() * w];
+                            height.read_window(
+                                0,
+                                0,
+                                window.start as u32,
+                                w as u32,
+                                window.len() as u32,
+                                &mut rows_buf,
+                            )?;
+                            let terrain =
+                                Terrain::window(&rows_buf, (w, h), window.start, (dx, dy))
+                                    .with_row_scale(row_scale)
+                                    .with_curvature(curvature);
+                            let mut angles = vec![0f32; rows.len() * w];
+                            sweep.sweep(&terrain, rows.clone(), &mut angles);
+                            Ok(Some((rows.start, angles)))
+                        })
+                        .collect::<Result<_>>()?;
+                    for (j, result) in results.into_iter().enumerate() {
+                        if let Some((y0, mut angles)) = result {
+                            out.write(b * OUT_OF_CORE_BATCH + j, y0, &mut angles)?;
+                        }
                     }
-                    bar.inc(1);
-                    Ok(())
-                })?;
+                }
+                bar.inc(batch.len() as u64);
+            }
         } else {
             let (z, _, _) = read_heights(asset)?;
             let terrain = Terrain::new(&z, w, h, dx, dy)
@@ -543,6 +562,10 @@ impl Stage for HorizonsStage {
         Ok(entries)
     }
 }
+
+/// Bands swept together out of core. Fixed, not the thread count, so that
+/// the file is the same on every machine; eight keep two to eight cores busy.
+const OUT_OF_CORE_BATCH: usize = 8;
 
 /// One band computed out of core: output rows in bands, each from a window
 /// of the DEM's rows, in the order the bands must go.

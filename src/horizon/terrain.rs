@@ -97,7 +97,7 @@ impl<'a> Terrain<'a> {
         row0: usize,
         (dx, dy): (f64, f64),
     ) -> Self {
-        assert!(z.len() % width == 0 && row0 + z.len() / width <= height);
+        assert!(z.len().is_multiple_of(width) && row0 + z.len() / width <= height);
         assert!(dx > 0.0 && dy > 0.0, "post spacing {dx} x {dy}");
         Self {
             z,

@@ -7,7 +7,7 @@ use std::path::Path;
 use anyhow::{anyhow, bail, Result};
 use exr::prelude::{read_first_flat_layer_from_file, FlatSamples};
 
-use super::{check_shape, HeightMapping, RasterSource, SourceInfo};
+use super::{check_shape, HeightMapping, Memory, RasterSource, SourceInfo};
 
 pub struct ExrSource {
     samples: Vec<f32>,
@@ -15,7 +15,25 @@ pub struct ExrSource {
 }
 
 impl ExrSource {
-    pub fn open(path: &Path) -> Result<Self> {
+    pub fn open(path: &Path, memory: Memory) -> Result<Self> {
+        // The size from the header, before the whole image is decoded.
+        let meta = exr::meta::MetaData::read_from_file(path, false)
+            .map_err(|e| anyhow!("{}: not a readable OpenEXR file: {e}", path.display()))?;
+        let size = meta
+            .headers
+            .first()
+            .map(|h| h.layer_size)
+            .ok_or_else(|| anyhow!("{}: OpenEXR file without a layer", path.display()))?;
+        let (w, h) = (size.0 as u64, size.1 as u64);
+        check_shape(path, w, h)?;
+        // The decoded image (up to 4 bytes a sample) and our f32 copy.
+        memory.check(
+            path,
+            w,
+            h,
+            w * h * 8,
+            "the whole image, which OpenEXR decodes at once",
+        )?;
         let image = read_first_flat_layer_from_file(path)
             .map_err(|e| anyhow!("{}: not a readable OpenEXR file: {e}", path.display()))?;
         let layer = image.layer_data;

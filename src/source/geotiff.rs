@@ -16,7 +16,7 @@ use tiff::decoder::{ChunkType, Decoder, DecodingResult, Limits};
 use tiff::tags::Tag;
 use tiff::ColorType;
 
-use super::{check_shape, HeightMapping, RasterSource, SourceInfo};
+use super::{check_shape, HeightMapping, Memory, RasterSource, SourceInfo};
 use crate::geo;
 
 pub struct GeoTiffSource {
@@ -37,15 +37,17 @@ pub struct GeoTiffSource {
 }
 
 impl GeoTiffSource {
-    pub fn open(path: &Path) -> Result<Self> {
+    pub fn open(path: &Path, memory: Memory) -> Result<Self> {
         let what = |m: &str| format!("{}: {m}", path.display());
         let open_decoder = || -> Result<Decoder<BufReader<File>>> {
             let file = File::open(path).with_context(|| what("cannot open"))?;
             let mut limits = Limits::default();
-            // Large DEMs have large strip/tile offset arrays and wide strips.
-            limits.decoding_buffer_size = 1 << 30;
-            limits.intermediate_buffer_size = 1 << 30;
-            limits.ifd_value_size = 256 << 20;
+            // The decoder itself never allocates past the budget, whatever
+            // the header claims; large DEMs have large offset arrays.
+            let budget = usize::try_from(memory.budget).unwrap_or(usize::MAX);
+            limits.decoding_buffer_size = budget;
+            limits.intermediate_buffer_size = budget;
+            limits.ifd_value_size = (256 << 20).min(budget);
             Ok(Decoder::new(BufReader::with_capacity(1 << 16, file))
                 .map_err(|e| anyhow!("{}", what(&format!("not a readable TIFF: {e}"))))?
                 .with_limits(limits))
@@ -106,6 +108,21 @@ impl GeoTiffSource {
         };
         let chunks_across = width.div_ceil(chunk_w);
         let chunks_down = height.div_ceil(chunk_h);
+        // Held at once: the decoded chunk rows one read spans, as f32, twice
+        // (the chunks and the assembled rows), and each thread's chunk in
+        // its own sample type while it is converted.
+        let (w64, cw, ch) = (u64::from(width), u64::from(chunk_w), u64::from(chunk_h));
+        let spans = u64::from(memory.rows.min(height)).div_ceil(ch) + 1;
+        let chunk_rows = spans * (u64::from(chunks_across) * cw).max(w64) * ch * 4 * 2;
+        let converting = rayon::current_num_threads() as u64 * cw * ch * (u64::from(bits) / 8 + 4);
+        let unit = if chunks_across == 1 { "strip" } else { "tile" };
+        memory.check(
+            path,
+            w64,
+            u64::from(height),
+            chunk_rows.saturating_add(converting),
+            &format!("{unit}s of {chunk_w} x {chunk_h} {sample_type} samples"),
+        )?;
         let byte_counts: Vec<u64> = decoder
             .find_tag_unsigned_vec::<u64>(byte_count_tag)
             .ok()
@@ -332,7 +349,7 @@ impl RasterSource for GeoTiffSource {
             row_out.copy_from_slice(&band[r * width..(r + 1) * width]);
         }
         // Keep the last chunk row if the next read will start inside it.
-        if (y0 + rows) % self.chunk_h != 0 && y0 + rows < self.info.height {
+        if !(y0 + rows).is_multiple_of(self.chunk_h) && y0 + rows < self.info.height {
             self.held = bands.pop().map(|b| (last, b));
         }
         Ok(())

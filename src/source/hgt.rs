@@ -11,7 +11,7 @@ use std::path::Path;
 use anyhow::{bail, Context, Result};
 use terrabake_format::manifest::RasterType;
 
-use super::{HeightMapping, RasterSource, SourceInfo};
+use super::{HeightMapping, Memory, RasterSource, SourceInfo};
 use crate::geo;
 
 pub struct HgtSource {
@@ -21,7 +21,7 @@ pub struct HgtSource {
 }
 
 impl HgtSource {
-    pub fn open(path: &Path) -> Result<Self> {
+    pub fn open(path: &Path, memory: Memory) -> Result<Self> {
         let file = File::open(path).with_context(|| format!("{}: cannot open", path.display()))?;
         let len = file.metadata()?.len();
         let side = (len / 2).isqrt();
@@ -31,6 +31,7 @@ impl HgtSource {
                 path.display()
             );
         }
+        memory.check(path, side, side, side * 2, "one row of samples")?;
         let side_u32 = side as u32;
         let georef = parse_hgt_name(path).map(|(lat, lon)| {
             let step = 1.0 / (side as f64 - 1.0);

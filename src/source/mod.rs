@@ -82,15 +82,25 @@ pub fn parse_nodata(text: &str) -> Option<f64> {
     t.parse::<f64>().ok()
 }
 
-/// Opens `path` by its content (TIFF magic) or extension.
-pub fn open(path: &Path, raw: Option<&RawSpec>) -> Result<Box<dyn RasterSource>> {
+/// Opens `path` by its content (TIFF magic) or extension. Every reader
+/// works out from the header alone what it will hold at once (a strip, a
+/// tile row, a whole EXR image) and refuses, before allocating anything,
+/// a source that needs more than `budget` bytes for the `rows` output rows
+/// that ingest reads at a time.
+pub fn open(
+    path: &Path,
+    raw: Option<&RawSpec>,
+    rows: u32,
+    budget: u64,
+) -> Result<Box<dyn RasterSource>> {
+    let memory = Memory { rows, budget };
     let meta =
         std::fs::metadata(path).with_context(|| format!("{}: cannot read", path.display()))?;
     if meta.is_dir() {
         bail!("{}: is a directory, not a DEM file", path.display());
     }
     if let Some(spec) = raw {
-        return Ok(Box::new(raw::RawSource::open(path, spec)?));
+        return Ok(Box::new(raw::RawSource::open(path, spec, memory)?));
     }
     let ext = path
         .extension()
@@ -110,13 +120,13 @@ pub fn open(path: &Path, raw: Option<&RawSpec>) -> Result<Box<dyn RasterSource>>
         || magic.starts_with(b"II+\0")
         || magic.starts_with(b"MM\0+")
     {
-        Box::new(geotiff::GeoTiffSource::open(path)?)
+        Box::new(geotiff::GeoTiffSource::open(path, memory)?)
     } else if magic.starts_with(b"\x89PNG") {
-        Box::new(png::PngSource::open(path)?)
+        Box::new(png::PngSource::open(path, memory)?)
     } else if magic.starts_with(&[0x76, 0x2f, 0x31, 0x01]) {
-        Box::new(exr::ExrSource::open(path)?)
+        Box::new(exr::ExrSource::open(path, memory)?)
     } else if ext == "hgt" {
-        Box::new(hgt::HgtSource::open(path)?)
+        Box::new(hgt::HgtSource::open(path, memory)?)
     } else if matches!(ext.as_str(), "tif" | "tiff") {
         bail!(
             "{}: not a TIFF file (no TIFF byte-order mark)",
@@ -134,6 +144,32 @@ pub fn open(path: &Path, raw: Option<&RawSpec>) -> Result<Box<dyn RasterSource>>
         )
     };
     Ok(source)
+}
+
+/// What a reader may hold at once: output rows per read and the budget.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Memory {
+    pub rows: u32,
+    pub budget: u64,
+}
+
+impl Memory {
+    /// Refuses a source whose reading would hold more than the budget:
+    /// `held` bytes in the reader (`what` says what they are) plus the
+    /// caller's `rows` rows of f32 heights.
+    pub fn check(&self, path: &Path, width: u64, height: u64, held: u64, what: &str) -> Result<()> {
+        let rows = u64::from(self.rows).min(height);
+        let need = held.saturating_add(width.saturating_mul(rows).saturating_mul(4));
+        if need > self.budget {
+            bail!(
+                "{}: reading it needs about {} MiB at once ({what}, and {rows} rows of {width} heights), more than the memory budget of {} MiB; raise --max-memory, or rewrite the DEM in smaller strips or tiles (gdal_translate -co TILED=YES)",
+                path.display(),
+                need.div_ceil(1 << 20),
+                self.budget >> 20
+            );
+        }
+        Ok(())
+    }
 }
 
 /// Checks a DEM shape before anything is allocated for it.

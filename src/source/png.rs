@@ -9,7 +9,7 @@ use std::path::Path;
 
 use anyhow::{anyhow, bail, Context, Result};
 
-use super::{check_shape, HeightMapping, RasterSource, SourceInfo};
+use super::{check_shape, HeightMapping, Memory, RasterSource, SourceInfo};
 
 pub struct PngSource {
     reader: png::Reader<BufReader<File>>,
@@ -19,7 +19,7 @@ pub struct PngSource {
 }
 
 impl PngSource {
-    pub fn open(path: &Path) -> Result<Self> {
+    pub fn open(path: &Path, memory: Memory) -> Result<Self> {
         let file = File::open(path).with_context(|| format!("{}: cannot open", path.display()))?;
         let mut decoder = png::Decoder::new(BufReader::new(file));
         decoder.set_transformations(png::Transformations::IDENTITY);
@@ -29,6 +29,15 @@ impl PngSource {
         let info = reader.info();
         let (width, height) = (info.width, info.height);
         check_shape(path, width.into(), height.into())?;
+        // The decoder holds a row and the previous one (for its filters).
+        let row = u64::from(width) * 2;
+        memory.check(
+            path,
+            width.into(),
+            height.into(),
+            row * 2,
+            "two rows of samples",
+        )?;
         if info.interlaced {
             bail!(
                 "{}: interlaced PNG cannot be streamed; re-save it without interlacing",

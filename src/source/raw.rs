@@ -7,7 +7,7 @@ use std::path::Path;
 
 use anyhow::{bail, Context, Result};
 
-use super::{check_shape, HeightMapping, RasterSource, SourceInfo};
+use super::{check_shape, HeightMapping, Memory, RasterSource, SourceInfo};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -40,12 +40,14 @@ pub struct RawSource {
 }
 
 impl RawSource {
-    pub fn open(path: &Path, spec: &RawSpec) -> Result<Self> {
+    pub fn open(path: &Path, spec: &RawSpec, memory: Memory) -> Result<Self> {
         check_shape(path, spec.width.into(), spec.height.into())?;
         let size = match spec.sample {
             RawSampleType::I16 | RawSampleType::U16 => 2u64,
             RawSampleType::F32 => 4,
         };
+        let (w, h) = (u64::from(spec.width), u64::from(spec.height));
+        memory.check(path, w, h, w * size, "one row of samples")?;
         let file = File::open(path).with_context(|| format!("{}: cannot open", path.display()))?;
         let len = file.metadata()?.len();
         let expected = u64::from(spec.width) * u64::from(spec.height) * size;

@@ -518,6 +518,12 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
         // Horizontal metres per unit of t, and metres of rise per unit of t.
         let run = (g.dir[0] * self.dx).hypot(g.dir[1] * self.dy);
         let rise = g.dir[2];
+        // A walk visits at most about cells.0 + cells.1 cells; leaps only
+        // ever save steps. Past this budget (absurd planes: slopes of 1e-30
+        // leap a hair at a time) the rest of the ray is walked cell by cell
+        // without leaps, which is exact and bounded.
+        let budget = 4 * (u64::from(self.cells.0) + u64::from(self.cells.1)) + 64;
+        let mut leaping = true;
         let mut t_start = ta;
         loop {
             // A stretch `[from, to)` of the ray known to be above the
@@ -535,7 +541,9 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
                 (ta, tb),
                 |c, r, t0, t1| {
                     if let Some((from, to)) = empty {
-                        if t0 >= from {
+                        // Only a leap forward: a stretch that ends before
+                        // where this walk began would start it over again.
+                        if leaping && t0 >= from && to > t_start {
                             leap = Some(to);
                             return ControlFlow::Break(());
                         }
@@ -593,7 +601,10 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
                 },
             );
             match leap {
-                Some(t) if t <= tb && st.err.is_none() => t_start = t,
+                Some(t) if t <= tb && st.err.is_none() => {
+                    t_start = t;
+                    leaping = st.counters.steps <= budget;
+                }
                 _ => return,
             }
         }

@@ -56,13 +56,20 @@ impl Axis {
             return (a, [a.forward, 0], 1);
         }
         let mut k = ((o + t * d) / size).floor() as i64;
+        // `k` starts at most a node or two from the answer; the loops only
+        // correct the rounding of the division. They are bounded all the
+        // same: on absurd rays (an origin 1e20 cells away) boundaries round
+        // together and an unbounded correction would never end.
+        let mut fix = MAX_START_FIX;
         if d > 0.0 {
             // forward = max { k : boundary(k) <= t }
-            while a.boundary(k) > t {
+            while a.boundary(k) > t && fix > 0 {
                 k -= 1;
+                fix -= 1;
             }
-            while a.boundary(k + 1) <= t {
+            while a.boundary(k + 1) <= t && fix > 0 {
                 k += 1;
+                fix -= 1;
             }
             a.forward = k;
             if a.boundary(k) == t {
@@ -70,11 +77,13 @@ impl Axis {
             }
         } else {
             // Moving to lower k: forward = min { k : boundary(k + 1) <= t }
-            while a.boundary(k + 1) > t {
+            while a.boundary(k + 1) > t && fix > 0 {
                 k += 1;
+                fix -= 1;
             }
-            while a.boundary(k) <= t {
+            while a.boundary(k) <= t && fix > 0 {
                 k -= 1;
+                fix -= 1;
             }
             a.forward = k;
             if a.boundary(k + 1) == t {
@@ -117,6 +126,9 @@ impl Axis {
         (self.d > 0.0 && self.forward > hi) || (self.d < 0.0 && self.forward < lo)
     }
 }
+
+/// Most corrections of a start node's rounding (see [`Axis::start`]).
+const MAX_START_FIX: u32 = 64;
 
 /// Index bounds of a walk (inclusive), per axis.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -182,10 +194,19 @@ pub(crate) fn walk_from(
             node(a, b)?;
         }
     }
+    // Each step advances an axis by one node towards its far bound, so a
+    // walk takes at most the bounds' spans plus the distance from its start
+    // node to them; the cap makes that a guarantee whatever the rounding.
+    let span = |a: &Axis, (lo, hi): (i64, i64)| {
+        let outside = (lo - a.forward).max(a.forward - hi).max(0);
+        (hi - lo).unsigned_abs() + outside.unsigned_abs() + 2
+    };
+    let mut steps_left = span(&u, bounds.u) + span(&v, bounds.v);
     loop {
-        if u.gone(bounds.u.0, bounds.u.1) || v.gone(bounds.v.0, bounds.v.1) {
+        if u.gone(bounds.u.0, bounds.u.1) || v.gone(bounds.v.0, bounds.v.1) || steps_left == 0 {
             return ControlFlow::Continue(());
         }
+        steps_left -= 1;
         let (eu, ev) = (u.next_event(), v.next_event());
         let te = eu.min(ev);
         // No further boundary (a vertical ray), or past the segment's end.

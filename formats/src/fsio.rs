@@ -1,0 +1,219 @@
+//! The file-system rules every reader and writer of an asset follows, in one
+//! place, so that no caller can forget one:
+//!
+//! - **Reading** ([`open_regular`]): names are checked before anything is
+//!   opened ([`check_file_name`]); files are opened without following a
+//!   symbolic link (`O_NOFOLLOW`) and without blocking (`O_NONBLOCK`, so a
+//!   FIFO planted under a layer's name cannot hang `info` or a renderer), and
+//!   anything that is not a regular file is refused before it is read.
+//! - **Writing** ([`create_temp`]): a temporary file gets a name no other
+//!   writer uses (process id, a counter and the clock) and is created
+//!   exclusively (`O_CREAT | O_EXCL`, which never follows a link), so a
+//!   link planted at a predictable `.tmp` name is never written through and
+//!   a stale temporary never blocks the next run. Renaming it over the
+//!   target replaces a link there instead of writing through it.
+//! - **Crash points** ([`crash_point`]): every durable step of a writer
+//!   (create, write, fsync, rename, unlink) passes one. When the
+//!   environment variable `TERRABAKE_CRASH_AT=N` is set, the process aborts
+//!   at the N-th step, which is how the kill-at-every-write test reaches
+//!   every point where a real crash could land. Unset, a crash point costs
+//!   one relaxed atomic increment.
+
+use std::fs::{File, OpenOptions};
+use std::os::unix::fs::OpenOptionsExt;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::OnceLock;
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use crate::error::{Error, Location, Result};
+
+/// Suffix of every temporary file a writer creates.
+pub const TEMP_SUFFIX: &str = ".tmp";
+
+/// Whether `name` can name a file inside an asset directory: one path
+/// component of letters, digits, `_`, `-` and `.`, not starting with a dot,
+/// at most 255 bytes. Checked before any file is opened, so a manifest can
+/// never make a reader open `../elsewhere` or `/etc/passwd`.
+pub fn check_file_name(name: &str) -> std::result::Result<(), String> {
+    let ok = !name.is_empty()
+        && name.len() <= 255
+        && !name.starts_with('.')
+        && name
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'_' | b'-' | b'.'));
+    if ok {
+        Ok(())
+    } else {
+        Err(format!(
+            "file name {name:?} is not a plain file name inside the asset (letters, digits, '_', '-', '.'; no leading dot)"
+        ))
+    }
+}
+
+/// Opens `path` for reading: no link followed, no blocking on a FIFO or
+/// device, and an error unless it is a regular file.
+pub fn open_regular(path: &Path) -> Result<File> {
+    let io = |source| Error::Io {
+        at: Location::file(path),
+        source,
+    };
+    let file = OpenOptions::new()
+        .read(true)
+        .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK | libc::O_CLOEXEC)
+        .open(path)
+        .map_err(|e| {
+            // ELOOP is how O_NOFOLLOW reports a link: say so plainly.
+            if e.raw_os_error() == Some(libc::ELOOP) {
+                Error::malformed(
+                    Location::file(path),
+                    "is a symbolic link; asset files are never read through links",
+                )
+            } else {
+                io(e)
+            }
+        })?;
+    let meta = file.metadata().map_err(io)?;
+    if !meta.file_type().is_file() {
+        return Err(Error::malformed(
+            Location::file(path),
+            "is not a regular file (a directory, FIFO, socket or device)",
+        ));
+    }
+    Ok(file)
+}
+
+/// A fresh temporary file beside `target` (same directory, so the final
+/// rename is atomic), created exclusively under a unique name. Returns the
+/// file and its path.
+pub fn create_temp(target: &Path) -> std::io::Result<(File, PathBuf)> {
+    static COUNTER: AtomicU64 = AtomicU64::new(0);
+    let dir = target.parent().unwrap_or(Path::new("."));
+    let base = target
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    loop {
+        let nanos = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map_or(0, |d| d.subsec_nanos());
+        let n = COUNTER.fetch_add(1, Ordering::Relaxed);
+        let path = dir.join(format!(
+            "{base}.{}-{n}-{nanos:08x}{TEMP_SUFFIX}",
+            std::process::id()
+        ));
+        crash_point();
+        match OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .custom_flags(libc::O_NOFOLLOW | libc::O_CLOEXEC)
+            .mode(0o644)
+            .open(&path)
+        {
+            Ok(file) => return Ok((file, path)),
+            // Someone (or something) holds that name: take another.
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(e) => return Err(e),
+        }
+    }
+}
+
+/// Whether `name` is one of the temporary files [`create_temp`] makes for
+/// a target named `base` (any process, any time).
+pub fn is_temp_of(name: &str, base: &str) -> bool {
+    name.strip_prefix(base)
+        .and_then(|rest| rest.strip_prefix('.'))
+        .is_some_and(|rest| rest.ends_with(TEMP_SUFFIX))
+}
+
+/// Fsyncs the directory `dir`, so that renames and unlinks in it are durable.
+pub fn sync_dir(dir: &Path) -> std::io::Result<()> {
+    crash_point();
+    File::open(dir)?.sync_all()
+}
+
+/// One durable step of a writer; see the module docs.
+#[inline]
+pub fn crash_point() {
+    static AT: OnceLock<Option<u64>> = OnceLock::new();
+    static STEPS: AtomicU64 = AtomicU64::new(0);
+    let at = AT.get_or_init(|| {
+        std::env::var("TERRABAKE_CRASH_AT")
+            .ok()
+            .and_then(|v| v.parse().ok())
+    });
+    if let Some(at) = *at {
+        if STEPS.fetch_add(1, Ordering::Relaxed) + 1 == at {
+            // As a kill would: no unwinding, no destructors, no cleanup.
+            std::process::abort();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_that_leave_the_asset_are_refused() {
+        for bad in [
+            "",
+            "../x.tbl",
+            "/etc/passwd",
+            ".hidden",
+            "a/b",
+            "a\\b",
+            "x\0y",
+            "é.tbl",
+        ] {
+            assert!(check_file_name(bad).is_err(), "{bad:?}");
+        }
+        for good in ["height.L0.g0.tbl", "manifest.tba", "a-b_c.L12.g3.tbl"] {
+            assert!(check_file_name(good).is_ok(), "{good:?}");
+        }
+    }
+
+    #[test]
+    fn temporaries_are_unique_and_never_written_through_links() {
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("out.tif");
+        let victim = dir.path().join("victim");
+        std::fs::write(&victim, b"precious").unwrap();
+        // A link at every name a naive writer would use.
+        std::os::unix::fs::symlink(&victim, dir.path().join("out.tif.tmp")).unwrap();
+        let (mut a, pa) = create_temp(&target).unwrap();
+        let (_b, pb) = create_temp(&target).unwrap();
+        assert_ne!(pa, pb);
+        use std::io::Write;
+        a.write_all(b"new").unwrap();
+        assert_eq!(std::fs::read(&victim).unwrap(), b"precious");
+        let name = pa.file_name().unwrap().to_str().unwrap();
+        assert!(is_temp_of(name, "out.tif"), "{name}");
+        assert!(!is_temp_of("out.tif", "out.tif"));
+    }
+
+    #[test]
+    fn open_regular_refuses_links_fifos_and_directories() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("f");
+        std::fs::write(&file, b"x").unwrap();
+        assert!(open_regular(&file).is_ok());
+        let link = dir.path().join("l");
+        std::os::unix::fs::symlink(&file, &link).unwrap();
+        let e = open_regular(&link).unwrap_err().to_string();
+        assert!(e.contains("symbolic link"), "{e}");
+        assert!(open_regular(dir.path())
+            .unwrap_err()
+            .to_string()
+            .contains("not a regular file"));
+        let fifo = dir.path().join("fifo");
+        let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+        // SAFETY: a valid NUL-terminated path.
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o644) }, 0);
+        // Returns at once (O_NONBLOCK) and refuses it.
+        assert!(open_regular(&fifo)
+            .unwrap_err()
+            .to_string()
+            .contains("not a regular file"));
+    }
+}

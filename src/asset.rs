@@ -1,0 +1,127 @@
+//! An asset open for writing: its directory, prepared, and its writer lock,
+//! held for as long as the value lives.
+//!
+//! Every command that writes an asset (ingest, each stage, a whole bake)
+//! goes through [`AssetWriter::open`], which is where the rules of
+//! `terrabake_format::writer` meet the command line:
+//!
+//! - the directory is created when missing, or accepted when it is empty, an
+//!   asset, or holds nothing but a dead writer's leftovers (layer files,
+//!   temporaries, the lock file): a kill during a first ingest never blocks
+//!   the next run, while a stranger's non-empty folder is still refused;
+//! - the writer lock is taken, waiting for its holder (with a message
+//!   naming the pid) or failing at once when the user asked `--no-wait`;
+//! - the garbage of dead writers is reclaimed under the lock before any
+//!   work, and [`AssetWriter::fail`] reclaims a failed stage's own files, so
+//!   a failure (out of space, say) never leaves files that make the retry
+//!   fail too.
+
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use terrabake_format::{WriteLock, LOCK_FILE, MANIFEST_FILE};
+
+/// An asset directory whose writer lock this process holds.
+#[derive(Debug)]
+pub struct AssetWriter {
+    lock: WriteLock,
+    path: PathBuf,
+    /// This writer created the directory (removed again if nothing lands).
+    created: bool,
+}
+
+/// Whether a writer should wait for another to finish, or fail at once.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Wait {
+    #[default]
+    Wait,
+    NoWait,
+}
+
+impl AssetWriter {
+    /// Opens the existing asset `dir` for writing (a stage's case).
+    pub fn open(dir: &Path, wait: Wait) -> Result<Self> {
+        if !dir.join(MANIFEST_FILE).is_file() {
+            bail!(
+                "{}: cannot open asset: no {MANIFEST_FILE} (not an asset, or never ingested)",
+                dir.display()
+            );
+        }
+        Self::lock(dir, wait, false)
+    }
+
+    /// Opens `dir` for an ingest: creates it when missing; accepts an empty
+    /// directory, an asset, or the leftovers of a dead writer; refuses
+    /// anything else rather than writing into a stranger's folder.
+    pub fn create(dir: &Path, wait: Wait) -> Result<Self> {
+        let created = match fs::symlink_metadata(dir) {
+            Err(_) => {
+                fs::create_dir_all(dir).with_context(|| {
+                    format!("{}: cannot create the asset directory", dir.display())
+                })?;
+                true
+            }
+            Ok(_) if !dir.is_dir() => {
+                bail!("{}: exists and is not an asset directory", dir.display())
+            }
+            Ok(_) => {
+                let foreign = fs::read_dir(dir)
+                    .with_context(|| format!("{}: cannot list", dir.display()))?
+                    .flatten()
+                    .map(|e| e.file_name().to_string_lossy().into_owned())
+                    .find(|name| !is_asset_file(name));
+                if let Some(name) = foreign {
+                    bail!(
+                        "{}: is a non-empty directory that is not an asset (it holds {name:?}); refusing to write an asset into it",
+                        dir.display()
+                    );
+                }
+                false
+            }
+        };
+        Self::lock(dir, wait, created)
+    }
+
+    fn lock(dir: &Path, wait: Wait, created: bool) -> Result<Self> {
+        let lock = WriteLock::acquire(dir, wait == Wait::Wait, |pid| {
+            eprintln!(
+                "{}: waiting for the writer that holds it (pid {}) to finish; --no-wait fails instead",
+                dir.display(),
+                pid.map_or("unknown".into(), |p| p.to_string())
+            );
+        })?;
+        lock.reclaim_garbage()
+            .with_context(|| format!("{}: cannot remove a dead writer's files", dir.display()))?;
+        Ok(Self {
+            lock,
+            path: dir.to_path_buf(),
+            created,
+        })
+    }
+
+    pub fn dir(&self) -> &Path {
+        &self.path
+    }
+
+    pub fn lock_held(&self) -> &WriteLock {
+        &self.lock
+    }
+
+    /// After a failed write: removes its files, and the directory itself when
+    /// this writer created it and nothing was ever committed there.
+    pub fn fail(&self) {
+        let _ = self.lock.reclaim_garbage();
+        if self.created && !self.path.join(MANIFEST_FILE).exists() {
+            let _ = fs::remove_dir_all(&self.path);
+        }
+    }
+}
+
+/// Whether a file name is one a writer puts in an asset directory.
+fn is_asset_file(name: &str) -> bool {
+    name == MANIFEST_FILE
+        || name == LOCK_FILE
+        || name.ends_with(".tbl")
+        || name.ends_with(terrabake_format::fsio::TEMP_SUFFIX)
+}
