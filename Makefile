@@ -5,7 +5,7 @@ BIN := target/release/terrabake
 DEMO_DEM := data/srtm3_n07w006_geographic_int16.tif
 OUT ?= out
 
-.PHONY: all build demo test bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-reader fixtures fmt lint clean
+.PHONY: all build demo test fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-reader fixtures fmt lint clean
 
 all: build
 
@@ -35,6 +35,16 @@ demo: build
 ## Every test, optimised ([profile.test] opt-level = 3).
 test:
 	$(CARGO) test --workspace --locked
+
+## Coverage-guided fuzzing of the reader and of ingest (cargo-fuzz,
+## libFuzzer without a sanitizer, on the stable toolchain), FUZZ_SECONDS
+## each. `make test` runs the same targets for a fixed number of iterations.
+FUZZ_SECONDS ?= 300
+fuzz:
+	command -v cargo-fuzz >/dev/null || $(CARGO) install cargo-fuzz --locked
+	mkdir -p fuzz/corpus/ingest && cp tests/fixtures/tiff/*.tif fuzz/corpus/ingest/
+	cd fuzz && RUSTC_BOOTSTRAP=1 $(CARGO) fuzz run --sanitizer none -O reader -- -max_total_time=$(FUZZ_SECONDS)
+	cd fuzz && RUSTC_BOOTSTRAP=1 $(CARGO) fuzz run --sanitizer none -O ingest corpus/ingest -- -max_total_time=$(FUZZ_SECONDS) -rss_limit_mb=4096
 
 ## Out-of-core ingest of a generated 4 GiB GeoTIFF under a 1 GiB memory limit.
 bench-ingest-ooc: build

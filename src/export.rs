@@ -203,49 +203,6 @@ pub enum PngStyle {
     Relief,
 }
 
-/// Rows `y0..` of band `band` of any layer as f32: f32 as stored,
-/// quantised layers through their `Quantization` (its nodata code to NaN),
-/// other integers as numbers.
-pub fn read_rows_f32(layer: &Layer<Mmap>, band: u32, y0: u32, out: &mut [f32]) -> Result<()> {
-    use terrabake_format::{ElemType, Element};
-    // Codes decoded as they are copied out: no intermediate array of
-    // numbers (the horizons stage reads every band this way, row by row).
-    fn decode<T: Element + Into<u64>>(
-        layer: &Layer<Mmap>,
-        band: u32,
-        y0: u32,
-        out: &mut [f32],
-    ) -> Result<()> {
-        let w = layer.width();
-        let mut raw = vec![T::new_zeroed(); out.len()];
-        layer.read_window(band, 0, y0, w, (out.len() / w as usize) as u32, &mut raw)?;
-        let q = layer.entry().quantization;
-        for (o, code) in out.iter_mut().zip(raw) {
-            let code: u64 = code.into();
-            *o = match q {
-                Some(q) => q.value(code).map_or(f32::NAN, |v| v as f32),
-                None => code as f32,
-            };
-        }
-        Ok(())
-    }
-    let entry = layer.entry();
-    match entry.elem {
-        ElemType::F32 => {
-            let rows = (out.len() / layer.width() as usize) as u32;
-            layer.read_window(band, 0, y0, layer.width(), rows, out)?
-        }
-        ElemType::U8 => decode::<u8>(layer, band, y0, out)?,
-        ElemType::U16 => decode::<u16>(layer, band, y0, out)?,
-        other => bail!(
-            "layer {} holds {}; export reads f32, u16 and u8 layers",
-            entry.key(),
-            other.name()
-        ),
-    }
-    Ok(())
-}
-
 /// Exports `layer` to `out`: every band to GeoTIFF (one TIFF band each) and
 /// OpenEXR (one channel each, `B0`, `B1`, ...), band `band` to a PNG.
 pub fn export_layer(
@@ -269,12 +226,12 @@ pub fn export_layer(
     // All bands of rows y0.., pixel-interleaved.
     let read = |y0: u32, rows: &mut [f32]| -> Result<()> {
         if bands == 1 {
-            return read_rows_f32(layer, 0, y0, rows);
+            return Ok(layer.read_rows_f32(0, y0, rows)?);
         }
         let n = rows.len() / bands as usize;
         let mut one = vec![0f32; n];
         for b in 0..bands as usize {
-            read_rows_f32(layer, b as u32, y0, &mut one)?;
+            layer.read_rows_f32(b as u32, y0, &mut one)?;
             for (i, v) in one.iter().enumerate() {
                 rows[i * bands as usize + b] = *v;
             }
@@ -309,7 +266,7 @@ pub fn export_layer(
             let mut channels = Vec::new();
             for b in 0..bands {
                 let mut all = vec![0f32; w as usize * h as usize];
-                read_rows_f32(layer, b, 0, &mut all)?;
+                layer.read_rows_f32(b, 0, &mut all)?;
                 let name = if bands == 1 {
                     "Y".to_string()
                 } else {
@@ -351,7 +308,7 @@ fn write_png_preview(
     let (pw, ph) = (w.div_ceil(step), h.div_ceil(step));
     let row_at = |y: u32| -> Result<Vec<f32>> {
         let mut full = vec![0f32; w as usize];
-        read_rows_f32(layer, band, y.min(h - 1), &mut full)?;
+        layer.read_rows_f32(band, y.min(h - 1), &mut full)?;
         Ok((0..pw).map(|x| full[(x * step) as usize]).collect())
     };
     // Heights scale by the DEM's range; other layers by their own.

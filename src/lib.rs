@@ -17,6 +17,8 @@
 //! - [`edt`]: exact Euclidean distance transforms (the cone stage's slices).
 //! - [`horizon`]: the horizons stage (line, sector and sampled horizon maps,
 //!   sky-view factors, openness) and its algorithms.
+//! - [`ordered`]: parallel steps written in a fixed order, so that files
+//!   do not depend on thread timing.
 //! - [`render`]: perspective views traced through an asset (any method).
 //! - [`shade`]: overhead maps shaded from stored horizons (sky, sun).
 //! - [`bench`](mod@bench): the cone planes' speed against their bake time.
@@ -32,6 +34,7 @@ pub mod export;
 pub mod geo;
 pub mod horizon;
 pub mod ingest;
+pub mod ordered;
 pub mod progress;
 pub mod pyramid;
 pub mod render;

@@ -66,7 +66,7 @@ pub fn shade_posts(asset: &Asset<Mmap>, shade: Shade) -> Result<(Vec<f32>, usize
         })?;
     let (w, h) = (svf_layer.width() as usize, svf_layer.height() as usize);
     let mut svf_cosine = vec![0f32; w * h];
-    crate::export::read_rows_f32(svf_layer, 0, 0, &mut svf_cosine)?;
+    svf_layer.read_rows_f32(0, 0, &mut svf_cosine)?;
     let mut out: Vec<f32> = svf_cosine
         .iter()
         .map(|&f| radiosity(PI * f64::from(f), f64::from(f), ALBEDO) as f32)

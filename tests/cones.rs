@@ -283,3 +283,42 @@ fn windowed_bakes_are_valid_and_never_wider_than_whole_ones() {
         }
     }
 }
+
+/// The format crate's one decoder (`Layer::read_rows_f32`) gives every
+/// stored plane's real values, in every encoding: the same numbers the
+/// parametric tracer's `ConePlanes::cone` decodes, cell by cell.
+#[test]
+fn the_generic_decoder_reads_every_cone_encoding() {
+    let dir = tempfile::tempdir().unwrap();
+    common::synth_with_pyramid(dir.path(), SynthKind::Fractal, 37, 29, 5, opts());
+    for encoding in ConeEncoding::ALL {
+        let stage = ConesStage {
+            slices: SliceChoice::Count(8),
+            encoding,
+            ..Default::default()
+        };
+        let asset = bake_cones(dir.path(), &stage);
+        let planes = ConePlanes::open(&asset).unwrap().unwrap();
+        let read = |name: &str| {
+            let layer = asset.layer(name, 0).unwrap();
+            let mut v = vec![0f32; (layer.width() * layer.height()) as usize];
+            layer.read_rows_f32(0, 0, &mut v).unwrap();
+            (v, layer.width() as usize)
+        };
+        let ((apex, w), (slope, _)) = (read("cone_apex"), read("cone_slope"));
+        for (i, (a, s)) in apex.iter().zip(&slope).enumerate() {
+            let cone = planes.cone((i % w) as u32, (i / w) as u32).unwrap();
+            let same = |got: f32, want: f64| got == want as f32 || (got.is_nan() && want.is_nan());
+            assert!(
+                same(*a, cone.apex),
+                "{encoding:?} apex {a} vs {}",
+                cone.apex
+            );
+            assert!(
+                same(*s, cone.slope),
+                "{encoding:?} slope {s} vs {}",
+                cone.slope
+            );
+        }
+    }
+}

@@ -733,3 +733,44 @@ fn a_failed_stage_removes_its_own_files() {
         assert_eq!(layer_bytes(&asset), before);
     }
 }
+
+/// What the fuzzers found: a GeoTIFF whose georeferencing gives a spacing
+/// no reader accepts (ingest committed it), and one whose GeoDoubleParams
+/// hold NaN (ingest wrote `null` into the manifest, which no reader
+/// parses). Both are now refused at ingest, naming the file and the fix.
+#[test]
+fn sources_whose_georeferencing_no_reader_accepts_are_refused() {
+    use terrabake::export::{write_geotiff_f32, GeoTags};
+    use terrabake_format::manifest::{CrsKind, Georef, RasterType};
+    let dir = tempfile::tempdir().unwrap();
+    let georef = |scale: f64, doubles: Vec<f64>| Georef {
+        crs_kind: CrsKind::Projected,
+        epsg: None,
+        geotransform: [500000.0, scale, 0.0, 900000.0, 0.0, -scale],
+        raster_type: RasterType::Area,
+        geo_key_directory: vec![1, 1, 0, 1, 1024, 0, 1, 1],
+        geo_double_params: doubles,
+        geo_ascii_params: String::new(),
+    };
+    for (name, g, want) in [
+        ("huge.tif", georef(1e157, vec![]), "--cell-size"),
+        ("nan.tif", georef(30.0, vec![f64::NAN]), "GeoDoubleParams"),
+    ] {
+        let tif = dir.path().join(name);
+        let tags = GeoTags {
+            georef: Some(g),
+            nodata: None,
+        };
+        write_geotiff_f32(&tif, (20, 20, 1), &tags, |_, rows| {
+            rows.fill(100.0);
+            Ok(())
+        })
+        .unwrap();
+        let out = dir.path().join(format!("{name}.tbake"));
+        let run = terrabake(&["ingest", s(&tif), "-o", s(&out)]);
+        assert_eq!(run.status.code(), Some(1));
+        let msg = stderr(&run);
+        assert!(msg.contains(name) && msg.contains(want), "{msg}");
+        assert!(!out.exists());
+    }
+}

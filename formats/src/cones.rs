@@ -33,8 +33,7 @@ use crate::manifest::Quantization;
 use crate::reader::{Asset, Layer};
 use crate::ElemType;
 
-pub const CONE_APEX: &str = "cone_apex";
-pub const CONE_SLOPE: &str = "cone_slope";
+pub use crate::layers::{CONE_APEX, CONE_SLOPE};
 
 /// How the planes are stored.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]

@@ -32,17 +32,7 @@ use crate::manifest::Quantization;
 use crate::reader::{Asset, Layer};
 use crate::ElemType;
 
-pub const HORIZON: &str = "horizon";
-/// Sky-view factor as the solid angle of visible sky over the hemisphere
-/// above the horizontal: `1 - mean(sin(max(h, 0)))` (Zakšek et al. 2011).
-pub const SVF: &str = "svf";
-/// Sky-view factor as the cosine-weighted view factor of the visible sky
-/// from the tilted surface: `(1/pi) * integral over visible sky of N.u`
-/// (Dozier and Frew 1990; Stewart 1998 sec. VI).
-pub const SVF_COSINE: &str = "svf_cosine";
-/// Positive openness (Yokoyama et al. 2002): the mean zenith angle of the
-/// horizon, `mean(90 - h)` in degrees; above 90 where the terrain falls away.
-pub const OPENNESS: &str = "openness";
+pub use crate::layers::{HORIZON, HORIZON_EDGE, OPENNESS, SVF, SVF_COSINE};
 
 /// How horizon angles are stored.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]

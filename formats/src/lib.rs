@@ -31,9 +31,11 @@
 //! ```
 
 pub mod cones;
+mod decode;
 pub mod error;
 pub mod fsio;
 pub mod horizons;
+pub mod layers;
 pub mod layout;
 pub mod manifest;
 pub mod reader;

@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 use crate::layout::{Codec, ElemType};
 
 /// Name of the height layer that ingest writes; every stage reads it.
-pub const HEIGHT_LAYER: &str = "height";
+pub const HEIGHT_LAYER: &str = crate::layers::HEIGHT;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Manifest {
@@ -291,8 +291,13 @@ impl Manifest {
             return Err("vertical scale and offset must be finite".into());
         }
         if let Some(g) = &self.georef {
-            if g.geotransform.iter().any(|v| !v.is_finite()) {
-                return Err("georef.geotransform has a value that is not finite".into());
+            // JSON has no NaN: a writer would store null, which no reader parses.
+            let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+            if !finite(&g.geotransform) || !finite(&g.geo_double_params) {
+                return Err(
+                    "georef.geotransform or geo_double_params has a value that is not finite"
+                        .into(),
+                );
             }
         }
         if let Some(r) = self.height_range {

@@ -41,7 +41,7 @@ use std::sync::Mutex;
 use anyhow::{bail, Context, Result};
 use rayon::prelude::*;
 use terrabake_format::horizons::{
-    edge_distance, AngleEncoding, HORIZON, OPENNESS, SVF, SVF_COSINE,
+    edge_distance, AngleEncoding, HORIZON, HORIZON_EDGE, OPENNESS, SVF, SVF_COSINE,
 };
 use terrabake_format::manifest::CrsKind;
 use terrabake_format::{Asset, Codec, LayerEntry, LayerSpec, LayerWriter, Mmap};
@@ -51,9 +51,6 @@ use crate::stage::Stage;
 use crate::tiling::{encode_tile_row, push_tile_row};
 use line::GridDirection;
 use terrain::{RowScale, Terrain};
-
-/// Layer counting, per post, the bands whose horizon the DEM's edge may cut.
-pub const HORIZON_EDGE: &str = "horizon_edge";
 
 /// Which definition of the horizon.
 #[derive(
@@ -477,51 +474,48 @@ impl Stage for HorizonsStage {
         };
         let nodata = m.nodata.count > 0;
         if self.out_of_core() {
-            // Bands in batches of a fixed size, advancing in lockstep one row
-            // band at a time, pushed in band order: the layer's bytes are
-            // the same on every run and any number of threads (a free-for-all
-            // of bands would order chunks by thread timing).
+            // Bands in batches of a fixed size, each batch's sweeps run tile
+            // row by tile row on every core and written in a fixed order
+            // (crate::ordered): the layer's bytes are the same on every run
+            // and any number of threads.
+            let threads = rayon::current_num_threads();
             for (b, batch) in bands.chunks(OUT_OF_CORE_BATCH).enumerate() {
-                let mut sweeps: Vec<_> = batch
+                let sweeps: Vec<_> = batch
                     .iter()
                     .map(|band| self.row_bands(band, (w, h), (dx, dy), row_scale, nodata))
                     .collect();
-                let steps: Vec<Vec<std::ops::Range<usize>>> =
-                    sweeps.iter().map(|s| s.bands(ts)).collect();
-                for k in 0..steps.iter().map(Vec::len).max().unwrap_or(0) {
-                    let results: Vec<Option<(usize, Vec<f32>)>> = sweeps
-                        .par_iter_mut()
-                        .zip(&steps)
-                        .map(|(sweep, steps)| -> Result<Option<(usize, Vec<f32>)>> {
-                            let Some(rows) = steps.get(k) else {
-                                return Ok(None);
-                            };
-                            let window = sweep.window(rows);
-                            let mut rows_buf = vec![0f32; window.len() * w];
-                            height.read_window(
-                                0,
-                                0,
-                                window.start as u32,
-                                w as u32,
-                                window.len() as u32,
-                                &mut rows_buf,
-                            )?;
-                            let terrain =
-                                Terrain::window(&rows_buf, (w, h), window.start, (dx, dy))
-                                    .with_row_scale(row_scale)
-                                    .with_curvature(curvature);
-                            let mut angles = vec![0f32; rows.len() * w];
-                            sweep.sweep(&terrain, rows.clone(), &mut angles);
-                            Ok(Some((rows.start, angles)))
-                        })
-                        .collect::<Result<_>>()?;
-                    for (j, result) in results.into_iter().enumerate() {
-                        if let Some((y0, mut angles)) = result {
-                            out.write(b * OUT_OF_CORE_BATCH + j, y0, &mut angles)?;
+                let steps = crate::tiling::row_bands(h, ts).len();
+                crate::ordered::steps_in_order(
+                    sweeps,
+                    steps,
+                    threads,
+                    |sweep, k| {
+                        let rows = sweep.bands(ts)[k].clone();
+                        let window = sweep.window(&rows);
+                        let mut rows_buf = vec![0f32; window.len() * w];
+                        height.read_window(
+                            0,
+                            0,
+                            window.start as u32,
+                            w as u32,
+                            window.len() as u32,
+                            &mut rows_buf,
+                        )?;
+                        let terrain = Terrain::window(&rows_buf, (w, h), window.start, (dx, dy))
+                            .with_row_scale(row_scale)
+                            .with_curvature(curvature);
+                        let mut angles = vec![0f32; rows.len() * w];
+                        sweep.sweep(&terrain, rows.clone(), &mut angles);
+                        Ok((rows.start, out.encode(rows.start, &mut angles)))
+                    },
+                    |j, k, (y0, tiles)| {
+                        out.push(b * OUT_OF_CORE_BATCH + j, y0, tiles)?;
+                        if k + 1 == steps {
+                            bar.inc(1);
                         }
-                    }
-                }
-                bar.inc(batch.len() as u64);
+                        Ok(())
+                    },
+                )?;
             }
         } else {
             let (z, _, _) = read_heights(asset)?;
@@ -563,8 +557,9 @@ impl Stage for HorizonsStage {
     }
 }
 
-/// Bands swept together out of core. Fixed, not the thread count, so that
-/// the file is the same on every machine; eight keep two to eight cores busy.
+/// Bands swept together out of core (their sweeps are alive at once). Fixed,
+/// not the thread count, so that the file is the same on every machine;
+/// eight keep two to eight cores busy.
 const OUT_OF_CORE_BATCH: usize = 8;
 
 /// One band computed out of core: output rows in bands, each from a window
@@ -661,6 +656,12 @@ struct BandWriter {
 impl BandWriter {
     /// Rows `y0..` of band `band` (whole tile rows, `y0` on a tile edge).
     fn write(&self, band: usize, y0: usize, angles: &mut [f32]) -> Result<()> {
+        let tiles = self.encode(y0, angles);
+        self.push(band, y0, tiles)
+    }
+
+    /// The tiles of rows `y0..` of angles, masked to the area of interest.
+    fn encode(&self, y0: usize, angles: &mut [f32]) -> Vec<terrabake_format::EncodedTile> {
         let (w, ts, [x0, ay0, x1, ay1]) = (self.width, self.tile_size, self.aoi);
         for (r, row) in angles.chunks_mut(w).enumerate() {
             let y = y0 + r;
@@ -672,7 +673,7 @@ impl BandWriter {
         }
         let enc = self.enc;
         let code = |a: &f32| enc.encode(f64::from(*a));
-        let tiles = match enc {
+        match enc {
             AngleEncoding::F32 => encode_tile_row(angles, w, ts, f32::NAN, Codec::Raw),
             AngleEncoding::U16 => {
                 let codes: Vec<u16> = angles.iter().map(|a| code(a) as u16).collect();
@@ -682,8 +683,17 @@ impl BandWriter {
                 let codes: Vec<u8> = angles.iter().map(|a| code(a) as u8).collect();
                 encode_tile_row(&codes, w, ts, 0u8, Codec::Raw)
             }
-        };
-        let ty = y0 / ts;
+        }
+    }
+
+    /// Appends the tiles of the tile row at `y0` of band `band`.
+    fn push(
+        &self,
+        band: usize,
+        y0: usize,
+        tiles: Vec<terrabake_format::EncodedTile>,
+    ) -> Result<()> {
+        let ty = y0 / self.tile_size;
         let mut writer = self.writer.lock().expect("no panic while writing");
         for (tx, tile) in tiles.into_iter().enumerate() {
             let chunk = (band * self.tiles.1 + ty) * self.tiles.0 + tx;
@@ -751,7 +761,7 @@ fn sky_layers(
         let mut edges = vec![0u16; rows * w];
         let mut angles = vec![0f32; rows * w];
         for (b, band) in bands.iter().enumerate() {
-            crate::export::read_rows_f32(horizon, b as u32, y0 as u32, &mut angles)?;
+            horizon.read_rows_f32(b as u32, y0 as u32, &mut angles)?;
             sums.par_chunks_mut(w)
                 .zip(edges.par_chunks_mut(w))
                 .zip(angles.par_chunks(w))
@@ -888,7 +898,7 @@ pub fn read_horizons(asset: &Asset<Mmap>) -> Result<(Vec<Vec<f32>>, Vec<f64>)> {
     let bands = (0..layer.bands())
         .map(|b| {
             let mut v = vec![0f32; layer.width() as usize * layer.height() as usize];
-            crate::export::read_rows_f32(layer, b, 0, &mut v)?;
+            layer.read_rows_f32(b, 0, &mut v)?;
             Ok(v)
         })
         .collect::<Result<Vec<_>>>()?;

@@ -142,6 +142,15 @@ impl GeoTiffSource {
             .ok()
             .map(|s| s.trim_end_matches('\0').trim().to_string());
         let georef = read_georef(&mut decoder);
+        if georef
+            .as_ref()
+            .is_some_and(|g| g.geo_double_params.iter().any(|v| !v.is_finite()))
+        {
+            bail!(
+                "{}",
+                what("GeoDoubleParams holds a value that is not a finite number")
+            );
+        }
         let linear_unit_m = georef
             .as_ref()
             .map_or(1.0, |g| geo::linear_unit_metres(&g.geo_key_directory));

@@ -51,10 +51,7 @@ use crate::surface::{intersect_cell, Cell, GridRay};
 
 pub(crate) use walk::{touched_range, walk, walk_from, Bounds};
 
-/// Layers written by the pyramid stage: per cell and level, the tallest and
-/// lowest corner of every cell below (`-inf` / `+inf` where no surface).
-pub const PYRAMID_MAX: &str = "pyramid_max";
-pub const PYRAMID_MIN: &str = "pyramid_min";
+pub use crate::layers::{PYRAMID_MAX, PYRAMID_MIN};
 
 /// A ray in local metres (see the module docs): `origin + t * dir` for
 /// `t` in `[t_min, t_max]`.
@@ -328,8 +325,29 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
             )));
         }
         let mut pyramid = Vec::new();
+        // The walk steps by 2^level and indexes children at 2a, 2a + 1: the
+        // levels must halve from the cells up, and the stored ones stop at
+        // one tile (larger tops would be built in memory). Checked here, so
+        // that no asset, however crafted, makes a walk overflow or allocate.
+        let mut expect = (w - 1, h - 1);
         while let Ok(level) = asset.layer(PYRAMID_MAX, pyramid.len() as u32) {
+            let got = (level.width(), level.height());
+            let ts = level.tile_size();
+            if got != expect || level.entry().elem != crate::ElemType::F32 {
+                return Err(Error::Spec(format!(
+                    "{PYRAMID_MAX}@{} is {} x {}, expected {} x {} f32: not the pyramid of this DEM",
+                    pyramid.len(),
+                    got.0,
+                    got.1,
+                    expect.0,
+                    expect.1
+                )));
+            }
             pyramid.push(Level::Stored(level));
+            if expect.0 <= ts && expect.1 <= ts {
+                break;
+            }
+            expect = (expect.0.div_ceil(2), expect.1.div_ceil(2));
         }
         // The stage stores levels up to one tile; the few above it (down to
         // one node) are small, so they are built here, in memory.

@@ -1,0 +1,45 @@
+//! The name of every layer the pipeline writes, in one place, so that a
+//! renderer can name any of them and no two files spell one differently.
+//! Each module that reads a layer (`trace`, `cones`, `horizons`) re-exports
+//! the names it serves. FORMAT.md "Layers" says what each holds.
+
+/// Terrain height, f32 metres, NaN for nodata (ingest).
+pub const HEIGHT: &str = "height";
+/// Per cell and pyramid level, the tallest corner of every cell below
+/// (`-inf` where no surface) (pyramid stage).
+pub const PYRAMID_MAX: &str = "pyramid_max";
+/// As [`PYRAMID_MAX`], the lowest corner (`+inf` where no surface).
+pub const PYRAMID_MIN: &str = "pyramid_min";
+/// Per cell, the apex height of its cone of empty space (cones stage).
+pub const CONE_APEX: &str = "cone_apex";
+/// Per cell, the cone's slope: horizontal metres per metre of rise.
+pub const CONE_SLOPE: &str = "cone_slope";
+/// Horizon elevation angle per post, one band per azimuth (horizons stage).
+pub const HORIZON: &str = "horizon";
+/// Sky-view factor as the solid angle of visible sky over the hemisphere
+/// above the horizontal: `1 - mean(sin(max(h, 0)))` (Zakšek et al. 2011).
+pub const SVF: &str = "svf";
+/// Sky-view factor as the cosine-weighted view factor of the visible sky
+/// from the tilted surface: `(1/pi) * integral over visible sky of N.u`
+/// (Dozier and Frew 1990; Stewart 1998 sec. VI).
+pub const SVF_COSINE: &str = "svf_cosine";
+/// Positive openness (Yokoyama et al. 2002): the mean zenith angle of the
+/// horizon, `mean(90 - h)` in degrees; above 90 where the terrain falls away.
+pub const OPENNESS: &str = "openness";
+/// Per post (u16), how many bands' horizon terrain beyond the DEM's edge, no
+/// higher than its highest post, could rise above.
+pub const HORIZON_EDGE: &str = "horizon_edge";
+
+/// Every name above, in the order stages write them.
+pub const ALL: [&str; 10] = [
+    HEIGHT,
+    PYRAMID_MAX,
+    PYRAMID_MIN,
+    CONE_APEX,
+    CONE_SLOPE,
+    HORIZON,
+    SVF,
+    SVF_COSINE,
+    OPENNESS,
+    HORIZON_EDGE,
+];
