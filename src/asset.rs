@@ -125,3 +125,12 @@ fn is_asset_file(name: &str) -> bool {
         || name.ends_with(".tbl")
         || name.ends_with(terrabake_format::fsio::TEMP_SUFFIX)
 }
+
+/// Opens the asset `path` for reading, with the command line's messages.
+pub fn open(path: &Path) -> Result<terrabake_format::Asset<terrabake_format::Mmap>> {
+    if !path.is_dir() {
+        bail!("{}: not an asset directory", path.display());
+    }
+    terrabake_format::Asset::open(path)
+        .with_context(|| format!("{}: cannot open asset", path.display()))
+}

@@ -25,6 +25,7 @@ use terrabake_format::{
 use crate::asset::{AssetWriter, Wait};
 use crate::progress::Progress;
 use crate::source::{self, parse_nodata, HeightMapping, RawSpec};
+use crate::stage::unix_now;
 use crate::tiling::push_tile_row;
 
 /// Default tile edge: 256 x 256 f32 = 256 KiB, a good unit for mmap paging,
@@ -226,6 +227,7 @@ pub fn ingest_into(
                     tool: crate::tool_version(),
                     finished_unix: unix_now(),
                     outputs: vec![entry.key()],
+                    inputs: Vec::new(),
                 }],
             },
             layers: vec![entry],
@@ -233,10 +235,4 @@ pub fn ingest_into(
         };
         Ok(commit_manifest(writer.lock_held(), &manifest)?)
     }
-}
-
-pub fn unix_now() -> u64 {
-    SystemTime::now()
-        .duration_since(SystemTime::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs())
 }

@@ -4,30 +4,40 @@
 //! its reader live in `terrabake-format`; this crate reads sources, runs the
 //! bake stages and writes their layers, and hosts the CLI (`src/main.rs`).
 //!
+//! - [`args`]: value parsers for command-line flags (the CLI's and the
+//!   stages' parameter types').
 //! - [`asset`]: an asset open for writing: its directory, its writer lock,
 //!   and the reclaiming of a dead or failed writer's files.
 //! - [`source`]: DEM readers (GeoTIFF, SRTM .hgt, raw, PNG, OpenEXR), row
 //!   band by row band, never holding a whole DEM.
 //! - [`ingest`]: the first stage: a source becomes the asset's `height` layer.
 //! - [`stage`]: the stage interface (layers in, layers out, recorded in the
-//!   manifest) and recipes, which `bake` runs in order, resumably.
+//!   manifest), run under the asset's writer lock.
+//! - [`recipe`]: the registry above the stages and the recipes that `bake`
+//!   runs in order, resumably.
 //! - [`pyramid`]: the max/min pyramid stage, for hierarchical tracing.
 //! - [`cones`]: the parameter-plane stage (cone apex and slope per cell),
 //!   for parametric tracing.
 //! - [`edt`]: exact Euclidean distance transforms (the cone stage's slices).
-//! - [`horizon`]: the horizons stage (line, sector and sampled horizon maps,
-//!   sky-view factors, openness) and its algorithms.
+//! - [`horizon`]: the horizons stage (line, sector and sampled horizon maps)
+//!   and its algorithms.
+//! - [`sky`]: the sky stage (sky-view factors, openness, the edge count)
+//!   from the committed horizons.
 //! - [`ordered`]: parallel steps written in a fixed order, so that files
 //!   do not depend on thread timing.
+//! - [`cli`]: the command line's grammar (the binary parses with it).
+//! - [`report`]: what the command line prints for people.
 //! - [`render`]: perspective views traced through an asset (any method).
 //! - [`shade`]: overhead maps shaded from stored horizons (sky, sun).
-//! - [`bench`](mod@bench): the cone planes' speed against their bake time.
+//! - [`bench`](mod@bench): the benchmark harnesses (tracing views, cone
+//!   planes, horizon methods), their one table writer and chart writer.
 //! - [`synth`]: synthetic terrains for tests and benchmarks.
 //! - [`export`]: layers out as GeoTIFF, OpenEXR or a PNG preview.
 
+pub mod args;
 pub mod asset;
 pub mod bench;
-pub mod chart;
+pub mod cli;
 pub mod cones;
 pub mod edt;
 pub mod export;
@@ -37,8 +47,11 @@ pub mod ingest;
 pub mod ordered;
 pub mod progress;
 pub mod pyramid;
+pub mod recipe;
 pub mod render;
+pub mod report;
 pub mod shade;
+pub mod sky;
 pub mod source;
 pub mod stage;
 pub mod synth;

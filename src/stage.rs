@@ -1,43 +1,42 @@
-//! Bake stages and recipes.
+//! The stage interface: a stage reads layers of an asset and writes new
+//! ones, input layers and parameters in, layers out. [`run_stage`] runs one
+//! against an asset directory under its writer lock and records it in the
+//! manifest (`provenance.stages`, with its parameters and outputs); a stage
+//! whose record already matches its parameters, and whose outputs are all
+//! present, is skipped, which makes `bake` resumable.
 //!
-//! A stage reads layers of an asset and writes new ones: input layers and
-//! parameters in, layers out. [`run_stage`] runs one against an asset
-//! directory and records it in the manifest (`provenance.stages`, with its
-//! parameters and outputs); a stage whose record already matches its
-//! parameters, and whose outputs are all present, is skipped, which makes
-//! `bake` resumable. Ingest is the stage that creates the asset, so it is run
-//! by [`bake`] directly rather than through the trait.
-//!
-//! A recipe (`pipelines/NAME.toml`) names the ingest options and the stages
-//! to run after it, in order:
-//!
-//! ```toml
-//! [ingest]
-//! tile = 256
-//! codec = "raw"      # or "zstd"
-//!
-//! [[stage]]
-//! name = "pyramid"   # later stages: pyramid, cones, horizons
-//! ```
+//! Stages import this module and nothing above it; the registry that knows
+//! every stage by name, and recipes, are in [`crate::recipe`].
 
 use std::path::Path;
 
-use anyhow::{bail, Context, Result};
-use serde::Deserialize;
+use anyhow::{Context, Result};
 use terrabake_format::manifest::StageRecord;
-use terrabake_format::{commit_manifest, Asset, Codec, LayerEntry, Mmap};
+use terrabake_format::{commit_manifest, Asset, LayerEntry, Mmap};
 
 use crate::asset::{AssetWriter, Wait};
-use crate::ingest::{ingest_into, ingest_params, unix_now, IngestOptions};
 use crate::progress::Progress;
 
-/// One bake stage.
+/// One bake stage. A stage's parameters are one typed value: the command's
+/// flags (clap's `Args`) and the recipe's `[[stage]]` table (serde, unknown
+/// keys refused) both make it, and [`Stage::params`] records its
+/// serialisation, so the same parameters give the same record either way.
 pub trait Stage {
     /// The stage's name in recipes, on the command line and in the manifest.
     fn name(&self) -> &'static str;
     /// Everything that determines the output (recorded; equal parameters and
     /// present outputs mean the stage is already done).
     fn params(&self) -> serde_json::Value;
+    /// Refuses parameters that make no sense together, before any work (a
+    /// recipe is checked whole before its first stage runs).
+    fn check(&self) -> Result<()> {
+        Ok(())
+    }
+    /// `name@level` of the layers the stage reads (recorded; rewriting one
+    /// of them drops this stage's outputs). Most stages read the heights.
+    fn inputs(&self) -> Vec<String> {
+        vec![format!("{}@0", terrabake_format::HEIGHT_LAYER)]
+    }
     /// Writes the stage's layers into `dir` (with `terrabake_format::LayerWriter`)
     /// and returns their entries, not yet committed.
     fn run(&self, asset: &Asset<Mmap>, dir: &Path, progress: Progress) -> Result<Vec<LayerEntry>>;
@@ -54,7 +53,7 @@ pub struct StageOutcome {
 
 /// Whether `stages` already holds a record of `stage` with `params` whose
 /// outputs the asset still has.
-fn already_done(
+pub fn already_done(
     manifest: &terrabake_format::Manifest,
     stage: &str,
     params: &serde_json::Value,
@@ -107,6 +106,7 @@ fn write_stage(
 ) -> Result<StageOutcome> {
     let dir = writer.dir();
     let start = std::time::Instant::now();
+    stage.check()?;
     let asset =
         Asset::open(dir).with_context(|| format!("{}: cannot open asset", dir.display()))?;
     let params = stage.params();
@@ -126,6 +126,7 @@ fn write_stage(
     let mut manifest = asset.manifest().clone();
     drop(asset);
     let outputs: Vec<String> = entries.iter().map(LayerEntry::key).collect();
+    drop_dependents(&mut manifest, stage.name(), &outputs);
     for entry in entries {
         manifest.upsert_layer(entry);
     }
@@ -139,6 +140,7 @@ fn write_stage(
         tool: crate::tool_version(),
         finished_unix: unix_now(),
         outputs: outputs.clone(),
+        inputs: stage.inputs(),
     });
     commit_manifest(writer.lock_held(), &manifest)?;
     Ok(StageOutcome {
@@ -149,187 +151,56 @@ fn write_stage(
     })
 }
 
-/// A recipe file.
-#[derive(Debug, Clone, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Recipe {
-    #[serde(default)]
-    pub description: String,
-    #[serde(default)]
-    pub ingest: RecipeIngest,
-    #[serde(default, rename = "stage")]
-    pub stages: Vec<RecipeStage>,
-}
-
-#[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RecipeIngest {
-    #[serde(default = "default_tile")]
-    pub tile: u32,
-    #[serde(default = "default_codec")]
-    pub codec: Codec,
-    pub nodata: Option<f64>,
-    pub cell_size: Option<[f64; 2]>,
-    #[serde(default = "one")]
-    pub z_scale: f64,
-    #[serde(default)]
-    pub z_offset: f64,
-}
-
-fn default_tile() -> u32 {
-    crate::ingest::DEFAULT_TILE
-}
-fn default_codec() -> Codec {
-    Codec::Raw
-}
-fn one() -> f64 {
-    1.0
-}
-
-impl Default for RecipeIngest {
-    fn default() -> Self {
-        Self {
-            tile: default_tile(),
-            codec: default_codec(),
-            nodata: None,
-            cell_size: None,
-            z_scale: 1.0,
-            z_offset: 0.0,
-        }
-    }
-}
-
-#[derive(Debug, Clone, Deserialize)]
-pub struct RecipeStage {
-    pub name: String,
-    #[serde(flatten)]
-    pub params: toml::Table,
-}
-
-impl Recipe {
-    pub fn load(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path)
-            .with_context(|| format!("{}: cannot read recipe", path.display()))?;
-        toml::from_str(&text).with_context(|| format!("{}: invalid recipe", path.display()))
-    }
-
-    pub fn ingest_options(&self) -> IngestOptions {
-        let i = &self.ingest;
-        IngestOptions {
-            tile_size: i.tile,
-            nodata: i.nodata,
-            cell_size: i.cell_size.map(|[dx, dy]| (dx, dy)),
-            z_scale: i.z_scale,
-            z_offset: i.z_offset,
-            codec: i.codec,
-            raw: None,
-            ..IngestOptions::default()
-        }
-    }
-}
-
-/// The stages this build provides, by recipe name.
-pub fn stage_from_recipe(step: &RecipeStage) -> Result<Box<dyn Stage>> {
-    let no_params = |stage: Box<dyn Stage>| -> Result<Box<dyn Stage>> {
-        if let Some(key) = step.params.keys().next() {
-            bail!("stage '{}' takes no parameter '{key}'", step.name);
-        }
-        Ok(stage)
-    };
-    match step.name.as_str() {
-        "pyramid" => no_params(Box::new(crate::pyramid::PyramidStage)),
-        "cones" => cones_from_recipe(&step.params).map(|s| Box::new(s) as Box<dyn Stage>),
-        "horizons" => {
-            crate::horizon::from_recipe(&step.params).map(|s| Box::new(s) as Box<dyn Stage>)
-        }
-        other => bail!("stage '{other}' is not available in this build of terrabake (available after ingest: pyramid, cones, horizons)"),
-    }
-}
-
-/// `[[stage]] name = "cones"` with optional `slices` (a count, "auto" or
-/// "exact"), `apex_gap` (metres, with auto), `encoding` ("f32", "f16",
-/// "u16") and `max_memory_mib`.
-fn cones_from_recipe(params: &toml::Table) -> Result<crate::cones::ConesStage> {
-    use crate::cones::{ConesStage, SliceChoice};
-    let mut stage = ConesStage::default();
-    let mut apex_gap = None;
-    for (key, value) in params {
-        let bad = || anyhow::anyhow!("stage 'cones': invalid {key} = {value}");
-        match key.as_str() {
-            "slices" => {
-                let text = match value {
-                    toml::Value::Integer(k) => k.to_string(),
-                    toml::Value::String(s) => s.clone(),
-                    _ => return Err(bad()),
-                };
-                stage.slices = text.parse().map_err(|e: String| anyhow::anyhow!("stage 'cones': {e}"))?;
-            }
-            "apex_gap" => apex_gap = Some(value.as_float().filter(|g| *g > 0.0).ok_or_else(bad)?),
-            "encoding" => {
-                stage.encoding = value
-                    .as_str()
-                    .ok_or_else(bad)?
-                    .parse()
-                    .map_err(|e: String| anyhow::anyhow!("stage 'cones': {e}"))?;
-            }
-            "max_memory_mib" => {
-                stage.max_memory = value.as_integer().filter(|m| *m > 0).ok_or_else(bad)? as u64 * (1 << 20);
-            }
-            other => bail!("stage 'cones' takes no parameter '{other}' (slices, apex_gap, encoding, max_memory_mib)"),
-        }
-    }
-    if let Some(gap) = apex_gap {
-        let SliceChoice::Auto { apex_gap } = &mut stage.slices else {
-            bail!("stage 'cones': apex_gap goes with slices = \"auto\"");
-        };
-        *apex_gap = Some(gap);
-    }
-    Ok(stage)
-}
-
-/// Ingest (unless the asset already is this ingest) and every recipe stage,
-/// all under one hold of the writer lock.
-pub fn bake(
-    src: &Path,
-    dir: &Path,
-    recipe: &Recipe,
-    wait: Wait,
-    progress: Progress,
-) -> Result<Vec<StageOutcome>> {
-    // Resolve every stage before any work, so a typo fails in a second.
-    let stages = recipe
+/// Drops, transitively, every other stage's record that read one of
+/// `rewritten`, and the layers it wrote: they were derived from what is
+/// about to change (the sky layers when the horizons are recomputed).
+fn drop_dependents(manifest: &mut terrabake_format::Manifest, stage: &str, rewritten: &[String]) {
+    let mut changed: Vec<String> = rewritten.to_vec();
+    while let Some(i) = manifest
+        .provenance
         .stages
         .iter()
-        .map(stage_from_recipe)
-        .collect::<Result<Vec<_>>>()?;
-    let opts = recipe.ingest_options();
-    let params = ingest_params(src, &opts)?;
-    let writer = AssetWriter::create(dir, wait)?;
-    let current = Asset::open(dir)
-        .ok()
-        .and_then(|a| already_done(a.manifest(), "ingest", &params));
-    let mut outcomes = Vec::new();
-    match current {
-        Some(outputs) => outcomes.push(StageOutcome {
-            stage: "ingest".into(),
-            skipped: true,
-            outputs,
-            seconds: 0.0,
-        }),
-        None => {
-            let start = std::time::Instant::now();
-            let manifest =
-                ingest_into(&writer, src, &opts, progress).inspect_err(|_| writer.fail())?;
-            outcomes.push(StageOutcome {
-                stage: "ingest".into(),
-                skipped: false,
-                outputs: manifest.layers.iter().map(LayerEntry::key).collect(),
-                seconds: start.elapsed().as_secs_f64(),
-            });
+        .position(|r| r.stage != stage && r.inputs.iter().any(|input| changed.contains(input)))
+    {
+        let record = manifest.provenance.stages.remove(i);
+        manifest
+            .layers
+            .retain(|l| !record.outputs.contains(&l.key()) || rewritten.contains(&l.key()));
+        changed.extend(record.outputs);
+    }
+}
+
+/// Seconds since the Unix epoch (stage records).
+pub fn unix_now() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs())
+}
+
+/// Memory budgets: bytes in the stage, MiB on the command line, in recipes
+/// (`max_memory_mib`) and in the manifest record.
+pub mod mib {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    /// `--max-memory MIB` as bytes.
+    pub fn parse(s: &str) -> Result<u64, String> {
+        match s.trim().parse::<u64>() {
+            Ok(m) if m > 0 && m < 1 << 40 => Ok(m << 20),
+            _ => Err(format!("{s:?} is not a positive number of MiB")),
         }
     }
-    for stage in stages {
-        outcomes.push(run_stage_in(&writer, stage.as_ref(), false, progress)?);
+
+    pub fn serialize<S: Serializer>(bytes: &u64, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_f64(*bytes as f64 / (1u64 << 20) as f64)
     }
-    Ok(outcomes)
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<u64, D::Error> {
+        let mib = f64::deserialize(d)?;
+        if !(mib > 0.0 && mib < (1u64 << 40) as f64) {
+            return Err(serde::de::Error::custom(format!(
+                "{mib} is not a positive number of MiB"
+            )));
+        }
+        Ok((mib * (1u64 << 20) as f64) as u64)
+    }
 }

@@ -372,7 +372,7 @@ fn cones_from_the_command_line_and_from_recipes() {
 
     let bad = bake_recipe(&tif, &asset, "[[stage]]\nname = \"cones\"\nslice = 64\n");
     assert_eq!(bad.status.code(), Some(1));
-    assert!(stderr(&bad).contains("'slice'"), "{}", stderr(&bad));
+    assert!(stderr(&bad).contains("`slice`"), "{}", stderr(&bad));
 }
 
 #[test]
@@ -517,7 +517,7 @@ fn horizons_from_the_command_line_export_shade_and_recipes() {
     assert!(entry.description.contains("Stewart"));
     let bad = bake_recipe(&tif, &asset, "[[stage]]\nname = \"horizons\"\nsector = 7\n");
     assert_eq!(bad.status.code(), Some(1));
-    assert!(stderr(&bad).contains("'sector'"), "{}", stderr(&bad));
+    assert!(stderr(&bad).contains("`sector`"), "{}", stderr(&bad));
 
     // Unbounded sectors would hold a 300 x 300 DEM in more than 1 MiB:
     // refused before any work, the routes named; bounded sectors run.

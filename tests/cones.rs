@@ -110,7 +110,7 @@ fn no_cone_holds_terrain_on_any_synthetic_terrain() {
         SliceChoice::Count(7),
         SliceChoice::Count(64),
         SliceChoice::Count(5000),
-        SliceChoice::Auto { apex_gap: None },
+        SliceChoice::Auto,
         SliceChoice::Exact,
     ];
     for kind in SynthKind::ALL {
@@ -192,7 +192,7 @@ fn flat_dems_and_one_slice_give_unbounded_cones_at_the_top() {
     for slices in [
         SliceChoice::Count(1),
         SliceChoice::Count(300),
-        SliceChoice::Auto { apex_gap: None },
+        SliceChoice::Auto,
         SliceChoice::Exact,
     ] {
         let asset = bake_cones(

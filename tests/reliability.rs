@@ -39,7 +39,7 @@ fn dem_and_recipe(dir: &Path, extra: &str) -> (PathBuf, PathBuf) {
     std::fs::write(
         &recipe,
         format!(
-            "[ingest]\ntile = 16\n\n[[stage]]\nname = \"pyramid\"\n\n[[stage]]\nname = \"cones\"\nslices = 4\n\n[[stage]]\nname = \"horizons\"\nsectors = 8\n{extra}"
+            "[ingest]\ntile = 16\n\n[[stage]]\nname = \"pyramid\"\n\n[[stage]]\nname = \"cones\"\nslices = 4\n\n[[stage]]\nname = \"horizons\"\nsectors = 8\n{extra}\n[[stage]]\nname = \"sky\"\n"
         ),
     )
     .unwrap();
@@ -90,7 +90,9 @@ fn a_writer_killed_at_every_durable_step_loses_nothing() {
     let (tif, recipe) = dem_and_recipe(dir.path(), "");
     let (_, recipe2) = {
         let r2 = dir.path().join("r2.toml");
-        let text = std::fs::read_to_string(&recipe).unwrap() + "encoding = \"f32\"\n";
+        let text = std::fs::read_to_string(&recipe)
+            .unwrap()
+            .replace("sectors = 8\n", "sectors = 8\nencoding = \"f32\"\n");
         std::fs::write(&r2, text).unwrap();
         ((), r2)
     };
@@ -135,10 +137,21 @@ fn a_writer_killed_at_every_durable_step_loses_nothing() {
                 Ok(a) => {
                     assert!(a.verify().problems.is_empty(), "k={k}: corrupt asset");
                     if case == 1 {
-                        // The old asset, or the new one if the kill came
-                        // after the commit.
+                        // A state the bake commits: every layer the old one
+                        // or the new one, and the sky layers never older
+                        // than the horizons they were derived from (the
+                        // bake commits twice: horizons, then sky).
                         let now = layer_bytes(&asset);
-                        assert!(now == *want || now == *old, "k={k}: neither old nor new");
+                        for (key, bytes) in &now {
+                            let same = |m: &BTreeMap<String, Vec<u8>>| m.get(key) == Some(bytes);
+                            assert!(same(want) || same(old), "k={k}: {key} neither old nor new");
+                        }
+                        if now.get("horizon@0") == want.get("horizon@0") {
+                            for key in ["svf@0", "svf_cosine@0", "openness@0", "horizon_edge@0"] {
+                                let stale = now.contains_key(key) && now.get(key) != want.get(key);
+                                assert!(!stale, "k={k}: {key} derived from the old horizons");
+                            }
+                        }
                     }
                 }
                 Err(_) => assert_eq!(case, 0, "k={k}: the good asset was lost"),

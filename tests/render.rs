@@ -231,9 +231,7 @@ fn horizon_shadows_agree_with_shadow_rays() {
     let stage = terrabake::horizon::HorizonsStage {
         sectors: 32,
         curvature: Some(false),
-        encoding: terrabake::horizon::AngleChoice::Fixed(
-            terrabake_format::horizons::AngleEncoding::F32,
-        ),
+        encoding: Some(terrabake_format::horizons::AngleEncoding::F32),
         ..Default::default()
     };
     run_stage(&out, &stage, false, Progress::hidden()).unwrap();

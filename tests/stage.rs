@@ -225,3 +225,164 @@ fn a_failing_stage_leaves_the_asset_as_it_was() {
         fixture_value("float32", 0, 0) + 1.0
     );
 }
+
+/// The record a stage leaves in the manifest, by stage name.
+fn record(asset: &Path, stage: &str) -> serde_json::Value {
+    let a = Asset::open(asset).unwrap();
+    let r = a
+        .manifest()
+        .provenance
+        .stages
+        .iter()
+        .rev()
+        .find(|r| r.stage == stage);
+    r.unwrap_or_else(|| panic!("no {stage} record"))
+        .params
+        .clone()
+}
+
+/// One parameter type per stage: the same parameters from the command line
+/// and from a recipe give the same manifest record.
+#[test]
+fn command_line_and_recipe_record_the_same_parameters() {
+    let dir = tempfile::tempdir().unwrap();
+    let tif = dir.path().join("t.tif");
+    terrabake::synth::write_geotiff(
+        &tif,
+        terrabake::synth::SynthKind::Fractal,
+        50,
+        40,
+        2,
+        Progress::hidden(),
+    )
+    .unwrap();
+    let (by_cli, by_recipe) = (
+        dir.path().join("cli.tbake"),
+        dir.path().join("recipe.tbake"),
+    );
+    let run = |args: &[&str]| {
+        let out = terrabake(args);
+        assert!(out.status.success(), "{args:?}: {}", stderr(&out));
+    };
+    let p = |p: &Path| p.to_str().unwrap().to_string();
+    run(&["ingest", &p(&tif), "-o", &p(&by_cli), "--tile", "16", "-q"]);
+    run(&[
+        "cones",
+        &p(&by_cli),
+        "--slices",
+        "auto",
+        "--apex-gap",
+        "2.5",
+        "--encoding",
+        "u16",
+        "--max-memory",
+        "64",
+        "-q",
+    ]);
+    run(&[
+        "horizons",
+        &p(&by_cli),
+        "--sectors",
+        "8",
+        "--method",
+        "sector",
+        "--max-distance",
+        "300",
+        "--curvature",
+        "off",
+        "--aoi",
+        "2,3,40,30",
+        "--encoding",
+        "u16",
+        "--no-narrow-check",
+        "-q",
+    ]);
+    let recipe = dir.path().join("r.toml");
+    std::fs::write(
+        &recipe,
+        "[ingest]\ntile = 16\n\n[[stage]]\nname = \"cones\"\nslices = \"auto\"\napex_gap = 2.5\nencoding = \"u16\"\nmax_memory_mib = 64\n\n\
+         [[stage]]\nname = \"horizons\"\nsectors = 8\nmethod = \"sector\"\nmax_distance = 300\ncurvature = false\naoi = [2, 3, 40, 30]\nencoding = \"u16\"\nnarrow_check = false\n",
+    )
+    .unwrap();
+    run(&[
+        "bake",
+        &p(&tif),
+        "-o",
+        &p(&by_recipe),
+        "--recipe",
+        &p(&recipe),
+        "-q",
+    ]);
+    for stage in ["cones", "horizons"] {
+        assert_eq!(record(&by_cli, stage), record(&by_recipe, stage), "{stage}");
+    }
+    assert_eq!(record(&by_cli, "horizons")["method"], "sector");
+    assert_eq!(record(&by_cli, "cones")["max_memory_mib"], 64.0);
+}
+
+/// A misspelled recipe key is refused by name, with the stage and the file,
+/// before any work.
+#[test]
+fn a_misspelled_recipe_key_is_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let tif = dir.path().join("t.tif");
+    terrabake::synth::write_geotiff(
+        &tif,
+        terrabake::synth::SynthKind::Flat,
+        20,
+        20,
+        1,
+        Progress::hidden(),
+    )
+    .unwrap();
+    for (stage, key) in [
+        ("cones", "slicez = 8"),
+        ("horizons", "sector = 8"),
+        ("pyramid", "levels = 3"),
+    ] {
+        let recipe = dir.path().join(format!("{stage}.toml"));
+        std::fs::write(&recipe, format!("[[stage]]\nname = \"{stage}\"\n{key}\n")).unwrap();
+        let asset = dir.path().join(format!("{stage}.tbake"));
+        let out = terrabake(&[
+            "bake",
+            tif.to_str().unwrap(),
+            "-o",
+            asset.to_str().unwrap(),
+            "--recipe",
+            recipe.to_str().unwrap(),
+        ]);
+        assert_eq!(out.status.code(), Some(1));
+        let msg = stderr(&out);
+        let name = key.split(' ').next().unwrap();
+        assert!(
+            msg.contains(&format!("{stage}.toml"))
+                && msg.contains(stage)
+                && msg.contains(&format!("`{name}`")),
+            "{msg}"
+        );
+        assert!(!asset.exists(), "work began before the recipe was checked");
+    }
+}
+
+/// The command line's defaults are the stage types' defaults (what a recipe
+/// that leaves a key out gets).
+#[test]
+fn command_line_defaults_are_the_stage_defaults() {
+    use clap::Parser;
+    #[derive(Parser)]
+    struct Cones {
+        #[command(flatten)]
+        stage: terrabake::cones::ConesStage,
+    }
+    #[derive(Parser)]
+    struct Horizons {
+        #[command(flatten)]
+        stage: terrabake::horizon::HorizonsStage,
+    }
+    assert_eq!(Cones::parse_from(["x"]).stage, Default::default());
+    assert_eq!(Horizons::parse_from(["x"]).stage, Default::default());
+    let empty = toml::Table::new();
+    let from_recipe: terrabake::horizon::HorizonsStage =
+        toml::Value::Table(empty).try_into().unwrap();
+    assert_eq!(from_recipe, Default::default());
+}

@@ -62,7 +62,7 @@ fn cones_stage(n: usize) -> ConesStage {
     let slices = [
         SliceChoice::Exact,
         SliceChoice::Count(16),
-        SliceChoice::Auto { apex_gap: None },
+        SliceChoice::Auto,
         SliceChoice::Count(1),
         SliceChoice::Count(300),
     ];

@@ -139,6 +139,11 @@ pub struct StageRecord {
     pub finished_unix: u64,
     /// `name@level` of every layer the stage wrote.
     pub outputs: Vec<String>,
+    /// `name@level` of every layer the stage read. When a later run
+    /// rewrites one of them, this record and its outputs are dropped, so a
+    /// derived layer never outlives what it was derived from.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub inputs: Vec<String>,
 }
 
 /// One layer: where its file is and what it holds.

@@ -41,27 +41,61 @@ use planes::{exact_planes, neighbourhood_max, sliced_planes, Cap, Planes, Slices
 /// distance plane, the two planes and the exact method's pyramid.
 pub const BYTES_PER_CELL: u64 = 32;
 
-/// How many slices.
+/// How many slices: written `K` (a count), `auto` or `exact`, on the
+/// command line and in recipes (where a count may also be an integer).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum SliceChoice {
     Count(usize),
-    /// `K` from the data and the apex gap (metres; `None`: relief / 255).
-    Auto {
-        apex_gap: Option<f64>,
-    },
+    /// `K` from the data and the apex gap ([`ConesStage::apex_gap`]).
+    Auto,
     Exact,
+}
+
+impl std::fmt::Display for SliceChoice {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            SliceChoice::Count(k) => write!(f, "{k}"),
+            SliceChoice::Auto => f.write_str("auto"),
+            SliceChoice::Exact => f.write_str("exact"),
+        }
+    }
+}
+
+impl serde::Serialize for SliceChoice {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match self {
+            SliceChoice::Count(k) => s.serialize_u64(*k as u64),
+            other => s.collect_str(other),
+        }
+    }
+}
+
+impl<'de> serde::Deserialize<'de> for SliceChoice {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        #[derive(serde::Deserialize)]
+        #[serde(untagged)]
+        enum Written {
+            Count(u64),
+            Text(String),
+        }
+        match Written::deserialize(d)? {
+            Written::Count(k) => k.to_string().parse(),
+            Written::Text(s) => s.parse(),
+        }
+        .map_err(serde::de::Error::custom)
+    }
 }
 
 impl std::str::FromStr for SliceChoice {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
         match s {
-            "auto" => Ok(SliceChoice::Auto { apex_gap: None }),
+            "auto" => Ok(SliceChoice::Auto),
             "exact" => Ok(SliceChoice::Exact),
             n => match n.parse::<usize>() {
                 Ok(k) if (1..=65535).contains(&k) => Ok(SliceChoice::Count(k)),
                 _ => Err(format!(
-                    "--slices takes a count from 1 to 65535, auto or exact, not {s:?}"
+                    "slices takes a count from 1 to 65535, auto or exact, not {s:?}"
                 )),
             },
         }
@@ -87,7 +121,9 @@ pub struct SlicePlan {
 }
 
 impl SliceChoice {
-    pub fn resolve(self, h: &HeightSummary) -> SlicePlan {
+    /// The slice count for heights `h`; `apex_gap` (metres, `None`: relief
+    /// / 255) bounds `auto`.
+    pub fn resolve(self, h: &HeightSummary, apex_gap: Option<f64>) -> SlicePlan {
         let relief = h.z_max - h.z_min;
         match self {
             SliceChoice::Count(k) => SlicePlan {
@@ -98,7 +134,7 @@ impl SliceChoice {
                 slices: None,
                 reason: "exact cones (no slices)".into(),
             },
-            SliceChoice::Auto { apex_gap } => {
+            SliceChoice::Auto => {
                 if relief <= 0.0 {
                     return SlicePlan {
                         slices: Some(1),
@@ -140,19 +176,36 @@ impl SliceChoice {
     }
 }
 
-/// The cones stage (`terrabake cones`, recipe step `cones`).
-#[derive(Debug, Clone, PartialEq)]
+/// The cones stage and its parameters: `terrabake cones` flattens it, a
+/// recipe's `[[stage]] name = "cones"` table deserialises into it (unknown
+/// keys refused), and the manifest records its serialisation.
+#[derive(Debug, Clone, PartialEq, clap::Args, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct ConesStage {
+    /// A slice count K (1..=65535), auto, or exact.
+    #[arg(long, default_value = "auto")]
     pub slices: SliceChoice,
+    /// With slices auto: how far (metres) the apex may sit above a cell's
+    /// neighbourhood; default relief / 255, i.e. 256 slices unless the data
+    /// has fewer height steps.
+    #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub apex_gap: Option<f64>,
+    /// How the planes are stored: f32, f16 or u16 (conservatively rounded).
+    #[arg(long, default_value = "f32")]
     pub encoding: ConeEncoding,
-    /// Working memory allowed, bytes; beyond it the DEM is baked in windows.
+    /// Working memory in MiB; a DEM that needs more is baked in windows
+    /// (whose halos cap the slopes, so it is recorded).
+    #[arg(long = "max-memory", value_name = "MIB", default_value = "8192", value_parser = crate::stage::mib::parse)]
+    #[serde(rename = "max_memory_mib", with = "crate::stage::mib")]
     pub max_memory: u64,
 }
 
 impl Default for ConesStage {
     fn default() -> Self {
         Self {
-            slices: SliceChoice::Auto { apex_gap: None },
+            slices: SliceChoice::Auto,
+            apex_gap: None,
             encoding: ConeEncoding::F32,
             max_memory: 8 << 30,
         }
@@ -310,18 +363,22 @@ impl Stage for ConesStage {
     }
 
     fn params(&self) -> serde_json::Value {
-        let slices = match self.slices {
-            SliceChoice::Count(k) => serde_json::json!(k),
-            SliceChoice::Auto { apex_gap } => {
-                serde_json::json!({ "auto": { "apex_gap": apex_gap } })
-            }
-            SliceChoice::Exact => serde_json::json!("exact"),
-        };
-        serde_json::json!({
-            "slices": slices,
-            "encoding": self.encoding.name(),
-            "max_memory": self.max_memory,
-        })
+        serde_json::to_value(self).expect("parameters serialise")
+    }
+
+    fn check(&self) -> Result<()> {
+        if let Some(gap) = self.apex_gap {
+            anyhow::ensure!(
+                self.slices == SliceChoice::Auto,
+                "apex_gap = {gap} (--apex-gap {gap}) goes with slices = \"auto\", not {}",
+                self.slices
+            );
+            anyhow::ensure!(
+                gap > 0.0 && gap.is_finite(),
+                "apex_gap = {gap} (--apex-gap {gap}) is not a positive number of metres"
+            );
+        }
+        Ok(())
     }
 
     fn run(&self, asset: &Asset<Mmap>, dir: &Path, progress: Progress) -> Result<Vec<LayerEntry>> {
@@ -330,7 +387,7 @@ impl Stage for ConesStage {
         anyhow::ensure!(w >= 2 && h >= 2, "a {w} x {h} DEM has no cells");
         let (cw, ch) = ((w - 1) as usize, (h - 1) as usize);
         let summary = summarize_heights(asset)?;
-        let plan = self.slices.resolve(&summary);
+        let plan = self.slices.resolve(&summary, self.apex_gap);
         let blocks = blocking((cw, ch), ts as usize, self.max_memory);
         let m = asset.manifest();
         let cap = (!blocks.whole).then(|| Cap {

@@ -26,7 +26,6 @@
 //! angles (`sky_layers`). Geographic grids take their east-west spacing
 //! row by row ([`terrain::RowScale`]).
 
-pub mod bench;
 pub mod brute;
 pub mod hull_tree;
 pub mod line;
@@ -40,22 +39,18 @@ use std::sync::Mutex;
 
 use anyhow::{bail, Context, Result};
 use rayon::prelude::*;
-use terrabake_format::horizons::{
-    edge_distance, AngleEncoding, HORIZON, HORIZON_EDGE, OPENNESS, SVF, SVF_COSINE,
-};
+use terrabake_format::horizons::{AngleEncoding, HORIZON};
 use terrabake_format::manifest::CrsKind;
 use terrabake_format::{Asset, Codec, LayerEntry, LayerSpec, LayerWriter, Mmap};
 
 use crate::progress::Progress;
 use crate::stage::Stage;
-use crate::tiling::{encode_tile_row, push_tile_row};
+use crate::tiling::encode_tile_row;
 use line::GridDirection;
 use terrain::{RowScale, Terrain};
 
 /// Which definition of the horizon.
-#[derive(
-    Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize,
-)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Method {
     /// Steepest sight line along the line in each direction (exact, fast).
@@ -66,7 +61,26 @@ pub enum Method {
     Sampled,
 }
 
+impl std::str::FromStr for Method {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        Self::ALL
+            .into_iter()
+            .find(|m| m.name() == s)
+            .ok_or_else(|| format!("unknown method {s:?} (line, sector, sampled)"))
+    }
+}
+
 impl Method {
+    pub const ALL: [Method; 3] = [Method::Line, Method::Sector, Method::Sampled];
+
+    /// The command line's parser: the names listed in `--help`.
+    pub fn parser() -> impl clap::builder::TypedValueParser<Value = Method> {
+        use clap::builder::TypedValueParser;
+        clap::builder::PossibleValuesParser::new(Self::ALL.map(Self::name))
+            .map(|s| s.parse::<Method>().expect("a listed name"))
+    }
+
     pub fn name(self) -> &'static str {
         match self {
             Method::Line => "line",
@@ -229,42 +243,71 @@ pub fn band_horizons(terrain: &Terrain, band: &Band, opts: BandOptions) -> (Vec<
     (out, work)
 }
 
-/// How the stage stores angles.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum AngleChoice {
-    Fixed(AngleEncoding),
-    /// The smallest encoding within this many degrees.
-    MaxError(f64),
-}
-
-impl AngleChoice {
-    pub fn resolve(self) -> AngleEncoding {
-        match self {
-            AngleChoice::Fixed(e) => e,
-            AngleChoice::MaxError(err) => AngleEncoding::for_error(err),
-        }
-    }
-}
-
 /// An area of interest in posts: columns `x0..x1`, rows `y0..y1`.
 pub type Aoi = [u32; 4];
 
-/// The `horizons` stage.
-#[derive(Debug, Clone)]
+/// The `horizons` stage and its parameters: `terrabake horizons` flattens
+/// it, a recipe's `[[stage]] name = "horizons"` table deserialises into it
+/// (unknown keys refused), and the manifest records its serialisation.
+#[derive(Debug, Clone, PartialEq, clap::Args, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct HorizonsStage {
+    /// Number of azimuths (bands), 3..=4096; band i is centred on i * 360 / S degrees.
+    #[arg(long, default_value_t = 16)]
     pub sectors: usize,
+    /// line (exact sight lines), sector (Stewart's wedges) or sampled (baseline).
+    #[arg(long, default_value = "line", value_parser = Method::parser())]
     pub method: Method,
+    /// Look no farther than this many metres (default: the whole DEM, exact). Bounded
+    /// line and sector horizons walk or scan each post's reach: O(M) and O(M^2 / S) per post;
+    /// bounded sector runs out of core.
+    #[arg(long, value_parser = crate::args::parse_positive)]
     pub max_distance: Option<f64>,
-    /// `None`: on for georeferenced DEMs, off otherwise.
+    /// Earth curvature, drop d^2 (1 - k) / 2R: on, off (default: on for georeferenced DEMs).
+    #[arg(long, value_parser = crate::args::parse_on_off)]
     pub curvature: Option<bool>,
+    /// Refraction coefficient k of the curvature drop.
+    #[arg(long, default_value_t = terrain::DEFAULT_REFRACTION)]
     pub refraction: f64,
+    /// Only compute posts in columns X0..X1 and rows Y0..Y1 (end exclusive); every post of the
+    /// DEM still occludes.
+    #[arg(long, value_parser = crate::args::parse_aoi)]
     pub aoi: Option<Aoi>,
-    pub encoding: AngleChoice,
+    /// Largest angular error of the stored angles, degrees: picks u8 (0.354), u16 (0.0014) or
+    /// f32.
+    #[arg(long, default_value_t = 0.5, conflicts_with = "encoding")]
+    #[serde(rename = "max_error_deg")]
+    pub max_error: f64,
+    /// Store angles as u8, u16 or f32 regardless of --max-error.
+    #[arg(long)]
+    pub encoding: Option<AngleEncoding>,
+    /// Stewart's narrow-sector check (sec. IV-E) with --method sector;
+    /// `--no-narrow-check` leaves it out.
+    #[arg(long = "no-narrow-check", action = clap::ArgAction::SetFalse)]
     pub narrow_check: bool,
+    /// How far a line direction may sit from i * 360 / S, degrees (default: spacing / 8).
+    #[arg(long, value_parser = crate::args::parse_positive)]
     pub direction_tolerance: Option<f64>,
-    /// Bytes the methods that hold the DEM in memory may use; more is an
-    /// error that names the out-of-core routes. Results do not depend on it.
+    /// Working memory in MiB for the methods that hold the DEM in memory (sector
+    /// without --max-distance, sampled, line with --max-distance); a DEM that needs more
+    /// is refused with the out-of-core routes named. Results do not depend on
+    /// it, so it is not recorded.
+    #[arg(long = "max-memory", value_name = "MIB", default_value = "8192", value_parser = crate::stage::mib::parse)]
+    #[serde(
+        rename = "max_memory_mib",
+        with = "crate::stage::mib",
+        skip_serializing
+    )]
     pub max_memory: u64,
+}
+
+impl HorizonsStage {
+    /// The encoding of the stored angles: `encoding`, else the smallest
+    /// within `max_error`.
+    pub fn angle_encoding(&self) -> AngleEncoding {
+        self.encoding
+            .unwrap_or_else(|| AngleEncoding::for_error(self.max_error))
+    }
 }
 
 /// Memory of unbounded `sector` per post and sector in flight: the tree's
@@ -281,7 +324,8 @@ impl Default for HorizonsStage {
             curvature: None,
             refraction: terrain::DEFAULT_REFRACTION,
             aoi: None,
-            encoding: AngleChoice::MaxError(0.5),
+            max_error: 0.5,
+            encoding: None,
             narrow_check: true,
             direction_tolerance: None,
             max_memory: 8 << 30,
@@ -299,18 +343,9 @@ pub fn read_heights(asset: &Asset<Mmap>) -> Result<(Vec<f32>, usize, usize)> {
 }
 
 impl HorizonsStage {
-    fn check(&self, w: usize, h: usize) -> Result<()> {
-        if self.sectors < 3 || self.sectors > 4096 {
-            bail!(
-                "--sectors {}: give 3 to 4096 (sectors must be narrower than 180 degrees)",
-                self.sectors
-            );
-        }
-        if let Some(d) = self.max_distance {
-            if d.is_nan() || d <= 0.0 {
-                bail!("--max-distance {d}: give a positive distance in metres");
-            }
-        }
+    /// What [`Stage::check`] cannot know without the DEM: memory and the
+    /// area of interest.
+    fn check_dem(&self, w: usize, h: usize) -> Result<()> {
         let threads = rayon::current_num_threads() as u64;
         if let Some(need) = self.in_core_bytes((w * h) as u64, threads) {
             if need > self.max_memory {
@@ -328,7 +363,7 @@ impl HorizonsStage {
         }
         if let Some([x0, y0, x1, y1]) = self.aoi {
             if x0 >= x1 || y0 >= y1 || x1 as usize > w || y1 as usize > h {
-                bail!("--aoi {x0},{y0},{x1},{y1} is not a non-empty window of the {w} x {h} DEM");
+                bail!("aoi = [{x0}, {y0}, {x1}, {y1}] (--aoi {x0},{y0},{x1},{y1}) is not a non-empty window of the {w} x {h} DEM");
             }
         }
         Ok(())
@@ -382,14 +417,40 @@ impl HorizonsStage {
         }
     }
 
-    fn curvature_on(&self, asset: &Asset<Mmap>) -> bool {
-        self.curvature.unwrap_or_else(|| {
+    /// The curvature coefficient `c` of the drop `c d^2` (0 when
+    /// curvature is off; on by default for georeferenced DEMs).
+    pub fn curvature_coefficient(&self, asset: &Asset<Mmap>) -> f64 {
+        let on = self.curvature.unwrap_or_else(|| {
             asset
                 .manifest()
                 .georef
                 .as_ref()
                 .is_some_and(|g| g.crs_kind != CrsKind::Unknown)
-        })
+        });
+        if on {
+            terrain::curvature_coefficient(self.refraction)
+        } else {
+            0.0
+        }
+    }
+
+    /// The area of interest, or the whole `w x h` DEM.
+    pub fn area(&self, w: usize, h: usize) -> [usize; 4] {
+        self.aoi
+            .unwrap_or([0, 0, w as u32, h as u32])
+            .map(|v| v as usize)
+    }
+
+    /// The parameters the horizons stage last ran with on this asset.
+    pub fn recorded(asset: &Asset<Mmap>) -> Option<Self> {
+        let record = asset
+            .manifest()
+            .provenance
+            .stages
+            .iter()
+            .rev()
+            .find(|r| r.stage == "horizons")?;
+        serde_json::from_value(record.params.clone()).ok()
     }
 }
 
@@ -399,20 +460,29 @@ impl Stage for HorizonsStage {
     }
 
     fn params(&self) -> serde_json::Value {
-        serde_json::json!({
-            "sectors": self.sectors,
-            "method": self.method.name(),
-            "max_distance": self.max_distance,
-            "curvature": self.curvature,
-            "refraction": self.refraction,
-            "aoi": self.aoi,
-            "encoding": match self.encoding {
-                AngleChoice::Fixed(e) => serde_json::json!(e.name()),
-                AngleChoice::MaxError(d) => serde_json::json!({ "max_error_deg": d }),
-            },
-            "narrow_check": self.narrow_check,
-            "direction_tolerance": self.direction_tolerance,
-        })
+        serde_json::to_value(self).expect("parameters serialise")
+    }
+
+    fn check(&self) -> Result<()> {
+        if self.sectors < 3 || self.sectors > 4096 {
+            bail!(
+                "sectors = {0} (--sectors {0}): give 3 to 4096 (sectors must be narrower than 180 degrees)",
+                self.sectors
+            );
+        }
+        let positive = |(key, flag): (&str, &str), v: Option<f64>| match v {
+            Some(d) if !(d > 0.0 && d.is_finite()) => {
+                bail!("{key} = {d} (--{flag} {d}): give a positive number")
+            }
+            _ => Ok(()),
+        };
+        positive(("max_distance", "max-distance"), self.max_distance)?;
+        positive(
+            ("direction_tolerance", "direction-tolerance"),
+            self.direction_tolerance,
+        )?;
+        positive(("max_error_deg", "max-error"), Some(self.max_error))?;
+        Ok(())
     }
 
     fn run(&self, asset: &Asset<Mmap>, dir: &Path, progress: Progress) -> Result<Vec<LayerEntry>> {
@@ -423,21 +493,14 @@ impl Stage for HorizonsStage {
             height.height() as usize,
             height.tile_size() as usize,
         );
-        self.check(w, h)?;
-        let curvature = if self.curvature_on(asset) {
-            terrain::curvature_coefficient(self.refraction)
-        } else {
-            0.0
-        };
+        self.check_dem(w, h)?;
+        let curvature = self.curvature_coefficient(asset);
         let (dx, dy) = (m.cell_size.dx, m.cell_size.dy);
         let row_scale = crate::geo::row_scale(m.georef.as_ref(), h as u32);
         let row_scale = RowScale::new(&row_scale);
         let bands = plan_bands(self.method, self.sectors, dx, dy, self.direction_tolerance);
-        let enc = self.encoding.resolve();
-        let aoi = self
-            .aoi
-            .unwrap_or([0, 0, w as u32, h as u32])
-            .map(|v| v as usize);
+        let enc = self.angle_encoding();
+        let aoi = self.area(w, h);
         let method_text = match self.method {
             Method::Line => "line: steepest sight line along the grid direction of the band (exact on the two-triangle surface)",
             Method::Sector => if self.narrow_check {
@@ -453,7 +516,7 @@ impl Stage for HorizonsStage {
             if curvature > 0.0 { format!("on, refraction {}", self.refraction) } else { "off".into() }
         );
         let spec = post_layer(
-            HORIZON,
+            (HORIZON, "horizons"),
             enc.elem(),
             bands.len() as u32,
             (w, h, ts),
@@ -544,16 +607,7 @@ impl Stage for HorizonsStage {
             .finish()?;
         horizon.quantization = enc.quantization();
         horizon.band_azimuths = bands.iter().map(|b| b.azimuth).collect();
-
-        // The derived layers, tile row by tile row, from the stored angles.
-        let mut manifest = m.clone();
-        manifest.upsert_layer(horizon.clone());
-        let fresh = Asset::open_uncommitted(dir, manifest)?;
-        let mut entries = vec![horizon];
-        entries.extend(sky_layers(
-            &fresh, dir, &bands, row_scale, aoi, curvature, progress,
-        )?);
-        Ok(entries)
+        Ok(vec![horizon])
     }
 }
 
@@ -620,8 +674,8 @@ impl RowBands for BoundedSector {
 }
 
 /// A layer of the stage: one element per post, raw tiles like the heights.
-fn post_layer(
-    name: &str,
+pub(crate) fn post_layer(
+    (name, stage): (&str, &str),
     elem: terrabake_format::ElemType,
     bands: u32,
     (w, h, ts): (usize, usize, usize),
@@ -636,8 +690,14 @@ fn post_layer(
         height: h as u32,
         tile_size: ts as u32,
         codec: Codec::Raw,
-        fill_bits: 0,
-        stage: "horizons".into(),
+        // What the tiles are padded with: NaN for f32 values, code 0
+        // (nodata, or a zero count) for integers.
+        fill_bits: if elem == terrabake_format::ElemType::F32 {
+            u64::from(f32::NAN.to_bits())
+        } else {
+            0
+        },
+        stage: stage.into(),
         description,
     }
 }
@@ -701,193 +761,6 @@ impl BandWriter {
         }
         Ok(())
     }
-}
-
-/// `svf`, `svf_cosine`, `openness` and `horizon_edge` from the stored
-/// horizons of `asset`, one tile row at a time (heights with a row above
-/// and below for the normals, every band's angles for the row).
-fn sky_layers(
-    asset: &Asset<Mmap>,
-    dir: &Path,
-    bands: &[Band],
-    row_scale: RowScale,
-    [ax0, ay0, ax1, ay1]: [usize; 4],
-    curvature: f64,
-    progress: Progress,
-) -> Result<Vec<LayerEntry>> {
-    use terrabake_format::ElemType;
-    let m = asset.manifest();
-    let height = asset.height()?;
-    let horizon = asset.layer(HORIZON, 0)?;
-    let (w, h, ts) = (
-        height.width() as usize,
-        height.height() as usize,
-        height.tile_size() as usize,
-    );
-    let (dx, dy) = (m.cell_size.dx, m.cell_size.dy);
-    let z_max = m.height_range.map_or(f64::INFINITY, |r| f64::from(r.max));
-    let create = |name: &str, elem, description: &str| {
-        LayerWriter::create(
-            dir,
-            post_layer(name, elem, 1, (w, h, ts), description.into()),
-        )
-    };
-    let mut svf = create(SVF, ElemType::F32, "sky-view factor, solid angle of visible sky over the hemisphere above the horizontal: 1 - mean sin(max(h, 0)) (Zakšek 2011)")?;
-    let mut svf_cosine = create(SVF_COSINE, ElemType::F32, "sky-view factor, cosine-weighted from the tilted surface: (1/pi) integral of N.u over the visible sky (Dozier-Frew 1990, Stewart 1998 sec. VI)")?;
-    let mut openness = create(
-        OPENNESS,
-        ElemType::F32,
-        "positive openness, degrees: mean zenith angle of the horizon (Yokoyama 2002)",
-    )?;
-    let mut edge = create(HORIZON_EDGE, ElemType::U16, "bands in which terrain beyond the DEM's edge, no higher than the DEM's highest post, could rise above the horizon")?;
-    let integrals: Vec<sky::BandIntegrals> = bands
-        .iter()
-        .map(|b| sky::BandIntegrals::new(b.lo, b.hi))
-        .collect();
-    let bar = progress.bar(h.div_ceil(ts) as u64, "sky layers", "tile rows");
-    for y0 in (0..h).step_by(ts) {
-        let rows = ts.min(h - y0);
-        let (r0, r1) = (y0.saturating_sub(1), (y0 + rows + 1).min(h));
-        let mut z = vec![0f32; (r1 - r0) * w];
-        height.read_window(0, 0, r0 as u32, w as u32, (r1 - r0) as u32, &mut z)?;
-        let terrain = Terrain::window(&z, (w, h), r0, (dx, dy)).with_row_scale(row_scale);
-        // Per post of the row: its normal (once, not once per band) and how
-        // far the terrain could rise past the DEM's edge per metre of reach.
-        let normals: Vec<Option<[f64; 3]>> = (0..rows * w)
-            .into_par_iter()
-            .map(|i| terrain.normal(i % w, y0 + i / w))
-            .collect();
-        let mut sums = vec![sky::SkySums::default(); rows * w];
-        let mut edges = vec![0u16; rows * w];
-        let mut angles = vec![0f32; rows * w];
-        for (b, band) in bands.iter().enumerate() {
-            horizon.read_rows_f32(b as u32, y0 as u32, &mut angles)?;
-            sums.par_chunks_mut(w)
-                .zip(edges.par_chunks_mut(w))
-                .zip(angles.par_chunks(w))
-                .enumerate()
-                .for_each(|(r, ((sums, edges), angles))| {
-                    let row = y0 + r;
-                    for col in 0..w {
-                        let hz = f64::from(angles[col]);
-                        let Some(normal) = normals[r * w + col].filter(|_| !hz.is_nan()) else {
-                            continue;
-                        };
-                        let (sh, ch) = hz.to_radians().sin_cos();
-                        sums[col].add(hz, (sh, ch), &integrals[b], normal);
-                        // Could terrain no higher than the DEM's top, just
-                        // past the edge, rise above this horizon?
-                        let d = edge_distance(
-                            (w as u32, h as u32),
-                            (terrain.dx_at(row), dy),
-                            (col as f64, row as f64),
-                            band.azimuth,
-                        );
-                        let rise =
-                            (z_max - f64::from(terrain.at(col, row)) - curvature * d * d) / d;
-                        if d == 0.0 || rise * ch > sh {
-                            edges[col] += 1;
-                        }
-                    }
-                });
-        }
-        let inside = |i: usize| {
-            let (x, y) = (i % w, y0 + i / w);
-            (ax0..ax1).contains(&x) && (ay0..ay1).contains(&y) && !terrain.at(x, y).is_nan()
-        };
-        let layer = |value: &dyn Fn(&sky::SkySums) -> f64| -> Vec<f32> {
-            (0..rows * w)
-                .map(|i| {
-                    if inside(i) {
-                        value(&sums[i]) as f32
-                    } else {
-                        f32::NAN
-                    }
-                })
-                .collect()
-        };
-        push_tile_row(&mut svf, &layer(&|s| s.svf()), w, f32::NAN, Codec::Raw)?;
-        push_tile_row(
-            &mut svf_cosine,
-            &layer(&|s| s.svf_cosine()),
-            w,
-            f32::NAN,
-            Codec::Raw,
-        )?;
-        push_tile_row(
-            &mut openness,
-            &layer(&|s| s.openness()),
-            w,
-            f32::NAN,
-            Codec::Raw,
-        )?;
-        push_tile_row(&mut edge, &edges, w, 0u16, Codec::Raw)?;
-        bar.inc(1);
-    }
-    bar.finish_and_clear();
-    Ok(vec![
-        svf.finish()?,
-        svf_cosine.finish()?,
-        openness.finish()?,
-        edge.finish()?,
-    ])
-}
-
-/// `[[stage]] name = "horizons"` with optional `sectors`, `method`,
-/// `max_distance`, `curvature` (bool), `refraction`, `aoi` ([x0, y0, x1,
-/// y1]), `encoding` ("u8", "u16", "f32"), `max_error_deg`, `narrow_check`,
-/// `direction_tolerance`, `max_memory_mib`.
-pub fn from_recipe(params: &toml::Table) -> Result<HorizonsStage> {
-    let mut stage = HorizonsStage::default();
-    for (key, value) in params {
-        let bad = || anyhow::anyhow!("stage 'horizons': invalid {key} = {value}");
-        let float = || {
-            value
-                .as_float()
-                .or(value.as_integer().map(|i| i as f64))
-                .ok_or_else(bad)
-        };
-        match key.as_str() {
-            "sectors" => stage.sectors = value.as_integer().filter(|s| *s > 0).ok_or_else(bad)? as usize,
-            "method" => {
-                stage.method = match value.as_str().ok_or_else(bad)? {
-                    "line" => Method::Line,
-                    "sector" => Method::Sector,
-                    "sampled" => Method::Sampled,
-                    _ => return Err(bad()),
-                }
-            }
-            "max_distance" => stage.max_distance = Some(float()?),
-            "curvature" => stage.curvature = Some(value.as_bool().ok_or_else(bad)?),
-            "refraction" => stage.refraction = float()?,
-            "aoi" => {
-                let v: Vec<u32> = value
-                    .as_array()
-                    .ok_or_else(bad)?
-                    .iter()
-                    .map(|x| x.as_integer().and_then(|i| u32::try_from(i).ok()))
-                    .collect::<Option<_>>()
-                    .ok_or_else(bad)?;
-                stage.aoi = Some(v.try_into().map_err(|_| bad())?);
-            }
-            "encoding" => {
-                stage.encoding = AngleChoice::Fixed(match value.as_str().ok_or_else(bad)? {
-                    "u8" => AngleEncoding::U8,
-                    "u16" => AngleEncoding::U16,
-                    "f32" => AngleEncoding::F32,
-                    _ => return Err(bad()),
-                })
-            }
-            "max_error_deg" => stage.encoding = AngleChoice::MaxError(float()?),
-            "narrow_check" => stage.narrow_check = value.as_bool().ok_or_else(bad)?,
-            "direction_tolerance" => stage.direction_tolerance = Some(float()?),
-            "max_memory_mib" => {
-                stage.max_memory = value.as_integer().filter(|m| *m > 0).ok_or_else(bad)? as u64 * (1 << 20);
-            }
-            other => bail!("stage 'horizons' takes no parameter '{other}' (sectors, method, max_distance, curvature, refraction, aoi, encoding, max_error_deg, narrow_check, direction_tolerance, max_memory_mib)"),
-        }
-    }
-    Ok(stage)
 }
 
 /// All bands of the `horizon` layer decoded to degrees, band-major.

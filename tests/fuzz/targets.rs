@@ -30,12 +30,12 @@ pub fn seed_asset(dir: &Path) -> HashMap<String, Vec<u8>> {
     let recipe = dir.join("seed.toml");
     std::fs::write(
         &recipe,
-        "[ingest]\ntile = 16\ncodec = \"zstd\"\n[[stage]]\nname = \"pyramid\"\n[[stage]]\nname = \"cones\"\nslices = 4\nencoding = \"u16\"\n[[stage]]\nname = \"horizons\"\nsectors = 6\n",
+        "[ingest]\ntile = 16\ncodec = \"zstd\"\n[[stage]]\nname = \"pyramid\"\n[[stage]]\nname = \"cones\"\nslices = 4\nencoding = \"u16\"\n[[stage]]\nname = \"horizons\"\nsectors = 6\n[[stage]]\nname = \"sky\"\n",
     )
     .expect("seed recipe");
     let asset = dir.join("seed.tbake");
-    let recipe = terrabake::stage::Recipe::load(&recipe).expect("recipe");
-    terrabake::stage::bake(
+    let recipe = terrabake::recipe::Recipe::load(&recipe).expect("recipe");
+    terrabake::recipe::bake(
         &tif,
         &asset,
         &recipe,

@@ -13,11 +13,12 @@ use terrabake_format::cones::ConeEncoding;
 use terrabake_format::trace::Method;
 use terrabake_format::Asset;
 
-use crate::chart::{log_log_svg, Series};
+use super::chart::{log_log_svg, Series};
+use super::markdown_table;
+use super::views::{bench_views, BenchRow};
 use crate::cones::{ConesStage, SliceChoice};
 use crate::progress::Progress;
 use crate::pyramid::PyramidStage;
-use crate::render::{bench_views, BenchRow};
 use crate::stage::run_stage;
 
 /// One configuration's cost and benefit.
@@ -89,11 +90,7 @@ pub fn cone_tradeoff(
                 ..Default::default()
             };
             let outcome = run_stage(dir, &stage, true, progress)?;
-            let planes = match choice {
-                SliceChoice::Count(k) => k.to_string(),
-                SliceChoice::Exact => "exact".into(),
-                SliceChoice::Auto { .. } => "auto".into(),
-            };
+            let planes = choice.to_string();
             let bytes = 2.0 * encoding.elem().size() as f64;
             rows.push(row(
                 planes,
@@ -108,21 +105,30 @@ pub fn cone_tradeoff(
 }
 
 pub fn tradeoff_table_markdown(rows: &[TradeoffRow]) -> String {
-    let mut s = String::from("| tracer | planes | encoding | bake (s) | bytes / cell | mean steps / ray | mean cells tested / ray | rays/s per thread |\n| --- | --- | --- | --- | --- | --- | --- | --- |\n");
-    for r in rows {
-        s += &format!(
-            "| {} | {} | {} | {:.2} | {:.1} | {:.2} | {:.2} | {:.0} |\n",
-            r.method,
-            r.planes,
-            r.encoding,
-            r.bake_seconds,
-            r.bytes_per_cell,
-            r.mean_steps,
-            r.mean_cells,
-            r.rays_per_second_per_thread
-        );
-    }
-    s
+    markdown_table(
+        &[
+            "tracer",
+            "planes",
+            "encoding",
+            "bake (s)",
+            "bytes / cell",
+            "mean steps / ray",
+            "mean cells tested / ray",
+            "rays/s per thread",
+        ],
+        rows.iter().map(|r| {
+            vec![
+                r.method.clone(),
+                r.planes.clone(),
+                r.encoding.clone(),
+                format!("{:.2}", r.bake_seconds),
+                format!("{:.1}", r.bytes_per_cell),
+                format!("{:.2}", r.mean_steps),
+                format!("{:.2}", r.mean_cells),
+                format!("{:.0}", r.rays_per_second_per_thread),
+            ]
+        }),
+    )
 }
 
 /// `PREFIX_steps.svg` and `PREFIX_speed.svg`: steps per ray and rays per
@@ -181,4 +187,59 @@ pub fn tradeoff_charts(prefix: &Path, rows: &[TradeoffRow]) -> Result<()> {
         "rays per second",
         &series(&|r| r.rays_per_second_per_thread),
     )
+}
+
+/// `terrabake bench-cones`: its flags.
+#[derive(Debug, Clone, clap::Args)]
+pub struct BenchConesArgs {
+    pub asset: std::path::PathBuf,
+    /// Slice counts and/or exact, comma-separated.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "4,8,16,32,64,128,256,512,1024,exact"
+    )]
+    pub slices: Vec<SliceChoice>,
+    /// Encodings, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "f32")]
+    pub encodings: Vec<ConeEncoding>,
+    /// Image side in pixels.
+    #[arg(long, default_value_t = 512)]
+    pub size: u32,
+    /// Trace every N-th pixel.
+    #[arg(long, default_value_t = 4)]
+    pub every: u32,
+    /// Write PREFIX_steps.svg and PREFIX_speed.svg.
+    #[arg(long)]
+    pub chart: Option<std::path::PathBuf>,
+    #[arg(long)]
+    pub json: bool,
+}
+
+impl BenchConesArgs {
+    /// Runs the trade-off and prints its table (or JSON); `say` reports files.
+    pub fn run(&self, progress: Progress, say: &dyn Fn(String)) -> Result<()> {
+        crate::asset::open(&self.asset)?;
+        let rows = cone_tradeoff(
+            &self.asset,
+            &self.slices,
+            &self.encodings,
+            self.size,
+            self.every,
+            progress,
+        )?;
+        if self.json {
+            println!("{}", serde_json::to_string_pretty(&rows)?);
+        } else {
+            print!("{}", tradeoff_table_markdown(&rows));
+        }
+        if let Some(prefix) = &self.chart {
+            tradeoff_charts(prefix, &rows)?;
+            say(format!(
+                "wrote {0}_steps.svg and {0}_speed.svg",
+                prefix.display()
+            ));
+        }
+        Ok(())
+    }
 }

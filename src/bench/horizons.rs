@@ -19,10 +19,11 @@ use rayon::prelude::*;
 use serde::Serialize;
 use terrabake_format::horizons::bands_around;
 
-use super::sky::{BandIntegrals, SkySums};
-use super::terrain::Terrain;
-use super::{band_horizons, plan_bands, Band, BandKind, BandOptions, Method};
-use crate::chart::{log_log_svg, Series};
+use super::chart::{log_log_svg, Series};
+use super::markdown_table;
+use crate::horizon::sky::{BandIntegrals, SkySums};
+use crate::horizon::terrain::Terrain;
+use crate::horizon::{band_horizons, plan_bands, Band, BandKind, BandOptions, Method};
 
 /// Every band of `bands` on `terrain` (all cores), the wall time and the
 /// work counted by the algorithms.
@@ -228,32 +229,54 @@ pub fn accuracy_study(
     }
 }
 
+/// The speed runs as a Markdown table.
 pub fn speed_table_markdown(rows: &[SpeedRow]) -> String {
-    let mut s = String::from("| method | bands | posts | time (s) | post-bands / s | work / post-band |\n| --- | --- | --- | --- | --- | --- |\n");
-    for r in rows {
-        s += &format!(
-            "| {} | {} | {} | {:.3} | {:.3e} | {:.1} |\n",
-            r.method, r.bands, r.posts, r.seconds, r.post_bands_per_second, r.work_per_post_band
-        );
-    }
-    s
+    markdown_table(
+        &[
+            "method",
+            "bands",
+            "posts",
+            "time (s)",
+            "post-bands / s",
+            "work / post-band",
+        ],
+        rows.iter().map(|r| {
+            vec![
+                r.method.clone(),
+                r.bands.to_string(),
+                r.posts.to_string(),
+                format!("{:.3}", r.seconds),
+                format!("{:.3e}", r.post_bands_per_second),
+                format!("{:.1}", r.work_per_post_band),
+            ]
+        }),
+    )
 }
 
+/// The accuracy study as a Markdown table.
 pub fn accuracy_table_markdown(rows: &[AccuracyRow]) -> String {
-    let mut s = String::from("| method | bands | time (s) | horizon RMS error (deg) | horizon bias (deg) | svf RMS error | svf max error |\n| --- | --- | --- | --- | --- | --- | --- |\n");
-    for r in rows {
-        s += &format!(
-            "| {} | {} | {:.3} | {:.3} | {:+.3} | {:.5} | {:.4} |\n",
-            r.method,
-            r.bands,
-            r.seconds,
-            r.horizon_rms_deg,
-            r.horizon_bias_deg,
-            r.svf_rms,
-            r.svf_max
-        );
-    }
-    s
+    markdown_table(
+        &[
+            "method",
+            "bands",
+            "time (s)",
+            "horizon RMS error (deg)",
+            "horizon bias (deg)",
+            "svf RMS error",
+            "svf max error",
+        ],
+        rows.iter().map(|r| {
+            vec![
+                r.method.clone(),
+                r.bands.to_string(),
+                format!("{:.3}", r.seconds),
+                format!("{:.3}", r.horizon_rms_deg),
+                format!("{:+.3}", r.horizon_bias_deg),
+                format!("{:.5}", r.svf_rms),
+                format!("{:.4}", r.svf_max),
+            ]
+        }),
+    )
 }
 
 /// `PREFIX_horizon.svg` and `PREFIX_svf.svg`: error against time, one line
@@ -298,4 +321,96 @@ pub fn accuracy_charts(prefix: &Path, rows: &[AccuracyRow]) -> Result<()> {
         "RMS sky-view factor error",
         &series(&|r| r.svf_rms),
     )
+}
+
+/// `terrabake bench-horizons`: its flags.
+#[derive(Debug, Clone, clap::Args)]
+pub struct BenchHorizonsArgs {
+    pub asset: std::path::PathBuf,
+    /// Band counts for the accuracy study, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "8,16,32,64,128,256")]
+    pub counts: Vec<usize>,
+    /// Methods for the accuracy study, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "line,sector,sampled", value_parser = Method::parser())]
+    pub methods: Vec<Method>,
+    /// Directions of the reference.
+    #[arg(long, default_value_t = 1024)]
+    pub reference: usize,
+    /// Side of the centred crop for the accuracy study, posts.
+    #[arg(long, default_value_t = 256)]
+    pub crop: usize,
+    /// Whole-DEM speed runs METHOD:COUNT, comma-separated (none: skip).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "line:16,line:64,sector:16,sector:64,sampled:16"
+    )]
+    pub speed: Vec<String>,
+    /// Write PREFIX_horizon.svg and PREFIX_svf.svg.
+    #[arg(long)]
+    pub chart: Option<std::path::PathBuf>,
+    #[arg(long)]
+    pub json: bool,
+}
+
+impl BenchHorizonsArgs {
+    /// Runs the study and prints its tables (or JSON); `say` reports files.
+    pub fn run(&self, say: &dyn Fn(String)) -> Result<()> {
+        use crate::horizon::terrain::RowScale;
+        use anyhow::Context;
+        let opened = crate::asset::open(&self.asset)?;
+        let (z, w, h) = crate::horizon::read_heights(&opened)?;
+        let cs = &opened.manifest().cell_size;
+        let runs = self
+            .speed
+            .iter()
+            .map(|r| {
+                let (m, k) = r.split_once(':').context("--speed takes METHOD:COUNT")?;
+                let m = m
+                    .parse::<Method>()
+                    .map_err(|e| anyhow::anyhow!("--speed {r}: {e}"))?;
+                Ok((m, k.parse::<usize>().context("--speed METHOD:COUNT")?))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let row_scale = crate::geo::row_scale(opened.manifest().georef.as_ref(), h as u32);
+        let whole = Terrain::new(&z, w, h, cs.dx, cs.dy).with_row_scale(RowScale::new(&row_scale));
+        let speed_rows = speed(&whole, &runs);
+        let study = accuracy_study(
+            &whole,
+            self.crop,
+            self.reference,
+            &self.methods,
+            &self.counts,
+        );
+        if self.json {
+            println!(
+                "{}",
+                serde_json::to_string_pretty(&serde_json::json!({
+                    "speed": speed_rows,
+                    "crop": study.crop,
+                    "reference_directions": study.reference_directions,
+                    "reference_seconds": study.reference_seconds,
+                    "accuracy": study.rows,
+                }))?
+            );
+        } else {
+            print!("{}", speed_table_markdown(&speed_rows));
+            println!();
+            println!(
+                "accuracy on a {side} x {side} crop, reference {} directions ({:.1} s):",
+                self.reference,
+                study.reference_seconds,
+                side = study.crop
+            );
+            print!("{}", accuracy_table_markdown(&study.rows));
+        }
+        if let Some(prefix) = &self.chart {
+            accuracy_charts(prefix, &study.rows)?;
+            say(format!(
+                "wrote {0}_horizon.svg and {0}_svf.svg",
+                prefix.display()
+            ));
+        }
+        Ok(())
+    }
 }

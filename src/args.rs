@@ -1,0 +1,84 @@
+//! Value parsers for command-line flags, shared by the CLI and by the
+//! stages' parameter types (which derive clap's `Args`). Each returns the
+//! message clap prints after the flag's name.
+
+use terrabake_format::Codec;
+
+use crate::render::Sun;
+
+pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or("expected WIDTHxHEIGHT, e.g. 1024x768")?;
+    let parse = |v: &str| v.trim().parse::<u32>().map_err(|e| format!("{v:?}: {e}"));
+    Ok((parse(w)?, parse(h)?))
+}
+
+pub fn parse_cell_size(s: &str) -> Result<(f64, f64), String> {
+    let parse = |v: &str| match v.trim().parse::<f64>() {
+        Ok(f) if f.is_finite() && f > 0.0 => Ok(f),
+        _ => Err(format!("{v:?} is not a positive number of metres")),
+    };
+    match s.split_once(',') {
+        Some((dx, dy)) => Ok((parse(dx)?, parse(dy)?)),
+        None => parse(s).map(|d| (d, d)),
+    }
+}
+
+pub fn parse_point(s: &str) -> Result<[f64; 3], String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|p| p.trim().parse::<f64>().map_err(|e| format!("{p:?}: {e}")))
+        .collect::<Result<_, _>>()?;
+    match v[..] {
+        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([x, y, z]),
+        _ => Err("expected X,Y,Z in metres".into()),
+    }
+}
+
+pub fn parse_sun(s: &str) -> Result<Sun, String> {
+    let (az, el) = s
+        .split_once(',')
+        .ok_or("expected AZIMUTH,ELEVATION in degrees")?;
+    let parse = |v: &str| v.trim().parse::<f64>().map_err(|e| format!("{v:?}: {e}"));
+    let (azimuth, elevation) = (parse(az)?, parse(el)?);
+    if !(-90.0..=90.0).contains(&elevation) {
+        return Err(format!(
+            "sun elevation {elevation} is not between -90 and 90 degrees"
+        ));
+    }
+    Ok(Sun { azimuth, elevation })
+}
+
+pub fn parse_positive(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v > 0.0 && v.is_finite() => Ok(v),
+        _ => Err(format!("expected a positive number, not {s:?}")),
+    }
+}
+
+pub fn parse_on_off(s: &str) -> Result<bool, String> {
+    match s {
+        "on" => Ok(true),
+        "off" => Ok(false),
+        _ => Err(format!("{s:?}: expected on or off")),
+    }
+}
+
+pub fn parse_aoi(s: &str) -> Result<[u32; 4], String> {
+    let v: Vec<u32> = s
+        .split(',')
+        .map(|p| p.trim().parse::<u32>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("{s:?}: expected X0,Y0,X1,Y1 in posts"))?;
+    v.try_into()
+        .map_err(|_| format!("{s:?}: expected four numbers X0,Y0,X1,Y1"))
+}
+
+pub fn parse_codec(s: &str) -> Result<Codec, String> {
+    match s {
+        "raw" => Ok(Codec::Raw),
+        "zstd" => Ok(Codec::Zstd),
+        _ => Err(format!("{s:?}: expected raw or zstd")),
+    }
+}

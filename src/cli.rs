@@ -1,0 +1,347 @@
+//! The command line's grammar: every subcommand and flag, with the help
+//! text people read. Parsing only; `src/main.rs` dispatches, the stages'
+//! own parameter types (flattened here) carry their flags.
+
+use std::path::PathBuf;
+
+use clap::{Parser, Subcommand};
+use terrabake_format::trace::Method;
+
+use crate::args::{parse_cell_size, parse_codec, parse_point, parse_size, parse_sun};
+use crate::cones::ConesStage;
+use crate::export::PngStyle;
+use crate::horizon::HorizonsStage;
+use crate::ingest::{IngestOptions, DEFAULT_INGEST_MEMORY, DEFAULT_TILE};
+use crate::render::Sun;
+use crate::source::{ByteOrder, RawSampleType, RawSpec};
+use crate::synth::SynthKind;
+use terrabake_format::Codec;
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "terrabake",
+    version,
+    about = "Bake terrain height fields (DEMs) into chunked, memory-mapped assets for renderers.",
+    long_about = "Bake terrain height fields (DEMs) into chunked, memory-mapped assets for renderers.\n\n\
+An asset is a directory: a manifest (manifest.tba) and one file per layer, each cut into tiles that a \
+renderer maps and reads in place (docs/FORMAT.md). `ingest` makes an asset from a DEM; later stages add \
+layers to it; `bake` runs a recipe of stages, skipping those already done.\n\n\
+Exit status: 0 success, 1 error (the message names the file and the problem), 2 bad usage, \
+3 `verify` found problems.",
+    after_help = "Examples:\n  terrabake ingest dem.tif -o dem.tbake\n  terrabake info dem.tbake --json\n  \
+terrabake export dem.tbake --layer height -o preview.png\n  terrabake synth fractal --size 4096x4096 -o fractal.tif\n  \
+terrabake bake dem.tif -o dem.tbake --recipe pipelines/demo.toml"
+)]
+pub struct Cli {
+    /// No progress bars and no summary lines on stderr.
+    #[arg(long, short, global = true)]
+    pub quiet: bool,
+    /// When another process is writing the asset, fail at once (naming its
+    /// pid) instead of waiting for it to finish.
+    #[arg(long, global = true)]
+    pub no_wait: bool,
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Read a DEM (GeoTIFF, SRTM .hgt, raw, 16-bit PNG, OpenEXR) into a new asset's height layer.
+    ///
+    /// The DEM is streamed one tile row at a time: memory does not grow with its area. Nodata,
+    /// NaN and infinite samples become nodata (NaN in the asset) and are counted. An existing
+    /// asset at the output path is replaced only once the new one is complete.
+    Ingest {
+        /// The DEM file.
+        src: PathBuf,
+        /// The asset directory to write.
+        #[arg(short, long)]
+        output: PathBuf,
+        #[command(flatten)]
+        opts: IngestArgs,
+        /// Print the manifest as JSON on stdout.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Describe an asset: shape, cell size, georeferencing, layers, nodata, provenance.
+    Info {
+        asset: PathBuf,
+        /// The manifest as JSON, for scripts.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Check every checksum and structural invariant of an asset (exit status 3 if any fails).
+    Verify {
+        asset: PathBuf,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Write a layer as GeoTIFF (.tif, georeferenced, with nodata), OpenEXR (.exr) or a PNG preview (.png).
+    ///
+    /// GeoTIFF and EXR carry every band (a horizon layer: one band per azimuth, in degrees, in
+    /// compass order); quantised layers are decoded. A PNG shows one band (--band).
+    #[command(after_help = "Examples:\n  terrabake export dem.tbake -o dem.tif\n  \
+terrabake export dem.tbake --layer horizon -o horizon.tif\n  \
+terrabake export dem.tbake --layer svf --style gray -o svf.png")]
+    Export {
+        asset: PathBuf,
+        /// Layer name (see `terrabake info`).
+        #[arg(long, default_value = "height")]
+        layer: String,
+        /// Pyramid level of the layer.
+        #[arg(long, default_value_t = 0)]
+        level: u32,
+        /// PNG style: `relief` (hypsometric tint with hillshade, nodata transparent) or
+        /// `gray` (16-bit, min to max).
+        #[arg(long, value_enum, default_value = "relief")]
+        style: PngStyle,
+        /// The band a PNG shows (GeoTIFF and EXR carry all bands).
+        #[arg(long, default_value_t = 0)]
+        band: u32,
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+    /// Write a synthetic terrain as a float32 GeoTIFF (30 m posts), strip by strip, at any size.
+    Synth {
+        #[arg(value_enum)]
+        kind: SynthKind,
+        /// WIDTHxHEIGHT in posts.
+        #[arg(long, value_parser = parse_size)]
+        size: (u32, u32),
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        #[arg(short, long)]
+        output: PathBuf,
+    },
+    /// Add the quadtree max/min pyramid layers (for hierarchical ray tracing) to an asset.
+    ///
+    /// Level 0 holds each cell's tallest and lowest corner; each level above the max and min of
+    /// 2 x 2 blocks, up to one tile. Skipped when the asset already has them.
+    Pyramid {
+        asset: PathBuf,
+        /// Rebuild even if the asset already has an up-to-date pyramid.
+        #[arg(long)]
+        force: bool,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Add the parameter planes (a cone of empty space over every cell) for parametric ray tracing.
+    ///
+    /// Per cell, the apex height and the slope (horizontal metres per metre of rise) of a cone that
+    /// no terrain enters (Paglieroni and Petersen 1992). --slices K is the paper's method: K
+    /// horizontal slices, one exact distance transform each, the apex at the first slice above the
+    /// cell. --slices exact computes the limit of infinitely many slices without slicing (the
+    /// lowest apex, the widest cone). --slices auto picks K from the data: no more slices than the
+    /// data has height steps, and no more than --apex-gap needs. Encodings f16 and u16 halve the
+    /// planes' size and stay conservative (slope rounded down, apex up). DEMs larger than
+    /// --max-memory are baked in windows with halos (docs/CONES.md).
+    #[command(
+        after_help = "Examples:\n  terrabake cones dem.tbake\n  terrabake cones dem.tbake --slices exact\n  \
+terrabake cones dem.tbake --slices 256 --encoding u16 --json"
+    )]
+    Cones {
+        asset: PathBuf,
+        #[command(flatten)]
+        stage: ConesStage,
+        /// Rebuild even if the asset already has up-to-date planes.
+        #[arg(long)]
+        force: bool,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Add horizon maps: the horizon's elevation angle at every post in S azimuths, plus sky-view
+    /// factors and openness.
+    ///
+    /// --method line (default): the steepest sight line along the straight line from each post on
+    /// the same surface the tracers use, exact; directions are grid directions within a tolerance
+    /// of i * 360 / S (listed per band in the manifest). --method sector: Stewart's maximum over
+    /// each closed azimuth wedge, exact (a spike anywhere in a wedge sets the whole sector).
+    /// --method sampled: centre-line sampling with nearest-post heights, what GRASS r.horizon and
+    /// SAGA do (a baseline). Angles are compass-ordered bands of the `horizon` layer, degrees,
+    /// stored in the smallest encoding within --max-error; the stage also writes `svf` (Zakšek:
+    /// 1 - mean sin h), `svf_cosine` (view factor from the tilted surface), `openness` and
+    /// `horizon_edge` (bands the DEM's edge may cut). Earth curvature is on by default for
+    /// georeferenced DEMs (docs/HORIZONS.md).
+    #[command(
+        after_help = "Examples:\n  terrabake horizons dem.tbake --sectors 16\n  \
+terrabake horizons dem.tbake --sectors 64 --method sector\n  \
+terrabake horizons dem.tbake --sectors 32 --aoi 100,100,400,400 --max-error 0.01 --json\n  \
+terrabake export dem.tbake --layer horizon -o horizon.tif"
+    )]
+    Horizons {
+        asset: PathBuf,
+        #[command(flatten)]
+        stage: HorizonsStage,
+        /// Only the horizon angles: leave out the sky stage (svf, svf_cosine,
+        /// openness, horizon_edge), which otherwise runs after it.
+        #[arg(long)]
+        no_sky: bool,
+        /// Recompute even if the asset already has up-to-date horizons.
+        #[arg(long)]
+        force: bool,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Add the sky layers from the asset's horizons: sky-view factors (svf, svf_cosine),
+    /// positive openness, and the count of bands the DEM's edge may cut (horizon_edge).
+    ///
+    /// Reads the committed horizon layer and the horizons stage's recorded parameters (area of
+    /// interest, curvature); `terrabake horizons` runs it unless --no-sky.
+    Sky {
+        asset: PathBuf,
+        #[command(flatten)]
+        stage: crate::sky::SkyStage,
+        /// Recompute even if the asset already has up-to-date sky layers.
+        #[arg(long)]
+        force: bool,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Chart the horizon methods' accuracy against their time, and time them on the whole DEM.
+    ///
+    /// Accuracy: on a centred crop, every method and band count against a reference of 1024
+    /// exact sight-line directions: RMS error of the horizon angle and of the sky-view factor
+    /// (central half of the crop). Speed: all bands of the whole DEM, all cores, for the runs in
+    /// --speed. Prints tables; --chart writes PREFIX_horizon.svg and PREFIX_svf.svg.
+    #[command(
+        after_help = "Example:\n  terrabake bench-horizons srtm.tbake --chart docs/charts/horizons"
+    )]
+    BenchHorizons(crate::bench::horizons::BenchHorizonsArgs),
+    /// Chart the parametric tracer's speed against the cone planes' bake time (replaces the asset's planes).
+    ///
+    /// For every slice count and encoding: bake the planes (all cores), then trace the sixteen
+    /// views of bench-views with the parametric tracer on one thread; the hierarchical tracer and
+    /// its pyramid are the reference. Prints a table; --chart writes PREFIX_steps.svg and
+    /// PREFIX_speed.svg.
+    #[command(
+        after_help = "Example:\n  terrabake bench-cones srtm.tbake --chart docs/charts/cones"
+    )]
+    BenchCones(crate::bench::cones::BenchConesArgs),
+    /// Render a shaded perspective view, traced through the asset (sun light and sun shadows).
+    ///
+    /// Coordinates are local metres: x east and y north from the DEM's south-west post, z the
+    /// heights' metres (`terrabake info` gives the extent). Use --view 1..16 for the built-in
+    /// oblique views of the tracing benchmark, or --camera and --look-at.
+    Render {
+        asset: PathBuf,
+        /// Instead of a perspective view: an overhead map shaded from the stored horizons alone,
+        /// `sky` (overcast sky, radiosity) or `sun:AZ,EL` (sun disc and Stewart's sky); needs the
+        /// horizons stage.
+        #[arg(long, conflicts_with_all = ["view", "camera"])]
+        shade: Option<crate::shade::Shade>,
+        /// Camera position X,Y,Z (local metres).
+        #[arg(long, value_parser = parse_point, allow_hyphen_values = true, requires = "look_at", conflicts_with = "view")]
+        camera: Option<[f64; 3]>,
+        /// Point the camera looks at, X,Y,Z (local metres).
+        #[arg(long, value_parser = parse_point, allow_hyphen_values = true, requires = "camera")]
+        look_at: Option<[f64; 3]>,
+        /// One of the sixteen built-in oblique views (1..=16).
+        #[arg(long, value_parser = clap::value_parser!(u32).range(1..=16))]
+        view: Option<u32>,
+        /// Horizontal field of view, degrees (built-in views use 104).
+        #[arg(long)]
+        fov: Option<f64>,
+        /// Image size WIDTHxHEIGHT.
+        #[arg(long, value_parser = parse_size, default_value = "800x600")]
+        size: (u32, u32),
+        /// Tracer: incremental, runs, hierarchical, parametric, brute-force (all give the same picture;
+        /// hierarchical needs the pyramid stage, parametric the cones stage).
+        #[arg(long, default_value = "hierarchical")]
+        method: Method,
+        /// Sun azimuth (clockwise from north) and elevation, degrees.
+        #[arg(long, value_parser = parse_sun, default_value = "135,35")]
+        sun: Sun,
+        /// Trace every N-th pixel only (others copy the nearest traced one).
+        #[arg(long, default_value_t = 1)]
+        every: u32,
+        /// No shadow rays.
+        #[arg(long)]
+        no_shadows: bool,
+        /// Sun shadows from the stored horizons (lit_fraction, soft, no shadow rays; needs the
+        /// horizons stage) instead of shadow rays.
+        #[arg(long, conflicts_with = "no_shadows")]
+        horizon_shadows: bool,
+        /// Vertical exaggeration (camera heights are then in exaggerated metres).
+        #[arg(long, default_value_t = 1.0)]
+        exaggerate: f64,
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Print rays per second and mean steps per ray.
+        #[arg(long)]
+        stats: bool,
+        /// Print the statistics as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Benchmark the tracers on the sixteen built-in views, side by side (Paglieroni's Table 1).
+    BenchViews(crate::bench::views::BenchViewsArgs),
+    /// Ingest a DEM and run every stage of a recipe, skipping work already done.
+    Bake {
+        src: PathBuf,
+        #[arg(short, long)]
+        output: PathBuf,
+        /// A recipe from pipelines/ (TOML): ingest options and stages.
+        #[arg(long)]
+        recipe: PathBuf,
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+#[derive(clap::Args, Debug)]
+pub struct IngestArgs {
+    /// Tile edge in posts: a power of two from 16 to 4096.
+    #[arg(long = "tile", default_value_t = DEFAULT_TILE)]
+    tile: u32,
+    /// Memory the source's reader may hold at once, MiB. Ingest streams, so
+    /// only a DEM stored as a few huge strips or tiles (or an OpenEXR, read
+    /// whole) comes near it; such a source is refused from its header.
+    #[arg(long, default_value_t = DEFAULT_INGEST_MEMORY >> 20, value_name = "MIB")]
+    max_memory: u64,
+    /// Nodata value of the source, overriding what the file says.
+    #[arg(long, allow_hyphen_values = true)]
+    nodata: Option<f64>,
+    /// Post spacing in metres, DX or DX,DY (default: from the georeferencing, else 1 m).
+    #[arg(long, value_parser = parse_cell_size)]
+    cell_size: Option<(f64, f64)>,
+    /// Heights are `sample * z_scale + z_offset` (for PNG heightmaps, say).
+    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
+    z_scale: f64,
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    z_offset: f64,
+    /// Tile codec: `raw` (read in place from the mapping) or `zstd` (smaller; decompressed into a cache).
+    #[arg(long, value_parser = parse_codec, default_value = "raw")]
+    codec: Codec,
+    /// Shape of a headerless raster, WIDTHxHEIGHT.
+    #[arg(long, value_parser = parse_size, requires = "raw_type")]
+    raw_shape: Option<(u32, u32)>,
+    /// Sample type of a headerless raster.
+    #[arg(long, value_enum, requires = "raw_shape")]
+    raw_type: Option<RawSampleType>,
+    /// Byte order of a headerless raster.
+    #[arg(long, value_enum, default_value = "le")]
+    byte_order: ByteOrder,
+}
+
+impl IngestArgs {
+    pub fn options(&self) -> IngestOptions {
+        IngestOptions {
+            tile_size: self.tile,
+            nodata: self.nodata,
+            cell_size: self.cell_size,
+            z_scale: self.z_scale,
+            z_offset: self.z_offset,
+            codec: self.codec,
+            raw: match (self.raw_shape, self.raw_type) {
+                (Some((width, height)), Some(sample)) => Some(RawSpec {
+                    width,
+                    height,
+                    sample,
+                    order: self.byte_order,
+                }),
+                _ => None,
+            },
+            max_memory: self.max_memory << 20,
+        }
+    }
+}

@@ -1,0 +1,207 @@
+//! The registry of stages and the recipes that run them.
+//!
+//! A recipe (`pipelines/NAME.toml`) names the ingest options and the stages
+//! to run after it, in order:
+//!
+//! ```toml
+//! [ingest]
+//! tile = 256
+//! codec = "raw"      # or "zstd"
+//!
+//! [[stage]]
+//! name = "pyramid"   # later stages: pyramid, cones, horizons, sky
+//! ```
+//!
+//! This module sits above the stages: it imports each of them, and none of
+//! them imports it. Ingest is the stage that creates the asset, so [`bake`]
+//! runs it before the others, under the same hold of the writer lock.
+
+use std::path::Path;
+
+use anyhow::{bail, Context, Result};
+use serde::Deserialize;
+use terrabake_format::{Asset, Codec, LayerEntry};
+
+use crate::asset::{AssetWriter, Wait};
+use crate::ingest::{ingest_into, ingest_params, IngestOptions};
+use crate::progress::Progress;
+use crate::stage::{already_done, run_stage_in, Stage, StageOutcome};
+
+/// A recipe file.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Recipe {
+    /// Where the recipe was read from (for messages).
+    #[serde(skip)]
+    pub path: std::path::PathBuf,
+    #[serde(default)]
+    pub description: String,
+    #[serde(default)]
+    pub ingest: RecipeIngest,
+    #[serde(default, rename = "stage")]
+    pub stages: Vec<RecipeStage>,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RecipeIngest {
+    #[serde(default = "default_tile")]
+    pub tile: u32,
+    #[serde(default = "default_codec")]
+    pub codec: Codec,
+    pub nodata: Option<f64>,
+    pub cell_size: Option<[f64; 2]>,
+    #[serde(default = "one")]
+    pub z_scale: f64,
+    #[serde(default)]
+    pub z_offset: f64,
+}
+
+fn default_tile() -> u32 {
+    crate::ingest::DEFAULT_TILE
+}
+fn default_codec() -> Codec {
+    Codec::Raw
+}
+fn one() -> f64 {
+    1.0
+}
+
+impl Default for RecipeIngest {
+    fn default() -> Self {
+        Self {
+            tile: default_tile(),
+            codec: default_codec(),
+            nodata: None,
+            cell_size: None,
+            z_scale: 1.0,
+            z_offset: 0.0,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Deserialize)]
+pub struct RecipeStage {
+    pub name: String,
+    #[serde(flatten)]
+    pub params: toml::Table,
+}
+
+impl Recipe {
+    pub fn load(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("{}: cannot read recipe", path.display()))?;
+        let mut recipe: Recipe =
+            toml::from_str(&text).with_context(|| format!("{}: invalid recipe", path.display()))?;
+        recipe.path = path.to_path_buf();
+        Ok(recipe)
+    }
+
+    pub fn ingest_options(&self) -> IngestOptions {
+        let i = &self.ingest;
+        IngestOptions {
+            tile_size: i.tile,
+            nodata: i.nodata,
+            cell_size: i.cell_size.map(|[dx, dy]| (dx, dy)),
+            z_scale: i.z_scale,
+            z_offset: i.z_offset,
+            codec: i.codec,
+            raw: None,
+            ..IngestOptions::default()
+        }
+    }
+}
+
+/// The stages this build provides, by recipe name.
+pub const STAGES: [&str; 4] = ["pyramid", "cones", "horizons", "sky"];
+
+/// The stage a recipe step names, its table deserialised into the stage's
+/// parameter type (unknown keys refused by name) and checked.
+pub fn stage_from_recipe(step: &RecipeStage) -> Result<Box<dyn Stage>> {
+    fn typed<T>(table: &toml::Table) -> Result<Box<dyn Stage>>
+    where
+        T: Stage + serde::de::DeserializeOwned + 'static,
+    {
+        let stage: T = toml::Value::Table(table.clone()).try_into()?;
+        stage.check()?;
+        Ok(Box::new(stage))
+    }
+    match step.name.as_str() {
+        "pyramid" => {
+            if let Some(key) = step.params.keys().next() {
+                bail!("unknown field `{key}`: the pyramid stage takes no parameters");
+            }
+            Ok(Box::new(crate::pyramid::PyramidStage))
+        }
+        "cones" => typed::<crate::cones::ConesStage>(&step.params),
+        "horizons" => typed::<crate::horizon::HorizonsStage>(&step.params),
+        "sky" => typed::<crate::sky::SkyStage>(&step.params),
+        other => bail!(
+            "no stage '{other}' in this build of terrabake (after ingest: {})",
+            STAGES.join(", ")
+        ),
+    }
+}
+
+impl Recipe {
+    /// Every stage of the recipe, resolved before any work so that a typo
+    /// fails in a second; errors name the file, the step and the key.
+    pub fn resolve_stages(&self) -> Result<Vec<Box<dyn Stage>>> {
+        self.stages
+            .iter()
+            .enumerate()
+            .map(|(i, step)| {
+                stage_from_recipe(step).with_context(|| {
+                    format!(
+                        "{}: [[stage]] number {} (name = \"{}\")",
+                        self.path.display(),
+                        i + 1,
+                        step.name
+                    )
+                })
+            })
+            .collect()
+    }
+}
+
+/// Ingest (unless the asset already is this ingest) and every recipe stage,
+/// all under one hold of the writer lock.
+pub fn bake(
+    src: &Path,
+    dir: &Path,
+    recipe: &Recipe,
+    wait: Wait,
+    progress: Progress,
+) -> Result<Vec<StageOutcome>> {
+    let stages = recipe.resolve_stages()?;
+    let opts = recipe.ingest_options();
+    let params = ingest_params(src, &opts)?;
+    let writer = AssetWriter::create(dir, wait)?;
+    let current = Asset::open(dir)
+        .ok()
+        .and_then(|a| already_done(a.manifest(), "ingest", &params));
+    let mut outcomes = Vec::new();
+    match current {
+        Some(outputs) => outcomes.push(StageOutcome {
+            stage: "ingest".into(),
+            skipped: true,
+            outputs,
+            seconds: 0.0,
+        }),
+        None => {
+            let start = std::time::Instant::now();
+            let manifest =
+                ingest_into(&writer, src, &opts, progress).inspect_err(|_| writer.fail())?;
+            outcomes.push(StageOutcome {
+                stage: "ingest".into(),
+                skipped: false,
+                outputs: manifest.layers.iter().map(LayerEntry::key).collect(),
+                seconds: start.elapsed().as_secs_f64(),
+            });
+        }
+    }
+    for stage in stages {
+        outcomes.push(run_stage_in(&writer, stage.as_ref(), false, progress)?);
+    }
+    Ok(outcomes)
+}

@@ -1,0 +1,156 @@
+//! What the command line prints about an asset and a stage run, for
+//! people (`terrabake info`, the one-line stage summaries). Scripts read
+//! `--json` instead, which is the manifest or the outcome as they are.
+
+use std::path::Path;
+
+use crate::stage::StageOutcome;
+
+pub fn describe_outcome(o: &StageOutcome) -> String {
+    let what = if o.skipped {
+        "up to date".to_string()
+    } else {
+        format!("{:.2} s", o.seconds)
+    };
+    format!("{:<10} {what:>12}  {}", o.stage, o.outputs.join(", "))
+}
+
+/// Human-readable summary of a manifest.
+pub fn describe(path: &Path, m: &terrabake_format::Manifest) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    let posts = u64::from(m.width) * u64::from(m.height);
+    let _ = writeln!(s, "asset       {}", path.display());
+    let _ = writeln!(s, "format      v{}", m.format_version);
+    let _ = writeln!(
+        s,
+        "shape       {} x {} posts, tiles of {}",
+        m.width, m.height, m.tile_size
+    );
+    let _ = writeln!(
+        s,
+        "cell size   {:.3} x {:.3} m ({})",
+        m.cell_size.dx, m.cell_size.dy, m.cell_size.source
+    );
+    match &m.georef {
+        Some(g) => {
+            let epsg = g
+                .epsg
+                .map_or("no EPSG code".to_string(), |c| format!("EPSG:{c}"));
+            let _ = writeln!(
+                s,
+                "georef      {:?}, {epsg}, pixel is {:?}",
+                g.crs_kind, g.raster_type
+            );
+            let t = g.geotransform;
+            let _ = writeln!(
+                s,
+                "            origin ({}, {}), pixel scale ({}, {})",
+                t[0], t[3], t[1], t[5]
+            );
+        }
+        None => {
+            let _ = writeln!(s, "georef      none");
+        }
+    }
+    let _ = writeln!(
+        s,
+        "heights     {} (x {} + {})",
+        m.vertical.units, m.vertical.scale, m.vertical.offset
+    );
+    if let Some(r) = m.height_range {
+        let _ = writeln!(s, "range       {} .. {}", r.min, r.max);
+    }
+    let _ = writeln!(
+        s,
+        "nodata      {} posts ({:.3} %), source value {}",
+        m.nodata.count,
+        100.0 * m.nodata.count as f64 / posts.max(1) as f64,
+        m.nodata.source_value.as_deref().unwrap_or("none")
+    );
+    let _ = writeln!(s, "layers");
+    for l in &m.layers {
+        let _ = writeln!(
+            s,
+            "  {:<16} {:>4} x{} {:>6} x {:<6} {:?} {:>10} stored, {}/{} chunks constant  {}",
+            l.key(),
+            l.elem.name(),
+            l.bands,
+            l.width,
+            l.height,
+            l.codec,
+            human_bytes(l.stored_bytes),
+            l.constant_chunks,
+            l.chunks,
+            l.file
+        );
+        if !l.band_azimuths.is_empty() {
+            let azimuths: Vec<String> = l.band_azimuths.iter().map(|a| format!("{a:.2}")).collect();
+            let _ = writeln!(
+                s,
+                "  {:<16} band azimuths (deg): {}",
+                "",
+                azimuths.join(" ")
+            );
+        }
+    }
+    let _ = writeln!(
+        s,
+        "provenance  {} ({}, {} bytes), by {}",
+        m.provenance.source, m.provenance.source_format, m.provenance.source_len, m.provenance.tool
+    );
+    for r in &m.provenance.stages {
+        let _ = writeln!(
+            s,
+            "  stage {:<10} -> {}  {}",
+            r.stage,
+            r.outputs.join(", "),
+            r.params
+        );
+    }
+    s
+}
+
+pub fn human_bytes(n: u64) -> String {
+    let units = ["B", "KiB", "MiB", "GiB", "TiB"];
+    let mut v = n as f64;
+    let mut u = 0;
+    while v >= 1024.0 && u + 1 < units.len() {
+        v /= 1024.0;
+        u += 1;
+    }
+    format!("{v:.1} {}", units[u])
+}
+
+/// What `terrabake verify` prints: each problem and a summary line, or the
+/// JSON record `{asset, layers, chunks, ok, problems}`.
+pub fn verify(
+    asset: &Path,
+    report: &terrabake_format::VerifyReport,
+    json: bool,
+) -> serde_json::Result<String> {
+    let problems: Vec<String> = report.problems.iter().map(|p| p.to_string()).collect();
+    if json {
+        let out = serde_json::json!({
+            "asset": asset.display().to_string(),
+            "layers": report.layers,
+            "chunks": report.chunks,
+            "ok": problems.is_empty(),
+            "problems": problems,
+        });
+        return Ok(serde_json::to_string_pretty(&out)? + "\n");
+    }
+    let mut s: String = problems.iter().map(|p| format!("problem: {p}\n")).collect();
+    let verdict = if problems.is_empty() {
+        "all checksums and structure valid".to_string()
+    } else {
+        format!("{} problems", problems.len())
+    };
+    s += &format!(
+        "{}: {} layers, {} chunks, {verdict}\n",
+        asset.display(),
+        report.layers,
+        report.chunks
+    );
+    Ok(s)
+}
