@@ -7,15 +7,13 @@ use std::path::PathBuf;
 use clap::{Parser, Subcommand};
 use terrabake_format::trace::Method;
 
-use crate::args::{parse_cell_size, parse_codec, parse_point, parse_size, parse_sun};
+use crate::args::{parse_point, parse_size, parse_sun};
 use crate::cones::ConesStage;
 use crate::export::PngStyle;
 use crate::horizon::HorizonsStage;
-use crate::ingest::{IngestOptions, DEFAULT_INGEST_MEMORY, DEFAULT_TILE};
+use crate::ingest::IngestOptions;
 use crate::render::Sun;
-use crate::source::{ByteOrder, RawSampleType, RawSpec};
 use crate::synth::SynthKind;
-use terrabake_format::Codec;
 
 #[derive(Parser, Debug)]
 #[command(
@@ -58,7 +56,7 @@ pub enum Command {
         #[arg(short, long)]
         output: PathBuf,
         #[command(flatten)]
-        opts: IngestArgs,
+        opts: IngestOptions,
         /// Print the manifest as JSON on stdout.
         #[arg(long)]
         json: bool,
@@ -286,62 +284,4 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
         #[arg(long)]
         json: bool,
     },
-}
-
-#[derive(clap::Args, Debug)]
-pub struct IngestArgs {
-    /// Tile edge in posts: a power of two from 16 to 4096.
-    #[arg(long = "tile", default_value_t = DEFAULT_TILE)]
-    tile: u32,
-    /// Memory the source's reader may hold at once, MiB. Ingest streams, so
-    /// only a DEM stored as a few huge strips or tiles (or an OpenEXR, read
-    /// whole) comes near it; such a source is refused from its header.
-    #[arg(long, default_value_t = DEFAULT_INGEST_MEMORY >> 20, value_name = "MIB")]
-    max_memory: u64,
-    /// Nodata value of the source, overriding what the file says.
-    #[arg(long, allow_hyphen_values = true)]
-    nodata: Option<f64>,
-    /// Post spacing in metres, DX or DX,DY (default: from the georeferencing, else 1 m).
-    #[arg(long, value_parser = parse_cell_size)]
-    cell_size: Option<(f64, f64)>,
-    /// Heights are `sample * z_scale + z_offset` (for PNG heightmaps, say).
-    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
-    z_scale: f64,
-    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
-    z_offset: f64,
-    /// Tile codec: `raw` (read in place from the mapping) or `zstd` (smaller; decompressed into a cache).
-    #[arg(long, value_parser = parse_codec, default_value = "raw")]
-    codec: Codec,
-    /// Shape of a headerless raster, WIDTHxHEIGHT.
-    #[arg(long, value_parser = parse_size, requires = "raw_type")]
-    raw_shape: Option<(u32, u32)>,
-    /// Sample type of a headerless raster.
-    #[arg(long, value_enum, requires = "raw_shape")]
-    raw_type: Option<RawSampleType>,
-    /// Byte order of a headerless raster.
-    #[arg(long, value_enum, default_value = "le")]
-    byte_order: ByteOrder,
-}
-
-impl IngestArgs {
-    pub fn options(&self) -> IngestOptions {
-        IngestOptions {
-            tile_size: self.tile,
-            nodata: self.nodata,
-            cell_size: self.cell_size,
-            z_scale: self.z_scale,
-            z_offset: self.z_offset,
-            codec: self.codec,
-            raw: match (self.raw_shape, self.raw_type) {
-                (Some((width, height)), Some(sample)) => Some(RawSpec {
-                    width,
-                    height,
-                    sample,
-                    order: self.byte_order,
-                }),
-                _ => None,
-            },
-            max_memory: self.max_memory << 20,
-        }
-    }
 }

@@ -24,7 +24,7 @@ use terrabake_format::{
 
 use crate::asset::{AssetWriter, Wait};
 use crate::progress::Progress;
-use crate::source::{self, parse_nodata, HeightMapping, RawSpec};
+use crate::source::{self, parse_nodata, ByteOrder, HeightMapping, RawSampleType, RawSpec};
 use crate::stage::unix_now;
 use crate::tiling::push_tile_row;
 
@@ -32,22 +32,75 @@ use crate::tiling::push_tile_row;
 /// zstd and GPU upload alike.
 pub const DEFAULT_TILE: u32 = 256;
 
-#[derive(Debug, Clone, Serialize)]
+/// Ingest's parameters: `terrabake ingest` flattens them, a recipe's
+/// `[ingest]` table deserialises into them (unknown keys refused), and the
+/// manifest records their serialisation with the source's identity.
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize, clap::Args)]
+#[serde(deny_unknown_fields, default)]
 pub struct IngestOptions {
+    /// Tile edge in posts: a power of two from 16 to 4096.
+    #[arg(long = "tile", default_value_t = DEFAULT_TILE)]
+    #[serde(rename = "tile")]
     pub tile_size: u32,
-    /// Overrides the source's nodata value.
+    /// Nodata value of the source, overriding what the file says.
+    #[arg(long, allow_hyphen_values = true)]
     pub nodata: Option<f64>,
-    /// Overrides the post spacing, metres.
+    /// Post spacing in metres, DX or DX,DY (default: from the georeferencing, else 1 m).
+    #[arg(long, value_parser = crate::args::parse_cell_size)]
     pub cell_size: Option<(f64, f64)>,
+    /// Heights are `sample * z_scale + z_offset` (for PNG heightmaps, say).
+    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
     pub z_scale: f64,
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
     pub z_offset: f64,
+    /// Tile codec: `raw` (read in place from the mapping) or `zstd` (smaller; decompressed into a cache).
+    #[arg(long, value_parser = crate::args::parse_codec, default_value = "raw")]
     pub codec: Codec,
-    pub raw: Option<RawSpec>,
-    /// Bytes the source's reader may hold at once; a source that needs more
-    /// (one strip of the whole DEM, say) is refused from its header. Not a
-    /// parameter of the result, so not recorded.
-    #[serde(skip)]
+    /// Shape of a headerless raster, WIDTHxHEIGHT.
+    #[arg(long, value_parser = crate::args::parse_size, requires = "raw_type")]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub raw_shape: Option<(u32, u32)>,
+    /// Sample type of a headerless raster.
+    #[arg(long, value_enum, requires = "raw_shape")]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub raw_type: Option<RawSampleType>,
+    /// Byte order of a headerless raster.
+    #[arg(long, value_enum, default_value = "le")]
+    pub byte_order: ByteOrder,
+    /// Memory the source's reader may hold at once, MiB. Ingest streams, so
+    /// only a DEM stored as a few huge strips or tiles (or an OpenEXR, read
+    /// whole) comes near it; such a source is refused from its header. Not
+    /// a parameter of the result, so not recorded.
+    #[arg(long = "max-memory", value_name = "MIB", default_value = "1024", value_parser = crate::stage::mib::parse)]
+    #[serde(
+        rename = "max_memory_mib",
+        with = "crate::stage::mib",
+        skip_serializing
+    )]
     pub max_memory: u64,
+}
+
+impl IngestOptions {
+    /// Defaults for a headerless raster laid out as `spec`.
+    pub fn for_raw(spec: RawSpec) -> Self {
+        Self {
+            raw_shape: Some((spec.width, spec.height)),
+            raw_type: Some(spec.sample),
+            byte_order: spec.order,
+            ..Self::default()
+        }
+    }
+
+    /// The headerless raster's layout, when one was given.
+    pub fn raw(&self) -> Option<RawSpec> {
+        let ((width, height), sample) = (self.raw_shape?, self.raw_type?);
+        Some(RawSpec {
+            width,
+            height,
+            sample,
+            order: self.byte_order,
+        })
+    }
 }
 
 /// Default of [`IngestOptions::max_memory`]: 1 GiB. Ingest streams, so
@@ -63,7 +116,9 @@ impl Default for IngestOptions {
             z_scale: 1.0,
             z_offset: 0.0,
             codec: Codec::Raw,
-            raw: None,
+            raw_shape: None,
+            raw_type: None,
+            byte_order: ByteOrder::Le,
             max_memory: DEFAULT_INGEST_MEMORY,
         }
     }
@@ -120,7 +175,7 @@ pub fn ingest_into(
     check_options(opts)?;
     let asset_dir = writer.dir();
     let params = ingest_params(src, opts)?;
-    let mut source = source::open(src, opts.raw.as_ref(), opts.tile_size, opts.max_memory)?;
+    let mut source = source::open(src, opts.raw().as_ref(), opts.tile_size, opts.max_memory)?;
     let info = source.info().clone();
     {
         let nodata_text = match opts.nodata {

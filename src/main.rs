@@ -55,6 +55,14 @@ fn run(cli: Cli) -> Result<ExitCode> {
             eprintln!("{msg}");
         }
     };
+    // A stage's outcome: its JSON record on stdout (with --json), a line on stderr.
+    let report = |outcome: &StageOutcome, json: bool| -> Result<()> {
+        if json {
+            println!("{}", serde_json::to_string_pretty(outcome)?);
+        }
+        say(describe_outcome(outcome));
+        Ok(())
+    };
     match cli.command {
         Command::BenchViews(args) => args.run(&say)?,
         Command::BenchCones(args) => args.run(progress, &say)?,
@@ -67,8 +75,8 @@ fn run(cli: Cli) -> Result<ExitCode> {
         } => {
             let start = std::time::Instant::now();
             let writer = AssetWriter::create(&output, wait)?;
-            let manifest = ingest_into(&writer, &src, &opts.options(), progress)
-                .inspect_err(|_| writer.fail())?;
+            let manifest =
+                ingest_into(&writer, &src, &opts, progress).inspect_err(|_| writer.fail())?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&manifest)?);
             }
@@ -206,11 +214,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             say(format!("wrote {}", output.display()));
         }
         Command::Pyramid { asset, force, json } => {
-            let outcome = run_stage(&asset, &PyramidStage, force)?;
-            if json {
-                println!("{}", serde_json::to_string_pretty(&outcome)?);
-            }
-            say(describe_outcome(&outcome));
+            report(&run_stage(&asset, &PyramidStage, force)?, json)?;
         }
         Command::Cones {
             asset,
@@ -238,11 +242,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             force,
             json,
         } => {
-            let outcome = run_stage(&asset, &stage, force)?;
-            if json {
-                println!("{}", serde_json::to_string_pretty(&outcome)?);
-            }
-            say(describe_outcome(&outcome));
+            report(&run_stage(&asset, &stage, force)?, json)?;
         }
         Command::Horizons {
             asset,

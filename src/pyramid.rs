@@ -160,6 +160,14 @@ impl Stage for PyramidStage {
         serde_json::json!({ "surface": "two triangles per cell, south-west to north-east diagonal" })
     }
 
+    /// Level 0 of a region's cells (cell `(x, y)` lies south-east of post
+    /// `(x, y)`) needs the posts at their corners: one post past the
+    /// region. (Level `L` reduces aligned blocks of `2^L` cells: a region
+    /// aligned to them needs nothing more.)
+    fn reach(&self, _: &terrabake_format::Manifest) -> crate::stage::Reach {
+        crate::stage::Reach::Posts(1)
+    }
+
     fn run(&self, asset: &Asset<Mmap>, dir: &Path, progress: Progress) -> Result<Vec<LayerEntry>> {
         let height = asset.height()?;
         let (w, h, ts) = (height.width(), height.height(), height.tile_size());

@@ -20,7 +20,7 @@ use std::path::Path;
 
 use anyhow::{bail, Context, Result};
 use serde::Deserialize;
-use terrabake_format::{Asset, Codec, LayerEntry};
+use terrabake_format::{Asset, LayerEntry};
 
 use crate::asset::{AssetWriter, Wait};
 use crate::ingest::{ingest_into, ingest_params, IngestOptions};
@@ -37,47 +37,9 @@ pub struct Recipe {
     #[serde(default)]
     pub description: String,
     #[serde(default)]
-    pub ingest: RecipeIngest,
+    pub ingest: IngestOptions,
     #[serde(default, rename = "stage")]
     pub stages: Vec<RecipeStage>,
-}
-
-#[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RecipeIngest {
-    #[serde(default = "default_tile")]
-    pub tile: u32,
-    #[serde(default = "default_codec")]
-    pub codec: Codec,
-    pub nodata: Option<f64>,
-    pub cell_size: Option<[f64; 2]>,
-    #[serde(default = "one")]
-    pub z_scale: f64,
-    #[serde(default)]
-    pub z_offset: f64,
-}
-
-fn default_tile() -> u32 {
-    crate::ingest::DEFAULT_TILE
-}
-fn default_codec() -> Codec {
-    Codec::Raw
-}
-fn one() -> f64 {
-    1.0
-}
-
-impl Default for RecipeIngest {
-    fn default() -> Self {
-        Self {
-            tile: default_tile(),
-            codec: default_codec(),
-            nodata: None,
-            cell_size: None,
-            z_scale: 1.0,
-            z_offset: 0.0,
-        }
-    }
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -97,18 +59,9 @@ impl Recipe {
         Ok(recipe)
     }
 
+    /// The `[ingest]` table (defaults for what it leaves out).
     pub fn ingest_options(&self) -> IngestOptions {
-        let i = &self.ingest;
-        IngestOptions {
-            tile_size: i.tile,
-            nodata: i.nodata,
-            cell_size: i.cell_size.map(|[dx, dy]| (dx, dy)),
-            z_scale: i.z_scale,
-            z_offset: i.z_offset,
-            codec: i.codec,
-            raw: None,
-            ..IngestOptions::default()
-        }
+        self.ingest.clone()
     }
 }
 

@@ -133,6 +133,16 @@ impl Stage for SkyStage {
         Ok(())
     }
 
+    /// The normals need the posts around each post; `horizon_edge` asks how
+    /// far the DEM's edge is, which only the whole DEM knows.
+    fn reach(&self, _: &terrabake_format::Manifest) -> crate::stage::Reach {
+        if self.layers.contains(&SkyLayer::HorizonEdge) {
+            crate::stage::Reach::Whole
+        } else {
+            crate::stage::Reach::Posts(1)
+        }
+    }
+
     fn run(&self, asset: &Asset<Mmap>, dir: &Path, progress: Progress) -> Result<Vec<LayerEntry>> {
         let horizons = HorizonsStage::recorded(asset)
             .context("the asset has no horizons record; run `terrabake horizons` first")?;

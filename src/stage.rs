@@ -37,9 +37,30 @@ pub trait Stage {
     fn inputs(&self) -> Vec<String> {
         vec![format!("{}@0", terrabake_format::HEIGHT_LAYER)]
     }
+    /// How far beyond a region of the grid the stage must read to compute
+    /// that region exactly, on an asset described by `manifest`. The
+    /// default is the honest one for a stage that has not said: the whole
+    /// DEM.
+    fn reach(&self, manifest: &terrabake_format::Manifest) -> Reach {
+        let _ = manifest;
+        Reach::Whole
+    }
     /// Writes the stage's layers into `dir` (with `terrabake_format::LayerWriter`)
     /// and returns their entries, not yet committed.
     fn run(&self, asset: &Asset<Mmap>, dir: &Path, progress: Progress) -> Result<Vec<LayerEntry>>;
+}
+
+/// How far beyond a region a stage reads: a planner or a partitioned bake
+/// gives a part its region plus this much of the DEM, and gets that region
+/// bit for bit as the whole DEM would have it (`tests/stage.rs` holds each
+/// stage to its word).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Reach {
+    /// This many posts on every side.
+    Posts(u32),
+    /// The whole DEM (distance transforms, unbounded horizons).
+    Whole,
 }
 
 /// What happened to a stage.

@@ -35,7 +35,12 @@ fn the_module_graph_has_no_circle() {
     let mut graph: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
     for file in &files {
         let rel = file.strip_prefix(&src).unwrap();
-        let top = rel.components().next().unwrap().as_os_str().to_string_lossy();
+        let top = rel
+            .components()
+            .next()
+            .unwrap()
+            .as_os_str()
+            .to_string_lossy();
         let top = top.trim_end_matches(".rs").to_string();
         if top == "lib" || top == "main" {
             continue;
@@ -47,10 +52,12 @@ fn the_module_graph_has_no_circle() {
                 .chars()
                 .take_while(|c| c.is_alphanumeric() || *c == '_')
                 .collect();
-            if name != top && files.iter().any(|f| {
-                f.file_stem().is_some_and(|s| s == name.as_str()) && f.parent() == Some(&src)
-                    || f.parent().is_some_and(|p| p == src.join(&name))
-            }) {
+            if name != top
+                && files.iter().any(|f| {
+                    f.file_stem().is_some_and(|s| s == name.as_str()) && f.parent() == Some(&src)
+                        || f.parent().is_some_and(|p| p == src.join(&name))
+                })
+            {
                 deps.insert(name);
             }
         }
@@ -83,9 +90,16 @@ fn the_module_graph_has_no_circle() {
     let mut done = BTreeSet::new();
     for node in graph.keys() {
         let cycle = visit(node, &graph, &mut Vec::new(), &mut done);
-        assert!(cycle.is_none(), "module circle: {}", cycle.unwrap().join(" -> "));
+        assert!(
+            cycle.is_none(),
+            "module circle: {}",
+            cycle.unwrap().join(" -> ")
+        );
     }
-    assert!(graph["recipe"].contains("cones"), "the scan sees dependencies");
+    assert!(
+        graph["recipe"].contains("cones"),
+        "the scan sees dependencies"
+    );
 }
 
 #[test]
@@ -94,7 +108,10 @@ fn the_format_crate_knows_nothing_of_the_pipeline() {
     let manifest = std::fs::read_to_string(formats.join("Cargo.toml")).unwrap();
     let deps = manifest.split("[dependencies]").nth(1).unwrap();
     let deps = deps.split("\n[").next().unwrap();
-    assert!(!deps.contains("terrabake"), "formats/ depends on the pipeline");
+    assert!(
+        !deps.contains("terrabake"),
+        "formats/ depends on the pipeline"
+    );
     let mut files = Vec::new();
     rust_files(&formats.join("src"), &mut files);
     for file in files {
@@ -110,5 +127,8 @@ fn the_format_crate_knows_nothing_of_the_pipeline() {
 fn main_rs_stays_thin() {
     let main = Path::new(env!("CARGO_MANIFEST_DIR")).join("src/main.rs");
     let lines = std::fs::read_to_string(main).unwrap().lines().count();
-    assert!(lines <= 300, "src/main.rs has {lines} lines: move work into the library");
+    assert!(
+        lines <= 300,
+        "src/main.rs has {lines} lines: move work into the library"
+    );
 }

@@ -111,9 +111,8 @@ fn raw_rasters_in_every_type_and_byte_order() {
             };
             let opts = IngestOptions {
                 tile_size: 16,
-                raw: Some(spec),
                 cell_size: Some((2.0, 3.0)),
-                ..Default::default()
+                ..IngestOptions::for_raw(spec)
             };
             let (_d, asset) = ingest_ok(&src, &opts);
             let got = heights(&asset);
@@ -231,14 +230,13 @@ fn bad_inputs_are_refused_clearly() {
 
     let empty = dir.path().join("empty.raw");
     std::fs::write(&empty, b"").unwrap();
-    let raw = |w, h| IngestOptions {
-        raw: Some(RawSpec {
+    let raw = |w, h| {
+        IngestOptions::for_raw(RawSpec {
             width: w,
             height: h,
             sample: RawSampleType::F32,
             order: ByteOrder::Le,
-        }),
-        ..Default::default()
+        })
     };
     refused(&empty, &raw(0, 10), "empty raster");
     refused(

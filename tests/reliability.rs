@@ -72,6 +72,15 @@ fn unnamed_files(asset: &Path) -> Vec<String> {
         .collect()
 }
 
+/// A temporary directory holding a freshly baked asset (`a.tbake`).
+fn baked() -> (tempfile::TempDir, PathBuf) {
+    let dir = tempfile::tempdir().unwrap();
+    let (tif, recipe) = dem_and_recipe(dir.path(), "");
+    let asset = dir.path().join("a.tbake");
+    assert!(bake_cmd(&tif, &asset, &recipe).status().unwrap().success());
+    (dir, asset)
+}
+
 fn bake_cmd(tif: &Path, asset: &Path, recipe: &Path) -> Command {
     let mut c = bin();
     c.args(["bake", s(tif), "-o", s(asset), "--recipe", s(recipe), "-q"]);
@@ -185,10 +194,7 @@ fn a_writer_killed_at_every_durable_step_loses_nothing() {
 /// holder's pid, or waits for it; two writers racing both end well.
 #[test]
 fn two_writers_never_break_the_asset() {
-    let dir = tempfile::tempdir().unwrap();
-    let (tif, recipe) = dem_and_recipe(dir.path(), "");
-    let asset = dir.path().join("a.tbake");
-    assert!(bake_cmd(&tif, &asset, &recipe).status().unwrap().success());
+    let (_dir, asset) = baked();
     let held = terrabake_format::WriteLock::acquire(&asset, false, |_| {}).unwrap();
     let refused = terrabake(&["pyramid", s(&asset), "--force", "--no-wait"]);
     assert_eq!(refused.status.code(), Some(1));
@@ -240,10 +246,7 @@ fn tracers_end_on_absurd_cone_planes() {
     use terrabake_format::trace::{Method, Ray, Tracer};
     use terrabake_format::{encode_tile, Codec, LayerWriter, WriteLock};
     use zerocopy::IntoBytes;
-    let dir = tempfile::tempdir().unwrap();
-    let (tif, recipe) = dem_and_recipe(dir.path(), "");
-    let asset = dir.path().join("a.tbake");
-    assert!(bake_cmd(&tif, &asset, &recipe).status().unwrap().success());
+    let (_dir, asset) = baked();
     // Rewrite cone_slope as 1e-30 everywhere, as f32, checksums valid.
     let lock = WriteLock::acquire(&asset, false, |_| {}).unwrap();
     let mut m = Asset::open(&asset).unwrap().manifest().clone();
@@ -308,10 +311,7 @@ fn tracers_end_on_absurd_cone_planes() {
 /// checked at open, with the checksum recomputed so only the value is wrong.
 #[test]
 fn absurd_cell_sizes_are_refused_at_open() {
-    let dir = tempfile::tempdir().unwrap();
-    let (tif, recipe) = dem_and_recipe(dir.path(), "");
-    let asset = dir.path().join("a.tbake");
-    assert!(bake_cmd(&tif, &asset, &recipe).status().unwrap().success());
+    let (dir, asset) = baked();
     for (field, value) in [("dx", "1e300"), ("dy", "1e-30"), ("dx", "-3.0")] {
         let bad = rewrite_manifest(&asset, dir.path(), |m| {
             m["cell_size"][field] = serde_json::from_str(value).unwrap();
@@ -365,10 +365,7 @@ fn rand_u64() -> u64 {
 /// statements are wrong.
 #[test]
 fn verify_refuses_inconsistent_manifests() {
-    let dir = tempfile::tempdir().unwrap();
-    let (tif, recipe) = dem_and_recipe(dir.path(), "");
-    let asset = dir.path().join("a.tbake");
-    assert!(bake_cmd(&tif, &asset, &recipe).status().unwrap().success());
+    let (dir, asset) = baked();
     type Edit = fn(&mut serde_json::Value);
     let cases: [(&str, Edit); 5] = [
         ("not the grid's 4096 x 40", |m| m["width"] = 4096.into()),
@@ -404,10 +401,7 @@ fn verify_refuses_inconsistent_manifests() {
 /// and directories under a layer's name are refused, never read or waited on.
 #[test]
 fn the_reader_checks_names_and_opens_only_regular_files() {
-    let dir = tempfile::tempdir().unwrap();
-    let (tif, recipe) = dem_and_recipe(dir.path(), "");
-    let asset = dir.path().join("a.tbake");
-    assert!(bake_cmd(&tif, &asset, &recipe).status().unwrap().success());
+    let (dir, asset) = baked();
     let fifo = |path: &Path| {
         let c = std::ffi::CString::new(path.to_str().unwrap()).unwrap();
         // SAFETY: a valid NUL-terminated path.
@@ -483,10 +477,7 @@ fn run_with_deadline(args: &[&str]) -> std::process::Output {
 /// written through; a link at the output itself is replaced, not followed.
 #[test]
 fn writers_never_write_through_links() {
-    let dir = tempfile::tempdir().unwrap();
-    let (tif, recipe) = dem_and_recipe(dir.path(), "");
-    let asset = dir.path().join("a.tbake");
-    assert!(bake_cmd(&tif, &asset, &recipe).status().unwrap().success());
+    let (dir, asset) = baked();
     let victim = dir.path().join("victim");
     std::fs::write(&victim, b"precious").unwrap();
     let link = |at: PathBuf| {
@@ -607,10 +598,7 @@ fn tiff_header(w: u32, h: u32, rows: u32, compression: u16) -> Vec<u8> {
 /// Failure 9: every command ends quietly on a closed pipe.
 #[test]
 fn a_closed_pipe_ends_commands_quietly() {
-    let dir = tempfile::tempdir().unwrap();
-    let (tif, recipe) = dem_and_recipe(dir.path(), "");
-    let asset = dir.path().join("a.tbake");
-    assert!(bake_cmd(&tif, &asset, &recipe).status().unwrap().success());
+    let (_dir, asset) = baked();
     for args in [
         ["info", s(&asset), "--json"],
         ["verify", s(&asset), "--json"],
@@ -724,10 +712,7 @@ fn a_failed_stage_removes_its_own_files() {
         }
     }
 
-    let dir = tempfile::tempdir().unwrap();
-    let (tif, recipe) = dem_and_recipe(dir.path(), "");
-    let asset = dir.path().join("a.tbake");
-    assert!(bake_cmd(&tif, &asset, &recipe).status().unwrap().success());
+    let (_dir, asset) = baked();
     let before = layer_bytes(&asset);
     for _ in 0..2 {
         let err = run_stage(

@@ -313,7 +313,7 @@ fn command_line_and_recipe_record_the_same_parameters() {
         &p(&recipe),
         "-q",
     ]);
-    for stage in ["cones", "horizons"] {
+    for stage in ["ingest", "cones", "horizons"] {
         assert_eq!(record(&by_cli, stage), record(&by_recipe, stage), "{stage}");
     }
     assert_eq!(record(&by_cli, "horizons")["method"], "sector");
@@ -339,9 +339,16 @@ fn a_misspelled_recipe_key_is_refused_by_name() {
         ("cones", "slicez = 8"),
         ("horizons", "sector = 8"),
         ("pyramid", "levels = 3"),
+        ("sky", "layer = [\"svf\"]"),
+        ("ingest", "tiles = 16"),
     ] {
         let recipe = dir.path().join(format!("{stage}.toml"));
-        std::fs::write(&recipe, format!("[[stage]]\nname = \"{stage}\"\n{key}\n")).unwrap();
+        let text = if stage == "ingest" {
+            format!("[ingest]\n{key}\n")
+        } else {
+            format!("[[stage]]\nname = \"{stage}\"\n{key}\n")
+        };
+        std::fs::write(&recipe, text).unwrap();
         let asset = dir.path().join(format!("{stage}.tbake"));
         let out = terrabake(&[
             "bake",
@@ -379,10 +386,152 @@ fn command_line_defaults_are_the_stage_defaults() {
         #[command(flatten)]
         stage: terrabake::horizon::HorizonsStage,
     }
+    #[derive(Parser)]
+    struct Ingest {
+        #[command(flatten)]
+        opts: terrabake::ingest::IngestOptions,
+    }
+    #[derive(Parser)]
+    struct Sky {
+        #[command(flatten)]
+        stage: terrabake::sky::SkyStage,
+    }
+    assert_eq!(Ingest::parse_from(["x"]).opts, Default::default());
+    assert_eq!(Sky::parse_from(["x"]).stage, Default::default());
     assert_eq!(Cones::parse_from(["x"]).stage, Default::default());
     assert_eq!(Horizons::parse_from(["x"]).stage, Default::default());
     let empty = toml::Table::new();
     let from_recipe: terrabake::horizon::HorizonsStage =
         toml::Value::Table(empty).try_into().unwrap();
     assert_eq!(from_recipe, Default::default());
+}
+
+/// Every stage's declared reach is honest: a region baked from a crop of
+/// the DEM that adds the reach on every side equals the whole DEM's bake
+/// there, bit for bit.
+#[test]
+fn a_region_baked_with_its_declared_reach_equals_the_whole() {
+    use terrabake::export::{write_geotiff_f32, GeoTags};
+    use terrabake::horizon::{HorizonsStage, Method};
+    use terrabake::pyramid::PyramidStage;
+    use terrabake::sky::{SkyLayer, SkyStage};
+    use terrabake::stage::Reach;
+
+    let (w, h) = (64u32, 56u32);
+    let region = (20u32, 15u32, 44u32, 37u32); // posts x0..x1, y0..y1
+    let dir = tempfile::tempdir().unwrap();
+    let z = |x: u32, y: u32| {
+        terrabake::synth::height(terrabake::synth::SynthKind::Fractal, x, y, w, h, 9)
+    };
+    // A DEM of posts [x0, x1) x [y0, y1) of the whole, as its own asset.
+    let asset_of = |name: &str, (x0, y0, x1, y1): (u32, u32, u32, u32)| {
+        let tif = dir.path().join(format!("{name}.tif"));
+        write_geotiff_f32(
+            &tif,
+            (x1 - x0, y1 - y0, 1),
+            &GeoTags::default(),
+            |r0, rows| {
+                for (i, v) in rows.iter_mut().enumerate() {
+                    let (x, y) = (i as u32 % (x1 - x0), r0 + i as u32 / (x1 - x0));
+                    *v = z(x0 + x, y0 + y);
+                }
+                Ok(())
+            },
+        )
+        .unwrap();
+        let out = dir.path().join(format!("{name}.tbake"));
+        let opts = IngestOptions {
+            tile_size: 16,
+            cell_size: Some((30.0, 30.0)),
+            ..Default::default()
+        };
+        ingest(&tif, &out, &opts, Progress::hidden()).unwrap();
+        out
+    };
+    // Layer `name@level` of `asset` (origin `o` in the whole's posts) at
+    // the whole's post `(x, y)`, every band.
+    let values = |asset: &Path, name: &str, level: u32| {
+        let a = Asset::open(asset).unwrap();
+        let l = a.layer(name, level).unwrap();
+        let (lw, lh) = (l.width() as usize, l.height() as usize);
+        let mut all = vec![0f32; lw * lh * l.bands() as usize];
+        for (b, band) in all.chunks_mut(lw * lh).enumerate() {
+            l.read_rows_f32(b as u32, 0, band).unwrap();
+        }
+        (all, lw, lh)
+    };
+    let whole = asset_of("whole", (0, 0, w, h));
+    let m = Asset::open(&whole).unwrap().manifest().clone();
+    let stages: Vec<(Box<dyn Stage>, Vec<&str>)> = vec![
+        (Box::new(PyramidStage), vec!["pyramid_max", "pyramid_min"]),
+        (
+            Box::new(HorizonsStage {
+                sectors: 8,
+                max_distance: Some(200.0),
+                ..Default::default()
+            }),
+            vec!["horizon"],
+        ),
+        (
+            Box::new(HorizonsStage {
+                sectors: 8,
+                method: Method::Sector,
+                max_distance: Some(150.0),
+                ..Default::default()
+            }),
+            vec!["horizon"],
+        ),
+    ];
+    let sky = SkyStage {
+        layers: vec![SkyLayer::Svf, SkyLayer::SvfCosine, SkyLayer::Openness],
+    };
+    for (i, (stage, layers)) in stages.iter().enumerate() {
+        let Reach::Posts(r) = stage.reach(&m) else {
+            panic!("{}: declared the whole DEM", stage.name());
+        };
+        // Horizons are followed by sky, whose reach adds to theirs.
+        let with_sky = stage.name() == "horizons";
+        let r_total = r + if with_sky {
+            let Reach::Posts(s) = sky.reach(&m) else {
+                panic!("sky declared the whole DEM")
+            };
+            s
+        } else {
+            0
+        };
+        let (x0, y0, x1, y1) = region;
+        let crop = (x0 - r_total, y0 - r_total, x1 + r_total, y1 + r_total);
+        let part = asset_of(&format!("part{i}"), crop);
+        run_stage(&whole, stage.as_ref(), true, Progress::hidden()).unwrap();
+        run_stage(&part, stage.as_ref(), true, Progress::hidden()).unwrap();
+        let mut compared: Vec<&str> = layers.clone();
+        if with_sky {
+            run_stage(&whole, &sky, true, Progress::hidden()).unwrap();
+            run_stage(&part, &sky, true, Progress::hidden()).unwrap();
+            compared.extend(["svf", "svf_cosine", "openness"]);
+        }
+        for name in compared {
+            let (a, aw, ah) = values(&whole, name, 0);
+            let (b, bw, bh) = values(&part, name, 0);
+            let mut n = 0;
+            for band in 0..a.len() / (aw * ah) {
+                // Level 0 of the pyramid has one element per cell, cell
+                // (x, y) south-east of post (x, y): the region's cells.
+                for y in y0..y1 {
+                    for x in x0..x1 {
+                        let got = b
+                            [band * bw * bh + ((y - crop.1) as usize) * bw + (x - crop.0) as usize];
+                        let want = a[band * aw * ah + y as usize * aw + x as usize];
+                        assert!(
+                            got.to_bits() == want.to_bits() || (got.is_nan() && want.is_nan()),
+                            "{} {name} band {band} ({x}, {y}): {got} in the part, {want} in the whole",
+                            stage.name()
+                        );
+                        n += 1;
+                    }
+                }
+            }
+            assert!(n > 400, "{name}: compared {n} values");
+        }
+    }
 }

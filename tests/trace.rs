@@ -86,8 +86,7 @@ fn build_asset(
     let opts = IngestOptions {
         tile_size: 16,
         cell_size: Some(cell),
-        raw,
-        ..Default::default()
+        ..raw.map(IngestOptions::for_raw).unwrap_or_default()
     };
     ingest(src, &out, &opts, Progress::hidden()).unwrap();
     run_stage(&out, &PyramidStage, false, Progress::hidden()).unwrap();
@@ -428,7 +427,7 @@ mod random_terrains {
             std::fs::write(&raw, posts.iter().flat_map(|z| z.to_le_bytes()).collect::<Vec<u8>>()).unwrap();
             let spec = RawSpec { width: w, height: h, sample: RawSampleType::F32, order: ByteOrder::Le };
             let out = dir.path().join("t.tbake");
-            ingest(&raw, &out, &IngestOptions { tile_size: 16, cell_size: Some((dx, dy)), raw: Some(spec), ..Default::default() }, Progress::hidden()).unwrap();
+            ingest(&raw, &out, &IngestOptions { tile_size: 16, cell_size: Some((dx, dy)), ..IngestOptions::for_raw(spec) }, Progress::hidden()).unwrap();
             run_stage(&out, &PyramidStage, false, Progress::hidden()).unwrap();
             run_stage(&out, &cones_stage(seed as usize % 15), false, Progress::hidden()).unwrap();
             let asset = Asset::open(&out).unwrap();

@@ -4,6 +4,9 @@
 //! `cargo bench -p terrabake-format --bench reader`; set
 //! `TERRABAKE_BENCH_ASSET=path/to/asset` to also time opening that asset.
 
+#[path = "../tests/common/mod.rs"]
+mod common;
+
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
 use terrabake_format::manifest::*;
 use terrabake_format::*;
@@ -47,37 +50,7 @@ fn bench(c: &mut Criterion) {
         write_layer(dir.path(), "height", Codec::Raw),
         write_layer(dir.path(), "packed", Codec::Zstd),
     ];
-    let manifest = Manifest {
-        format_version: FORMAT_VERSION,
-        width: N,
-        height: N,
-        tile_size: TS,
-        cell_size: CellSize {
-            dx: 30.0,
-            dy: 30.0,
-            source: "given".into(),
-        },
-        georef: None,
-        vertical: Vertical {
-            units: "metre".into(),
-            scale: 1.0,
-            offset: 0.0,
-        },
-        nodata: Nodata {
-            source_value: None,
-            count: 0,
-        },
-        height_range: None,
-        provenance: Provenance {
-            source: "bench".into(),
-            source_len: 0,
-            source_format: "bench".into(),
-            tool: "bench".into(),
-            stages: vec![],
-        },
-        layers,
-        retired: vec![],
-    };
+    let manifest = common::manifest((N, N, TS), (30.0, 30.0), layers, 0, None);
     commit_manifest(
         &WriteLock::acquire(dir.path(), true, |_| {}).unwrap(),
         &manifest,

@@ -5,6 +5,8 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
+mod common;
+
 use terrabake_format::manifest::*;
 use terrabake_format::*;
 use zerocopy::IntoBytes;
@@ -37,40 +39,16 @@ fn height_layer(dir: &Path, value: f32) -> LayerEntry {
 }
 
 fn manifest(layer: LayerEntry, value: f32) -> Manifest {
-    Manifest {
-        format_version: FORMAT_VERSION,
-        width: N,
-        height: N,
-        tile_size: TS,
-        cell_size: CellSize {
-            dx: 1.0,
-            dy: 1.0,
-            source: "given".into(),
-        },
-        georef: None,
-        vertical: Vertical {
-            units: "metre".into(),
-            scale: 1.0,
-            offset: 0.0,
-        },
-        nodata: Nodata {
-            source_value: None,
-            count: 0,
-        },
-        height_range: Some(HeightRange {
+    common::manifest(
+        (N, N, TS),
+        (1.0, 1.0),
+        vec![layer],
+        0,
+        Some(HeightRange {
             min: value,
             max: value,
         }),
-        provenance: Provenance {
-            source: "test".into(),
-            source_len: 0,
-            source_format: "test".into(),
-            tool: "test".into(),
-            stages: vec![],
-        },
-        layers: vec![layer],
-        retired: vec![],
-    }
+    )
 }
 
 fn commit_generation(lock: &WriteLock, value: f32) -> Manifest {

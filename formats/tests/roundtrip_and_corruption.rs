@@ -5,8 +5,10 @@
 use std::collections::HashMap;
 use std::path::Path;
 
+mod common;
+
 use proptest::prelude::*;
-use terrabake_format::layout::{FORMAT_VERSION, HEADER_LEN};
+use terrabake_format::layout::HEADER_LEN;
 use terrabake_format::manifest::*;
 use terrabake_format::*;
 use zerocopy::IntoBytes;
@@ -38,37 +40,13 @@ fn manifest(layers: Vec<LayerEntry>) -> Manifest {
     let (min, max) = valid.fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &z| {
         (a.min(z), b.max(z))
     });
-    Manifest {
-        format_version: FORMAT_VERSION,
-        width: W,
-        height: H,
-        tile_size: TS,
-        cell_size: CellSize {
-            dx: 2.0,
-            dy: 3.0,
-            source: "given".into(),
-        },
-        georef: None,
-        vertical: Vertical {
-            units: "metre".into(),
-            scale: 1.0,
-            offset: 0.0,
-        },
-        nodata: Nodata {
-            source_value: None,
-            count: values.iter().filter(|z| z.is_nan()).count() as u64,
-        },
-        height_range: Some(HeightRange { min, max }),
-        provenance: Provenance {
-            source: "test".into(),
-            source_len: 0,
-            source_format: "test".into(),
-            tool: "test".into(),
-            stages: vec![],
-        },
+    common::manifest(
+        (W, H, TS),
+        (2.0, 3.0),
         layers,
-        retired: vec![],
-    }
+        values.iter().filter(|z| z.is_nan()).count() as u64,
+        Some(HeightRange { min, max }),
+    )
 }
 
 fn write_layer(dir: &Path, name: &str, codec: Codec) -> LayerEntry {

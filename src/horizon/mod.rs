@@ -485,6 +485,25 @@ impl Stage for HorizonsStage {
         Ok(())
     }
 
+    /// Within `max_distance`, every post reads the terrain up to that far
+    /// (the shortest post spacing, row by row on geographic grids, sets how
+    /// many posts that is, plus one for the cell a sight line ends in);
+    /// without it, the whole DEM.
+    fn reach(&self, m: &terrabake_format::Manifest) -> crate::stage::Reach {
+        let Some(d) = self.max_distance else {
+            return crate::stage::Reach::Whole;
+        };
+        let scale = crate::geo::row_scale(m.georef.as_ref(), m.height);
+        let narrowest = scale.iter().copied().fold(1.0f64, f64::min);
+        let spacing = (m.cell_size.dx * narrowest).min(m.cell_size.dy);
+        let posts = (d / spacing).ceil() + 1.0;
+        if posts >= f64::from(m.width.max(m.height)) {
+            crate::stage::Reach::Whole
+        } else {
+            crate::stage::Reach::Posts(posts as u32)
+        }
+    }
+
     fn run(&self, asset: &Asset<Mmap>, dir: &Path, progress: Progress) -> Result<Vec<LayerEntry>> {
         let m = asset.manifest();
         let height = asset.height()?;

@@ -9,7 +9,9 @@ use anyhow::{bail, Context, Result};
 
 use super::{check_shape, HeightMapping, Memory, RasterSource, SourceInfo};
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum RawSampleType {
     I16,
@@ -17,7 +19,9 @@ pub enum RawSampleType {
     F32,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum ByteOrder {
     Le,

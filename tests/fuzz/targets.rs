@@ -265,13 +265,7 @@ pub fn read_everything(files: HashMap<String, Vec<u8>>) -> bool {
                 t_min: 0.0,
                 t_max: f64::INFINITY,
             };
-            for method in [
-                Method::Incremental,
-                Method::Runs,
-                Method::Hierarchical,
-                Method::Parametric,
-                Method::BruteForce,
-            ] {
+            for method in Method::ALL {
                 let _ = tracer.trace(&ray, method);
             }
         }
