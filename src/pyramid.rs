@@ -44,6 +44,17 @@ pub fn cell_bounds_row(north: &[f32], south: &[f32], max: &mut [f32], min: &mut 
     }
 }
 
+/// The cells of each stored level of a `w x h`-post DEM: level 0 has one per
+/// cell, each level above halves them, up to the first that fits a tile.
+fn level_dims(w: u32, h: u32, ts: u32) -> Vec<(u32, u32)> {
+    let mut dims = vec![(w.saturating_sub(1), h.saturating_sub(1))];
+    while dims.last().is_some_and(|&(x, y)| x > ts || y > ts) {
+        let &(x, y) = dims.last().expect("non-empty");
+        dims.push((x.div_ceil(2), y.div_ceil(2)));
+    }
+    dims
+}
+
 /// One row of level `l + 1` from two rows of level `l` (`lower` is `None` for
 /// a last odd row): 2 x 2 maxima into `max`, minima into `min`.
 pub fn reduce_rows(
@@ -160,6 +171,16 @@ impl Stage for PyramidStage {
         serde_json::json!({ "surface": "two triangles per cell, south-west to north-east diagonal" })
     }
 
+    /// `pyramid_max@L` and `pyramid_min@L` for every level up to the first
+    /// that fits one tile, level by level.
+    fn outputs(&self, m: &terrabake_format::Manifest) -> Vec<String> {
+        level_dims(m.width, m.height, m.tile_size)
+            .iter()
+            .enumerate()
+            .flat_map(|(l, _)| [format!("{PYRAMID_MAX}@{l}"), format!("{PYRAMID_MIN}@{l}")])
+            .collect()
+    }
+
     /// Level 0 of a region's cells (cell `(x, y)` lies south-east of post
     /// `(x, y)`) needs the posts at their corners: one post past the
     /// region. (Level `L` reduces aligned blocks of `2^L` cells: a region
@@ -173,11 +194,7 @@ impl Stage for PyramidStage {
         let (w, h, ts) = (height.width(), height.height(), height.tile_size());
         anyhow::ensure!(w >= 2 && h >= 2, "a {w} x {h} DEM has no cells");
         let (cw, ch) = (w - 1, h - 1);
-        let mut dims = vec![(cw, ch)];
-        while dims.last().is_some_and(|&(x, y)| x > ts || y > ts) {
-            let &(x, y) = dims.last().expect("non-empty");
-            dims.push((x.div_ceil(2), y.div_ceil(2)));
-        }
+        let dims = level_dims(w, h, ts);
         let spec = |name: &str, level: usize, (lw, lh): (u32, u32), fill: f32| {
             LayerSpec {
             name: name.into(),

@@ -133,6 +133,13 @@ impl Stage for SkyStage {
         Ok(())
     }
 
+    fn outputs(&self, _: &terrabake_format::Manifest) -> Vec<String> {
+        self.layers
+            .iter()
+            .map(|l| format!("{}@0", l.name()))
+            .collect()
+    }
+
     /// The normals need the posts around each post; `horizon_edge` asks how
     /// far the DEM's edge is, which only the whole DEM knows.
     fn reach(&self, _: &terrabake_format::Manifest) -> crate::stage::Reach {

@@ -37,6 +37,9 @@ pub trait Stage {
     fn inputs(&self) -> Vec<String> {
         vec![format!("{}@0", terrabake_format::HEIGHT_LAYER)]
     }
+    /// `name@level` of the layers the stage writes on an asset described
+    /// by `manifest` (the runner checks that it wrote exactly these).
+    fn outputs(&self, manifest: &terrabake_format::Manifest) -> Vec<String>;
     /// How far beyond a region of the grid the stage must read to compute
     /// that region exactly, on an asset described by `manifest`. The
     /// default is the honest one for a stage that has not said: the whole
@@ -147,6 +150,12 @@ fn write_stage(
     let mut manifest = asset.manifest().clone();
     drop(asset);
     let outputs: Vec<String> = entries.iter().map(LayerEntry::key).collect();
+    let declared = stage.outputs(&manifest);
+    anyhow::ensure!(
+        outputs == declared,
+        "stage '{}' wrote {outputs:?}, not the {declared:?} it declares",
+        stage.name()
+    );
     drop_dependents(&mut manifest, stage.name(), &outputs);
     for entry in entries {
         manifest.upsert_layer(entry);

@@ -674,6 +674,9 @@ fn a_failed_stage_removes_its_own_files() {
         fn name(&self) -> &'static str {
             "fails-midway"
         }
+        fn outputs(&self, _: &terrabake_format::Manifest) -> Vec<String> {
+            vec!["a@0".into(), "b@0".into()]
+        }
         fn params(&self) -> serde_json::Value {
             serde_json::json!({})
         }

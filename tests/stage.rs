@@ -25,6 +25,9 @@ impl Stage for Offset {
     fn name(&self) -> &'static str {
         "offset"
     }
+    fn outputs(&self, _: &terrabake_format::Manifest) -> Vec<String> {
+        vec!["offset@0".into()]
+    }
     fn params(&self) -> serde_json::Value {
         serde_json::json!({ "add": self.add })
     }

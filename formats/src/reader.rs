@@ -631,13 +631,6 @@ impl Asset<Mmap> {
         }
     }
 
-    /// The asset as `manifest` says it is, before that manifest is
-    /// committed: for a stage that reads back layers it has just written
-    /// (`LayerWriter::finish` has renamed them into place).
-    pub fn open_uncommitted(dir: impl AsRef<Path>, manifest: Manifest) -> Result<Self> {
-        Self::map_layers(dir.as_ref(), manifest, DEFAULT_CACHE_BYTES)
-    }
-
     fn map_layers(dir: &Path, manifest: Manifest, cache_bytes: u64) -> Result<Self> {
         // Every name is checked before the first file is opened.
         manifest

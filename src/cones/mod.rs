@@ -366,6 +366,10 @@ impl Stage for ConesStage {
         serde_json::to_value(self).expect("parameters serialise")
     }
 
+    fn outputs(&self, _: &terrabake_format::Manifest) -> Vec<String> {
+        vec![format!("{CONE_APEX}@0"), format!("{CONE_SLOPE}@0")]
+    }
+
     fn check(&self) -> Result<()> {
         if let Some(gap) = self.apex_gap {
             anyhow::ensure!(

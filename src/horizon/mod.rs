@@ -21,10 +21,11 @@
 //! ([`sector::sector_horizons_within`]). The other cases hold the DEM in
 //! memory (4 bytes per post) and one band of output per worker, within
 //! `--max-memory`. Bands are written band-major (sector-major) in compass
-//! order; the derived layers (`svf`, `svf_cosine`, `openness`,
-//! `horizon_edge`) are then computed tile row by tile row from the stored
-//! angles (`sky_layers`). Geographic grids take their east-west spacing
-//! row by row ([`terrain::RowScale`]).
+//! order, in an order that does not depend on thread timing
+//! ([`crate::ordered`]). The derived layers (`svf`, `svf_cosine`,
+//! `openness`, `horizon_edge`) are the `sky` stage's ([`crate::sky`]), from
+//! the committed angles. Geographic grids take their east-west spacing row
+//! by row ([`terrain::RowScale`]).
 
 pub mod brute;
 pub mod hull_tree;
@@ -483,6 +484,10 @@ impl Stage for HorizonsStage {
         )?;
         positive(("max_error_deg", "max-error"), Some(self.max_error))?;
         Ok(())
+    }
+
+    fn outputs(&self, _: &terrabake_format::Manifest) -> Vec<String> {
+        vec![format!("{HORIZON}@0")]
     }
 
     /// Within `max_distance`, every post reads the terrain up to that far
