@@ -10,22 +10,22 @@
 //! lock ([`AssetWriter`]).
 
 use std::fs;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::SystemTime;
 
 use anyhow::{bail, Context, Result};
 use serde::Serialize;
 use terrabake_format::manifest::{
-    CellSize, HeightRange, Nodata, Provenance, StageRecord, Vertical, HEIGHT_LAYER,
+    CellSize, HeightRange, Nodata, Provenance, Vertical, HEIGHT_LAYER,
 };
 use terrabake_format::{
-    commit_manifest, Codec, ElemType, LayerSpec, LayerWriter, Manifest, FORMAT_VERSION,
+    Codec, ElemType, LayerEntry, LayerSpec, LayerWriter, Manifest, FORMAT_VERSION,
 };
 
 use crate::asset::{AssetWriter, Wait};
 use crate::progress::Progress;
 use crate::source::{self, parse_nodata, ByteOrder, HeightMapping, RawSampleType, RawSpec};
-use crate::stage::unix_now;
+use crate::stage::{run_stage_in, Stage};
 use crate::tiling::push_tile_row;
 
 /// Default tile edge: 256 x 256 f32 = 256 KiB, a good unit for mmap paging,
@@ -141,6 +141,64 @@ pub fn ingest_params(src: &Path, opts: &IngestOptions) -> Result<serde_json::Val
     Ok(params)
 }
 
+/// The ingest stage: `src` read with `options` into a new asset's `height`
+/// layer.
+#[derive(Debug, Clone, PartialEq)]
+pub struct IngestStage {
+    pub src: PathBuf,
+    pub options: IngestOptions,
+}
+
+impl Stage for IngestStage {
+    fn name(&self) -> &'static str {
+        "ingest"
+    }
+
+    /// The options and the source's identity (path, length, modification
+    /// time), so that `bake` can tell whether an asset already is this
+    /// ingest. ([`Stage::check`] has made sure the source can be read.)
+    fn params(&self) -> serde_json::Value {
+        ingest_params(&self.src, &self.options).unwrap_or_default()
+    }
+
+    fn inputs(&self) -> Vec<String> {
+        Vec::new()
+    }
+
+    fn outputs(&self, _: &Manifest) -> Vec<String> {
+        vec![format!("{HEIGHT_LAYER}@0")]
+    }
+
+    /// Each tile row of heights is its own rows of the source.
+    fn reach(&self, _: &Manifest) -> crate::stage::Reach {
+        crate::stage::Reach::Posts(0)
+    }
+
+    fn check(&self) -> Result<()> {
+        check_options(&self.options)?;
+        ingest_params(&self.src, &self.options).map(|_| ())
+    }
+
+    fn creates_asset(&self) -> bool {
+        true
+    }
+
+    /// Never called: the runner calls [`Stage::create`] for a stage that
+    /// creates the asset.
+    fn run(
+        &self,
+        _: &terrabake_format::Asset<terrabake_format::Mmap>,
+        _: &Path,
+        _: Progress,
+    ) -> Result<Vec<LayerEntry>> {
+        bail!("ingest creates an asset: it runs through Stage::create")
+    }
+
+    fn create(&self, dir: &Path, progress: Progress) -> Result<Manifest> {
+        write_heights(dir, &self.src, &self.options, progress)
+    }
+}
+
 /// Ingests `src` into the asset directory `asset_dir` (waiting for another
 /// writer, if one holds it) and returns the committed manifest.
 pub fn ingest(
@@ -150,7 +208,12 @@ pub fn ingest(
     progress: Progress,
 ) -> Result<Manifest> {
     let writer = AssetWriter::create(asset_dir, Wait::Wait)?;
-    ingest_into(&writer, src, opts, progress).inspect_err(|_| writer.fail())
+    let stage = IngestStage {
+        src: src.to_path_buf(),
+        options: opts.clone(),
+    };
+    run_stage_in(&writer, &stage, true, progress)?;
+    Ok(terrabake_format::Asset::open(asset_dir)?.manifest().clone())
 }
 
 fn check_options(opts: &IngestOptions) -> Result<()> {
@@ -163,18 +226,14 @@ fn check_options(opts: &IngestOptions) -> Result<()> {
     Ok(())
 }
 
-/// [`ingest`] under a writer the caller holds. On failure, the caller's
-/// [`AssetWriter::fail`] removes what it wrote; the asset that stood there
-/// before is untouched.
-pub fn ingest_into(
-    writer: &AssetWriter,
+/// Writes the height layer of `src` into `asset_dir` and returns the new
+/// asset's manifest, not yet committed (the runner commits it).
+fn write_heights(
+    asset_dir: &Path,
     src: &Path,
     opts: &IngestOptions,
     progress: Progress,
 ) -> Result<Manifest> {
-    check_options(opts)?;
-    let asset_dir = writer.dir();
-    let params = ingest_params(src, opts)?;
     let mut source = source::open(src, opts.raw().as_ref(), opts.tile_size, opts.max_memory)?;
     let info = source.info().clone();
     {
@@ -273,21 +332,17 @@ pub fn ingest_into(
             height_range: (min <= max).then_some(HeightRange { min, max }),
             provenance: Provenance {
                 source: src.display().to_string(),
-                source_len: params["source_len"].as_u64().unwrap_or(0),
+                source_len: fs::metadata(src)
+                    .with_context(|| format!("{}: cannot read", src.display()))?
+                    .len(),
                 source_format: info.format.into(),
                 tool: crate::tool_version(),
-                stages: vec![StageRecord {
-                    stage: "ingest".into(),
-                    params,
-                    tool: crate::tool_version(),
-                    finished_unix: unix_now(),
-                    outputs: vec![entry.key()],
-                    inputs: Vec::new(),
-                }],
+                // The runner records the stage when it commits.
+                stages: Vec::new(),
             },
             layers: vec![entry],
             retired: Vec::new(),
         };
-        Ok(commit_manifest(writer.lock_held(), &manifest)?)
+        Ok(manifest)
     }
 }

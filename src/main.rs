@@ -9,7 +9,7 @@ use clap::Parser;
 use terrabake::asset::{open as open_asset, AssetWriter, Wait};
 use terrabake::cli::{Cli, Command};
 use terrabake::export::export_layer;
-use terrabake::ingest::ingest_into;
+use terrabake::ingest::IngestStage;
 use terrabake::progress::Progress;
 use terrabake::pyramid::PyramidStage;
 use terrabake::recipe::{bake, Recipe};
@@ -74,9 +74,12 @@ fn run(cli: Cli) -> Result<ExitCode> {
             json,
         } => {
             let start = std::time::Instant::now();
-            let writer = AssetWriter::create(&output, wait)?;
-            let manifest =
-                ingest_into(&writer, &src, &opts, progress).inspect_err(|_| writer.fail())?;
+            let stage = IngestStage {
+                src: src.clone(),
+                options: opts,
+            };
+            run_stage_in(&AssetWriter::create(&output, wait)?, &stage, true, progress)?;
+            let manifest = open_asset(&output)?.manifest().clone();
             if json {
                 println!("{}", serde_json::to_string_pretty(&manifest)?);
             }

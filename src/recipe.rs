@@ -20,12 +20,11 @@ use std::path::Path;
 
 use anyhow::{bail, Context, Result};
 use serde::Deserialize;
-use terrabake_format::{Asset, LayerEntry};
 
 use crate::asset::{AssetWriter, Wait};
-use crate::ingest::{ingest_into, ingest_params, IngestOptions};
+use crate::ingest::{IngestOptions, IngestStage};
 use crate::progress::Progress;
-use crate::stage::{already_done, run_stage_in, Stage, StageOutcome};
+use crate::stage::{run_stage_in, Stage, StageOutcome};
 
 /// A recipe file.
 #[derive(Debug, Clone, Default, Deserialize)]
@@ -126,35 +125,16 @@ pub fn bake(
     wait: Wait,
     progress: Progress,
 ) -> Result<Vec<StageOutcome>> {
+    let ingest = IngestStage {
+        src: src.to_path_buf(),
+        options: recipe.ingest_options(),
+    };
+    ingest.check()?;
     let stages = recipe.resolve_stages()?;
-    let opts = recipe.ingest_options();
-    let params = ingest_params(src, &opts)?;
     let writer = AssetWriter::create(dir, wait)?;
-    let current = Asset::open(dir)
-        .ok()
-        .and_then(|a| already_done(a.manifest(), "ingest", &params));
     let mut outcomes = Vec::new();
-    match current {
-        Some(outputs) => outcomes.push(StageOutcome {
-            stage: "ingest".into(),
-            skipped: true,
-            outputs,
-            seconds: 0.0,
-        }),
-        None => {
-            let start = std::time::Instant::now();
-            let manifest =
-                ingest_into(&writer, src, &opts, progress).inspect_err(|_| writer.fail())?;
-            outcomes.push(StageOutcome {
-                stage: "ingest".into(),
-                skipped: false,
-                outputs: manifest.layers.iter().map(LayerEntry::key).collect(),
-                seconds: start.elapsed().as_secs_f64(),
-            });
-        }
-    }
-    for stage in stages {
-        outcomes.push(run_stage_in(&writer, stage.as_ref(), false, progress)?);
+    for stage in std::iter::once(&ingest as &dyn Stage).chain(stages.iter().map(|s| s.as_ref())) {
+        outcomes.push(run_stage_in(&writer, stage, false, progress)?);
     }
     Ok(outcomes)
 }

@@ -1,9 +1,11 @@
 //! The stage interface: a stage reads layers of an asset and writes new
-//! ones, input layers and parameters in, layers out. [`run_stage`] runs one
-//! against an asset directory under its writer lock and records it in the
-//! manifest (`provenance.stages`, with its parameters and outputs); a stage
-//! whose record already matches its parameters, and whose outputs are all
-//! present, is skipped, which makes `bake` resumable.
+//! ones, input layers and parameters in, layers out (ingest, the one stage
+//! that creates the asset, writes its first layer and its manifest).
+//! [`run_stage`] runs one against an asset directory under its writer lock
+//! and records it in the manifest (`provenance.stages`, with its parameters,
+//! inputs and outputs); a stage whose record already matches its
+//! parameters, and whose outputs are all present, is skipped, which makes
+//! `bake` resumable.
 //!
 //! Stages import this module and nothing above it; the registry that knows
 //! every stage by name, and recipes, are in [`crate::recipe`].
@@ -51,6 +53,22 @@ pub trait Stage {
     /// Writes the stage's layers into `dir` (with `terrabake_format::LayerWriter`)
     /// and returns their entries, not yet committed.
     fn run(&self, asset: &Asset<Mmap>, dir: &Path, progress: Progress) -> Result<Vec<LayerEntry>>;
+    /// Whether the stage creates the asset (ingest) rather than adding to
+    /// one: the runner then calls [`Stage::create`], not [`Stage::run`].
+    fn creates_asset(&self) -> bool {
+        false
+    }
+    /// For a stage that creates the asset: writes its layers into `dir` and
+    /// returns the new asset's manifest (its layers in it, no stage records
+    /// yet), not yet committed. Whatever stood there before is replaced at
+    /// the commit.
+    fn create(&self, dir: &Path, progress: Progress) -> Result<terrabake_format::Manifest> {
+        let _ = (dir, progress);
+        anyhow::bail!(
+            "stage '{}' adds to an asset; it does not create one",
+            self.name()
+        )
+    }
 }
 
 /// How far beyond a region a stage reads: a planner or a partitioned bake
@@ -131,11 +149,14 @@ fn write_stage(
     let dir = writer.dir();
     let start = std::time::Instant::now();
     stage.check()?;
-    let asset =
-        Asset::open(dir).with_context(|| format!("{}: cannot open asset", dir.display()))?;
+    let opened = Asset::open(dir);
     let params = stage.params();
     if !force {
-        if let Some(outputs) = already_done(asset.manifest(), stage.name(), &params) {
+        let done = opened
+            .as_ref()
+            .ok()
+            .and_then(|a| already_done(a.manifest(), stage.name(), &params));
+        if let Some(outputs) = done {
             return Ok(StageOutcome {
                 stage: stage.name().into(),
                 skipped: true,
@@ -144,11 +165,17 @@ fn write_stage(
             });
         }
     }
-    let entries = stage
-        .run(&asset, dir, progress)
-        .with_context(|| format!("{}: stage '{}' failed", dir.display(), stage.name()))?;
-    let mut manifest = asset.manifest().clone();
-    drop(asset);
+    let failed = || format!("{}: stage '{}' failed", dir.display(), stage.name());
+    let (mut manifest, entries) = if stage.creates_asset() {
+        drop(opened);
+        let mut manifest = stage.create(dir, progress).with_context(failed)?;
+        let entries = std::mem::take(&mut manifest.layers);
+        (manifest, entries)
+    } else {
+        let asset = opened.with_context(|| format!("{}: cannot open asset", dir.display()))?;
+        let entries = stage.run(&asset, dir, progress).with_context(failed)?;
+        (asset.manifest().clone(), entries)
+    };
     let outputs: Vec<String> = entries.iter().map(LayerEntry::key).collect();
     let declared = stage.outputs(&manifest);
     anyhow::ensure!(
