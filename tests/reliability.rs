@@ -97,26 +97,19 @@ fn bake_cmd(tif: &Path, asset: &Path, recipe: &Path) -> Command {
 fn a_writer_killed_at_every_durable_step_loses_nothing() {
     let dir = tempfile::tempdir().unwrap();
     let (tif, recipe) = dem_and_recipe(dir.path(), "");
-    let (_, recipe2) = {
-        let r2 = dir.path().join("r2.toml");
-        let text = std::fs::read_to_string(&recipe)
-            .unwrap()
-            .replace("sectors = 8\n", "sectors = 8\nencoding = \"f32\"\n");
-        std::fs::write(&r2, text).unwrap();
-        ((), r2)
+    let recipe2 = dir.path().join("r2.toml");
+    let text = std::fs::read_to_string(&recipe)
+        .unwrap()
+        .replace("sectors = 8\n", "sectors = 8\nencoding = \"f32\"\n");
+    std::fs::write(&recipe2, text).unwrap();
+    // The uninterrupted bakes' bytes.
+    let reference = |name: &str, recipe: &Path| {
+        let asset = dir.path().join(name);
+        assert!(bake_cmd(&tif, &asset, recipe).status().unwrap().success());
+        layer_bytes(&asset)
     };
-    let reference = dir.path().join("ref.tbake");
-    assert!(bake_cmd(&tif, &reference, &recipe)
-        .status()
-        .unwrap()
-        .success());
-    let want_first = layer_bytes(&reference);
-    let reference2 = dir.path().join("ref2.tbake");
-    assert!(bake_cmd(&tif, &reference2, &recipe2)
-        .status()
-        .unwrap()
-        .success());
-    let want_second = layer_bytes(&reference2);
+    let want_first = reference("ref.tbake", &recipe);
+    let want_second = reference("ref2.tbake", &recipe2);
 
     let mut points = [0u32; 2];
     let first_recipe = recipe.clone();
