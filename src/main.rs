@@ -170,6 +170,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             );
             let opened = open_asset(&asset)?;
             let tracer = Tracer::new(&opened)?;
+            terrabake::render::require_layers(&tracer, method, &asset)?;
             let mut cam = match (view, camera, look_at) {
                 (Some(v), _, _) => builtin_views(&tracer, &opened)[v as usize - 1],
                 (None, Some(eye), Some(look_at)) => Camera {

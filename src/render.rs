@@ -399,3 +399,25 @@ pub fn write_png(path: &std::path::Path, image: &Image) -> anyhow::Result<()> {
         Ok(())
     })
 }
+
+/// Refuses `method` on an asset without the layers it walks, naming the
+/// asset and the command that adds them.
+pub fn require_layers(
+    tracer: &Tracer<'_, Mmap>,
+    method: Method,
+    asset: &std::path::Path,
+) -> anyhow::Result<()> {
+    let missing = match method {
+        Method::Hierarchical if !tracer.has_pyramid() => Some(("the max pyramid", "pyramid")),
+        Method::Parametric if !tracer.has_cones() => Some(("the cone planes", "cones")),
+        _ => None,
+    };
+    match missing {
+        Some((what, command)) => anyhow::bail!(
+            "{0}: --method {1} needs {what}, which this asset does not have: run `terrabake {command} {0}` first, or choose --method incremental",
+            asset.display(),
+            method.name()
+        ),
+        None => Ok(()),
+    }
+}

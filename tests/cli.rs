@@ -286,6 +286,38 @@ fn errors_name_the_file_and_exit_1() {
         "x.bmp",
     ]);
     assert_eq!(out.status.code(), Some(1));
+
+    // A layer or a stage that is missing: what there is, and what adds it.
+    let tif = dir.path().join("t.tif");
+    ok(&["synth", "fractal", "--size", "40x30", "-o", s(&tif), "-q"]);
+    let bare = dir.path().join("bare.tbake");
+    ok(&["ingest", s(&tif), "-o", s(&bare), "-q"]);
+    let png = dir.path().join("x.png");
+    let out = terrabake(&["export", s(&bare), "--layer", "nosuch", "-o", s(&png)]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(
+        stderr(&out).contains("nosuch@0 (it has height@0)"),
+        "{}",
+        stderr(&out)
+    );
+    for (method, command) in [
+        ("hierarchical", "terrabake pyramid"),
+        ("parametric", "terrabake cones"),
+    ] {
+        let out = terrabake(&[
+            "render",
+            s(&bare),
+            "--view",
+            "1",
+            "--method",
+            method,
+            "-o",
+            s(&png),
+        ]);
+        assert_eq!(out.status.code(), Some(1));
+        let msg = stderr(&out);
+        assert!(msg.contains(command) && msg.contains("bare.tbake"), "{msg}");
+    }
 }
 
 #[test]

@@ -67,8 +67,13 @@ pub enum Error {
         #[source]
         source: std::io::Error,
     },
-    #[error("asset has no layer {name}@{level}")]
-    NoLayer { name: String, level: u32 },
+    #[error("asset has no layer {name}@{level}{}", if available.is_empty() { String::new() } else { format!(" (it has {})", available.join(", ")) })]
+    NoLayer {
+        name: String,
+        level: u32,
+        /// The layers the asset does have, `name@level`, when known.
+        available: Vec<String>,
+    },
     #[error("layer {layer} holds {stored} elements, not {requested}")]
     ElemType {
         layer: String,

@@ -808,6 +808,7 @@ impl<D: AsRef<[u8]>> Asset<D> {
             .ok_or_else(|| Error::NoLayer {
                 name: name.to_string(),
                 level,
+                available: self.layers.iter().map(|l| l.entry.key()).collect(),
             })
     }
 

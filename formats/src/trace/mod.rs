@@ -529,6 +529,7 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
             st.err = Some(Error::NoLayer {
                 name: CONE_SLOPE.into(),
                 level: 0,
+                available: Vec::new(),
             });
             return;
         };
@@ -679,6 +680,7 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
             st.err = Some(Error::NoLayer {
                 name: PYRAMID_MAX.into(),
                 level: 0,
+                available: Vec::new(),
             });
             return;
         };
