@@ -452,10 +452,13 @@ impl WriteLock {
             Err(fs::TryLockError::Error(e)) => return Err(io(e)),
         }
         // Ours now: say who holds it, for the next writer's message.
-        let mut record = || -> std::io::Result<()> {
-            file.set_len(0)?;
-            file.rewind()?;
-            writeln!(file, "{}", std::process::id())
+        // One fixed-width record written in place: a writer waiting on the
+        // lock reads the old holder's pid or ours, never an empty file.
+        let record = || -> std::io::Result<()> {
+            use std::os::unix::fs::FileExt;
+            let line = format!("{:<10}\n", std::process::id());
+            file.write_all_at(line.as_bytes(), 0)?;
+            file.set_len(line.len() as u64)
         };
         record().map_err(io)?;
         Ok(Self {
