@@ -82,3 +82,14 @@ pub fn parse_codec(s: &str) -> Result<Codec, String> {
         _ => Err(format!("{s:?}: expected raw or zstd")),
     }
 }
+
+/// A flag whose values are the names of `all` (listed in `--help`), for an
+/// algorithm enum that knows its names but nothing of clap.
+pub fn named<T: Copy + Send + Sync + 'static>(
+    all: &'static [T],
+    name: fn(T) -> &'static str,
+) -> impl clap::builder::TypedValueParser<Value = T> {
+    use clap::builder::TypedValueParser;
+    clap::builder::PossibleValuesParser::new(all.iter().map(|&v| name(v)))
+        .map(move |s| *all.iter().find(|&&v| name(v) == s).expect("a listed name"))
+}

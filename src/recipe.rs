@@ -58,9 +58,23 @@ impl Recipe {
         Ok(recipe)
     }
 
-    /// The `[ingest]` table (defaults for what it leaves out).
-    pub fn ingest_options(&self) -> IngestOptions {
-        self.ingest.clone()
+    /// Every stage of the recipe, resolved before any work so that a typo
+    /// fails in a second; errors name the file, the step and the key.
+    pub fn resolve_stages(&self) -> Result<Vec<Box<dyn Stage>>> {
+        self.stages
+            .iter()
+            .enumerate()
+            .map(|(i, step)| {
+                stage_from_recipe(step).with_context(|| {
+                    format!(
+                        "{}: [[stage]] number {} (name = \"{}\")",
+                        self.path.display(),
+                        i + 1,
+                        step.name
+                    )
+                })
+            })
+            .collect()
     }
 }
 
@@ -95,27 +109,6 @@ pub fn stage_from_recipe(step: &RecipeStage) -> Result<Box<dyn Stage>> {
     }
 }
 
-impl Recipe {
-    /// Every stage of the recipe, resolved before any work so that a typo
-    /// fails in a second; errors name the file, the step and the key.
-    pub fn resolve_stages(&self) -> Result<Vec<Box<dyn Stage>>> {
-        self.stages
-            .iter()
-            .enumerate()
-            .map(|(i, step)| {
-                stage_from_recipe(step).with_context(|| {
-                    format!(
-                        "{}: [[stage]] number {} (name = \"{}\")",
-                        self.path.display(),
-                        i + 1,
-                        step.name
-                    )
-                })
-            })
-            .collect()
-    }
-}
-
 /// Ingest (unless the asset already is this ingest) and every recipe stage,
 /// all under one hold of the writer lock.
 pub fn bake(
@@ -127,7 +120,7 @@ pub fn bake(
 ) -> Result<Vec<StageOutcome>> {
     let ingest = IngestStage {
         src: src.to_path_buf(),
-        options: recipe.ingest_options(),
+        options: recipe.ingest.clone(),
     };
     ingest.check()?;
     let stages = recipe.resolve_stages()?;

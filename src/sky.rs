@@ -54,13 +54,7 @@ impl SkyLayer {
     }
 
     fn parser() -> impl clap::builder::TypedValueParser<Value = SkyLayer> {
-        use clap::builder::TypedValueParser;
-        clap::builder::PossibleValuesParser::new(Self::ALL.map(Self::name)).map(|s| {
-            *Self::ALL
-                .iter()
-                .find(|l| l.name() == s)
-                .expect("a listed name")
-        })
+        crate::args::named(&Self::ALL, Self::name)
     }
 
     fn elem(self) -> ElemType {

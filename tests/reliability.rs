@@ -24,7 +24,7 @@ fn bin() -> Command {
 }
 
 /// A small synthetic DEM and a recipe that runs every stage on it.
-fn dem_and_recipe(dir: &Path, extra: &str) -> (PathBuf, PathBuf) {
+fn dem_and_recipe(dir: &Path) -> (PathBuf, PathBuf) {
     let tif = dir.join("dem.tif");
     terrabake::synth::write_geotiff(
         &tif,
@@ -35,15 +35,21 @@ fn dem_and_recipe(dir: &Path, extra: &str) -> (PathBuf, PathBuf) {
         terrabake::progress::Progress::hidden(),
     )
     .unwrap();
-    let recipe = dir.join("r.toml");
+    (tif, write_recipe(dir, "r.toml", "sectors = 8"))
+}
+
+/// A recipe `name` in `dir` that runs every stage, the horizons stage with
+/// the keys `horizons`.
+fn write_recipe(dir: &Path, name: &str, horizons: &str) -> PathBuf {
+    let recipe = dir.join(name);
     std::fs::write(
         &recipe,
         format!(
-            "[ingest]\ntile = 16\n\n[[stage]]\nname = \"pyramid\"\n\n[[stage]]\nname = \"cones\"\nslices = 4\n\n[[stage]]\nname = \"horizons\"\nsectors = 8\n{extra}\n[[stage]]\nname = \"sky\"\n"
+            "[ingest]\ntile = 16\n\n[[stage]]\nname = \"pyramid\"\n\n[[stage]]\nname = \"cones\"\nslices = 4\n\n[[stage]]\nname = \"horizons\"\n{horizons}\n\n[[stage]]\nname = \"sky\"\n"
         ),
     )
     .unwrap();
-    (tif, recipe)
+    recipe
 }
 
 /// Every layer's bytes, by `name@level` (file names carry generations).
@@ -75,7 +81,7 @@ fn unnamed_files(asset: &Path) -> Vec<String> {
 /// A temporary directory holding a freshly baked asset (`a.tbake`).
 fn baked() -> (tempfile::TempDir, PathBuf) {
     let dir = tempfile::tempdir().unwrap();
-    let (tif, recipe) = dem_and_recipe(dir.path(), "");
+    let (tif, recipe) = dem_and_recipe(dir.path());
     let asset = dir.path().join("a.tbake");
     assert!(bake_cmd(&tif, &asset, &recipe).status().unwrap().success());
     (dir, asset)
@@ -96,12 +102,8 @@ fn bake_cmd(tif: &Path, asset: &Path, recipe: &Path) -> Command {
 #[test]
 fn a_writer_killed_at_every_durable_step_loses_nothing() {
     let dir = tempfile::tempdir().unwrap();
-    let (tif, recipe) = dem_and_recipe(dir.path(), "");
-    let recipe2 = dir.path().join("r2.toml");
-    let text = std::fs::read_to_string(&recipe)
-        .unwrap()
-        .replace("sectors = 8\n", "sectors = 8\nencoding = \"f32\"\n");
-    std::fs::write(&recipe2, text).unwrap();
+    let (tif, recipe) = dem_and_recipe(dir.path());
+    let recipe2 = write_recipe(dir.path(), "r2.toml", "sectors = 8\nencoding = \"f32\"");
     // The uninterrupted bakes' bytes.
     let reference = |name: &str, recipe: &Path| {
         let asset = dir.path().join(name);
@@ -627,12 +629,8 @@ fn a_closed_pipe_ends_commands_quietly() {
 #[test]
 fn bakes_are_deterministic() {
     let dir = tempfile::tempdir().unwrap();
-    let (tif, recipe) = dem_and_recipe(dir.path(), "");
-    let recipe64 = dir.path().join("r64.toml");
-    let text = std::fs::read_to_string(&recipe)
-        .unwrap()
-        .replace("sectors = 8", "sectors = 64");
-    std::fs::write(&recipe64, text).unwrap();
+    let (tif, _) = dem_and_recipe(dir.path());
+    let recipe64 = write_recipe(dir.path(), "r64.toml", "sectors = 64");
     let mut first = None;
     for (i, threads) in ["1", "2", "2", "3", "2"].iter().enumerate() {
         let asset = dir.path().join(format!("d{i}.tbake"));

@@ -631,11 +631,9 @@ impl Asset<Mmap> {
         }
     }
 
+    /// Maps the layers of `manifest`, which [`parse_manifest`] has
+    /// validated: every name was checked before the first file is opened.
     fn map_layers(dir: &Path, manifest: Manifest, cache_bytes: u64) -> Result<Self> {
-        // Every name is checked before the first file is opened.
-        manifest
-            .validate()
-            .map_err(|what| Error::malformed(Location::file(dir.join(MANIFEST_FILE)), what))?;
         let mut files = HashMap::new();
         for layer in &manifest.layers {
             files.insert(layer.file.clone(), map_file(&dir.join(&layer.file))?);
@@ -646,6 +644,18 @@ impl Asset<Mmap> {
 
 /// How many times [`Asset::open`] starts again when commits race it.
 pub const OPEN_ATTEMPTS: u32 = 16;
+
+/// The manifest committed in `dir`, parsed but not validated (a writer
+/// learning which files an older manifest named); `None` when there is no
+/// manifest yet.
+pub(crate) fn committed_manifest(dir: &Path) -> Result<Option<Manifest>> {
+    let path = dir.join(MANIFEST_FILE);
+    match read_file(&path) {
+        Err(Error::Io { source, .. }) if source.kind() == std::io::ErrorKind::NotFound => Ok(None),
+        Err(e) => Err(e),
+        Ok(bytes) => parse_manifest_unchecked(&path, &bytes).map(Some),
+    }
+}
 
 /// The manifest file's bytes (small: read, not mapped, so that a writer's
 /// rename can never change them under us).
@@ -685,7 +695,7 @@ pub fn parse_manifest(path: &Path, bytes: &[u8]) -> Result<Manifest> {
 
 /// [`parse_manifest`] without [`Manifest::validate`]: what a writer needs
 /// to learn which files an older manifest named.
-pub(crate) fn parse_manifest_unchecked(path: &Path, bytes: &[u8]) -> Result<Manifest> {
+fn parse_manifest_unchecked(path: &Path, bytes: &[u8]) -> Result<Manifest> {
     let at = || Location::file(path);
     if bytes.len() < MANIFEST_HEADER_LEN {
         return Err(Error::malformed(

@@ -488,20 +488,9 @@ impl WriteLock {
     /// the manifest exists but cannot be parsed, nothing is touched, since
     /// nothing can then tell garbage from the asset.
     pub fn reclaim_garbage(&self) -> Result<Vec<String>> {
-        let path = self.dir.join(MANIFEST_FILE);
-        let mut bytes = Vec::new();
-        match crate::fsio::open_regular(&path) {
-            Err(Error::Io { source, .. }) if source.kind() == std::io::ErrorKind::NotFound => {
-                self.reclaim(None)
-            }
+        match crate::reader::committed_manifest(&self.dir) {
+            Ok(manifest) => self.reclaim(manifest.as_ref()),
             Err(_) => Ok(Vec::new()),
-            Ok(mut file) => match file.read_to_end(&mut bytes) {
-                Ok(_) => match crate::reader::parse_manifest_unchecked(&path, &bytes) {
-                    Ok(m) => self.reclaim(Some(&m)),
-                    Err(_) => Ok(Vec::new()),
-                },
-                Err(_) => Ok(Vec::new()),
-            },
         }
     }
 
@@ -517,7 +506,7 @@ impl WriteLock {
                 let retired = m
                     .retired
                     .iter()
-                    .filter(|r| now < r.since_unix.saturating_add(self.grace.as_secs()))
+                    .filter(|r| in_grace(r, now, self.grace))
                     .map(|r| r.file.as_str());
                 layers.chain(retired).collect()
             })
@@ -565,6 +554,11 @@ fn holder_pid(file: &mut File) -> Option<u32> {
     file.rewind().ok()?;
     file.take(32).read_to_string(&mut text).ok()?;
     text.trim().parse().ok()
+}
+
+/// Whether a retired file is still within its grace at `now` (seconds).
+fn in_grace(r: &Retired, now: u64, grace: Duration) -> bool {
+    now < r.since_unix.saturating_add(grace.as_secs())
 }
 
 fn unix_now() -> u64 {
@@ -630,15 +624,7 @@ pub fn commit_manifest(lock: &WriteLock, manifest: &Manifest) -> Result<Manifest
 /// the committed one's files that `next` no longer names (retired now), and
 /// its retired files still within their grace.
 fn retire(dir: &Path, next: &Manifest, grace: Duration) -> Vec<Retired> {
-    let path = dir.join(MANIFEST_FILE);
-    let Some(current) = crate::fsio::open_regular(&path)
-        .ok()
-        .and_then(|mut f| {
-            let mut bytes = Vec::new();
-            f.read_to_end(&mut bytes).ok().map(|_| bytes)
-        })
-        .and_then(|bytes| crate::reader::parse_manifest_unchecked(&path, &bytes).ok())
-    else {
+    let Ok(Some(current)) = crate::reader::committed_manifest(dir) else {
         return Vec::new();
     };
     let named: HashSet<&str> = next.layers.iter().map(|l| l.file.as_str()).collect();
@@ -650,8 +636,7 @@ fn retire(dir: &Path, next: &Manifest, grace: Duration) -> Vec<Retired> {
             file: l.file,
             since_unix: now,
         }))
-        .filter(|r| now < r.since_unix.saturating_add(grace.as_secs()))
-        .filter(|r| !named.contains(r.file.as_str()))
+        .filter(|r| in_grace(r, now, grace) && !named.contains(r.file.as_str()))
         .collect();
     retired.sort_by(|a, b| a.file.cmp(&b.file));
     retired.dedup_by(|a, b| a.file == b.file);

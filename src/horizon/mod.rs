@@ -77,9 +77,7 @@ impl Method {
 
     /// The command line's parser: the names listed in `--help`.
     pub fn parser() -> impl clap::builder::TypedValueParser<Value = Method> {
-        use clap::builder::TypedValueParser;
-        clap::builder::PossibleValuesParser::new(Self::ALL.map(Self::name))
-            .map(|s| s.parse::<Method>().expect("a listed name"))
+        crate::args::named(&Self::ALL, Self::name)
     }
 
     pub fn name(self) -> &'static str {
@@ -567,17 +565,22 @@ impl Stage for HorizonsStage {
             // and any number of threads.
             let threads = rayon::current_num_threads();
             for (b, batch) in bands.chunks(OUT_OF_CORE_BATCH).enumerate() {
+                // Each sweep with its row bands, in the order it must take them.
                 let sweeps: Vec<_> = batch
                     .iter()
-                    .map(|band| self.row_bands(band, (w, h), (dx, dy), row_scale, nodata))
+                    .map(|band| {
+                        let sweep = self.row_bands(band, (w, h), (dx, dy), row_scale, nodata);
+                        let rows = sweep.bands(ts);
+                        (sweep, rows)
+                    })
                     .collect();
                 let steps = crate::tiling::row_bands(h, ts).len();
                 crate::ordered::steps_in_order(
                     sweeps,
                     steps,
                     threads,
-                    |sweep, k| {
-                        let rows = sweep.bands(ts)[k].clone();
+                    |(sweep, bands), k| {
+                        let rows = bands[k].clone();
                         let window = sweep.window(&rows);
                         let mut rows_buf = vec![0f32; window.len() * w];
                         height.read_window(
