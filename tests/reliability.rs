@@ -448,15 +448,20 @@ fn the_reader_checks_names_and_opens_only_regular_files() {
     }
 }
 
-/// Runs terrabake and fails the test if it takes more than 20 s (a FIFO
-/// opened for reading would block forever).
-fn run_with_deadline(args: &[&str]) -> std::process::Output {
-    let mut child = bin()
+/// terrabake with `args`, its stdout and stderr piped.
+fn spawn_piped(args: &[&str]) -> std::process::Child {
+    bin()
         .args(args)
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
-        .unwrap();
+        .unwrap()
+}
+
+/// Runs terrabake and fails the test if it takes more than 20 s (a FIFO
+/// opened for reading would block forever).
+fn run_with_deadline(args: &[&str]) -> std::process::Output {
+    let mut child = spawn_piped(args);
     let start = Instant::now();
     while child.try_wait().unwrap().is_none() {
         if start.elapsed() > Duration::from_secs(20) {
@@ -599,12 +604,7 @@ fn a_closed_pipe_ends_commands_quietly() {
         ["verify", s(&asset), "--json"],
     ] {
         for _ in 0..5 {
-            let mut child = bin()
-                .args(args)
-                .stdout(Stdio::piped())
-                .stderr(Stdio::piped())
-                .spawn()
-                .unwrap();
+            let mut child = spawn_piped(&args);
             // Close the read end before the command writes.
             drop(child.stdout.take());
             let out = child.wait_with_output().unwrap();
