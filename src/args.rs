@@ -57,6 +57,14 @@ pub fn parse_positive(s: &str) -> Result<f64, String> {
     }
 }
 
+/// A field of view in degrees, strictly between 0 and 180.
+pub fn parse_fov(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v > 0.0 && v < 180.0 => Ok(v),
+        _ => Err(format!("{s:?} is not between 0 and 180 degrees")),
+    }
+}
+
 pub fn parse_on_off(s: &str) -> Result<bool, String> {
     match s {
         "on" => Ok(true),

@@ -237,7 +237,7 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
         #[arg(long, value_parser = clap::value_parser!(u32).range(1..=16))]
         view: Option<u32>,
         /// Horizontal field of view, degrees (built-in views use 104).
-        #[arg(long)]
+        #[arg(long, value_parser = crate::args::parse_fov)]
         fov: Option<f64>,
         /// Image size WIDTHxHEIGHT.
         #[arg(long, value_parser = parse_size, default_value = "800x600")]
@@ -260,7 +260,7 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
         #[arg(long, conflicts_with = "no_shadows")]
         horizon_shadows: bool,
         /// Vertical exaggeration (camera heights are then in exaggerated metres).
-        #[arg(long, default_value_t = 1.0)]
+        #[arg(long, default_value_t = 1.0, value_parser = crate::args::parse_positive)]
         exaggerate: f64,
         #[arg(short, long)]
         output: PathBuf,
@@ -274,6 +274,16 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
     /// Benchmark the tracers on the sixteen built-in views, side by side (Paglieroni's Table 1).
     BenchViews(crate::bench::views::BenchViewsArgs),
     /// Ingest a DEM and run every stage of a recipe, skipping work already done.
+    ///
+    /// With --parts N --part I, bake only part I of N (0-based) into OUTPUT.parts/, for a
+    /// scheduler to run the N parts anywhere (Slurm array tasks, Kubernetes indexed jobs,
+    /// make -j); `terrabake assemble OUTPUT` then joins them. The result is the same, bit for
+    /// bit, as one bake (docs/SCALE.md says which stage splits how).
+    #[command(
+        after_help = "Examples:\n  terrabake bake dem.tif -o dem.tbake --recipe pipelines/demo.toml\n  \
+for i in 0 1 2 3; do terrabake bake dem.tif -o dem.tbake --recipe pipelines/demo.toml --parts 4 --part $i; done\n  \
+terrabake assemble dem.tbake"
+    )]
     Bake {
         src: PathBuf,
         #[arg(short, long)]
@@ -281,6 +291,26 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
         /// A recipe from pipelines/ (TOML): ingest options and stages.
         #[arg(long)]
         recipe: PathBuf,
+        /// Cut the bake into this many parts (with --part).
+        #[arg(long, value_name = "N", requires = "part")]
+        parts: Option<u32>,
+        /// Bake only this part, 0 to N - 1 (with --parts).
+        #[arg(long, value_name = "I", requires = "parts")]
+        part: Option<u32>,
+        #[arg(long)]
+        json: bool,
+    },
+    /// Join the parts of a partitioned bake (OUTPUT.parts/) into the asset.
+    ///
+    /// Checks that every part is there, finished and baked with the same recipe and source,
+    /// copies each part's chunks into the asset's layers (checksummed, not decoded), commits
+    /// the manifest once, then runs the stages left to the join (the pyramid, cones). A
+    /// missing or damaged part is named and nothing is committed.
+    Assemble {
+        asset: PathBuf,
+        /// Keep OUTPUT.parts/ after a successful join.
+        #[arg(long)]
+        keep_parts: bool,
         #[arg(long)]
         json: bool,
     },

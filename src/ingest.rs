@@ -25,7 +25,7 @@ use terrabake_format::{
 use crate::asset::{AssetWriter, Wait};
 use crate::progress::Progress;
 use crate::source::{self, parse_nodata, ByteOrder, HeightMapping, RawSampleType, RawSpec};
-use crate::stage::{run_stage_in, Stage};
+use crate::stage::{run_stage_in, Share, Stage};
 use crate::tiling::push_tile_row;
 
 /// Default tile edge: 256 x 256 f32 = 256 KiB, a good unit for mmap paging,
@@ -194,8 +194,10 @@ impl Stage for IngestStage {
         bail!("ingest creates an asset: it runs through Stage::create")
     }
 
-    fn create(&self, dir: &Path, progress: Progress) -> Result<Manifest> {
-        write_heights(dir, &self.src, &self.options, progress)
+    /// Rows outside the share are not read (but for PNG, which has no
+    /// index) and hold NaN, counted as nodata.
+    fn create(&self, dir: &Path, share: &Share, progress: Progress) -> Result<Manifest> {
+        write_heights(dir, &self.src, &self.options, share, progress)
     }
 }
 
@@ -232,17 +234,19 @@ fn write_heights(
     asset_dir: &Path,
     src: &Path,
     opts: &IngestOptions,
+    share: &Share,
     progress: Progress,
 ) -> Result<Manifest> {
     let mut source = source::open(src, opts.raw().as_ref(), opts.tile_size, opts.max_memory)?;
     let info = source.info().clone();
+    let mut manifest = describe(src, &info, opts)?;
     {
-        let nodata_text = match opts.nodata {
-            Some(v) => Some(v.to_string()),
-            None => info.nodata.clone(),
-        };
         let map = HeightMapping {
-            nodata: nodata_text.as_deref().and_then(parse_nodata),
+            nodata: manifest
+                .nodata
+                .source_value
+                .as_deref()
+                .and_then(parse_nodata),
             scale: opts.z_scale,
             offset: opts.z_offset,
         };
@@ -262,10 +266,17 @@ fn write_heights(
         let mut layer = LayerWriter::create(asset_dir, spec)?;
         let (width, ts) = (info.width as usize, opts.tile_size);
         let mut band = vec![0f32; width * ts.min(info.height) as usize];
-        let (mut nodata_count, mut min, mut max) = (0u64, f32::INFINITY, f32::NEG_INFINITY);
+        let mut stats = HeightStats::default();
+        let wanted = share.rows(info.height as usize);
         let bar = progress.bar(u64::from(info.height), "ingest", "rows");
         for y0 in (0..info.height).step_by(ts as usize) {
             let rows = ts.min(info.height - y0) as usize;
+            if y0 as usize >= wanted.end || y0 as usize + rows <= wanted.start {
+                stats.nodata += (rows * width) as u64;
+                crate::tiling::push_fill_row(&mut layer)?;
+                bar.inc(rows as u64);
+                continue;
+            }
             let band = &mut band[..rows * width];
             source.read_rows(y0, band, &map).with_context(|| {
                 format!(
@@ -274,75 +285,134 @@ fn write_heights(
                     y0 as usize + rows
                 )
             })?;
-            for &z in band.iter() {
-                if z.is_nan() {
-                    nodata_count += 1;
-                } else {
-                    min = min.min(z);
-                    max = max.max(z);
-                }
-            }
+            stats.add(band);
             push_tile_row(&mut layer, band, width, f32::NAN, opts.codec)?;
             bar.inc(rows as u64);
         }
         bar.finish_and_clear();
-        let entry = layer.finish()?;
-        let cell_size = match (opts.cell_size, &info.georef) {
-            (Some((dx, dy)), _) => CellSize {
-                dx,
-                dy,
-                source: "given".into(),
-            },
-            (None, Some(g)) => crate::geo::cell_size(g, info.height, info.linear_unit_m),
-            (None, None) => CellSize {
-                dx: 1.0,
-                dy: 1.0,
-                source: "assumed".into(),
-            },
-        };
-        let (lo, hi) = terrabake_format::manifest::CELL_SIZE_RANGE;
-        if !(lo..=hi).contains(&cell_size.dx) || !(lo..=hi).contains(&cell_size.dy) {
-            bail!(
-                "{}: post spacing {} x {} m ({}) is outside {lo:e}..={hi:e} m; give the spacing with --cell-size",
-                src.display(),
-                cell_size.dx,
-                cell_size.dy,
-                cell_size.source
-            );
-        }
-        let manifest = Manifest {
-            format_version: FORMAT_VERSION,
-            width: info.width,
-            height: info.height,
-            tile_size: ts,
-            cell_size,
-            georef: info.georef.clone(),
-            vertical: Vertical {
-                units: info
-                    .vertical_units
-                    .clone()
-                    .unwrap_or_else(|| "metre".into()),
-                scale: opts.z_scale,
-                offset: opts.z_offset,
-            },
-            nodata: Nodata {
-                source_value: nodata_text,
-                count: nodata_count,
-            },
-            height_range: (min <= max).then_some(HeightRange { min, max }),
-            provenance: Provenance {
-                source: src.display().to_string(),
-                source_len: fs::metadata(src)
-                    .with_context(|| format!("{}: cannot read", src.display()))?
-                    .len(),
-                source_format: info.format.into(),
-                tool: crate::tool_version(),
-                // The runner records the stage when it commits.
-                stages: Vec::new(),
-            },
-            layers: vec![entry],
-            retired: Vec::new(),
-        };
+        manifest.layers = vec![layer.finish()?];
+        manifest.nodata.count = stats.nodata;
+        manifest.height_range = stats.range();
         Ok(manifest)
+    }
+}
+
+/// The manifest an ingest of `src` (header `info`) with `opts` writes,
+/// before its layer and the heights' statistics: geometry, georeferencing,
+/// vertical units and provenance, from the header alone. A partitioned bake
+/// plans its parts from it before any part reads a row.
+pub fn describe(src: &Path, info: &source::SourceInfo, opts: &IngestOptions) -> Result<Manifest> {
+    let nodata_text = match opts.nodata {
+        Some(v) => Some(v.to_string()),
+        None => info.nodata.clone(),
+    };
+    let cell_size = match (opts.cell_size, &info.georef) {
+        (Some((dx, dy)), _) => CellSize {
+            dx,
+            dy,
+            source: "given".into(),
+        },
+        (None, Some(g)) => crate::geo::cell_size(g, info.height, info.linear_unit_m),
+        (None, None) => CellSize {
+            dx: 1.0,
+            dy: 1.0,
+            source: "assumed".into(),
+        },
+    };
+    let (lo, hi) = terrabake_format::manifest::CELL_SIZE_RANGE;
+    if !(lo..=hi).contains(&cell_size.dx) || !(lo..=hi).contains(&cell_size.dy) {
+        bail!(
+            "{}: post spacing {} x {} m ({}) is outside {lo:e}..={hi:e} m; give the spacing with --cell-size",
+            src.display(),
+            cell_size.dx,
+            cell_size.dy,
+            cell_size.source
+        );
+    }
+    Ok(Manifest {
+        format_version: FORMAT_VERSION,
+        width: info.width,
+        height: info.height,
+        tile_size: opts.tile_size,
+        cell_size,
+        georef: info.georef.clone(),
+        vertical: Vertical {
+            units: info
+                .vertical_units
+                .clone()
+                .unwrap_or_else(|| "metre".into()),
+            scale: opts.z_scale,
+            offset: opts.z_offset,
+        },
+        nodata: Nodata {
+            source_value: nodata_text,
+            count: 0,
+        },
+        height_range: None,
+        provenance: Provenance {
+            source: src.display().to_string(),
+            source_len: fs::metadata(src)
+                .with_context(|| format!("{}: cannot read", src.display()))?
+                .len(),
+            source_format: info.format.into(),
+            tool: crate::tool_version(),
+            // The runner records the stage when it commits.
+            stages: Vec::new(),
+        },
+        layers: Vec::new(),
+        retired: Vec::new(),
+    })
+}
+
+/// Nodata count and height range of heights seen so far (the manifest's).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HeightStats {
+    pub nodata: u64,
+    pub min: f32,
+    pub max: f32,
+}
+
+impl Default for HeightStats {
+    fn default() -> Self {
+        Self {
+            nodata: 0,
+            min: f32::INFINITY,
+            max: f32::NEG_INFINITY,
+        }
+    }
+}
+
+impl HeightStats {
+    pub fn add(&mut self, heights: &[f32]) {
+        for &z in heights {
+            if z.is_nan() {
+                self.nodata += 1;
+            } else {
+                self.min = self.min.min(z);
+                self.max = self.max.max(z);
+            }
+        }
+    }
+
+    pub fn merge(self, other: Self) -> Self {
+        Self {
+            nodata: self.nodata + other.nodata,
+            min: self.min.min(other.min),
+            max: self.max.max(other.max),
+        }
+    }
+
+    /// Statistics of `nodata` nodata posts and heights over `range`.
+    pub fn from_range(nodata: u64, range: Option<HeightRange>) -> Self {
+        let (min, max) = range.map_or((f32::INFINITY, f32::NEG_INFINITY), |r| (r.min, r.max));
+        Self { nodata, min, max }
+    }
+
+    /// The manifest's height range (none when every post is nodata).
+    pub fn range(&self) -> Option<HeightRange> {
+        (self.min <= self.max).then_some(HeightRange {
+            min: self.min,
+            max: self.max,
+        })
     }
 }

@@ -45,6 +45,7 @@ pub mod geo;
 pub mod horizon;
 pub mod ingest;
 pub mod ordered;
+pub mod partition;
 pub mod progress;
 pub mod pyramid;
 pub mod recipe;

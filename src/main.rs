@@ -10,6 +10,7 @@ use terrabake::asset::{open as open_asset, AssetWriter, Wait};
 use terrabake::cli::{Cli, Command};
 use terrabake::export::export_layer;
 use terrabake::ingest::IngestStage;
+use terrabake::partition::{assemble, bake_part, Part};
 use terrabake::progress::Progress;
 use terrabake::pyramid::PyramidStage;
 use terrabake::recipe::{bake, Recipe};
@@ -61,6 +62,13 @@ fn run(cli: Cli) -> Result<ExitCode> {
             println!("{}", serde_json::to_string_pretty(outcome)?);
         }
         say(describe_outcome(outcome));
+        Ok(())
+    };
+    let report_all = |outcomes: &[StageOutcome], json: bool| -> Result<()> {
+        if json {
+            println!("{}", serde_json::to_string_pretty(outcomes)?);
+        }
+        outcomes.iter().for_each(|o| say(describe_outcome(o)));
         Ok(())
     };
     match cli.command {
@@ -164,10 +172,6 @@ fn run(cli: Cli) -> Result<ExitCode> {
             stats,
             json,
         } => {
-            anyhow::ensure!(
-                exaggerate > 0.0 && exaggerate.is_finite(),
-                "--exaggerate {exaggerate} must be a positive number"
-            );
             let opened = open_asset(&asset)?;
             let tracer = Tracer::new(&opened)?;
             terrabake::render::require_layers(&tracer, method, &asset)?;
@@ -180,13 +184,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 },
                 _ => bail!("give --view N, or --camera X,Y,Z and --look-at X,Y,Z"),
             };
-            if let Some(f) = fov {
-                anyhow::ensure!(
-                    f > 0.0 && f < 180.0,
-                    "--fov {f} is not between 0 and 180 degrees"
-                );
-                cam.fov = f;
-            }
+            cam.fov = fov.unwrap_or(cam.fov);
             let opts = RenderOptions {
                 width: size.0,
                 height: size.1,
@@ -210,10 +208,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
                     )?
                 );
             } else if stats {
-                println!(
-                    "{}: {} primary + {} shadow rays in {:.3} s on {} threads: {:.0} rays/s; per primary ray {:.2} steps, {:.2} cells, {:.2} nodes pushed",
-                    method.name(), st.primary_rays, st.shadow_rays, st.seconds, st.threads, st.rays_per_second, st.mean_steps, st.mean_cells, st.mean_nodes_pushed
-                );
+                println!("{}", terrabake::report::render_stats(method.name(), &st));
             }
             say(format!("wrote {}", output.display()));
         }
@@ -282,17 +277,24 @@ fn run(cli: Cli) -> Result<ExitCode> {
             src,
             output,
             recipe,
+            parts,
+            part,
             json,
         } => {
-            let recipe_data = Recipe::load(&recipe)?;
-            let outcomes = bake(&src, &output, &recipe_data, wait, progress)?;
-            if json {
-                println!("{}", serde_json::to_string_pretty(&outcomes)?);
-            }
-            for o in &outcomes {
-                say(describe_outcome(o));
-            }
+            let recipe = Recipe::load(&recipe)?;
+            let outcomes = match (part, parts) {
+                (Some(i), Some(n)) => {
+                    bake_part(&src, &output, &recipe, Part::new(i, n)?, wait, progress)?
+                }
+                _ => bake(&src, &output, &recipe, wait, progress)?,
+            };
+            report_all(&outcomes, json)?;
         }
+        Command::Assemble {
+            asset,
+            keep_parts,
+            json,
+        } => report_all(&assemble(&asset, keep_parts, wait, progress)?, json)?,
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -189,6 +189,14 @@ impl Stage for PyramidStage {
         crate::stage::Reach::Posts(1)
     }
 
+    /// Level 0 could split by rows, but every level above it is a reduction
+    /// of the one below across part boundaries, and the whole pyramid costs
+    /// about what copying its chunks from the parts would (one read of the
+    /// heights, one write of the levels): the join builds it.
+    fn split(&self, _: &terrabake_format::Manifest) -> crate::stage::Split {
+        crate::stage::Split::Join
+    }
+
     fn run(&self, asset: &Asset<Mmap>, dir: &Path, progress: Progress) -> Result<Vec<LayerEntry>> {
         let height = asset.height()?;
         let (w, h, ts) = (height.width(), height.height(), height.tile_size());

@@ -33,6 +33,10 @@ pub struct Recipe {
     /// Where the recipe was read from (for messages).
     #[serde(skip)]
     pub path: std::path::PathBuf,
+    /// The recipe as written (a partitioned bake's parts carry it to the
+    /// join, which reads it again).
+    #[serde(skip)]
+    pub text: String,
     #[serde(default)]
     pub description: String,
     #[serde(default)]
@@ -52,10 +56,24 @@ impl Recipe {
     pub fn load(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("{}: cannot read recipe", path.display()))?;
+        Self::parse(path, text)
+    }
+
+    /// The recipe `text`, read from `path` (named in messages).
+    pub fn parse(path: &Path, text: String) -> Result<Self> {
         let mut recipe: Recipe =
             toml::from_str(&text).with_context(|| format!("{}: invalid recipe", path.display()))?;
         recipe.path = path.to_path_buf();
+        recipe.text = text;
         Ok(recipe)
+    }
+
+    /// The ingest stage of this recipe for `src`.
+    pub fn ingest_stage(&self, src: &Path) -> IngestStage {
+        IngestStage {
+            src: src.to_path_buf(),
+            options: self.ingest.clone(),
+        }
     }
 
     /// Every stage of the recipe, resolved before any work so that a typo
@@ -118,10 +136,7 @@ pub fn bake(
     wait: Wait,
     progress: Progress,
 ) -> Result<Vec<StageOutcome>> {
-    let ingest = IngestStage {
-        src: src.to_path_buf(),
-        options: recipe.ingest.clone(),
-    };
+    let ingest = recipe.ingest_stage(src);
     ingest.check()?;
     let stages = recipe.resolve_stages()?;
     let writer = AssetWriter::create(dir, wait)?;

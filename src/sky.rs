@@ -22,8 +22,8 @@ use crate::horizon::sky::{BandIntegrals, SkySums};
 use crate::horizon::terrain::{RowScale, Terrain};
 use crate::horizon::{band_bounds, post_layer, HorizonsStage};
 use crate::progress::Progress;
-use crate::stage::Stage;
-use crate::tiling::push_tile_row;
+use crate::stage::{Share, Stage};
+use crate::tiling::{push_fill_row, push_tile_row};
 
 /// One of the layers the stage can write.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -145,6 +145,17 @@ impl Stage for SkyStage {
     }
 
     fn run(&self, asset: &Asset<Mmap>, dir: &Path, progress: Progress) -> Result<Vec<LayerEntry>> {
+        self.run_share(asset, dir, &Share::All, progress)
+    }
+
+    /// Tile rows outside the share's rows are not computed.
+    fn run_share(
+        &self,
+        asset: &Asset<Mmap>,
+        dir: &Path,
+        share: &Share,
+        progress: Progress,
+    ) -> Result<Vec<LayerEntry>> {
         let horizons = HorizonsStage::recorded(asset)
             .context("the asset has no horizons record; run `terrabake horizons` first")?;
         let m = asset.manifest();
@@ -183,8 +194,16 @@ impl Stage for SkyStage {
             })
             .collect::<Result<Vec<_>>>()?;
         let bar = progress.bar(h.div_ceil(ts) as u64, "sky layers", "tile rows");
+        let wanted = share.rows(h);
         for y0 in (0..h).step_by(ts) {
             let rows = ts.min(h - y0);
+            if y0 >= wanted.end || y0 + rows <= wanted.start {
+                for (_, writer) in &mut writers {
+                    push_fill_row(writer)?;
+                }
+                bar.inc(1);
+                continue;
+            }
             let (r0, r1) = (y0.saturating_sub(1), (y0 + rows + 1).min(h));
             let mut z = vec![0f32; (r1 - r0) * w];
             height.read_window(0, 0, r0 as u32, w as u32, (r1 - r0) as u32, &mut z)?;

@@ -50,6 +50,30 @@ pub trait Stage {
         let _ = manifest;
         Reach::Whole
     }
+    /// How a partitioned bake divides the stage among its parts
+    /// (docs/SCALE.md). By default what the reach allows: a stage that
+    /// reads a bounded distance splits by rows, one that reads the whole
+    /// DEM runs at the join.
+    fn split(&self, manifest: &terrabake_format::Manifest) -> Split {
+        match self.reach(manifest) {
+            Reach::Posts(halo) => Split::Rows { halo },
+            Reach::Whole => Split::Join,
+        }
+    }
+    /// [`Stage::run`] for one part of a partitioned bake: the outputs'
+    /// chunks in `share` must be exact; the others may hold the layers'
+    /// fill value. By default the whole stage runs (correct, and as slow
+    /// as one machine).
+    fn run_share(
+        &self,
+        asset: &Asset<Mmap>,
+        dir: &Path,
+        share: &Share,
+        progress: Progress,
+    ) -> Result<Vec<LayerEntry>> {
+        let _ = share;
+        self.run(asset, dir, progress)
+    }
     /// Writes the stage's layers into `dir` (with `terrabake_format::LayerWriter`)
     /// and returns their entries, not yet committed.
     fn run(&self, asset: &Asset<Mmap>, dir: &Path, progress: Progress) -> Result<Vec<LayerEntry>>;
@@ -61,9 +85,14 @@ pub trait Stage {
     /// For a stage that creates the asset: writes its layers into `dir` and
     /// returns the new asset's manifest (its layers in it, no stage records
     /// yet), not yet committed. Whatever stood there before is replaced at
-    /// the commit.
-    fn create(&self, dir: &Path, progress: Progress) -> Result<terrabake_format::Manifest> {
-        let _ = (dir, progress);
+    /// the commit. Chunks outside `share` may hold the fill value.
+    fn create(
+        &self,
+        dir: &Path,
+        share: &Share,
+        progress: Progress,
+    ) -> Result<terrabake_format::Manifest> {
+        let _ = (dir, share, progress);
         anyhow::bail!(
             "stage '{}' adds to an asset; it does not create one",
             self.name()
@@ -82,6 +111,60 @@ pub enum Reach {
     Posts(u32),
     /// The whole DEM (distance transforms, unbounded horizons).
     Whole,
+}
+
+/// How a partitioned bake divides a stage ([`Stage::split`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Split {
+    /// Each part computes its own tile rows of every output, reading this
+    /// many posts beyond them.
+    Rows { halo: u32 },
+    /// Each part computes its share of the outputs' bands (directions),
+    /// each over the whole DEM.
+    Bands,
+    /// The join runs the stage whole, once the parts are in.
+    Join,
+}
+
+/// What one part of a partitioned bake computes of a stage's outputs.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Share {
+    /// Everything (a bake on one machine).
+    All,
+    /// Every band of these rows of posts (whole tile rows, but the last).
+    Rows(std::ops::Range<usize>),
+    /// Bands `count * part / parts .. count * (part + 1) / parts` of a
+    /// layer of `count` bands, every row.
+    Bands { part: u32, parts: u32 },
+}
+
+impl Share {
+    /// The rows of a `height`-row layer this share computes.
+    pub fn rows(&self, height: usize) -> std::ops::Range<usize> {
+        match self {
+            Share::Rows(rows) => rows.start.min(height)..rows.end.min(height),
+            Share::All | Share::Bands { .. } => 0..height,
+        }
+    }
+
+    /// The bands of a `count`-band layer this share computes.
+    pub fn bands(&self, count: usize) -> std::ops::Range<usize> {
+        match *self {
+            Share::Bands { part, parts } => {
+                let at = |p: u32| count * p as usize / parts as usize;
+                at(part)..at(part + 1)
+            }
+            Share::All | Share::Rows(_) => 0..count,
+        }
+    }
+
+    /// Whether tile row `ty` (tiles of `ts` rows) of band `band` of a layer
+    /// of `bands` bands is in the share.
+    pub fn holds(&self, band: usize, bands: usize, ty: usize, ts: usize) -> bool {
+        let rows = self.rows(usize::MAX);
+        self.bands(bands).contains(&band) && ty * ts < rows.end && (ty + 1) * ts > rows.start
+    }
 }
 
 /// What happened to a stage.
@@ -133,7 +216,19 @@ pub fn run_stage_in(
     force: bool,
     progress: Progress,
 ) -> Result<StageOutcome> {
-    let result = write_stage(writer, stage, force, progress);
+    run_share_in(writer, stage, &Share::All, force, progress)
+}
+
+/// [`run_stage_in`] for one share of the stage's outputs (a part of a
+/// partitioned bake, in the part's own asset).
+pub fn run_share_in(
+    writer: &AssetWriter,
+    stage: &dyn Stage,
+    share: &Share,
+    force: bool,
+    progress: Progress,
+) -> Result<StageOutcome> {
+    let result = write_stage(writer, stage, share, force, progress);
     if result.is_err() {
         writer.fail();
     }
@@ -143,6 +238,7 @@ pub fn run_stage_in(
 fn write_stage(
     writer: &AssetWriter,
     stage: &dyn Stage,
+    share: &Share,
     force: bool,
     progress: Progress,
 ) -> Result<StageOutcome> {
@@ -168,12 +264,16 @@ fn write_stage(
     let failed = || format!("{}: stage '{}' failed", dir.display(), stage.name());
     let (mut manifest, entries) = if stage.creates_asset() {
         drop(opened);
-        let mut manifest = stage.create(dir, progress).with_context(failed)?;
+        let mut manifest = stage.create(dir, share, progress).with_context(failed)?;
         let entries = std::mem::take(&mut manifest.layers);
         (manifest, entries)
     } else {
         let asset = opened.with_context(|| format!("{}: cannot open asset", dir.display()))?;
-        let entries = stage.run(&asset, dir, progress).with_context(failed)?;
+        let entries = match share {
+            Share::All => stage.run(&asset, dir, progress),
+            share => stage.run_share(&asset, dir, share, progress),
+        }
+        .with_context(failed)?;
         (asset.manifest().clone(), entries)
     };
     let outputs: Vec<String> = entries.iter().map(LayerEntry::key).collect();

@@ -35,6 +35,15 @@ pub fn push_tile_row<T: Element>(
     Ok(())
 }
 
+/// Appends one row of tiles of the layer's fill value: a row that another
+/// part of a partitioned bake computes.
+pub fn push_fill_row(writer: &mut LayerWriter) -> terrabake_format::Result<()> {
+    for _ in 0..writer.spec().tiles_x() {
+        writer.push_fill_at(writer.chunks_written())?;
+    }
+    Ok(())
+}
+
 /// The tiles (west to east) of one row band, encoded in parallel: for
 /// [`LayerWriter::push_at`] when tile rows come out of order.
 pub fn encode_tile_row<T: Element>(

@@ -306,6 +306,10 @@ impl<D: AsRef<[u8]>> Layer<D> {
     pub fn bands(&self) -> u32 {
         self.entry.bands
     }
+    /// Bits of the value tiles are padded with past the grid's edge.
+    pub fn fill_bits(&self) -> u64 {
+        self.header.fill_bits.get()
+    }
 
     fn index(&self) -> &[ChunkEntry] {
         let data = self.bytes.as_ref();
@@ -363,6 +367,30 @@ impl<D: AsRef<[u8]>> Layer<D> {
             flag.store(true, Ordering::Release);
         }
         Ok((stored, entry))
+    }
+
+    /// Chunk number `chunk` (`(band * tiles_y + ty) * tiles_x + tx`) as it
+    /// is stored, checksummed but not decoded: what the join of a
+    /// partitioned bake copies into the assembled layer
+    /// ([`crate::LayerWriter::adopt_at`]).
+    pub fn stored_chunk(&self, chunk: u64) -> Result<StoredChunk<'_>> {
+        if chunk >= self.index().len() as u64 {
+            return Err(Error::OutOfRange {
+                layer: self.entry.key(),
+                what: "chunk",
+                index: chunk,
+                limit: self.index().len() as u64,
+            });
+        }
+        let (bytes, entry) = self.stored(chunk)?;
+        let codec = Codec::from_code(entry.codec)
+            .ok_or_else(|| Error::malformed(self.tile_at(chunk), "unknown codec"))?;
+        Ok(StoredChunk {
+            codec,
+            raw_len: entry.raw_len.get(),
+            xxh3: entry.xxh3.get(),
+            bytes,
+        })
     }
 
     /// The tile `(tx, ty)` of `band`, as elements of type `T`, row-major,
@@ -559,6 +587,17 @@ impl<D: AsRef<[u8]>> Layer<D> {
         }
         problems
     }
+}
+
+/// A chunk's bytes as a layer file stores them ([`Layer::stored_chunk`]).
+#[derive(Debug, Clone, Copy)]
+pub struct StoredChunk<'a> {
+    pub codec: Codec,
+    /// Bytes once decoded (the tile's).
+    pub raw_len: u32,
+    /// Checksum of `bytes`, already verified.
+    pub xxh3: u64,
+    pub bytes: &'a [u8],
 }
 
 fn chunk_tile(chunk: u64, tiles_x: u32, tiles_y: u32) -> (u32, u32, u32) {

@@ -51,6 +51,7 @@ use crate::layout::{
     MANIFEST_MAGIC,
 };
 use crate::manifest::{LayerEntry, Manifest, Retired};
+use crate::reader::StoredChunk;
 
 /// What a layer holds; the writer derives the tiling from it.
 #[derive(Debug, Clone)]
@@ -247,6 +248,64 @@ impl LayerWriter {
     /// in any order: a stage that produces a band's tile rows bottom-up, or
     /// several bands at once, still writes as it goes. Each chunk once.
     pub fn push_at(&mut self, chunk: u64, tile: EncodedTile) -> Result<()> {
+        let stored = StoredChunk {
+            codec: tile.codec,
+            raw_len: tile.raw_len,
+            xxh3: tile.xxh3,
+            bytes: &tile.bytes,
+        };
+        self.write_chunk(chunk, stored, tile.constant)
+    }
+
+    /// Writes chunk `chunk` as another file of the same layer stored it (a
+    /// part of a partitioned bake), without decoding it: the bytes are
+    /// copied once. A constant tile is still stored once per value: raw
+    /// tiles are scanned, and zstd frames short enough to be one (a
+    /// compressed tile of any size that repeats one value is a few dozen
+    /// bytes) are decoded to check.
+    pub fn adopt_at(&mut self, chunk: u64, stored: StoredChunk<'_>) -> Result<()> {
+        let elem = self.spec.elem.size();
+        let constant = match stored.codec {
+            Codec::Raw => constant_bits(stored.bytes, elem),
+            Codec::Zstd if stored.bytes.len() <= 256 => {
+                zstd::bulk::decompress(stored.bytes, stored.raw_len as usize)
+                    .ok()
+                    .and_then(|raw| constant_bits(&raw, elem))
+            }
+            Codec::Zstd => None,
+        };
+        self.write_chunk(chunk, stored, constant)
+    }
+
+    /// Writes chunk `chunk` as a tile of the layer's fill value (what a part
+    /// of a partitioned bake writes where another part computes).
+    pub fn push_fill_at(&mut self, chunk: u64) -> Result<()> {
+        let bits = self.spec.fill_bits;
+        if self.constants.contains_key(&bits) {
+            let stored = StoredChunk {
+                codec: Codec::Raw,
+                raw_len: self.spec.tile_bytes() as u32,
+                xxh3: 0,
+                bytes: &[],
+            };
+            return self.write_chunk(chunk, stored, Some(bits));
+        }
+        let elem = self.spec.elem.size();
+        let raw: Vec<u8> =
+            std::iter::repeat_n(&bits.to_le_bytes()[..elem], self.spec.tile_bytes() / elem)
+                .flatten()
+                .copied()
+                .collect();
+        let tile = encode_tile(&raw, elem, self.spec.codec, 3);
+        self.push_at(chunk, tile)
+    }
+
+    fn write_chunk(
+        &mut self,
+        chunk: u64,
+        tile: StoredChunk<'_>,
+        constant: Option<u64>,
+    ) -> Result<()> {
         if chunk >= self.spec.chunk_count() || self.index[chunk as usize].is_some() {
             return Err(Error::Spec(format!(
                 "layer {}: chunk {chunk} pushed twice or past its {} chunks",
@@ -263,7 +322,7 @@ impl LayerWriter {
             )));
         }
         self.pushed += 1;
-        if let Some(entry) = tile.constant.and_then(|bits| self.constants.get(&bits)) {
+        if let Some(entry) = constant.and_then(|bits| self.constants.get(&bits)) {
             self.index[chunk as usize] = Some(*entry);
             self.constant_chunks += 1;
             return Ok(());
@@ -274,7 +333,7 @@ impl LayerWriter {
         let out = self.out.as_mut().expect("writer used after finish");
         let result = out
             .write_all(&[0u8; 64][..pad])
-            .and_then(|()| out.write_all(&tile.bytes));
+            .and_then(|()| out.write_all(tile.bytes));
         result.map_err(|source| Error::Io {
             at: self.at(),
             source,
@@ -289,7 +348,7 @@ impl LayerWriter {
         };
         self.pos = offset + tile.bytes.len() as u64;
         self.stored_bytes += tile.bytes.len() as u64;
-        if let Some(bits) = tile.constant {
+        if let Some(bits) = constant {
             self.constants.insert(bits, entry);
             self.constant_chunks += 1;
         }

@@ -45,7 +45,7 @@ use terrabake_format::manifest::CrsKind;
 use terrabake_format::{Asset, Codec, LayerEntry, LayerSpec, LayerWriter, Mmap};
 
 use crate::progress::Progress;
-use crate::stage::Stage;
+use crate::stage::{Share, Split, Stage};
 use crate::tiling::encode_tile_row;
 use line::GridDirection;
 use terrain::{RowScale, Terrain};
@@ -185,6 +185,17 @@ impl Default for BandOptions {
 /// The horizon angles (degrees; NaN for nodata) of one band at every post,
 /// and a count of the work done (hull vertices, tree steps or samples).
 pub fn band_horizons(terrain: &Terrain, band: &Band, opts: BandOptions) -> (Vec<f32>, u64) {
+    band_horizons_rows(terrain, band, opts, 0..terrain.height)
+}
+
+/// [`band_horizons`] where only rows `rows` must be exact: bounded `line`
+/// computes those alone (NaN elsewhere), the other methods every row.
+pub fn band_horizons_rows(
+    terrain: &Terrain,
+    band: &Band,
+    opts: BandOptions,
+    rows: std::ops::Range<usize>,
+) -> (Vec<f32>, u64) {
     let mut out = vec![0f32; terrain.z.len()];
     let work = match &band.kind {
         BandKind::Line(dir) => match opts.max_distance {
@@ -200,6 +211,10 @@ pub fn band_horizons(terrain: &Terrain, band: &Band, opts: BandOptions) -> (Vec<
                 out.par_chunks_mut(terrain.width)
                     .enumerate()
                     .for_each(|(row, out)| {
+                        if !rows.contains(&row) {
+                            out.fill(f32::NAN);
+                            return;
+                        }
                         for (col, v) in out.iter_mut().enumerate() {
                             *v = line::line_horizon_within(
                                 terrain,
@@ -507,7 +522,29 @@ impl Stage for HorizonsStage {
         }
     }
 
+    /// Within a maximum distance, by rows; without one, by bands: each
+    /// direction (or sector) is independent of the others, and runs over
+    /// the whole DEM out of core (line) or in memory (sector, sampled).
+    fn split(&self, m: &terrabake_format::Manifest) -> Split {
+        match self.reach(m) {
+            crate::stage::Reach::Posts(halo) => Split::Rows { halo },
+            crate::stage::Reach::Whole => Split::Bands,
+        }
+    }
+
     fn run(&self, asset: &Asset<Mmap>, dir: &Path, progress: Progress) -> Result<Vec<LayerEntry>> {
+        self.run_share(asset, dir, &Share::All, progress)
+    }
+
+    /// Bands outside the share are not computed; rows outside it are not
+    /// where the rows are independent (bounded `line` and `sector`).
+    fn run_share(
+        &self,
+        asset: &Asset<Mmap>,
+        dir: &Path,
+        share: &Share,
+        progress: Progress,
+    ) -> Result<Vec<LayerEntry>> {
         let m = asset.manifest();
         let height = asset.height()?;
         let (w, h, ts) = (
@@ -552,7 +589,17 @@ impl Stage for HorizonsStage {
             tiles: (w.div_ceil(ts), h.div_ceil(ts)),
             aoi,
         };
-        let bar = progress.bar(bands.len() as u64, "horizons", "bands");
+        let mine = share.bands(bands.len());
+        let rows = share.rows(h);
+        // Tile rows outside the share's rows (all of them for bands outside
+        // its bands) hold the fill value.
+        let wanted = |y0: usize| y0 < rows.end && y0 + ts > rows.start;
+        for b in (0..bands.len()).filter(|b| !mine.contains(b)) {
+            for y0 in (0..h).step_by(ts) {
+                out.push(b, y0, None)?;
+            }
+        }
+        let bar = progress.bar(mine.len() as u64, "horizons", "bands");
         let opts = BandOptions {
             max_distance: self.max_distance,
             narrow_check: self.narrow_check,
@@ -564,7 +611,8 @@ impl Stage for HorizonsStage {
             // (crate::ordered): the layer's bytes are the same on every run
             // and any number of threads.
             let threads = rayon::current_num_threads();
-            for (b, batch) in bands.chunks(OUT_OF_CORE_BATCH).enumerate() {
+            let first = mine.start;
+            for (b, batch) in bands[mine.clone()].chunks(OUT_OF_CORE_BATCH).enumerate() {
                 // Each sweep with its row bands, in the order it must take them.
                 let sweeps: Vec<_> = batch
                     .iter()
@@ -581,6 +629,9 @@ impl Stage for HorizonsStage {
                     threads,
                     |(sweep, bands), k| {
                         let rows = bands[k].clone();
+                        if sweep.independent() && !wanted(rows.start) {
+                            return Ok((rows.start, None));
+                        }
                         let window = sweep.window(&rows);
                         let mut rows_buf = vec![0f32; window.len() * w];
                         height.read_window(
@@ -596,10 +647,10 @@ impl Stage for HorizonsStage {
                             .with_curvature(curvature);
                         let mut angles = vec![0f32; rows.len() * w];
                         sweep.sweep(&terrain, rows.clone(), &mut angles);
-                        Ok((rows.start, out.encode(rows.start, &mut angles)))
+                        Ok((rows.start, Some(out.encode(rows.start, &mut angles))))
                     },
                     |j, k, (y0, tiles)| {
-                        out.push(b * OUT_OF_CORE_BATCH + j, y0, tiles)?;
+                        out.push(first + b * OUT_OF_CORE_BATCH + j, y0, tiles)?;
                         if k + 1 == steps {
                             bar.inc(1);
                         }
@@ -613,14 +664,20 @@ impl Stage for HorizonsStage {
                 .with_row_scale(row_scale)
                 .with_curvature(curvature);
             let threads = rayon::current_num_threads().max(1);
-            for (b, batch) in bands.chunks(threads).enumerate() {
+            let first = mine.start;
+            for (b, batch) in bands[mine.clone()].chunks(threads).enumerate() {
                 let results: Vec<(Vec<f32>, u64)> = batch
                     .par_iter()
-                    .map(|band| band_horizons(&terrain, band, opts))
+                    .map(|band| band_horizons_rows(&terrain, band, opts, rows.clone()))
                     .collect();
                 for (j, (mut angles, _)) in results.into_iter().enumerate() {
-                    for (k, rows) in angles.chunks_mut(ts * w).enumerate() {
-                        out.write(b * threads + j, k * ts, rows)?;
+                    for (k, tile_row) in angles.chunks_mut(ts * w).enumerate() {
+                        let (band, y0) = (first + b * threads + j, k * ts);
+                        if wanted(y0) {
+                            out.write(band, y0, tile_row)?;
+                        } else {
+                            out.push(band, y0, None)?;
+                        }
                     }
                     bar.inc(1);
                 }
@@ -652,6 +709,9 @@ trait RowBands {
     fn window(&self, band: &std::ops::Range<usize>) -> std::ops::Range<usize>;
     /// Angles of output rows `band` from `window`, the rows [`Self::window`] named.
     fn sweep(&mut self, window: &Terrain, band: std::ops::Range<usize>, out: &mut [f32]);
+    /// Whether a band of rows can be computed without the bands before it
+    /// (a partitioned bake skips the rows another part computes).
+    fn independent(&self) -> bool;
 }
 
 impl RowBands for line::BandedSweep {
@@ -665,6 +725,11 @@ impl RowBands for line::BandedSweep {
 
     fn sweep(&mut self, window: &Terrain, band: std::ops::Range<usize>, out: &mut [f32]) {
         line::BandedSweep::sweep(self, window, band, out)
+    }
+
+    /// Every line's hull is carried from band to band.
+    fn independent(&self) -> bool {
+        false
     }
 }
 
@@ -697,6 +762,10 @@ impl RowBands for BoundedSector {
             band,
             out,
         );
+    }
+
+    fn independent(&self) -> bool {
+        true
     }
 }
 
@@ -744,7 +813,7 @@ impl BandWriter {
     /// Rows `y0..` of band `band` (whole tile rows, `y0` on a tile edge).
     fn write(&self, band: usize, y0: usize, angles: &mut [f32]) -> Result<()> {
         let tiles = self.encode(y0, angles);
-        self.push(band, y0, tiles)
+        self.push(band, y0, Some(tiles))
     }
 
     /// The tiles of rows `y0..` of angles, masked to the area of interest.
@@ -773,18 +842,28 @@ impl BandWriter {
         }
     }
 
-    /// Appends the tiles of the tile row at `y0` of band `band`.
+    /// Appends the tiles of the tile row at `y0` of band `band` (`None`:
+    /// fill, a row another part of a partitioned bake computes).
     fn push(
         &self,
         band: usize,
         y0: usize,
-        tiles: Vec<terrabake_format::EncodedTile>,
+        tiles: Option<Vec<terrabake_format::EncodedTile>>,
     ) -> Result<()> {
         let ty = y0 / self.tile_size;
+        let chunk = |tx: usize| ((band * self.tiles.1 + ty) * self.tiles.0 + tx) as u64;
         let mut writer = self.writer.lock().expect("no panic while writing");
-        for (tx, tile) in tiles.into_iter().enumerate() {
-            let chunk = (band * self.tiles.1 + ty) * self.tiles.0 + tx;
-            writer.push_at(chunk as u64, tile)?;
+        match tiles {
+            Some(tiles) => {
+                for (tx, tile) in tiles.into_iter().enumerate() {
+                    writer.push_at(chunk(tx), tile)?;
+                }
+            }
+            None => {
+                for tx in 0..self.tiles.0 {
+                    writer.push_fill_at(chunk(tx))?;
+                }
+            }
         }
         Ok(())
     }

@@ -83,7 +83,16 @@ impl RasterSource for PngSource {
     }
 
     fn read_rows(&mut self, y0: u32, out: &mut [f32], map: &HeightMapping) -> Result<()> {
-        anyhow::ensure!(y0 == self.next_row, "PNG rows are read in order");
+        anyhow::ensure!(y0 >= self.next_row, "PNG rows are read in order");
+        // Rows skipped (a part of a partitioned bake reads only its own)
+        // are decoded and dropped: PNG has no index to seek with.
+        while self.next_row < y0 {
+            self.reader
+                .next_row()
+                .map_err(|e| anyhow!("PNG row {}: {e}", self.next_row))?
+                .ok_or_else(|| anyhow!("PNG ended at row {}", self.next_row))?;
+            self.next_row += 1;
+        }
         for row_out in out.chunks_exact_mut(self.info.width as usize) {
             let row = self
                 .reader

@@ -1,0 +1,596 @@
+//! Partitioned bakes: one recipe cut into `N` independent parts that any
+//! scheduler runs on any node (Slurm array tasks, Kubernetes indexed jobs,
+//! `make -j`), and the join that makes them one asset without computing
+//! anything twice. `docs/SCALE.md` is the long form.
+//!
+//! ```text
+//!  bake --parts N --part I            (N processes, any order, any node)
+//!    plan: every stage's Split, from its reach ──► this part's rows and bands
+//!    ASSET.parts/part-I-of-N/         its own asset: the heights it needs,
+//!                                     its share of every split stage
+//!    ASSET.parts/part-I-of-N.json     written last: the part is complete
+//!  assemble ASSET                     (once, after all parts)
+//!    check every part (present, same recipe and source, checksums)
+//!    adopt each chunk from the part that owns it ──► ASSET's layers
+//!    commit the manifest once, then run the join's stages (pyramid, cones...)
+//! ```
+//!
+//! **How each stage splits** ([`Stage::split`]). A stage that reads a
+//! bounded distance (`Split::Rows`: ingest, bounded horizons, the sky
+//! layers but the edge count) is cut into tile rows: part `I` owns tile
+//! rows `T I / N .. T (I + 1) / N` of every such layer and computes them
+//! (and the rows that a later split stage in the part reads around them)
+//! from the heights within reach. A stage whose directions are independent
+//! (`Split::Bands`: unbounded horizons) is cut into bands, each part
+//! computing its bands over the whole DEM. Everything else, and every stage
+//! that reads what a joined or band-split stage writes, runs at the join
+//! (`Split::Join`: the pyramid, cones, the edge count).
+//!
+//! **Bit for bit.** A part computes its share with the same functions and
+//! the same whole-DEM geometry as a bake on one machine (its own asset has
+//! the whole grid; rows it does not need hold the fill value), and a
+//! stage's declared reach promises that rows beyond it cannot change the
+//! rows it owns (`tests/stage.rs` holds each stage to it). The join copies
+//! stored chunks, so the assembled layers decode to exactly the values of
+//! `terrabake bake` on one machine (`tests/parts.rs`, for N = 1, 2, 3, 7).
+//!
+//! **Idempotent and resumable.** A part's directory is an asset of its own
+//! under its own writer lock: a part run again skips what it finished
+//! (the stage records), a killed part's leftovers are reclaimed by the
+//! next run, and the record `part-I-of-N.json` is written (renamed into
+//! place) only once everything else is durable.
+
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use serde::{Deserialize, Serialize};
+use terrabake_format::{Asset, LayerEntry, LayerSpec, LayerWriter, Manifest, Mmap, HEIGHT_LAYER};
+
+use crate::asset::{AssetWriter, Wait};
+use crate::ingest::HeightStats;
+use crate::progress::Progress;
+use crate::recipe::Recipe;
+use crate::stage::{run_share_in, run_stage_in, Share, Split, Stage, StageOutcome};
+
+/// Part `index` of `count` (0-based).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Part {
+    pub index: u32,
+    pub count: u32,
+}
+
+impl Part {
+    /// `--part I` of `--parts N`, refused unless `0 <= I < N`.
+    pub fn new(index: u32, count: u32) -> Result<Self> {
+        if count == 0 {
+            bail!("--parts 0: give at least one part");
+        }
+        if index >= count {
+            bail!(
+                "--part {index} is outside 0..{count}: parts are numbered from 0 to {} (--parts {count})",
+                count - 1
+            );
+        }
+        Ok(Self { index, count })
+    }
+
+    fn name(self) -> String {
+        format!("part-{}-of-{}", self.index, self.count)
+    }
+
+    /// Tile rows `T I / N .. T (I + 1) / N` of `T`, as rows of posts of an
+    /// `h`-row grid with tiles of `ts` rows.
+    pub fn own_rows(self, h: usize, ts: usize) -> Range<usize> {
+        let tiles = h.div_ceil(ts);
+        let at = |i: u32| (tiles * i as usize / self.count as usize * ts).min(h);
+        at(self.index)..at(self.index + 1)
+    }
+}
+
+/// Where the parts of `asset` are written: `ASSET.parts/` beside it.
+pub fn parts_dir(asset: &Path) -> PathBuf {
+    let mut name = asset.file_name().unwrap_or_default().to_os_string();
+    name.push(".parts");
+    asset.with_file_name(name)
+}
+
+/// The part's record: what it baked, for the join to check. Written last.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PartRecord {
+    part: u32,
+    parts: u32,
+    /// Everything the parts must agree on: the ingest's parameters (with
+    /// the source's identity) and each stage's name, parameters and split.
+    plan: serde_json::Value,
+    /// The recipe as written, for the join's stages.
+    recipe: String,
+    /// Nodata posts and the height range over the rows this part owns.
+    nodata: u64,
+    height_range: Option<terrabake_format::manifest::HeightRange>,
+    tool: String,
+}
+
+/// The recipe's stages with the split each takes in a partitioned bake of
+/// a DEM described by `m` (the same for every part).
+struct Plan {
+    stages: Vec<(Box<dyn Stage>, Split)>,
+}
+
+impl Plan {
+    fn new(recipe: &Recipe, m: &Manifest) -> Result<Self> {
+        let mut stages: Vec<(Box<dyn Stage>, Split)> = Vec::new();
+        for stage in recipe.resolve_stages()? {
+            let mut split = stage.split(m);
+            for input in stage.inputs() {
+                // The latest earlier stage that writes this input (none:
+                // the heights, which every part ingests as it needs them).
+                let producer = stages
+                    .iter()
+                    .rev()
+                    .find(|(s, _)| s.outputs(m).contains(&input))
+                    .map(|(_, split)| *split);
+                split = match (split, producer) {
+                    (_, Some(Split::Join)) => Split::Join,
+                    // Rows need every band of their input; bands need
+                    // every row of it.
+                    (Split::Rows { .. }, Some(Split::Bands)) => Split::Join,
+                    (Split::Bands, Some(_)) => Split::Join,
+                    (split, _) => split,
+                };
+            }
+            stages.push((stage, split));
+        }
+        Ok(Self { stages })
+    }
+
+    /// What the parts must agree on, with the ingest's parameters.
+    fn fingerprint(&self, ingest: serde_json::Value) -> serde_json::Value {
+        serde_json::json!({
+            "ingest": ingest,
+            "stages": self.stages.iter().map(|(s, split)| serde_json::json!({
+                "name": s.name(),
+                "params": s.params(),
+                "split": split,
+            })).collect::<Vec<_>>(),
+        })
+    }
+
+    /// For `part` of a DEM described by `m`: the rows each split stage
+    /// computes (its own rows and what later split stages read around
+    /// them) and the rows of heights the part must ingest.
+    fn rows(&self, m: &Manifest, part: Part) -> (Vec<Range<usize>>, Range<usize>) {
+        let (h, ts) = (m.height as usize, m.tile_size as usize);
+        let own = part.own_rows(h, ts);
+        let all = 0..h;
+        let widen = |r: &Range<usize>, halo: u32| {
+            if r.is_empty() {
+                return r.clone();
+            }
+            let (a, b) = (r.start.saturating_sub(halo as usize), r.end + halo as usize);
+            (a / ts * ts)..(b.div_ceil(ts) * ts).min(h)
+        };
+        let hull = |a: Range<usize>, b: Range<usize>| match (a.is_empty(), b.is_empty()) {
+            (true, _) => b,
+            (_, true) => a,
+            _ => a.start.min(b.start)..a.end.max(b.end),
+        };
+        let n = self.stages.len();
+        let mut computes: Vec<Range<usize>> = vec![0..0; n];
+        for j in (0..n).rev() {
+            let (stage, split) = &self.stages[j];
+            computes[j] = match split {
+                Split::Join => 0..0,
+                Split::Bands => all.clone(),
+                Split::Rows { .. } => {
+                    let outputs = stage.outputs(m);
+                    let mut need = own.clone();
+                    for (k, (later, later_split)) in self.stages.iter().enumerate().skip(j + 1) {
+                        if let Split::Rows { halo } = later_split {
+                            if later.inputs().iter().any(|i| outputs.contains(i)) {
+                                need = hull(need, widen(&computes[k], *halo));
+                            }
+                        }
+                    }
+                    widen(&need, 0)
+                }
+            };
+        }
+        let height_key = format!("{HEIGHT_LAYER}@0");
+        let mut heights = widen(&own, 0);
+        for ((stage, split), rows) in self.stages.iter().zip(&computes) {
+            if stage.inputs().contains(&height_key) {
+                heights = match split {
+                    Split::Rows { halo } => hull(heights, widen(rows, *halo)),
+                    Split::Bands => all.clone(),
+                    Split::Join => heights,
+                };
+            }
+        }
+        (computes, heights)
+    }
+}
+
+/// The manifest the recipe's ingest of `src` will write, from the source's
+/// header alone.
+fn describe(recipe: &Recipe, src: &Path) -> Result<(Box<dyn Stage>, Manifest)> {
+    let ingest = recipe.ingest_stage(src);
+    ingest.check()?;
+    let opts = &recipe.ingest;
+    let source = crate::source::open(src, opts.raw().as_ref(), opts.tile_size, opts.max_memory)?;
+    let m = crate::ingest::describe(src, source.info(), opts)?;
+    Ok((Box::new(ingest), m))
+}
+
+/// Bakes `part` of `recipe` for `src` into `ASSET.parts/` (never touching
+/// `asset` itself). Returns what each stage did; a part already complete
+/// with this plan does nothing.
+pub fn bake_part(
+    src: &Path,
+    asset: &Path,
+    recipe: &Recipe,
+    part: Part,
+    wait: Wait,
+    progress: Progress,
+) -> Result<Vec<StageOutcome>> {
+    let (ingest, m) = describe(recipe, src)?;
+    let plan = Plan::new(recipe, &m)?;
+    let fingerprint = plan.fingerprint(ingest.params());
+    let parts = parts_dir(asset);
+    std::fs::create_dir_all(&parts)
+        .with_context(|| format!("{}: cannot create the parts directory", parts.display()))?;
+    let dir = parts.join(part.name());
+    let record_path = parts.join(format!("{}.json", part.name()));
+    if let Ok(record) = read_record(&record_path) {
+        if record.plan == fingerprint && Asset::open(&dir).is_ok() {
+            return Ok(Vec::new());
+        }
+    }
+    // From here on the part is unfinished until its record is back.
+    match std::fs::remove_file(&record_path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            return Err(e).with_context(|| format!("{}: cannot remove", record_path.display()))
+        }
+        _ => {}
+    }
+    let (computes, heights) = plan.rows(&m, part);
+    let writer = AssetWriter::create(&dir, wait)?;
+    let mut outcomes = vec![run_share_in(
+        &writer,
+        ingest.as_ref(),
+        &Share::Rows(heights),
+        false,
+        progress,
+    )?];
+    for ((stage, split), rows) in plan.stages.iter().zip(computes) {
+        let share = match split {
+            Split::Join => continue,
+            Split::Rows { .. } => Share::Rows(rows),
+            Split::Bands => Share::Bands {
+                part: part.index,
+                parts: part.count,
+            },
+        };
+        outcomes.push(run_share_in(
+            &writer,
+            stage.as_ref(),
+            &share,
+            false,
+            progress,
+        )?);
+    }
+    let baked = Asset::open(&dir)?;
+    let own = part.own_rows(m.height as usize, m.tile_size as usize);
+    let mut stats = HeightStats::default();
+    let mut z = vec![0f32; own.len() * m.width as usize];
+    baked.height()?.read_rows_f32(0, own.start as u32, &mut z)?;
+    stats.add(&z);
+    drop(writer);
+    write_record(
+        &record_path,
+        &PartRecord {
+            part: part.index,
+            parts: part.count,
+            plan: fingerprint,
+            recipe: recipe.text.clone(),
+            nodata: stats.nodata,
+            height_range: stats.range(),
+            tool: crate::tool_version(),
+        },
+    )?;
+    Ok(outcomes)
+}
+
+fn read_record(path: &Path) -> Result<PartRecord> {
+    use std::io::Read;
+    let mut bytes = Vec::new();
+    terrabake_format::fsio::open_regular(path)?
+        .take(1 << 24)
+        .read_to_end(&mut bytes)
+        .with_context(|| format!("{}: cannot read the part's record", path.display()))?;
+    serde_json::from_slice(&bytes)
+        .with_context(|| format!("{}: not a part record of this terrabake", path.display()))
+}
+
+/// Writes `record` to `path` durably and at once (a temporary renamed).
+fn write_record(path: &Path, record: &PartRecord) -> Result<()> {
+    use std::io::Write;
+    let (mut file, tmp) = terrabake_format::fsio::create_temp(path)
+        .with_context(|| format!("{}: cannot create", path.display()))?;
+    let written = file
+        .write_all(&serde_json::to_vec_pretty(record)?)
+        .and_then(|()| file.sync_all())
+        .and_then(|()| std::fs::rename(&tmp, path))
+        .and_then(|()| terrabake_format::fsio::sync_dir(path.parent().unwrap_or(Path::new("."))));
+    if written.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    written.with_context(|| format!("{}: cannot write the part's record", path.display()))
+}
+
+/// The parts found for `asset`, checked: all `N` present and complete,
+/// one partition, one plan. Errors name the parts.
+fn check_parts(asset: &Path) -> Result<Vec<(PartRecord, Asset<Mmap>)>> {
+    let dir = parts_dir(asset);
+    let entries = std::fs::read_dir(&dir).with_context(|| {
+        format!(
+            "{}: no parts to assemble (run `terrabake bake SRC -o {} --recipe R --parts N --part I` for every I first)",
+            dir.display(),
+            asset.display()
+        )
+    })?;
+    let mut found: Vec<Part> = entries
+        .flatten()
+        .filter_map(|e| parse_part_name(&e.file_name().to_string_lossy()))
+        .collect();
+    found.sort_by_key(|p| (p.count, p.index));
+    found.dedup();
+    let Some(first) = found.first().copied() else {
+        bail!(
+            "{}: no parts to assemble (run `terrabake bake SRC -o {} --recipe R --parts N --part I` for every I first)",
+            dir.display(),
+            asset.display()
+        );
+    };
+    if let Some(other) = found.iter().find(|p| p.count != first.count) {
+        bail!(
+            "{}: parts of two partitions: {} (--parts {}) and {} (--parts {}); remove the stale ones and assemble again",
+            dir.display(),
+            first.name(),
+            first.count,
+            other.name(),
+            other.count
+        );
+    }
+    let n = first.count;
+    let mut parts = Vec::new();
+    let mut missing = Vec::new();
+    for index in 0..n {
+        let part = Part { index, count: n };
+        let record_path = dir.join(format!("{}.json", part.name()));
+        if !record_path.exists() {
+            missing.push(index.to_string());
+            continue;
+        }
+        let record = read_record(&record_path)?;
+        if (record.part, record.parts) != (index, n) {
+            bail!(
+                "{}: records part {} of {}, not {}",
+                record_path.display(),
+                record.part,
+                record.parts,
+                part.name()
+            );
+        }
+        let baked = Asset::open(dir.join(part.name()))
+            .with_context(|| format!("{}: damaged; bake it again", part.name()))?;
+        parts.push((record, baked));
+    }
+    if !missing.is_empty() {
+        bail!(
+            "{}: part {} of {n} missing or unfinished (no record); nothing was assembled. Run `terrabake bake SRC -o {} --recipe R --parts {n} --part I` for I = {}",
+            dir.display(),
+            missing.join(", "),
+            asset.display(),
+            missing.join(", ")
+        );
+    }
+    let plan = &parts[0].0.plan;
+    if let Some((record, _)) = parts.iter().find(|(r, _)| &r.plan != plan) {
+        bail!(
+            "{}: part-{}-of-{n} was baked with a different recipe or source than part-0-of-{n}; bake it again with the same ones",
+            dir.display(),
+            record.part
+        );
+    }
+    Ok(parts)
+}
+
+fn parse_part_name(name: &str) -> Option<Part> {
+    let rest = name.strip_prefix("part-")?.strip_suffix(".json")?;
+    let (i, n) = rest.split_once("-of-")?;
+    Part::new(i.parse().ok()?, n.parse().ok()?).ok()
+}
+
+/// Joins the parts of `asset` (`ASSET.parts/`) into it: checks them all,
+/// adopts each layer's chunks from the part that computed them, commits
+/// one manifest, runs the stages left to the join, and removes the parts
+/// (unless `keep`). Nothing is committed when a part is missing or bad.
+pub fn assemble(
+    asset: &Path,
+    keep: bool,
+    wait: Wait,
+    progress: Progress,
+) -> Result<Vec<StageOutcome>> {
+    let parts = check_parts(asset)?;
+    let n = parts.len() as u32;
+    let first = &parts[0];
+    let recipe = Recipe::parse(
+        &parts_dir(asset).join(format!("part-0-of-{n}.json")),
+        first.0.recipe.clone(),
+    )?;
+    let m = first.1.manifest().clone();
+    let plan = Plan::new(&recipe, &m)?;
+    let ingest_record = m
+        .provenance
+        .stages
+        .iter()
+        .find(|r| r.stage == "ingest")
+        .context("part 0 has no ingest record")?;
+    if plan.fingerprint(ingest_record.params.clone()) != first.0.plan {
+        bail!(
+            "{}: the parts' record and their assets disagree; bake the parts again",
+            parts_dir(asset).display()
+        );
+    }
+    let (h, ts) = (m.height as usize, m.tile_size as usize);
+    let row_owner: Vec<usize> = (0..h.div_ceil(ts))
+        .map(|ty| {
+            (0..n)
+                .find(|&i| {
+                    Part { index: i, count: n }
+                        .own_rows(h, ts)
+                        .contains(&(ty * ts))
+                })
+                .expect("every tile row has an owner") as usize
+        })
+        .collect();
+    // The layers the parts computed, each with how its chunks are owned.
+    let mut adopted: Vec<(String, Split)> =
+        vec![(format!("{HEIGHT_LAYER}@0"), Split::Rows { halo: 0 })];
+    for (stage, split) in &plan.stages {
+        if *split != Split::Join {
+            adopted.extend(stage.outputs(&m).into_iter().map(|key| (key, *split)));
+        }
+    }
+    let writer = AssetWriter::create(asset, wait)?;
+    let mut entries = Vec::new();
+    for (key, split) in &adopted {
+        let (name, level) = key.rsplit_once('@').context("layer key")?;
+        let level: u32 = level.parse()?;
+        let layers: Vec<_> = parts
+            .iter()
+            .map(|(r, a)| {
+                a.layer(name, level)
+                    .with_context(|| format!("part-{}-of-{n}: damaged; bake it again", r.part))
+            })
+            .collect::<Result<_>>()?;
+        entries.push(adopt(
+            writer.dir(),
+            &layers,
+            *split,
+            &row_owner,
+            n,
+            progress,
+        )?);
+    }
+    let mut manifest = m.clone();
+    let stats = parts
+        .iter()
+        .map(|(r, _)| HeightStats::from_range(r.nodata, r.height_range))
+        .fold(HeightStats::default(), HeightStats::merge);
+    manifest.nodata.count = stats.nodata;
+    manifest.height_range = stats.range();
+    manifest.layers = entries;
+    manifest.retired = Vec::new();
+    manifest.provenance.stages.retain(|r| {
+        r.stage == "ingest"
+            || plan
+                .stages
+                .iter()
+                .any(|(s, split)| s.name() == r.stage && *split != Split::Join)
+    });
+    terrabake_format::commit_manifest(writer.lock_held(), &manifest)?;
+    let mut outcomes = Vec::new();
+    for (stage, split) in &plan.stages {
+        if *split == Split::Join {
+            outcomes.push(run_stage_in(&writer, stage.as_ref(), false, progress)?);
+        }
+    }
+    drop(writer);
+    if !keep {
+        let dir = parts_dir(asset);
+        std::fs::remove_dir_all(&dir)
+            .with_context(|| format!("{}: cannot remove", dir.display()))?;
+    }
+    Ok(outcomes)
+}
+
+/// One layer of the assembled asset: each chunk copied, checksummed and
+/// undecoded, from the part that owns it (by tile row or by band).
+fn adopt(
+    dir: &Path,
+    layers: &[&terrabake_format::Layer<Mmap>],
+    split: Split,
+    row_owner: &[usize],
+    n: u32,
+    progress: Progress,
+) -> Result<LayerEntry> {
+    let first = layers[0];
+    let e = first.entry();
+    let spec = LayerSpec {
+        name: e.name.clone(),
+        level: e.level,
+        elem: e.elem,
+        bands: e.bands,
+        width: e.width,
+        height: e.height,
+        tile_size: e.tile_size,
+        codec: e.codec,
+        fill_bits: first.fill_bits(),
+        stage: e.stage.clone(),
+        description: e.description.clone(),
+    };
+    for other in &layers[1..] {
+        let o = other.entry();
+        if (
+            o.elem,
+            o.bands,
+            o.width,
+            o.height,
+            o.tile_size,
+            other.fill_bits(),
+        ) != (
+            e.elem,
+            e.bands,
+            e.width,
+            e.height,
+            e.tile_size,
+            first.fill_bits(),
+        ) {
+            bail!(
+                "layer {}: the parts disagree on its shape; bake them again",
+                e.key()
+            );
+        }
+    }
+    let (tx, ty) = (first.tiles_x() as u64, first.tiles_y() as u64);
+    let mut writer = LayerWriter::create(dir, spec)?;
+    let bar = progress.bar(
+        writer.spec().chunk_count(),
+        &format!("assemble {}", e.key()),
+        "chunks",
+    );
+    for chunk in 0..writer.spec().chunk_count() {
+        let (band, row) = ((chunk / (tx * ty)) as usize, ((chunk / tx) % ty) as usize);
+        let owner = match split {
+            Split::Rows { .. } => row_owner[row],
+            Split::Bands => (0..n)
+                .find(|&i| {
+                    Share::Bands { part: i, parts: n }
+                        .bands(e.bands as usize)
+                        .contains(&band)
+                })
+                .expect("every band has an owner") as usize,
+            Split::Join => unreachable!("joined stages are not adopted"),
+        };
+        writer.adopt_at(chunk, layers[owner].stored_chunk(chunk)?)?;
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let mut entry = writer.finish()?;
+    entry.quantization = e.quantization;
+    entry.band_azimuths = e.band_azimuths.clone();
+    Ok(entry)
+}
