@@ -45,7 +45,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use serde::{Deserialize, Serialize};
-use terrabake_format::{Asset, LayerEntry, LayerSpec, LayerWriter, Manifest, Mmap, HEIGHT_LAYER};
+use terrabake_format::{
+    Asset, LayerEntry, LayerSpec, LayerWriter, Manifest, Mmap, HEIGHT_LAYER, MANIFEST_FILE,
+};
 
 use crate::asset::{AssetWriter, Wait};
 use crate::ingest::HeightStats;
@@ -242,10 +244,11 @@ pub fn bake_part(
         .with_context(|| format!("{}: cannot create the parts directory", parts.display()))?;
     let dir = parts.join(part.name());
     let record_path = parts.join(format!("{}.json", part.name()));
-    if let Ok(record) = read_record(&record_path) {
-        if record.plan == fingerprint && Asset::open(&dir).is_ok() {
-            return Ok(Vec::new());
-        }
+    // Every chunk checksummed: a part whose files were damaged since is
+    // baked again, not trusted.
+    let intact = || Asset::open(&dir).is_ok_and(|a| a.verify().problems.is_empty());
+    if read_record(&record_path).is_ok_and(|r| r.plan == fingerprint) && intact() {
+        return Ok(Vec::new());
     }
     // From here on the part is unfinished until its record is back.
     match std::fs::remove_file(&record_path) {
@@ -256,6 +259,11 @@ pub fn bake_part(
     }
     let (computes, heights) = plan.rows(&m, part);
     let writer = AssetWriter::create(&dir, wait)?;
+    if dir.join(MANIFEST_FILE).exists() && !intact() {
+        // Damaged: nothing in it is kept (the next commit reclaims its files).
+        std::fs::remove_file(dir.join(MANIFEST_FILE))
+            .with_context(|| format!("{}: cannot reset a damaged part", dir.display()))?;
+    }
     let mut outcomes = vec![run_share_in(
         &writer,
         ingest.as_ref(),
@@ -424,26 +432,57 @@ pub fn assemble(
     progress: Progress,
 ) -> Result<Vec<StageOutcome>> {
     let parts = check_parts(asset)?;
-    let n = parts.len() as u32;
+    let n = parts.len();
     let first = &parts[0];
     let recipe = Recipe::parse(
         &parts_dir(asset).join(format!("part-0-of-{n}.json")),
         first.0.recipe.clone(),
     )?;
-    let m = first.1.manifest().clone();
-    let plan = Plan::new(&recipe, &m)?;
-    let ingest_record = m
+    let m = first.1.manifest();
+    let plan = Plan::new(&recipe, m)?;
+    let ingest = m
         .provenance
         .stages
         .iter()
         .find(|r| r.stage == "ingest")
         .context("part 0 has no ingest record")?;
-    if plan.fingerprint(ingest_record.params.clone()) != first.0.plan {
+    if plan.fingerprint(ingest.params.clone()) != first.0.plan {
         bail!(
-            "{}: the parts' record and their assets disagree; bake the parts again",
+            "{}: the parts' records and their assets disagree; bake the parts again",
             parts_dir(asset).display()
         );
     }
+    let writer = AssetWriter::create(asset, wait)?;
+    let committed = commit_parts(&writer, &parts, &plan, progress);
+    if committed.is_err() {
+        writer.fail();
+    }
+    committed?;
+    let mut outcomes = Vec::new();
+    for (stage, split) in &plan.stages {
+        if *split == Split::Join {
+            outcomes.push(run_stage_in(&writer, stage.as_ref(), false, progress)?);
+        }
+    }
+    drop(writer);
+    if !keep {
+        let dir = parts_dir(asset);
+        std::fs::remove_dir_all(&dir)
+            .with_context(|| format!("{}: cannot remove", dir.display()))?;
+    }
+    Ok(outcomes)
+}
+
+/// Adopts the layers the parts computed into the asset and commits its
+/// manifest: the asset as one machine's bake has it after the split stages.
+fn commit_parts(
+    writer: &AssetWriter,
+    parts: &[(PartRecord, Asset<Mmap>)],
+    plan: &Plan,
+    progress: Progress,
+) -> Result<()> {
+    let n = parts.len() as u32;
+    let m = parts[0].1.manifest();
     let (h, ts) = (m.height as usize, m.tile_size as usize);
     let row_owner: Vec<usize> = (0..h.div_ceil(ts))
         .map(|ty| {
@@ -457,14 +496,12 @@ pub fn assemble(
         })
         .collect();
     // The layers the parts computed, each with how its chunks are owned.
-    let mut adopted: Vec<(String, Split)> =
-        vec![(format!("{HEIGHT_LAYER}@0"), Split::Rows { halo: 0 })];
+    let mut adopted = vec![(format!("{HEIGHT_LAYER}@0"), Split::Rows { halo: 0 })];
     for (stage, split) in &plan.stages {
         if *split != Split::Join {
-            adopted.extend(stage.outputs(&m).into_iter().map(|key| (key, *split)));
+            adopted.extend(stage.outputs(m).into_iter().map(|key| (key, *split)));
         }
     }
-    let writer = AssetWriter::create(asset, wait)?;
     let mut entries = Vec::new();
     for (key, split) in &adopted {
         let (name, level) = key.rsplit_once('@').context("layer key")?;
@@ -502,19 +539,7 @@ pub fn assemble(
                 .any(|(s, split)| s.name() == r.stage && *split != Split::Join)
     });
     terrabake_format::commit_manifest(writer.lock_held(), &manifest)?;
-    let mut outcomes = Vec::new();
-    for (stage, split) in &plan.stages {
-        if *split == Split::Join {
-            outcomes.push(run_stage_in(&writer, stage.as_ref(), false, progress)?);
-        }
-    }
-    drop(writer);
-    if !keep {
-        let dir = parts_dir(asset);
-        std::fs::remove_dir_all(&dir)
-            .with_context(|| format!("{}: cannot remove", dir.display()))?;
-    }
-    Ok(outcomes)
+    Ok(())
 }
 
 /// One layer of the assembled asset: each chunk copied, checksummed and
@@ -585,7 +610,10 @@ fn adopt(
                 .expect("every band has an owner") as usize,
             Split::Join => unreachable!("joined stages are not adopted"),
         };
-        writer.adopt_at(chunk, layers[owner].stored_chunk(chunk)?)?;
+        let stored = layers[owner].stored_chunk(chunk).with_context(|| {
+            format!("part-{owner}-of-{n} is damaged; bake it again (the same command) and assemble")
+        })?;
+        writer.adopt_at(chunk, stored)?;
         bar.inc(1);
     }
     bar.finish_and_clear();

@@ -1,0 +1,399 @@
+//! Partitioned bakes: `bake --parts N --part I` in N local processes (run
+//! at once), then `assemble`, give layers that decode bit for bit to one
+//! machine's `bake` of the same recipe, for every stage and N in 1, 2, 3, 7;
+//! and a bad set of parts is refused by name with nothing committed.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use common::*;
+use terrabake::export::{write_geotiff_f32, GeoTags};
+use terrabake::progress::Progress;
+use terrabake_format::{Asset, MANIFEST_FILE};
+
+/// A 170 x 230 geographic DEM (the SRTM tile's georeferencing) of fractal
+/// heights with a hole of nodata: uneven tile rows for every N, rows of
+/// different east-west spacing, and nodata.
+fn dem(dir: &Path) -> PathBuf {
+    let srtm = dir.join("srtm.tbake");
+    terrabake::ingest::ingest(
+        &repo_file("data/srtm3_n07w006_geographic_int16.tif"),
+        &srtm,
+        &Default::default(),
+        Progress::hidden(),
+    )
+    .unwrap();
+    let georef = Asset::open(&srtm).unwrap().manifest().georef.clone();
+    let (w, h) = (170u32, 230u32);
+    let tif = dir.join("dem.tif");
+    let tags = GeoTags {
+        georef,
+        nodata: Some("-9999".into()),
+    };
+    write_geotiff_f32(&tif, (w, h, 1), &tags, |r0, rows| {
+        for (i, v) in rows.iter_mut().enumerate() {
+            let (x, y) = (i as u32 % w, r0 + i as u32 / w);
+            let hole = (40..52).contains(&x) && (150..157).contains(&y);
+            *v = if hole {
+                -9999.0
+            } else {
+                40.0 * terrabake::synth::height(terrabake::synth::SynthKind::Fractal, x, y, w, h, 5)
+            };
+        }
+        Ok(())
+    })
+    .unwrap();
+    tif
+}
+
+/// Recipes that between them take every stage down every split: rows
+/// (ingest, bounded line and sector horizons, sky), bands (unbounded line
+/// and sector horizons) and the join (pyramid, cones, the edge count, sky
+/// after band-split horizons).
+const RECIPES: [&str; 4] = [
+    r#"[ingest]
+tile = 16
+codec = "zstd"
+[[stage]]
+name = "pyramid"
+[[stage]]
+name = "cones"
+slices = "auto"
+[[stage]]
+name = "horizons"
+sectors = 8
+max_distance = 1500.0
+[[stage]]
+name = "sky"
+layers = ["svf", "svf_cosine", "openness"]
+"#,
+    r#"[ingest]
+tile = 16
+[[stage]]
+name = "horizons"
+sectors = 16
+method = "line"
+[[stage]]
+name = "sky"
+"#,
+    r#"[ingest]
+tile = 16
+[[stage]]
+name = "horizons"
+sectors = 6
+method = "sector"
+max_distance = 700.0
+[[stage]]
+name = "sky"
+layers = ["svf"]
+"#,
+    r#"[ingest]
+tile = 32
+[[stage]]
+name = "horizons"
+sectors = 8
+method = "sector"
+encoding = "f32"
+"#,
+];
+
+fn path(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn ok(o: Output) -> Output {
+    assert!(o.status.success(), "failed: {}", stderr(&o));
+    o
+}
+
+/// `bake --parts n --part i` for every i at once, each its own process.
+fn bake_parts(src: &Path, out: &Path, recipe: &Path, n: u32) {
+    let children: Vec<_> = (0..n)
+        .map(|i| {
+            Command::new(env!("CARGO_BIN_EXE_terrabake"))
+                .args([
+                    "bake",
+                    path(src),
+                    "-o",
+                    path(out),
+                    "--recipe",
+                    path(recipe),
+                    "-q",
+                ])
+                .args(["--parts", &n.to_string(), "--part", &i.to_string()])
+                .output()
+                .expect("run terrabake")
+        })
+        .collect();
+    for child in children {
+        ok(child);
+    }
+}
+
+/// Every layer of `a` and `b` decodes to the same values, bit for bit
+/// (any NaN equal), and the manifests agree on what describes them.
+fn assert_same_asset(a: &Path, b: &Path, what: &str) {
+    let (a, b) = (Asset::open(a).unwrap(), Asset::open(b).unwrap());
+    let keys = |x: &Asset<_>| {
+        let mut k: Vec<String> = x.manifest().layers.iter().map(|l| l.key()).collect();
+        k.sort();
+        k
+    };
+    assert_eq!(keys(&a), keys(&b), "{what}: layers");
+    let (ma, mb) = (a.manifest(), b.manifest());
+    assert_eq!(ma.nodata.count, mb.nodata.count, "{what}: nodata count");
+    assert_eq!(ma.height_range, mb.height_range, "{what}: height range");
+    assert_eq!(
+        (ma.width, ma.height, &ma.cell_size),
+        (mb.width, mb.height, &mb.cell_size)
+    );
+    for la in a.layers() {
+        let e = la.entry();
+        let lb = b.layer(&e.name, e.level).unwrap();
+        let eb = lb.entry();
+        assert_eq!(
+            (
+                e.elem,
+                e.bands,
+                e.width,
+                e.height,
+                &e.band_azimuths,
+                e.quantization
+            ),
+            (
+                eb.elem,
+                eb.bands,
+                eb.width,
+                eb.height,
+                &eb.band_azimuths,
+                eb.quantization
+            ),
+            "{what}: {}",
+            e.key()
+        );
+        let n = e.width as usize * e.height as usize;
+        let (mut va, mut vb) = (vec![0f32; n], vec![0f32; n]);
+        for band in 0..e.bands {
+            la.read_rows_f32(band, 0, &mut va).unwrap();
+            lb.read_rows_f32(band, 0, &mut vb).unwrap();
+            if let Some(i) = (0..n).find(|&i| !same_heights(va[i], vb[i])) {
+                panic!(
+                    "{what}: {} band {band} post ({}, {}): {} on one machine, {} assembled",
+                    e.key(),
+                    i % e.width as usize,
+                    i / e.width as usize,
+                    va[i],
+                    vb[i]
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn assembled_parts_equal_one_machine_for_every_stage_and_n() {
+    let tmp = tempfile::tempdir().unwrap();
+    let src = dem(tmp.path());
+    for (r, text) in RECIPES.iter().enumerate() {
+        let recipe = tmp.path().join(format!("r{r}.toml"));
+        std::fs::write(&recipe, text).unwrap();
+        let one = tmp.path().join(format!("one{r}.tbake"));
+        ok(terrabake(&[
+            "bake",
+            path(&src),
+            "-o",
+            path(&one),
+            "--recipe",
+            path(&recipe),
+            "-q",
+        ]));
+        for n in [1u32, 2, 3, 7] {
+            let out = tmp.path().join(format!("r{r}n{n}.tbake"));
+            bake_parts(&src, &out, &recipe, n);
+            assert!(
+                !out.join(MANIFEST_FILE).exists(),
+                "a part touched the asset"
+            );
+            ok(terrabake(&["assemble", path(&out), "-q"]));
+            assert!(
+                !terrabake::partition::parts_dir(&out).exists(),
+                "parts left behind"
+            );
+            assert_same_asset(&one, &out, &format!("recipe {r}, {n} parts"));
+            let verify = ok(terrabake(&["verify", path(&out)]));
+            assert!(stdout(&verify).contains("valid"), "{}", stdout(&verify));
+        }
+    }
+}
+
+/// A part run again does nothing; a part killed at any write and run again
+/// (on "another node": nothing but the shared directory carries over) ends
+/// complete, and the join equals one machine.
+#[test]
+fn parts_are_idempotent_and_resume_after_a_kill() {
+    let tmp = tempfile::tempdir().unwrap();
+    let src = dem(tmp.path());
+    let recipe = tmp.path().join("r.toml");
+    std::fs::write(&recipe, RECIPES[0]).unwrap();
+    let one = tmp.path().join("one.tbake");
+    ok(terrabake(&[
+        "bake",
+        path(&src),
+        "-o",
+        path(&one),
+        "--recipe",
+        path(&recipe),
+        "-q",
+    ]));
+    let out = tmp.path().join("p.tbake");
+    let part = |i: u32, crash: Option<u32>| {
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_terrabake"));
+        cmd.args([
+            "bake",
+            path(&src),
+            "-o",
+            path(&out),
+            "--recipe",
+            path(&recipe),
+            "-q",
+        ])
+        .args(["--parts", "3", "--part", &i.to_string()]);
+        if let Some(at) = crash {
+            cmd.env("TERRABAKE_CRASH_AT", at.to_string());
+        }
+        cmd.output().unwrap()
+    };
+    let listing = |dir: &Path| {
+        let mut files: Vec<(String, Vec<u8>)> = std::fs::read_dir(dir)
+            .unwrap()
+            .flatten()
+            .filter(|e| e.file_type().unwrap().is_file())
+            .map(|e| {
+                (
+                    e.file_name().into_string().unwrap(),
+                    std::fs::read(e.path()).unwrap(),
+                )
+            })
+            .collect();
+        files.sort();
+        files
+    };
+    ok(part(0, None));
+    let parts = terrabake::partition::parts_dir(&out);
+    let before = listing(&parts.join("part-0-of-3"));
+    ok(part(0, None));
+    assert!(
+        listing(&parts.join("part-0-of-3")) == before,
+        "a second run rewrote part 0"
+    );
+    // Part 1: killed at its 3rd, 9th, 20th... crash point, then run again
+    // each time until it finishes.
+    let mut killed = 0;
+    for at in [3u32, 9, 20, 40, 80] {
+        let o = part(1, Some(at));
+        if !o.status.success() {
+            killed += 1;
+            assert!(
+                !parts.join("part-1-of-3.json").exists(),
+                "a killed part left its record"
+            );
+        }
+    }
+    assert!(killed >= 3, "only {killed} runs were killed");
+    ok(part(1, None));
+    ok(part(2, None));
+    ok(terrabake(&["assemble", path(&out), "-q"]));
+    assert_same_asset(&one, &out, "after kills");
+}
+
+#[test]
+fn a_bad_set_of_parts_is_refused_by_name_and_nothing_is_committed() {
+    let tmp = tempfile::tempdir().unwrap();
+    let src = dem(tmp.path());
+    let recipe = tmp.path().join("r.toml");
+    std::fs::write(&recipe, RECIPES[2]).unwrap();
+    let other = tmp.path().join("other.toml");
+    std::fs::write(&other, RECIPES[3]).unwrap();
+    let out = tmp.path().join("a.tbake");
+    // A good asset stands there already: every refusal must leave it.
+    ok(terrabake(&[
+        "bake",
+        path(&src),
+        "-o",
+        path(&out),
+        "--recipe",
+        path(&other),
+        "-q",
+    ]));
+    let manifest = std::fs::read(out.join(MANIFEST_FILE)).unwrap();
+    let part = |i: &str, n: &str, r: &Path| {
+        terrabake(&[
+            "bake",
+            path(&src),
+            "-o",
+            path(&out),
+            "--recipe",
+            path(r),
+            "-q",
+            "--parts",
+            n,
+            "--part",
+            i,
+        ])
+    };
+    let assemble = || terrabake(&["assemble", path(&out), "-q"]);
+    let refused = |o: Output, needles: &[&str]| {
+        assert!(!o.status.success(), "accepted: {}", stderr(&o));
+        let e = stderr(&o);
+        assert!(!e.contains("panicked"), "{e}");
+        for needle in needles {
+            assert!(e.contains(needle), "{needle:?} not in: {e}");
+        }
+        assert_eq!(
+            std::fs::read(out.join(MANIFEST_FILE)).unwrap(),
+            manifest,
+            "committed"
+        );
+        Asset::open(&out).expect("the previous asset still opens");
+    };
+
+    refused(part("3", "3", &recipe), &["--part 3", "0..3"]);
+    refused(assemble(), &["no parts"]);
+    ok(part("0", "3", &recipe));
+    refused(assemble(), &["part 1, 2 of 3 missing", "--part I"]);
+    ok(part("1", "3", &other));
+    ok(part("2", "3", &recipe));
+    refused(assemble(), &["part-1-of-3", "different recipe"]);
+    ok(part("1", "3", &recipe));
+    ok(part("0", "2", &recipe));
+    refused(
+        assemble(),
+        &["two partitions", "part-0-of-2", "part-0-of-3"],
+    );
+    std::fs::remove_dir_all(terrabake::partition::parts_dir(&out).join("part-0-of-2")).unwrap();
+    std::fs::remove_file(terrabake::partition::parts_dir(&out).join("part-0-of-2.json")).unwrap();
+    // A damaged chunk in part 2's horizons.
+    let part2 = terrabake::partition::parts_dir(&out).join("part-2-of-3");
+    let horizon = Asset::open(&part2)
+        .unwrap()
+        .layer("horizon", 0)
+        .unwrap()
+        .entry()
+        .file
+        .clone();
+    let file = part2.join(horizon);
+    let mut bytes = std::fs::read(&file).unwrap();
+    // The footer's first field is the index's offset; the chunk before the
+    // index is the last one the part computed (its last tile row).
+    let footer = bytes.len() - 64;
+    let index = u64::from_le_bytes(bytes[footer..footer + 8].try_into().unwrap()) as usize;
+    bytes[index - 10] ^= 0xff;
+    std::fs::write(&file, bytes).unwrap();
+    refused(assemble(), &["part-2-of-3 is damaged", "checksum"]);
+    // Baked again (the part checks its files, finds the damage), the set joins.
+    ok(part("2", "3", &recipe));
+    ok(assemble());
+    assert_ne!(std::fs::read(out.join(MANIFEST_FILE)).unwrap(), manifest);
+}
