@@ -39,6 +39,17 @@ pub enum Wait {
     NoWait,
 }
 
+impl Wait {
+    /// From the command line's `--no-wait`.
+    pub fn unless(no_wait: bool) -> Self {
+        if no_wait {
+            Wait::NoWait
+        } else {
+            Wait::Wait
+        }
+    }
+}
+
 impl AssetWriter {
     /// Opens the existing asset `dir` for writing (a stage's case).
     pub fn open(dir: &Path, wait: Wait) -> Result<Self> {

@@ -71,6 +71,10 @@ pub enum Command {
     /// Check every checksum and structural invariant of an asset (exit status 3 if any fails).
     Verify {
         asset: PathBuf,
+        /// Also check that every layer decodes to the same values, bit for bit, as this
+        /// asset's (a partitioned bake against one machine's, say).
+        #[arg(long, value_name = "OTHER")]
+        same_as: Option<PathBuf>,
         #[arg(long)]
         json: bool,
     },

@@ -10,7 +10,7 @@ use terrabake::asset::{open as open_asset, AssetWriter, Wait};
 use terrabake::cli::{Cli, Command};
 use terrabake::export::export_layer;
 use terrabake::ingest::IngestStage;
-use terrabake::partition::{assemble, bake_part, Part};
+use terrabake::partition::{assemble, bake_part, differences, Part};
 use terrabake::progress::Progress;
 use terrabake::pyramid::PyramidStage;
 use terrabake::recipe::{bake, Recipe};
@@ -43,11 +43,7 @@ fn main() -> ExitCode {
 
 fn run(cli: Cli) -> Result<ExitCode> {
     let progress = Progress::new(cli.quiet);
-    let wait = if cli.no_wait {
-        Wait::NoWait
-    } else {
-        Wait::Wait
-    };
+    let wait = Wait::unless(cli.no_wait);
     let run_stage = |asset: &Path, stage: &dyn Stage, force: bool| -> Result<StageOutcome> {
         run_stage_in(&AssetWriter::open(asset, wait)?, stage, force, progress)
     };
@@ -91,14 +87,11 @@ fn run(cli: Cli) -> Result<ExitCode> {
             if json {
                 println!("{}", serde_json::to_string_pretty(&manifest)?);
             }
-            say(format!(
-                "ingested {} ({} x {}, {} nodata) into {} in {:.2} s",
-                src.display(),
-                manifest.width,
-                manifest.height,
-                manifest.nodata.count,
-                output.display(),
-                start.elapsed().as_secs_f64()
+            say(terrabake::report::ingested(
+                &src,
+                &output,
+                &manifest,
+                start.elapsed(),
             ));
         }
         Command::Info { asset, json } => {
@@ -109,10 +102,22 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 print!("{}", describe(&asset, opened.manifest()));
             }
         }
-        Command::Verify { asset, json } => {
-            let report = open_asset(&asset)?.verify();
-            print!("{}", terrabake::report::verify(&asset, &report, json)?);
-            if !report.problems.is_empty() {
+        Command::Verify {
+            asset,
+            same_as,
+            json,
+        } => {
+            let opened = open_asset(&asset)?;
+            let report = opened.verify();
+            let differences = match &same_as {
+                Some(other) => differences(&opened, &open_asset(other)?)?,
+                None => Vec::new(),
+            };
+            print!(
+                "{}",
+                terrabake::report::verify(&asset, &report, &differences, json)?
+            );
+            if !report.problems.is_empty() || !differences.is_empty() {
                 return Ok(ExitCode::from(EXIT_VERIFY_FAILED));
             }
         }
@@ -258,14 +263,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             let opened = open_asset(&asset)?;
             let entry = opened.manifest().layer(HORIZON, 0).cloned();
             if json {
-                let mut v = serde_json::to_value(&outcome)?;
-                if let Some(e) = &entry {
-                    v["horizon"] = serde_json::json!({
-                        "description": e.description,
-                        "encoding": e.elem.name(),
-                        "band_azimuths": e.band_azimuths,
-                    });
-                }
+                let v = terrabake::report::horizons_json(&outcome, entry.as_ref())?;
                 println!("{}", serde_json::to_string_pretty(&v)?);
             }
             say(describe_outcome(&outcome));

@@ -622,3 +622,83 @@ fn adopt(
     entry.band_azimuths = e.band_azimuths.clone();
     Ok(entry)
 }
+
+/// How the layers of `a` differ from those of `b` once decoded (empty: the
+/// same layers, every value the same bit for bit, any NaN equal to any
+/// other), with the manifest's statistics: one line per difference, the
+/// first post that differs in each band. What `verify --same-as` reports
+/// and the partitioned bake's tests hold the join to.
+pub fn differences(a: &Asset<Mmap>, b: &Asset<Mmap>) -> Result<Vec<String>> {
+    let (ma, mb) = (a.manifest(), b.manifest());
+    let keys = |m: &Manifest| {
+        let mut k: Vec<String> = m.layers.iter().map(LayerEntry::key).collect();
+        k.sort();
+        k
+    };
+    let mut out = Vec::new();
+    if keys(ma) != keys(mb) {
+        out.push(format!("layers {:?} against {:?}", keys(ma), keys(mb)));
+    }
+    if (
+        ma.width,
+        ma.height,
+        &ma.cell_size,
+        ma.nodata.count,
+        ma.height_range,
+    ) != (
+        mb.width,
+        mb.height,
+        &mb.cell_size,
+        mb.nodata.count,
+        mb.height_range,
+    ) {
+        out.push("grid, cell size, nodata count or height range differ".into());
+    }
+    for la in a.layers() {
+        let e = la.entry();
+        let Ok(lb) = b.layer(&e.name, e.level) else {
+            continue;
+        };
+        let eb = lb.entry();
+        if (
+            e.elem,
+            e.bands,
+            e.width,
+            e.height,
+            &e.band_azimuths,
+            e.quantization,
+        ) != (
+            eb.elem,
+            eb.bands,
+            eb.width,
+            eb.height,
+            &eb.band_azimuths,
+            eb.quantization,
+        ) {
+            out.push(format!(
+                "{}: element type, shape, azimuths or quantisation differ",
+                e.key()
+            ));
+            continue;
+        }
+        let n = e.width as usize * e.height as usize;
+        let (mut va, mut vb) = (vec![0f32; n], vec![0f32; n]);
+        for band in 0..e.bands {
+            la.read_rows_f32(band, 0, &mut va)?;
+            lb.read_rows_f32(band, 0, &mut vb)?;
+            let same =
+                |i: usize| va[i].to_bits() == vb[i].to_bits() || (va[i].is_nan() && vb[i].is_nan());
+            if let Some(i) = (0..n).find(|&i| !same(i)) {
+                out.push(format!(
+                    "{} band {band}: post ({}, {}) is {} here, {} in the other",
+                    e.key(),
+                    i % e.width as usize,
+                    i / e.width as usize,
+                    va[i],
+                    vb[i]
+                ));
+            }
+        }
+    }
+    Ok(out)
+}

@@ -124,12 +124,20 @@ pub fn human_bytes(n: u64) -> String {
 
 /// What `terrabake verify` prints: each problem and a summary line, or the
 /// JSON record `{asset, layers, chunks, ok, problems}`.
+/// `verify`: the reader's problems, then how the values differ from the
+/// asset given with `--same-as` (if one was).
 pub fn verify(
     asset: &Path,
     report: &terrabake_format::VerifyReport,
+    differences: &[String],
     json: bool,
 ) -> serde_json::Result<String> {
-    let problems: Vec<String> = report.problems.iter().map(|p| p.to_string()).collect();
+    let problems: Vec<String> = report
+        .problems
+        .iter()
+        .map(|p| p.to_string())
+        .chain(differences.iter().cloned())
+        .collect();
     if json {
         let out = serde_json::json!({
             "asset": asset.display().to_string(),
@@ -167,5 +175,39 @@ pub fn render_stats(method: &str, st: &crate::render::RenderStats) -> String {
         st.mean_steps,
         st.mean_cells,
         st.mean_nodes_pushed
+    )
+}
+
+/// `horizons --json`: the stage's outcome and what its layer holds.
+pub fn horizons_json(
+    outcome: &StageOutcome,
+    entry: Option<&terrabake_format::LayerEntry>,
+) -> serde_json::Result<serde_json::Value> {
+    let mut v = serde_json::to_value(outcome)?;
+    if let Some(e) = entry {
+        v["horizon"] = serde_json::json!({
+            "description": e.description,
+            "encoding": e.elem.name(),
+            "band_azimuths": e.band_azimuths,
+        });
+    }
+    Ok(v)
+}
+
+/// `ingest`'s summary line.
+pub fn ingested(
+    src: &Path,
+    output: &Path,
+    m: &terrabake_format::Manifest,
+    took: std::time::Duration,
+) -> String {
+    format!(
+        "ingested {} ({} x {}, {} nodata) into {} in {:.2} s",
+        src.display(),
+        m.width,
+        m.height,
+        m.nodata.count,
+        output.display(),
+        took.as_secs_f64()
     )
 }
