@@ -5,7 +5,7 @@ BIN := target/release/terrabake
 DEMO_DEM := data/srtm3_n07w006_geographic_int16.tif
 OUT ?= out
 
-.PHONY: all build demo test fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-reader fixtures fmt lint clean
+.PHONY: all build demo test bake-parts bake-slurm test-slurm fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-reader fixtures fmt lint clean
 
 all: build
 
@@ -35,6 +35,29 @@ demo: build
 ## Every test, optimised ([profile.test] opt-level = 3).
 test:
 	$(CARGO) test --workspace --locked
+
+## Partitioned bakes (docs/SCALE.md). On one box, the parts as make jobs:
+##   make bake-parts SRC=dem.tif OUT=dem.tbake RECIPE=pipelines/demo.toml PARTS=8 -j8
+## On Slurm: an array job (one task per part) and a dependent assemble job;
+## waits, and fails naming the failed parts:
+##   make bake-slurm SRC=dem.tif OUT=dem.tbake RECIPE=pipelines/demo.toml PARTS=64
+PARTS ?= 4
+PART_TARGETS := $(addprefix part-,$(shell seq 0 $$(($(PARTS) - 1))))
+bake-parts: build
+	@test -n "$(SRC)" -a -n "$(OUT)" -a -n "$(RECIPE)" || { echo "give SRC=, OUT=, RECIPE= (and PARTS=)"; exit 2; }
+	$(MAKE) --no-print-directory $(PART_TARGETS)
+	$(BIN) assemble $(OUT)
+part-%:
+	$(BIN) bake $(SRC) -o $(OUT) --recipe $(RECIPE) --parts $(PARTS) --part $* --quiet
+
+bake-slurm: build
+	@test -n "$(SRC)" -a -n "$(OUT)" -a -n "$(RECIPE)" || { echo "give SRC=, OUT=, RECIPE= (and PARTS=)"; exit 2; }
+	TB=$(BIN) bash pipelines/slurm/bake.sh $(SRC) $(OUT) $(RECIPE) $(PARTS)
+
+## A one-node Slurm cluster on localhost (root; installs slurm-wlm and munge
+## if missing): partitioned bakes on it equal one machine's. Not in `make test`.
+test-slurm: build
+	bash pipelines/slurm/test.sh
 
 ## Coverage-guided fuzzing of the reader and of ingest (cargo-fuzz,
 ## libFuzzer without a sanitizer, on the stable toolchain), FUZZ_SECONDS
