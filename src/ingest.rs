@@ -278,13 +278,19 @@ fn write_heights(
                 continue;
             }
             let band = &mut band[..rows * width];
-            source.read_rows(y0, band, &map).with_context(|| {
-                format!(
-                    "{}: reading rows {y0}..{}",
-                    src.display(),
-                    y0 as usize + rows
-                )
-            })?;
+            // Only the wanted rows of a tile row the share cuts (NaN above
+            // and below them).
+            let (r0, r1) = (
+                wanted.start.max(y0 as usize),
+                wanted.end.min(y0 as usize + rows),
+            );
+            let (above, read) = band.split_at_mut((r0 - y0 as usize) * width);
+            let (read, below) = read.split_at_mut((r1 - r0) * width);
+            source
+                .read_rows(r0 as u32, read, &map)
+                .with_context(|| format!("{}: reading rows {r0}..{r1}", src.display()))?;
+            above.fill(f32::NAN);
+            below.fill(f32::NAN);
             stats.add(band);
             push_tile_row(&mut layer, band, width, f32::NAN, opts.codec)?;
             bar.inc(rows as u64);

@@ -166,12 +166,13 @@ impl Plan {
         let (h, ts) = (m.height as usize, m.tile_size as usize);
         let own = part.own_rows(h, ts);
         let all = 0..h;
+        // Exact rows, not whole tiles: a part reads no more of the DEM than
+        // the reach asks (a tile it fills partly is not one it owns).
         let widen = |r: &Range<usize>, halo: u32| {
             if r.is_empty() {
                 return r.clone();
             }
-            let (a, b) = (r.start.saturating_sub(halo as usize), r.end + halo as usize);
-            (a / ts * ts)..(b.div_ceil(ts) * ts).min(h)
+            r.start.saturating_sub(halo as usize)..(r.end + halo as usize).min(h)
         };
         let hull = |a: Range<usize>, b: Range<usize>| match (a.is_empty(), b.is_empty()) {
             (true, _) => b,
@@ -195,12 +196,12 @@ impl Plan {
                             }
                         }
                     }
-                    widen(&need, 0)
+                    need
                 }
             };
         }
         let height_key = format!("{HEIGHT_LAYER}@0");
-        let mut heights = widen(&own, 0);
+        let mut heights = own.clone();
         for ((stage, split), rows) in self.stages.iter().zip(&computes) {
             if stage.inputs().contains(&height_key) {
                 heights = match split {

@@ -132,7 +132,8 @@ pub enum Split {
 pub enum Share {
     /// Everything (a bake on one machine).
     All,
-    /// Every band of these rows of posts (whole tile rows, but the last).
+    /// Every band of these rows of posts (a stage may compute the rest of
+    /// their tile rows too, inexactly: only whole tile rows are adopted).
     Rows(std::ops::Range<usize>),
     /// Bands `count * part / parts .. count * (part + 1) / parts` of a
     /// layer of `count` bands, every row.
