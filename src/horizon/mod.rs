@@ -189,13 +189,20 @@ pub fn band_horizons(terrain: &Terrain, band: &Band, opts: BandOptions) -> (Vec<
 }
 
 /// [`band_horizons`] where only rows `rows` must be exact: bounded `line`
-/// computes those alone (NaN elsewhere), the other methods every row.
+/// computes those alone (NaN elsewhere), and may be given a window of the
+/// DEM's rows that holds them and the rows within reach (its output is then
+/// the window's rows); the other methods compute every row of a whole DEM.
 pub fn band_horizons_rows(
     terrain: &Terrain,
     band: &Band,
     opts: BandOptions,
     rows: std::ops::Range<usize>,
 ) -> (Vec<f32>, u64) {
+    let windowed = terrain.row0 > 0 || terrain.z.len() < terrain.width * terrain.height;
+    assert!(
+        !windowed || (matches!(band.kind, BandKind::Line(_)) && opts.max_distance.is_some()),
+        "only bounded line horizons run over a window of rows"
+    );
     let mut out = vec![0f32; terrain.z.len()];
     let work = match &band.kind {
         BandKind::Line(dir) => match opts.max_distance {
@@ -210,7 +217,8 @@ pub fn band_horizons_rows(
                 );
                 out.par_chunks_mut(terrain.width)
                     .enumerate()
-                    .for_each(|(row, out)| {
+                    .for_each(|(i, out)| {
+                        let row = terrain.row0 + i;
                         if !rows.contains(&row) {
                             out.fill(f32::NAN);
                             return;
@@ -359,9 +367,10 @@ pub fn read_heights(asset: &Asset<Mmap>) -> Result<(Vec<f32>, usize, usize)> {
 impl HorizonsStage {
     /// What [`Stage::check`] cannot know without the DEM: memory and the
     /// area of interest.
-    fn check_dem(&self, w: usize, h: usize) -> Result<()> {
+    /// `held` of the `h` rows are held in memory.
+    fn check_dem(&self, w: usize, h: usize, held: usize) -> Result<()> {
         let threads = rayon::current_num_threads() as u64;
-        if let Some(need) = self.in_core_bytes((w * h) as u64, threads) {
+        if let Some(need) = self.in_core_bytes((w * held) as u64, threads) {
             if need > self.max_memory {
                 let routes = match self.method {
                     Method::Sector => "give --max-distance M (bounded sectors run out of core), use --method line (exact sight lines, out of core)",
@@ -552,7 +561,17 @@ impl Stage for HorizonsStage {
             height.height() as usize,
             height.tile_size() as usize,
         );
-        self.check_dem(w, h)?;
+        let rows = share.rows(h);
+        // Bounded `line` holds only the rows it computes and those within
+        // reach of them (a part of a partitioned bake: its share); the other
+        // in-memory methods the whole DEM.
+        let window = match (self.method, self.reach(m)) {
+            (Method::Line, crate::stage::Reach::Posts(r)) => {
+                rows.start.saturating_sub(r as usize)..(rows.end + r as usize).min(h)
+            }
+            _ => 0..h,
+        };
+        self.check_dem(w, h, window.len())?;
         let curvature = self.curvature_coefficient(asset);
         let (dx, dy) = (m.cell_size.dx, m.cell_size.dy);
         let row_scale = crate::geo::row_scale(m.georef.as_ref(), h as u32);
@@ -590,7 +609,6 @@ impl Stage for HorizonsStage {
             aoi,
         };
         let mine = share.bands(bands.len());
-        let rows = share.rows(h);
         // Tile rows outside the share's rows (all of them for bands outside
         // its bands) hold the fill value.
         let wanted = |y0: usize| y0 < rows.end && y0 + ts > rows.start;
@@ -659,25 +677,45 @@ impl Stage for HorizonsStage {
                 )?;
             }
         } else {
-            let (z, _, _) = read_heights(asset)?;
-            let terrain = Terrain::new(&z, w, h, dx, dy)
+            let mut z = vec![0f32; window.len() * w];
+            height.read_window(
+                0,
+                0,
+                window.start as u32,
+                w as u32,
+                window.len() as u32,
+                &mut z,
+            )?;
+            let terrain = Terrain::window(&z, (w, h), window.start, (dx, dy))
                 .with_row_scale(row_scale)
                 .with_curvature(curvature);
             let threads = rayon::current_num_threads().max(1);
             let first = mine.start;
+            let mut tile_row = vec![0f32; ts * w];
             for (b, batch) in bands[mine.clone()].chunks(threads).enumerate() {
                 let results: Vec<(Vec<f32>, u64)> = batch
                     .par_iter()
                     .map(|band| band_horizons_rows(&terrain, band, opts, rows.clone()))
                     .collect();
-                for (j, (mut angles, _)) in results.into_iter().enumerate() {
-                    for (k, tile_row) in angles.chunks_mut(ts * w).enumerate() {
-                        let (band, y0) = (first + b * threads + j, k * ts);
-                        if wanted(y0) {
-                            out.write(band, y0, tile_row)?;
-                        } else {
+                for (j, (angles, _)) in results.into_iter().enumerate() {
+                    let band = first + b * threads + j;
+                    for y0 in (0..h).step_by(ts) {
+                        if !wanted(y0) {
                             out.push(band, y0, None)?;
+                            continue;
                         }
+                        // The tile row's rows from the window, NaN outside it.
+                        let tile_row = &mut tile_row[..ts.min(h - y0) * w];
+                        for (r, row) in tile_row.chunks_mut(w).enumerate() {
+                            match (y0 + r)
+                                .checked_sub(window.start)
+                                .filter(|&i| i < window.len())
+                            {
+                                Some(i) => row.copy_from_slice(&angles[i * w..(i + 1) * w]),
+                                None => row.fill(f32::NAN),
+                            }
+                        }
+                        out.write(band, y0, tile_row)?;
                     }
                     bar.inc(1);
                 }
