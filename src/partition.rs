@@ -568,28 +568,14 @@ fn adopt(
         stage: e.stage.clone(),
         description: e.description.clone(),
     };
-    for other in &layers[1..] {
-        let o = other.entry();
-        if (
-            o.elem,
-            o.bands,
-            o.width,
-            o.height,
-            o.tile_size,
-            other.fill_bits(),
-        ) != (
-            e.elem,
-            e.bands,
-            e.width,
-            e.height,
-            e.tile_size,
-            first.fill_bits(),
-        ) {
-            bail!(
-                "layer {}: the parts disagree on its shape; bake them again",
-                e.key()
-            );
-        }
+    fn layout(l: &terrabake_format::Layer<Mmap>) -> (Meaning<'_>, u32, u64) {
+        (meaning(l.entry()), l.tile_size(), l.fill_bits())
+    }
+    if layers[1..].iter().any(|&l| layout(l) != layout(first)) {
+        bail!(
+            "layer {}: the parts disagree on its shape; bake them again",
+            e.key()
+        );
     }
     let (tx, ty) = (first.tiles_x() as u64, first.tiles_y() as u64);
     let mut writer = LayerWriter::create(dir, spec)?;
@@ -661,21 +647,7 @@ pub fn differences(a: &Asset<Mmap>, b: &Asset<Mmap>) -> Result<Vec<String>> {
             continue;
         };
         let eb = lb.entry();
-        if (
-            e.elem,
-            e.bands,
-            e.width,
-            e.height,
-            &e.band_azimuths,
-            e.quantization,
-        ) != (
-            eb.elem,
-            eb.bands,
-            eb.width,
-            eb.height,
-            &eb.band_azimuths,
-            eb.quantization,
-        ) {
+        if meaning(e) != meaning(eb) {
             out.push(format!(
                 "{}: element type, shape, azimuths or quantisation differ",
                 e.key()
@@ -702,4 +674,22 @@ pub fn differences(a: &Asset<Mmap>, b: &Asset<Mmap>) -> Result<Vec<String>> {
         }
     }
     Ok(out)
+}
+
+/// What a layer's stored values mean: type, bands, grid, the bands'
+/// azimuths, quantisation (not how it is tiled or compressed).
+type Meaning<'a> = (
+    terrabake_format::ElemType,
+    [u32; 3],
+    &'a [f64],
+    Option<terrabake_format::Quantization>,
+);
+
+fn meaning(e: &LayerEntry) -> Meaning<'_> {
+    (
+        e.elem,
+        [e.bands, e.width, e.height],
+        &e.band_azimuths,
+        e.quantization,
+    )
 }

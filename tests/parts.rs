@@ -108,20 +108,31 @@ fn ok(o: Output) -> Output {
     o
 }
 
+/// `terrabake bake SRC -o OUT --recipe R -q`, to add to and run.
+fn bake_command(src: &Path, out: &Path, recipe: &Path) -> Command {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_terrabake"));
+    cmd.args([
+        "bake",
+        path(src),
+        "-o",
+        path(out),
+        "--recipe",
+        path(recipe),
+        "-q",
+    ]);
+    cmd
+}
+
+/// `bake` on one machine.
+fn bake_one(src: &Path, out: &Path, recipe: &Path) {
+    ok(bake_command(src, out, recipe).output().unwrap());
+}
+
 /// `bake --parts n --part i` for every i at once, each its own process.
 fn bake_parts(src: &Path, out: &Path, recipe: &Path, n: u32) {
     let children: Vec<_> = (0..n)
         .map(|i| {
-            Command::new(env!("CARGO_BIN_EXE_terrabake"))
-                .args([
-                    "bake",
-                    path(src),
-                    "-o",
-                    path(out),
-                    "--recipe",
-                    path(recipe),
-                    "-q",
-                ])
+            bake_command(src, out, recipe)
                 .args(["--parts", &n.to_string(), "--part", &i.to_string()])
                 .output()
                 .expect("run terrabake")
@@ -148,15 +159,7 @@ fn assembled_parts_equal_one_machine_for_every_stage_and_n() {
         let recipe = tmp.path().join(format!("r{r}.toml"));
         std::fs::write(&recipe, text).unwrap();
         let one = tmp.path().join(format!("one{r}.tbake"));
-        ok(terrabake(&[
-            "bake",
-            path(&src),
-            "-o",
-            path(&one),
-            "--recipe",
-            path(&recipe),
-            "-q",
-        ]));
+        bake_one(&src, &one, &recipe);
         for n in [1u32, 2, 3, 7] {
             let out = tmp.path().join(format!("r{r}n{n}.tbake"));
             bake_parts(&src, &out, &recipe, n);
@@ -186,28 +189,11 @@ fn parts_are_idempotent_and_resume_after_a_kill() {
     let recipe = tmp.path().join("r.toml");
     std::fs::write(&recipe, RECIPES[0]).unwrap();
     let one = tmp.path().join("one.tbake");
-    ok(terrabake(&[
-        "bake",
-        path(&src),
-        "-o",
-        path(&one),
-        "--recipe",
-        path(&recipe),
-        "-q",
-    ]));
+    bake_one(&src, &one, &recipe);
     let out = tmp.path().join("p.tbake");
     let part = |i: u32, crash: Option<u32>| {
-        let mut cmd = Command::new(env!("CARGO_BIN_EXE_terrabake"));
-        cmd.args([
-            "bake",
-            path(&src),
-            "-o",
-            path(&out),
-            "--recipe",
-            path(&recipe),
-            "-q",
-        ])
-        .args(["--parts", "3", "--part", &i.to_string()]);
+        let mut cmd = bake_command(&src, &out, &recipe);
+        cmd.args(["--parts", "3", "--part", &i.to_string()]);
         if let Some(at) = crash {
             cmd.env("TERRABAKE_CRASH_AT", at.to_string());
         }
@@ -266,30 +252,13 @@ fn a_bad_set_of_parts_is_refused_by_name_and_nothing_is_committed() {
     std::fs::write(&other, RECIPES[3]).unwrap();
     let out = tmp.path().join("a.tbake");
     // A good asset stands there already: every refusal must leave it.
-    ok(terrabake(&[
-        "bake",
-        path(&src),
-        "-o",
-        path(&out),
-        "--recipe",
-        path(&other),
-        "-q",
-    ]));
+    bake_one(&src, &out, &other);
     let manifest = std::fs::read(out.join(MANIFEST_FILE)).unwrap();
     let part = |i: &str, n: &str, r: &Path| {
-        terrabake(&[
-            "bake",
-            path(&src),
-            "-o",
-            path(&out),
-            "--recipe",
-            path(r),
-            "-q",
-            "--parts",
-            n,
-            "--part",
-            i,
-        ])
+        bake_command(&src, &out, r)
+            .args(["--parts", n, "--part", i])
+            .output()
+            .unwrap()
     };
     let assemble = || terrabake(&["assemble", path(&out), "-q"]);
     let refused = |o: Output, needles: &[&str]| {

@@ -358,10 +358,19 @@ impl Default for HorizonsStage {
 /// Reads the whole `height` layer (NaN for nodata).
 pub fn read_heights(asset: &Asset<Mmap>) -> Result<(Vec<f32>, usize, usize)> {
     let height = asset.height()?;
-    let (w, h) = (height.width(), height.height());
-    let mut z = vec![0f32; w as usize * h as usize];
-    height.read_window(0, 0, 0, w, h, &mut z)?;
-    Ok((z, w as usize, h as usize))
+    let (w, h) = (height.width() as usize, height.height() as usize);
+    Ok((read_rows(height, 0..h)?, w, h))
+}
+
+/// Rows `rows` of the `height` layer, whole (NaN for nodata).
+fn read_rows(
+    height: &terrabake_format::Layer<Mmap>,
+    rows: std::ops::Range<usize>,
+) -> Result<Vec<f32>> {
+    let w = height.width();
+    let mut z = vec![0f32; w as usize * rows.len()];
+    height.read_window(0, 0, rows.start as u32, w, rows.len() as u32, &mut z)?;
+    Ok(z)
 }
 
 impl HorizonsStage {
@@ -651,15 +660,7 @@ impl Stage for HorizonsStage {
                             return Ok((rows.start, None));
                         }
                         let window = sweep.window(&rows);
-                        let mut rows_buf = vec![0f32; window.len() * w];
-                        height.read_window(
-                            0,
-                            0,
-                            window.start as u32,
-                            w as u32,
-                            window.len() as u32,
-                            &mut rows_buf,
-                        )?;
+                        let rows_buf = read_rows(height, window.clone())?;
                         let terrain = Terrain::window(&rows_buf, (w, h), window.start, (dx, dy))
                             .with_row_scale(row_scale)
                             .with_curvature(curvature);
@@ -677,15 +678,7 @@ impl Stage for HorizonsStage {
                 )?;
             }
         } else {
-            let mut z = vec![0f32; window.len() * w];
-            height.read_window(
-                0,
-                0,
-                window.start as u32,
-                w as u32,
-                window.len() as u32,
-                &mut z,
-            )?;
+            let z = read_rows(height, window.clone())?;
             let terrain = Terrain::window(&z, (w, h), window.start, (dx, dy))
                 .with_row_scale(row_scale)
                 .with_curvature(curvature);
