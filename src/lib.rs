@@ -25,6 +25,8 @@
 //!   from the committed horizons.
 //! - [`ordered`]: parallel steps written in a fixed order, so that files
 //!   do not depend on thread timing.
+//! - [`partition`]: partitioned bakes (one part of N, on any node) and the
+//!   join that assembles them, bit for bit as one machine bakes.
 //! - [`cli`]: the command line's grammar (the binary parses with it).
 //! - [`report`]: what the command line prints for people.
 //! - [`render`]: perspective views traced through an asset (any method).

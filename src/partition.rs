@@ -577,6 +577,12 @@ fn adopt(
             e.key()
         );
     }
+    if split != Split::Bands && row_owner.len() != first.tiles_y() as usize {
+        bail!(
+            "layer {}: split by rows, but not on the heights' tile rows",
+            e.key()
+        );
+    }
     let (tx, ty) = (first.tiles_x() as u64, first.tiles_y() as u64);
     let mut writer = LayerWriter::create(dir, spec)?;
     let bar = progress.bar(

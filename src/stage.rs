@@ -159,13 +159,6 @@ impl Share {
             Share::All | Share::Rows(_) => 0..count,
         }
     }
-
-    /// Whether tile row `ty` (tiles of `ts` rows) of band `band` of a layer
-    /// of `bands` bands is in the share.
-    pub fn holds(&self, band: usize, bands: usize, ty: usize, ts: usize) -> bool {
-        let rows = self.rows(usize::MAX);
-        self.bands(bands).contains(&band) && ty * ts < rows.end && (ty + 1) * ts > rows.start
-    }
 }
 
 /// What happened to a stage.

@@ -26,6 +26,11 @@
 //! `openness`, `horizon_edge`) are the `sky` stage's ([`crate::sky`]), from
 //! the committed angles. Geographic grids take their east-west spacing row
 //! by row ([`terrain::RowScale`]).
+//!
+//! **Parts.** In a partitioned bake ([`crate::partition`]) the stage splits
+//! by rows within a maximum distance and by bands without one; a share
+//! skips the bands and (where rows are independent) the rows it does not
+//! own, and bounded `line` holds only its rows and their reach.
 
 pub mod brute;
 pub mod hull_tree;
