@@ -419,7 +419,7 @@ impl HorizonsStage {
     }
 
     /// Whether the bands run out of core: `line` without a maximum
-    /// distance, `sector` with one ([`Self::row_bands`]).
+    /// distance, `sector` with one (see `row_bands`).
     pub fn out_of_core(&self) -> bool {
         matches!(
             (self.method, self.max_distance),
