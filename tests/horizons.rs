@@ -513,7 +513,7 @@ fn sector_within_a_distance_equals_brute_force_band_by_band() {
                 sector_horizons(&t, index, count, narrow, &mut tree);
                 for max in [45.0, 200.0, 1e9] {
                     let mut got = vec![0f32; w * h];
-                    sector_horizons_within(&t, (index, count), narrow, max, 0..h, &mut got);
+                    sector_horizons_within(&t, (index, count), narrow, max, [0..h, 0..w], &mut got);
                     for (i, &scan) in got.iter().enumerate() {
                         let (col, row) = (i % w, i / w);
                         let want = brute::sector_horizon(
@@ -550,7 +550,14 @@ fn sector_within_a_distance_equals_brute_force_band_by_band() {
                         .with_row_scale(t.row_scale)
                         .with_curvature(t.curvature);
                         let out = &mut banded[band.start * w..band.end * w];
-                        sector_horizons_within(&window, (index, count), narrow, max, band, out);
+                        sector_horizons_within(
+                            &window,
+                            (index, count),
+                            narrow,
+                            max,
+                            [band, 0..w],
+                            out,
+                        );
                     }
                     assert!(
                         banded

@@ -538,3 +538,76 @@ fn a_region_baked_with_its_declared_reach_equals_the_whole() {
         }
     }
 }
+
+/// An area of interest costs only its posts (and their reach) where the
+/// method allows, and gives exactly the whole DEM's angles and sky layers
+/// inside it, nodata outside: every method, bounded and not.
+#[test]
+fn an_area_of_interest_equals_the_whole_inside_and_is_nodata_outside() {
+    use terrabake::horizon::{HorizonsStage, Method};
+    use terrabake::sky::SkyStage;
+
+    let dir = tempfile::tempdir().unwrap();
+    let tif = dir.path().join("t.tif");
+    terrabake::synth::write_geotiff(
+        &tif,
+        terrabake::synth::SynthKind::Fractal,
+        90,
+        70,
+        4,
+        Progress::hidden(),
+    )
+    .unwrap();
+    let opts = IngestOptions {
+        tile_size: 16,
+        ..Default::default()
+    };
+    let aoi = [23u32, 18, 61, 41];
+    let values = |asset: &Path, name: &str| {
+        let a = Asset::open(asset).unwrap();
+        let l = a.layer(name, 0).unwrap();
+        let n = (l.width() * l.height()) as usize;
+        let mut all = vec![0f32; n * l.bands() as usize];
+        for (b, band) in all.chunks_mut(n).enumerate() {
+            l.read_rows_f32(b as u32, 0, band).unwrap();
+        }
+        all
+    };
+    for (method, max_distance) in [
+        (Method::Line, Some(400.0)),
+        (Method::Sector, Some(300.0)),
+        (Method::Sampled, Some(300.0)),
+        (Method::Line, None),
+        (Method::Sector, None),
+    ] {
+        let stage = |aoi| HorizonsStage {
+            sectors: 8,
+            method,
+            max_distance,
+            aoi,
+            ..Default::default()
+        };
+        let (whole, part) = (dir.path().join("whole.tbake"), dir.path().join("aoi.tbake"));
+        for (asset, area) in [(&whole, None), (&part, Some(aoi))] {
+            ingest(&tif, asset, &opts, Progress::hidden()).unwrap();
+            run_stage(asset, &stage(area), true, Progress::hidden()).unwrap();
+            run_stage(asset, &SkyStage::default(), true, Progress::hidden()).unwrap();
+        }
+        for name in ["horizon", "svf", "svf_cosine", "openness", "horizon_edge"] {
+            let (a, b) = (values(&whole, name), values(&part, name));
+            for (i, (&want, &got)) in a.iter().zip(&b).enumerate() {
+                let (x, y) = ((i % 90) as u32, (i / 90 % 70) as u32);
+                let inside = (aoi[0]..aoi[2]).contains(&x) && (aoi[1]..aoi[3]).contains(&y);
+                let nothing = if name == "horizon_edge" {
+                    got == 0.0
+                } else {
+                    got.is_nan()
+                };
+                assert!(
+                    if inside { got.to_bits() == want.to_bits() || (got.is_nan() && want.is_nan()) } else { nothing },
+                    "{method:?} within {max_distance:?}: {name} at ({x}, {y}): {got}, whole DEM {want}"
+                );
+            }
+        }
+    }
+}

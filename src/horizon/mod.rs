@@ -190,18 +190,19 @@ impl Default for BandOptions {
 /// The horizon angles (degrees; NaN for nodata) of one band at every post,
 /// and a count of the work done (hull vertices, tree steps or samples).
 pub fn band_horizons(terrain: &Terrain, band: &Band, opts: BandOptions) -> (Vec<f32>, u64) {
-    band_horizons_rows(terrain, band, opts, 0..terrain.height)
+    band_horizons_rows(terrain, band, opts, [0..terrain.height, 0..terrain.width])
 }
 
-/// [`band_horizons`] where only rows `rows` must be exact: bounded `line`
-/// computes those alone (NaN elsewhere), and may be given a window of the
-/// DEM's rows that holds them and the rows within reach (its output is then
-/// the window's rows); the other methods compute every row of a whole DEM.
+/// [`band_horizons`] where only rows `rows` and columns `cols` must be
+/// exact: bounded `line` computes those posts alone (NaN elsewhere), and may
+/// be given a window of the DEM's rows that holds them and the rows within
+/// reach (its output is then the window's rows); the other methods compute
+/// every post of a whole DEM.
 pub fn band_horizons_rows(
     terrain: &Terrain,
     band: &Band,
     opts: BandOptions,
-    rows: std::ops::Range<usize>,
+    [rows, cols]: [std::ops::Range<usize>; 2],
 ) -> (Vec<f32>, u64) {
     let windowed = terrain.row0 > 0 || terrain.z.len() < terrain.width * terrain.height;
     assert!(
@@ -229,6 +230,10 @@ pub fn band_horizons_rows(
                             return;
                         }
                         for (col, v) in out.iter_mut().enumerate() {
+                            if !cols.contains(&col) {
+                                *v = f32::NAN;
+                                continue;
+                            }
                             *v = line::line_horizon_within(
                                 terrain,
                                 &stencil,
@@ -251,7 +256,7 @@ pub fn band_horizons_rows(
                     (*index, *count),
                     opts.narrow_check,
                     max,
-                    0..terrain.height,
+                    [0..terrain.height, cols.clone()],
                     &mut out,
                 ),
             };
@@ -449,6 +454,10 @@ impl HorizonsStage {
                 max_distance,
                 halo: sector::rows_within(max_distance, spacing.1),
                 height: dims.1,
+                cols: {
+                    let [x0, _, x1, _] = self.area(dims.0, dims.1);
+                    x0..x1
+                },
             }),
             _ => unreachable!("{:?} bands run in memory", self.method),
         }
@@ -575,10 +584,19 @@ impl Stage for HorizonsStage {
             height.height() as usize,
             height.tile_size() as usize,
         );
-        let rows = share.rows(h);
+        // Posts outside the area of interest are NaN, so only its rows (of
+        // the share's) are computed where rows are independent, and only
+        // its columns by bounded `line`.
+        let aoi = self.area(w, h);
+        let rows = {
+            let r = share.rows(h);
+            let (a, b) = (r.start.max(aoi[1]), r.end.min(aoi[3]));
+            a..b.max(a)
+        };
+        let cols = aoi[0]..aoi[2];
         // Bounded `line` holds only the rows it computes and those within
-        // reach of them (a part of a partitioned bake: its share); the other
-        // in-memory methods the whole DEM.
+        // reach of them (a part of a partitioned bake: its share; an area of
+        // interest); the other in-memory methods the whole DEM.
         let window = match (self.method, self.reach(m)) {
             (Method::Line, crate::stage::Reach::Posts(r)) => {
                 rows.start.saturating_sub(r as usize)..(rows.end + r as usize).min(h)
@@ -592,7 +610,6 @@ impl Stage for HorizonsStage {
         let row_scale = RowScale::new(&row_scale);
         let bands = plan_bands(self.method, self.sectors, dx, dy, self.direction_tolerance);
         let enc = self.angle_encoding();
-        let aoi = self.area(w, h);
         let method_text = match self.method {
             Method::Line => "line: steepest sight line along the grid direction of the band (exact on the two-triangle surface)",
             Method::Sector => if self.narrow_check {
@@ -693,7 +710,9 @@ impl Stage for HorizonsStage {
             for (b, batch) in bands[mine.clone()].chunks(threads).enumerate() {
                 let results: Vec<(Vec<f32>, u64)> = batch
                     .par_iter()
-                    .map(|band| band_horizons_rows(&terrain, band, opts, rows.clone()))
+                    .map(|band| {
+                        band_horizons_rows(&terrain, band, opts, [rows.clone(), cols.clone()])
+                    })
                     .collect();
                 for (j, (angles, _)) in results.into_iter().enumerate() {
                     let band = first + b * threads + j;
@@ -778,6 +797,8 @@ struct BoundedSector {
     max_distance: f64,
     halo: usize,
     height: usize,
+    /// The area of interest's columns (the others are NaN).
+    cols: std::ops::Range<usize>,
 }
 
 impl RowBands for BoundedSector {
@@ -795,7 +816,7 @@ impl RowBands for BoundedSector {
             self.sector,
             self.narrow,
             self.max_distance,
-            band,
+            [band, self.cols.clone()],
             out,
         );
     }

@@ -459,7 +459,7 @@ pub fn sector_horizons_within(
     (index, count): (usize, usize),
     narrow: bool,
     max_distance: f64,
-    rows: std::ops::Range<usize>,
+    [rows, cols]: [std::ops::Range<usize>; 2],
     out: &mut [f32],
 ) -> SectorStats {
     let w = terrain.width;
@@ -500,7 +500,7 @@ pub fn sector_horizons_within(
     for (i, v) in out.iter_mut().enumerate() {
         let (col, row) = (i % w, rows.start + i / w);
         let zp = terrain.at(col, row);
-        if zp.is_nan() {
+        if zp.is_nan() || !cols.contains(&col) {
             *v = f32::NAN;
             continue;
         }
