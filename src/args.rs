@@ -79,8 +79,40 @@ pub fn parse_aoi(s: &str) -> Result<[u32; 4], String> {
         .map(|p| p.trim().parse::<u32>())
         .collect::<Result<_, _>>()
         .map_err(|_| format!("{s:?}: expected X0,Y0,X1,Y1 in posts"))?;
-    v.try_into()
-        .map_err(|_| format!("{s:?}: expected four numbers X0,Y0,X1,Y1"))
+    let [x0, y0, x1, y1]: [u32; 4] = v
+        .try_into()
+        .map_err(|_| format!("{s:?}: expected four numbers X0,Y0,X1,Y1"))?;
+    if x0 >= x1 || y0 >= y1 {
+        return Err(format!(
+            "{s:?} is empty: columns X0..X1 and rows Y0..Y1 need X0 < X1 and Y0 < Y1"
+        ));
+    }
+    Ok([x0, y0, x1, y1])
+}
+
+/// A tile edge: a power of two from 16 to 4096.
+pub fn parse_tile(s: &str) -> Result<u32, String> {
+    match s.trim().parse::<u32>() {
+        Ok(t) if t.is_power_of_two() && (16..=4096).contains(&t) => Ok(t),
+        _ => Err(format!("{s:?} is not a power of two from 16 to 4096")),
+    }
+}
+
+/// A number of horizon directions: 3 to 4096 (a sector must be narrower
+/// than 180 degrees).
+pub fn parse_sectors(s: &str) -> Result<usize, String> {
+    match s.trim().parse::<usize>() {
+        Ok(n) if (3..=4096).contains(&n) => Ok(n),
+        _ => Err(format!("{s:?}: give 3 to 4096 directions")),
+    }
+}
+
+/// Any finite number (not NaN, not infinite).
+pub fn parse_finite(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() => Ok(v),
+        _ => Err(format!("{s:?} is not a finite number")),
+    }
 }
 
 pub fn parse_codec(s: &str) -> Result<Codec, String> {

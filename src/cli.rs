@@ -241,7 +241,7 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
         #[arg(long, value_parser = clap::value_parser!(u32).range(1..=16))]
         view: Option<u32>,
         /// Horizontal field of view, degrees (built-in views use 104).
-        #[arg(long, value_parser = crate::args::parse_fov)]
+        #[arg(long, allow_hyphen_values = true, value_parser = crate::args::parse_fov)]
         fov: Option<f64>,
         /// Image size WIDTHxHEIGHT.
         #[arg(long, value_parser = parse_size, default_value = "800x600")]
@@ -264,7 +264,7 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
         #[arg(long, conflicts_with = "no_shadows")]
         horizon_shadows: bool,
         /// Vertical exaggeration (camera heights are then in exaggerated metres).
-        #[arg(long, default_value_t = 1.0, value_parser = crate::args::parse_positive)]
+        #[arg(long, default_value_t = 1.0, allow_hyphen_values = true, value_parser = crate::args::parse_positive)]
         exaggerate: f64,
         #[arg(short, long)]
         output: PathBuf,

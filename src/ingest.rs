@@ -39,7 +39,7 @@ pub const DEFAULT_TILE: u32 = 256;
 #[serde(deny_unknown_fields, default)]
 pub struct IngestOptions {
     /// Tile edge in posts: a power of two from 16 to 4096.
-    #[arg(long = "tile", default_value_t = DEFAULT_TILE)]
+    #[arg(long = "tile", default_value_t = DEFAULT_TILE, value_parser = crate::args::parse_tile)]
     #[serde(rename = "tile")]
     pub tile_size: u32,
     /// Nodata value of the source, overriding what the file says.
@@ -49,9 +49,9 @@ pub struct IngestOptions {
     #[arg(long, value_parser = crate::args::parse_cell_size)]
     pub cell_size: Option<(f64, f64)>,
     /// Heights are `sample * z_scale + z_offset` (for PNG heightmaps, say).
-    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
+    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true, value_parser = crate::args::parse_finite)]
     pub z_scale: f64,
-    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true, value_parser = crate::args::parse_finite)]
     pub z_offset: f64,
     /// Tile codec: `raw` (read in place from the mapping) or `zstd` (smaller; decompressed into a cache).
     #[arg(long, value_parser = crate::args::parse_codec, default_value = "raw")]

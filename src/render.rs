@@ -193,6 +193,11 @@ pub fn render(
     camera: &Camera,
     opts: &RenderOptions,
 ) -> anyhow::Result<(Image, RenderStats)> {
+    anyhow::ensure!(
+        camera.eye != camera.look_at,
+        "the camera looks at its own position {:?}: give a --look-at point away from --camera",
+        camera.eye
+    );
     let (w, h, every) = (opts.width, opts.height, opts.every.max(1));
     let range = asset
         .manifest()

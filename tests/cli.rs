@@ -512,14 +512,15 @@ fn horizons_from_the_command_line_export_shade_and_recipes() {
     assert_eq!(inner.angle(10, 10, 2).unwrap(), None);
 
     // Bad input: a clear error and a non-zero exit, the asset untouched.
-    for (args, says) in [
-        (vec!["--sectors", "2"], "--sectors 2"),
-        (vec!["--aoi", "0,0,500,10"], "--aoi"),
+    for (args, says, code) in [
+        (vec!["--sectors", "2"], "--sectors", 2),
+        (vec!["--aoi", "10,10,5,5"], "X0 < X1", 2),
+        (vec!["--aoi", "0,0,500,10"], "--aoi", 1),
     ] {
         let mut all = vec!["horizons", s(&aoi), "--force"];
         all.extend(args);
         let bad = terrabake(&all);
-        assert_eq!(bad.status.code(), Some(1), "{all:?}");
+        assert_eq!(bad.status.code(), Some(code), "{all:?}");
         assert!(stderr(&bad).contains(says), "{all:?}: {}", stderr(&bad));
     }
     ok(&["verify", s(&aoi)]);
@@ -624,4 +625,74 @@ fn horizons_from_the_command_line_export_shade_and_recipes() {
             );
         }
     }
+}
+
+/// Values no command can use are usage errors (exit 2, clap's convention)
+/// with a message that says what is wanted, before any work; a camera that
+/// looks at itself is refused.
+#[test]
+fn unusable_values_are_usage_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let dem = repo_file("data/srtm3_n07w006_geographic_int16.tif");
+    let out = dir.path().join("x.tbake");
+    let (dem, out) = (dem.to_str().unwrap(), out.to_str().unwrap());
+    for (args, says) in [
+        (
+            vec!["ingest", dem, "-o", out, "--tile", "100"],
+            "power of two",
+        ),
+        (vec!["ingest", dem, "-o", out, "--z-scale", "nan"], "finite"),
+        (
+            vec!["ingest", dem, "-o", out, "--z-offset", "inf"],
+            "finite",
+        ),
+        (vec!["horizons", out, "--sectors", "2"], "3 to 4096"),
+        (vec!["horizons", out, "--aoi", "10,10,5,5"], "X0 < X1"),
+        (vec!["horizons", out, "--max-error", "-1"], "positive"),
+        (vec!["horizons", out, "--max-distance", "-5"], "positive"),
+        (
+            vec!["render", out, "--view", "1", "--fov", "200", "-o", "x.png"],
+            "between 0 and 180",
+        ),
+        (
+            vec![
+                "render",
+                out,
+                "--view",
+                "1",
+                "--exaggerate",
+                "-2",
+                "-o",
+                "x.png",
+            ],
+            "positive",
+        ),
+    ] {
+        let o = terrabake(&args);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", stderr(&o));
+        assert!(stderr(&o).contains(says), "{args:?}: {}", stderr(&o));
+    }
+    assert!(!Path::new(out).exists(), "work was done");
+
+    ok(&["ingest", dem, "-o", out, "-q"]);
+    let png = dir.path().join("x.png");
+    let o = terrabake(&[
+        "render",
+        out,
+        "--camera",
+        "1,2,3",
+        "--look-at",
+        "1,2,3",
+        "--method",
+        "incremental",
+        "-o",
+        png.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        stderr(&o).contains("looks at its own position"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!png.exists());
 }

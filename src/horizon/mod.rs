@@ -285,7 +285,7 @@ pub type Aoi = [u32; 4];
 #[serde(deny_unknown_fields, default)]
 pub struct HorizonsStage {
     /// Number of azimuths (bands), 3..=4096; band i is centred on i * 360 / S degrees.
-    #[arg(long, default_value_t = 16)]
+    #[arg(long, default_value_t = 16, value_parser = crate::args::parse_sectors)]
     pub sectors: usize,
     /// line (exact sight lines), sector (Stewart's wedges) or sampled (baseline).
     #[arg(long, default_value = "line", value_parser = Method::parser())]
@@ -293,7 +293,7 @@ pub struct HorizonsStage {
     /// Look no farther than this many metres (default: the whole DEM, exact). Bounded
     /// line and sector horizons walk or scan each post's reach: O(M) and O(M^2 / S) per post;
     /// bounded sector runs out of core.
-    #[arg(long, value_parser = crate::args::parse_positive)]
+    #[arg(long, allow_hyphen_values = true, value_parser = crate::args::parse_positive)]
     pub max_distance: Option<f64>,
     /// Earth curvature, drop d^2 (1 - k) / 2R: on, off (default: on for georeferenced DEMs).
     #[arg(long, value_parser = crate::args::parse_on_off)]
@@ -302,12 +302,12 @@ pub struct HorizonsStage {
     #[arg(long, default_value_t = terrain::DEFAULT_REFRACTION)]
     pub refraction: f64,
     /// Only compute posts in columns X0..X1 and rows Y0..Y1 (end exclusive); every post of the
-    /// DEM still occludes.
+    /// DEM still occludes. With --max-distance the work is the area's and its reach's.
     #[arg(long, value_parser = crate::args::parse_aoi)]
     pub aoi: Option<Aoi>,
     /// Largest angular error of the stored angles, degrees: picks u8 (0.354), u16 (0.0014) or
     /// f32.
-    #[arg(long, default_value_t = 0.5, conflicts_with = "encoding")]
+    #[arg(long, default_value_t = 0.5, conflicts_with = "encoding", allow_hyphen_values = true, value_parser = crate::args::parse_positive)]
     #[serde(rename = "max_error_deg")]
     pub max_error: f64,
     /// Store angles as u8, u16 or f32 regardless of --max-error.
@@ -318,7 +318,7 @@ pub struct HorizonsStage {
     #[arg(long = "no-narrow-check", action = clap::ArgAction::SetFalse)]
     pub narrow_check: bool,
     /// How far a line direction may sit from i * 360 / S, degrees (default: spacing / 8).
-    #[arg(long, value_parser = crate::args::parse_positive)]
+    #[arg(long, allow_hyphen_values = true, value_parser = crate::args::parse_positive)]
     pub direction_tolerance: Option<f64>,
     /// Working memory in MiB for the methods that hold the DEM in memory (sector
     /// without --max-distance, sampled, line with --max-distance); a DEM that needs more
