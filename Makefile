@@ -5,7 +5,7 @@ BIN := target/release/terrabake
 DEMO_DEM := data/srtm3_n07w006_geographic_int16.tif
 OUT ?= out
 
-.PHONY: all build demo test bake-parts bake-slurm test-slurm fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-reader fixtures fmt lint clean
+.PHONY: all build demo test test-full bake-parts bake-slurm test-slurm fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-reader fixtures fmt lint clean
 
 all: build
 
@@ -32,8 +32,14 @@ demo: build
 	@echo "previews: $(OUT)/srtm_relief.png $(OUT)/srtm_gray16.png $(OUT)/srtm_view.png"
 	@echo "horizons: $(OUT)/srtm_horizon.tif (16 bands, degrees) $(OUT)/srtm_svf.png $(OUT)/srtm_sky.png $(OUT)/srtm_sun.png"
 
-## Every test, optimised ([profile.test] opt-level = 3).
+## Every test, in the release profile that `make demo` (and `make build`)
+## already built: the dependencies are compiled once for both.
 test:
+	$(CARGO) test --release --workspace --locked
+
+## Every test again with debug assertions and overflow checks
+## ([profile.test]: optimised, but checked); CI runs it after `make test`.
+test-full:
 	$(CARGO) test --workspace --locked
 
 ## Partitioned bakes (docs/SCALE.md). On one box, the parts as make jobs:
