@@ -27,6 +27,11 @@ pub fn write_atomically(
     path: &Path,
     write: impl FnOnce(&mut BufWriter<File>) -> Result<()>,
 ) -> Result<()> {
+    // A missing directory is made, as the asset writers make theirs.
+    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        fs::create_dir_all(parent)
+            .with_context(|| format!("{}: cannot create the directory", parent.display()))?;
+    }
     let (file, tmp) = terrabake_format::fsio::create_temp(path).with_context(|| {
         format!(
             "{}: cannot create a temporary file beside it",

@@ -1,7 +1,7 @@
 //! Progress bars on stderr, drawn only when stderr is a terminal and the
 //! user did not ask for `--quiet`.
 
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressState, ProgressStyle};
 use std::io::IsTerminal;
 
 #[derive(Debug, Clone, Copy)]
@@ -25,15 +25,42 @@ impl Progress {
             return ProgressBar::with_draw_target(Some(len), ProgressDrawTarget::hidden());
         }
         let bar = ProgressBar::new(len);
-        let template = format!(
-            "{{prefix:>10}} [{{bar:40}}] {{pos}}/{{len}} {unit} ({{per_sec}}, {{eta}} left)"
-        );
+        let template =
+            format!("{{prefix:>10}} [{{bar:40}}] {{pos}}/{{len}} {unit} ({{rate}}, {{eta}} left)");
+        let unit = unit.to_string();
         bar.set_style(
             ProgressStyle::with_template(&template)
                 .expect("static template")
+                .with_key(
+                    "rate",
+                    move |state: &ProgressState, w: &mut dyn std::fmt::Write| {
+                        let _ = write!(w, "{} {unit}/s", human_rate(state.per_sec()));
+                    },
+                )
                 .progress_chars("=> "),
         );
         bar.set_prefix(what.to_string());
         bar
+    }
+}
+
+/// A rate as people read it: whole numbers from 10 up (`434`, not
+/// `434.4949`), one decimal below.
+pub fn human_rate(per_sec: f64) -> String {
+    if per_sec >= 10.0 {
+        format!("{per_sec:.0}")
+    } else {
+        format!("{per_sec:.1}")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn rates_are_rounded_for_people() {
+        assert_eq!(super::human_rate(434.4949), "434");
+        assert_eq!(super::human_rate(12.5), "12");
+        assert_eq!(super::human_rate(2.345), "2.3");
+        assert_eq!(super::human_rate(0.0), "0.0");
     }
 }

@@ -32,6 +32,12 @@ pub fn describe(path: &Path, m: &terrabake_format::Manifest) -> String {
         "cell size   {:.3} x {:.3} m ({})",
         m.cell_size.dx, m.cell_size.dy, m.cell_size.source
     );
+    let _ = writeln!(
+        s,
+        "extent      0 .. {:.0} m east, 0 .. {:.0} m north of the south-west post (render's --camera and --look-at)",
+        f64::from(m.width.saturating_sub(1)) * m.cell_size.dx,
+        f64::from(m.height.saturating_sub(1)) * m.cell_size.dy
+    );
     match &m.georef {
         Some(g) => {
             let epsg = g
@@ -201,8 +207,13 @@ pub fn ingested(
     m: &terrabake_format::Manifest,
     took: std::time::Duration,
 ) -> String {
+    let assumed = if m.cell_size.source == "assumed" {
+        "\nnote: the source has no georeferencing: posts 1 m apart were assumed; give the spacing with --cell-size DX[,DY] (metres)"
+    } else {
+        ""
+    };
     format!(
-        "ingested {} ({} x {}, {} nodata) into {} in {:.2} s",
+        "ingested {} ({} x {}, {} nodata) into {} in {:.2} s{assumed}",
         src.display(),
         m.width,
         m.height,

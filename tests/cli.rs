@@ -696,3 +696,56 @@ fn unusable_values_are_usage_errors() {
     );
     assert!(!png.exists());
 }
+
+/// What a new user is told: that 1 m posts were assumed for a source with
+/// no georeferencing (at ingest, not only in `info`), the extent in the
+/// coordinates `render` takes, and an image written into a directory that
+/// did not exist yet.
+#[test]
+fn ingest_info_and_render_guide_a_new_user() {
+    let dir = tempfile::tempdir().unwrap();
+    let raw = dir.path().join("dem.f32");
+    let heights: Vec<u8> = (0..20 * 10)
+        .flat_map(|i| ((i % 20) as f32 * 0.5 + (i / 20) as f32).to_le_bytes())
+        .collect();
+    std::fs::write(&raw, heights).unwrap();
+    let asset = dir.path().join("dem.tbake");
+    let o = terrabake(&[
+        "ingest",
+        s(&raw),
+        "-o",
+        s(&asset),
+        "--raw-shape",
+        "20x10",
+        "--raw-type",
+        "f32",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("1 m apart were assumed") && stderr(&o).contains("--cell-size"),
+        "{}",
+        stderr(&o)
+    );
+    let info = ok(&["info", s(&asset)]);
+    assert!(
+        info.contains("extent      0 .. 19 m east, 0 .. 9 m north"),
+        "{info}"
+    );
+    let png = dir.path().join("new/dir/view.png");
+    ok(&[
+        "render",
+        s(&asset),
+        "--camera",
+        "-5,-5,30",
+        "--look-at",
+        "10,5,0",
+        "--method",
+        "incremental",
+        "--size",
+        "32x24",
+        "-o",
+        s(&png),
+        "-q",
+    ]);
+    assert!(png.is_file());
+}
