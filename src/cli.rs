@@ -279,6 +279,14 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
     BenchViews(crate::bench::views::BenchViewsArgs),
     /// Ingest a DEM and run every stage of a recipe, skipping work already done.
     ///
+    /// A recipe is a TOML file: an [ingest] table with ingest's options (tile, codec,
+    /// cell_size, nodata, z_scale, z_offset...), then one [[stage]] table per stage, in order,
+    /// with `name` (pyramid, cones, horizons, sky) and that command's options, dashes written as
+    /// underscores (max_distance = 3000.0, max_error_deg = 0.1). Unknown keys are refused by
+    /// name, and the whole recipe is checked before ingest starts. A stage whose recorded
+    /// options match and whose layers are present is skipped, so a bake that stopped resumes
+    /// (a recipe is shown below).
+    ///
     /// With --parts N --part I, bake only part I of N (0-based) into OUTPUT.parts/, for a
     /// scheduler to run the N parts anywhere (Slurm array tasks, Kubernetes indexed jobs,
     /// make -j); `terrabake assemble OUTPUT` then joins them. The result is the same, bit for
@@ -286,10 +294,17 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
     #[command(
         after_help = "Examples:\n  terrabake bake dem.tif -o dem.tbake --recipe pipelines/demo.toml\n  \
 for i in 0 1 2 3; do terrabake bake dem.tif -o dem.tbake --recipe pipelines/demo.toml --parts 4 --part $i; done\n  \
-terrabake assemble dem.tbake"
+terrabake assemble dem.tbake\n\n\
+A recipe (a shorter pipelines/demo.toml):\n  \
+[ingest]\n  tile = 256\n  codec = \"raw\"\n\n  \
+[[stage]]\n  name = \"pyramid\"\n\n  \
+[[stage]]\n  name = \"horizons\"\n  sectors = 16\n  method = \"line\"\n  max_distance = 3000.0\n\n  \
+[[stage]]\n  name = \"sky\"\n  layers = [\"svf\", \"openness\"]"
     )]
     Bake {
+        /// The DEM (GeoTIFF, SRTM .hgt, raw, 16-bit PNG, OpenEXR).
         src: PathBuf,
+        /// The asset directory to write (created, or brought up to date).
         #[arg(short, long)]
         output: PathBuf,
         /// A recipe from pipelines/ (TOML): ingest options and stages.
@@ -301,6 +316,7 @@ terrabake assemble dem.tbake"
         /// Bake only this part, 0 to N - 1 (with --parts).
         #[arg(long, value_name = "I", requires = "parts")]
         part: Option<u32>,
+        /// Print one record per stage as JSON on stdout (what ran, what was up to date, seconds).
         #[arg(long)]
         json: bool,
     },
@@ -311,10 +327,12 @@ terrabake assemble dem.tbake"
     /// the manifest once, then runs the stages left to the join (the pyramid, cones). A
     /// missing or damaged part is named and nothing is committed.
     Assemble {
+        /// The asset the parts were baked for (their OUTPUT).
         asset: PathBuf,
         /// Keep OUTPUT.parts/ after a successful join.
         #[arg(long)]
         keep_parts: bool,
+        /// Print one record per joined stage as JSON on stdout.
         #[arg(long)]
         json: bool,
     },

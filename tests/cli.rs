@@ -338,6 +338,28 @@ fn help_teaches() {
     assert!(
         text.contains("--raw-shape") && text.contains("--z-scale") && text.contains("power of two")
     );
+    let text = ok(&["bake", "--help"]);
+    for word in [
+        "[[stage]]",
+        "[ingest]",
+        "max_distance",
+        "--parts",
+        "--part",
+        "assemble",
+        "--json",
+    ] {
+        assert!(text.contains(word), "bake --help lacks {word}: {text}");
+    }
+    // The recipe it shows is one that bakes.
+    let shown: String = text
+        .split("A recipe (a shorter pipelines/demo.toml):\n")
+        .nth(1)
+        .expect("a recipe in bake --help")
+        .lines()
+        .map(|l| l.trim_start().to_string() + "\n")
+        .collect();
+    let recipe = terrabake::recipe::Recipe::parse(Path::new("bake --help"), shown).unwrap();
+    assert_eq!(recipe.resolve_stages().unwrap().len(), 3);
 }
 
 #[test]
