@@ -10,7 +10,7 @@ use terrabake::asset::{open as open_asset, AssetWriter, Wait};
 use terrabake::cli::{Cli, Command};
 use terrabake::export::export_layer;
 use terrabake::ingest::IngestStage;
-use terrabake::partition::{assemble, bake_part, differences, Part};
+use terrabake::partition::{assemble, bake_part, Part};
 use terrabake::progress::Progress;
 use terrabake::pyramid::PyramidStage;
 use terrabake::recipe::{bake, Recipe};
@@ -35,7 +35,7 @@ fn main() -> ExitCode {
     match run(cli) {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", terrabake::report::error_chain(&e));
             ExitCode::FAILURE
         }
     }
@@ -107,17 +107,9 @@ fn run(cli: Cli) -> Result<ExitCode> {
             same_as,
             json,
         } => {
-            let opened = open_asset(&asset)?;
-            let report = opened.verify();
-            let differences = match &same_as {
-                Some(other) => differences(&opened, &open_asset(other)?)?,
-                None => Vec::new(),
-            };
-            print!(
-                "{}",
-                terrabake::report::verify(&asset, &report, &differences, json)?
-            );
-            if !report.problems.is_empty() || !differences.is_empty() {
+            let (text, good) = terrabake::report::verify_asset(&asset, same_as.as_deref(), json)?;
+            print!("{text}");
+            if !good {
                 return Ok(ExitCode::from(EXIT_VERIFY_FAILED));
             }
         }

@@ -130,8 +130,49 @@ pub fn human_bytes(n: u64) -> String {
 
 /// What `terrabake verify` prints: each problem and a summary line, or the
 /// JSON record `{asset, layers, chunks, ok, problems}`.
-/// `verify`: the reader's problems, then how the values differ from the
-/// asset given with `--same-as` (if one was).
+/// `terrabake verify ASSET [--same-as OTHER]`: what to print, and whether
+/// all was well. An asset too damaged to open (a truncated layer or
+/// manifest, a bad checksum, a link where a layer should be) is a problem
+/// found, not an error; a path that holds no asset, or an asset of a newer
+/// format, is an error.
+pub fn verify_asset(
+    path: &Path,
+    same_as: Option<&Path>,
+    json: bool,
+) -> anyhow::Result<(String, bool)> {
+    use anyhow::Context;
+    if !path.join(terrabake_format::MANIFEST_FILE).exists() {
+        anyhow::bail!(
+            "{}: not an asset (it has no {})",
+            path.display(),
+            terrabake_format::MANIFEST_FILE
+        );
+    }
+    let opened = match terrabake_format::Asset::open(path) {
+        Ok(a) => a,
+        Err(e @ terrabake_format::Error::Version { .. }) => {
+            return Err(e).with_context(|| format!("{}: cannot open asset", path.display()))
+        }
+        Err(e) => {
+            let report = terrabake_format::VerifyReport {
+                layers: 0,
+                chunks: 0,
+                problems: vec![e],
+            };
+            return Ok((verify(path, &report, &[], json)?, false));
+        }
+    };
+    let report = opened.verify();
+    let differences = match same_as {
+        Some(other) => crate::partition::differences(&opened, &crate::asset::open(other)?)?,
+        None => Vec::new(),
+    };
+    let good = report.problems.is_empty() && differences.is_empty();
+    Ok((verify(path, &report, &differences, json)?, good))
+}
+
+/// `verify`'s report: the reader's problems, then how the values differ
+/// from the asset given with `--same-as` (if one was).
 pub fn verify(
     asset: &Path,
     report: &terrabake_format::VerifyReport,
@@ -221,4 +262,37 @@ pub fn ingested(
         output.display(),
         took.as_secs_f64()
     )
+}
+
+/// An error and its causes on one line, each cause said once: a cause
+/// whose text an outer message already carries (an OS error that the
+/// format's message quotes) is not repeated.
+pub fn error_chain(e: &anyhow::Error) -> String {
+    let mut out = String::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if out.contains(&text) {
+            continue;
+        }
+        if !out.is_empty() {
+            out.push_str(": ");
+        }
+        out.push_str(&text);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn an_error_chain_says_each_cause_once() {
+        let io = std::io::Error::new(std::io::ErrorKind::NotFound, "No such file or directory");
+        let e = anyhow::Error::new(io)
+            .context("x/manifest.tba: No such file or directory")
+            .context("x: cannot open asset");
+        assert_eq!(
+            super::error_chain(&e),
+            "x: cannot open asset: x/manifest.tba: No such file or directory"
+        );
+    }
 }

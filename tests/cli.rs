@@ -7,7 +7,7 @@ mod common;
 use std::path::Path;
 
 use common::*;
-use terrabake_format::Asset;
+use terrabake_format::{Asset, MANIFEST_FILE};
 
 fn ok(args: &[&str]) -> String {
     let out = terrabake(args);
@@ -256,6 +256,24 @@ fn verify_fails_with_status_3_on_a_corrupt_tile() {
             .contains("tile (0, 0)"),
         "{report}"
     );
+
+    // Truncated, the layer or the manifest cannot even be opened: still a
+    // problem verify found (3), named; a directory with no asset is an
+    // error (1).
+    let manifest = asset.join(MANIFEST_FILE);
+    for (file, keep) in [(&layer, 1000usize), (&manifest, 40)] {
+        let good = std::fs::read(file).unwrap();
+        std::fs::write(file, &good[..keep]).unwrap();
+        let out = terrabake(&["verify", s(&asset)]);
+        assert_eq!(out.status.code(), Some(3), "{}", stderr(&out));
+        assert!(stdout(&out).contains("problem: "), "{}", stdout(&out));
+        std::fs::write(file, good).unwrap();
+    }
+    let empty = dir.path().join("empty");
+    std::fs::create_dir(&empty).unwrap();
+    let out = terrabake(&["verify", s(&empty)]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(stderr(&out).contains("not an asset"), "{}", stderr(&out));
 }
 
 #[test]

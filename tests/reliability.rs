@@ -389,7 +389,12 @@ fn verify_refuses_inconsistent_manifests() {
     let json = std::fs::read(bad.join(MANIFEST_FILE)).unwrap()[32..].to_vec();
     write_manifest_json(&bad, &json, 7);
     let out = terrabake(&["verify", s(&bad)]);
-    assert!(stderr(&out).contains("reserved"), "{}", stderr(&out));
+    assert_eq!(out.status.code(), Some(3));
+    assert!(
+        common::stdout(&out).contains("reserved"),
+        "{}",
+        stderr(&out)
+    );
 }
 
 /// Failure 7: names are checked before any file is opened; links, FIFOs
@@ -443,7 +448,9 @@ fn the_reader_checks_names_and_opens_only_regular_files() {
         for cmd in ["info", "verify"] {
             let out = run_with_deadline(&[cmd, s(&bad)]);
             assert!(!out.status.success());
-            assert!(stderr(&out).contains(what), "{cmd}: {}", stderr(&out));
+            // verify reports what it found on stdout (exit status 3).
+            let text = stderr(&out) + &common::stdout(&out);
+            assert!(text.contains(what), "{cmd}: {text}");
         }
     }
 }
