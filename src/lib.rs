@@ -29,6 +29,8 @@
 //!   join that assembles them, bit for bit as one machine bakes.
 //! - [`cli`]: the command line's grammar (the binary parses with it).
 //! - [`report`]: what the command line prints for people.
+//! - [`resources`]: free disk and available memory, checked before work
+//!   that would need more.
 //! - [`render`]: perspective views traced through an asset (any method).
 //! - [`shade`]: overhead maps shaded from stored horizons (sky, sun).
 //! - [`bench`](mod@bench): the benchmark harnesses (tracing views, cone
@@ -53,6 +55,7 @@ pub mod pyramid;
 pub mod recipe;
 pub mod render;
 pub mod report;
+pub mod resources;
 pub mod shade;
 pub mod sky;
 pub mod source;

@@ -199,6 +199,11 @@ pub fn render(
         camera.eye
     );
     let (w, h, every) = (opts.width, opts.height, opts.every.max(1));
+    // The traced pixels and the image, 3 bytes each.
+    crate::resources::ensure_memory(
+        u64::from(w) * u64::from(h) * 6,
+        &format!("a {w} x {h} image"),
+    )?;
     let range = asset
         .manifest()
         .height_range
@@ -313,7 +318,7 @@ pub fn render(
     stats.mean_nodes_pushed = totals.nodes_pushed as f64 / n;
     stats.rays_per_second = (stats.primary_rays + stats.shadow_rays) as f64 / seconds.max(1e-9);
     // Untraced pixels take the nearest traced one up and to the left.
-    let mut rgb = Vec::with_capacity((w * h * 3) as usize);
+    let mut rgb = Vec::with_capacity(w as usize * h as usize * 3);
     for py in 0..h {
         let row = &traced[(py / every) as usize];
         for px in 0..w {

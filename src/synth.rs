@@ -163,6 +163,11 @@ pub fn write_geotiff(
 ) -> anyhow::Result<()> {
     use terrabake_format::manifest::RasterType;
     crate::source::check_shape(path, width.into(), height_.into())?;
+    crate::resources::ensure_disk(
+        path,
+        u64::from(width) * u64::from(height_) * 4,
+        &format!("a {width} x {height_} float32 GeoTIFF"),
+    )?;
     let georef = crate::geo::georef_from_keys(
         crate::geo::local_metric_keys(RasterType::Area),
         vec![],

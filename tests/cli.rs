@@ -789,3 +789,52 @@ fn ingest_info_and_render_guide_a_new_user() {
     ]);
     assert!(png.is_file());
 }
+
+/// Sizes that the disk or the memory cannot serve are refused at once,
+/// saying what they need and what there is, and nothing is left behind.
+#[test]
+fn sizes_that_cannot_be_served_are_refused_before_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let tif = dir.path().join("huge.tif");
+    let start = std::time::Instant::now();
+    let o = terrabake(&[
+        "synth",
+        "fractal",
+        "--size",
+        "2000000x2000000",
+        "-o",
+        s(&tif),
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("GiB free"), "{}", stderr(&o));
+    let (small, asset) = (dir.path().join("small.tif"), dir.path().join("a.tbake"));
+    ok(&["synth", "sine", "--size", "40x30", "-o", s(&small), "-q"]);
+    ok(&["ingest", s(&small), "-o", s(&asset), "-q"]);
+    let png = dir.path().join("huge.png");
+    let o = terrabake(&[
+        "render",
+        s(&asset),
+        "--camera",
+        "1,2,300",
+        "--look-at",
+        "20,20,0",
+        "--method",
+        "incremental",
+        "--size",
+        "4000000x4000000",
+        "-o",
+        s(&png),
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("of memory"), "{}", stderr(&o));
+    assert!(
+        start.elapsed().as_secs() < 30,
+        "refused only after {:?}",
+        start.elapsed()
+    );
+    let left: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
+    assert!(!left.iter().any(|n| n.starts_with("huge")), "{left:?}");
+}

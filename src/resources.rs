@@ -1,0 +1,93 @@
+//! What the machine has: free disk space and available memory, checked
+//! before work that would need more, so that a size that cannot be served
+//! is refused at once with what it needs and what there is, not after
+//! minutes of writing or by the kernel's out-of-memory killer.
+
+use std::path::Path;
+
+use anyhow::{bail, Result};
+
+/// Bytes an unprivileged process may still write on the file system that
+/// holds `dir` (`statvfs`), or `None` where it cannot be told.
+pub fn free_disk(dir: &Path) -> Option<u64> {
+    use std::os::unix::ffi::OsStrExt;
+    let c = std::ffi::CString::new(dir.as_os_str().as_bytes()).ok()?;
+    let mut st = std::mem::MaybeUninit::<libc::statvfs>::uninit();
+    // SAFETY: a NUL-terminated path and a buffer statvfs fills on success.
+    if unsafe { libc::statvfs(c.as_ptr(), st.as_mut_ptr()) } != 0 {
+        return None;
+    }
+    // SAFETY: statvfs returned 0, so it filled the buffer.
+    let st = unsafe { st.assume_init() };
+    // The fields' widths differ between platforms (u64 here).
+    #[allow(clippy::useless_conversion)]
+    Some(u64::from(st.f_bavail).saturating_mul(u64::from(st.f_frsize)))
+}
+
+/// Memory the kernel says it can give without swapping (`MemAvailable`),
+/// or `None` where it does not say.
+pub fn available_memory() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib << 10)
+}
+
+/// Refuses to write `bytes` to `path` (`what` it is) when the file system
+/// has less free.
+pub fn ensure_disk(path: &Path, bytes: u64, what: &str) -> Result<()> {
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    // The directory may not exist yet: ask its nearest existing ancestor.
+    let existing = dir
+        .ancestors()
+        .find(|d| d.exists())
+        .unwrap_or(Path::new("."));
+    if let Some(free) = free_disk(existing) {
+        if bytes > free {
+            bail!(
+                "{}: {what} needs {}, and {} has {} free",
+                path.display(),
+                gib(bytes),
+                existing.display(),
+                gib(free)
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Refuses work that would hold `bytes` in memory (`what` it is) when the
+/// machine has less available.
+pub fn ensure_memory(bytes: u64, what: &str) -> Result<()> {
+    if let Some(available) = available_memory() {
+        if bytes > available {
+            bail!(
+                "{what} needs about {} of memory, and {} is available",
+                gib(bytes),
+                gib(available)
+            );
+        }
+    }
+    Ok(())
+}
+
+fn gib(bytes: u64) -> String {
+    format!("{:.1} GiB", bytes as f64 / f64::from(1u32 << 30))
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn this_machine_has_some_disk_and_memory() {
+        assert!(super::free_disk(std::path::Path::new("/")).is_some_and(|b| b > 0));
+        assert!(super::available_memory().is_some_and(|b| b > 0));
+        assert!(super::ensure_memory(u64::MAX, "everything").is_err());
+        assert!(super::ensure_disk(std::path::Path::new("/tmp/x"), u64::MAX, "all").is_err());
+        assert!(
+            super::ensure_disk(std::path::Path::new("/tmp/no/such/dir/x"), 1, "a byte").is_ok()
+        );
+    }
+}
