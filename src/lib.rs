@@ -10,6 +10,8 @@
 //!   and the reclaiming of a dead or failed writer's files.
 //! - [`source`]: DEM readers (GeoTIFF, SRTM .hgt, raw, PNG, OpenEXR), row
 //!   band by row band, never holding a whole DEM.
+//! - [`interrupt`]: Ctrl-C and SIGTERM: temporaries removed, a message,
+//!   exit status 130.
 //! - [`ingest`]: the first stage: a source becomes the asset's `height` layer.
 //! - [`stage`]: the stage interface (layers in, layers out, recorded in the
 //!   manifest), run under the asset's writer lock.
@@ -48,6 +50,7 @@ pub mod export;
 pub mod geo;
 pub mod horizon;
 pub mod ingest;
+pub mod interrupt;
 pub mod ordered;
 pub mod partition;
 pub mod progress;

@@ -32,6 +32,7 @@ fn main() -> ExitCode {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
     let cli = Cli::parse();
+    terrabake::interrupt::install();
     match run(cli) {
         Ok(code) => code,
         Err(e) => {

@@ -222,7 +222,13 @@ pub fn run_share_in(
     force: bool,
     progress: Progress,
 ) -> Result<StageOutcome> {
+    crate::interrupt::doing(Some(format!(
+        "stage '{}' of {}",
+        stage.name(),
+        writer.dir().display()
+    )));
     let result = write_stage(writer, stage, share, force, progress);
+    crate::interrupt::doing(None);
     if result.is_err() {
         writer.fail();
     }

@@ -773,3 +773,68 @@ fn sources_whose_georeferencing_no_reader_accepts_are_refused() {
         assert!(!out.exists());
     }
 }
+
+/// Ctrl-C (SIGINT) or a scheduler's SIGTERM while writing: the temporary
+/// files go, what was committed stays and opens, the message names what was
+/// interrupted, the exit status is 130, and the same command run again
+/// finishes.
+#[test]
+fn an_interrupted_command_removes_its_temporaries_and_resumes() {
+    let dir = tempfile::tempdir().unwrap();
+    let temporaries = |d: &Path| -> Vec<String> {
+        std::fs::read_dir(d)
+            .map(|r| {
+                r.flatten()
+                    .map(|e| e.file_name().into_string().unwrap())
+                    .filter(|n| n.ends_with(terrabake_format::fsio::TEMP_SUFFIX))
+                    .collect()
+            })
+            .unwrap_or_default()
+    };
+    // Interrupts `args` once a temporary appears in `watch`; its output.
+    let interrupt = |args: &[&str], watch: &Path, signal: i32| {
+        let child = spawn_piped(args);
+        let deadline = Instant::now() + Duration::from_secs(60);
+        while temporaries(watch).is_empty() {
+            assert!(Instant::now() < deadline, "{args:?}: no temporary appeared");
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        // SAFETY: a signal to our own child.
+        unsafe { libc::kill(child.id() as i32, signal) };
+        child.wait_with_output().unwrap()
+    };
+    let tif = dir.path().join("big.tif");
+    let out = interrupt(
+        &["synth", "fractal", "--size", "6000x6000", "-o", s(&tif)],
+        dir.path(),
+        libc::SIGINT,
+    );
+    assert_eq!(out.status.code(), Some(130), "{}", stderr(&out));
+    assert!(stderr(&out).contains("interrupted"), "{}", stderr(&out));
+    assert!(temporaries(dir.path()).is_empty() && !tif.exists());
+
+    let asset = dir.path().join("a.tbake");
+    let srtm = common::repo_file("data/srtm3_n07w006_geographic_int16.tif");
+    assert!(terrabake(&["ingest", s(&srtm), "-o", s(&asset), "-q"])
+        .status
+        .success());
+    let horizons = ["horizons", s(&asset), "--sectors", "16"];
+    let out = interrupt(&horizons, &asset, libc::SIGTERM);
+    assert_eq!(out.status.code(), Some(130), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("during stage 'horizons'") && stderr(&out).contains("again"),
+        "{}",
+        stderr(&out)
+    );
+    assert!(temporaries(&asset).is_empty(), "{:?}", temporaries(&asset));
+    let opened = Asset::open(&asset).unwrap();
+    assert!(opened.verify().problems.is_empty());
+    assert!(
+        opened.layer("horizon", 0).is_err(),
+        "half a stage committed"
+    );
+    drop(opened);
+    let again = terrabake(&horizons);
+    assert!(again.status.success(), "{}", stderr(&again));
+    assert!(Asset::open(&asset).unwrap().layer("horizon", 0).is_ok());
+}

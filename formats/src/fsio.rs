@@ -110,12 +110,34 @@ pub fn create_temp(target: &Path) -> std::io::Result<(File, PathBuf)> {
             .mode(0o644)
             .open(&path)
         {
-            Ok(file) => return Ok((file, path)),
+            Ok(file) => {
+                TEMPORARIES
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .push(path.clone());
+                return Ok((file, path));
+            }
             // Someone (or something) holds that name: take another.
             Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
             Err(e) => return Err(e),
         }
     }
+}
+
+/// Every temporary this process has created (a name is never used twice,
+/// so one renamed into place or removed since is simply gone).
+static TEMPORARIES: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+
+/// Removes every temporary this process created that is still there, and
+/// returns how many: for a writer interrupted (Ctrl-C, a scheduler's
+/// SIGTERM) before it could clean up, so that it leaves nothing half
+/// written behind. Committed files are never touched.
+pub fn remove_temporaries() -> usize {
+    let paths = std::mem::take(&mut *TEMPORARIES.lock().unwrap_or_else(|e| e.into_inner()));
+    paths
+        .iter()
+        .filter(|p| std::fs::remove_file(p).is_ok())
+        .count()
 }
 
 /// Fsyncs the directory `dir`, so that renames and unlinks in it are durable.
