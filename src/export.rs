@@ -297,6 +297,18 @@ pub fn export_layer(
     }
 }
 
+/// The 1st and 99th percentiles of the values that are not NaN (the
+/// stretch of previews and shaded maps), or `None` when all are NaN.
+pub fn percentile_range(mut values: Vec<f32>) -> Option<(f32, f32)> {
+    values.retain(|v| !v.is_nan());
+    if values.is_empty() {
+        return None;
+    }
+    values.sort_unstable_by(f32::total_cmp);
+    let at = |p: usize| values[(values.len() * p / 100).min(values.len() - 1)];
+    Some((at(1), at(99)))
+}
+
 /// Largest side of a PNG preview; larger layers are subsampled.
 pub const PREVIEW_MAX_SIDE: u32 = 4096;
 
@@ -316,21 +328,17 @@ fn write_png_preview(
         layer.read_rows_f32(band, y.min(h - 1), &mut full)?;
         Ok((0..pw).map(|x| full[(x * step) as usize]).collect())
     };
-    // Heights scale by the DEM's range; other layers by their own.
+    // Heights scale by the DEM's range; other layers from their 1st to
+    // their 99th percentile (a sky-view factor's few pits would otherwise
+    // leave the rest of the map white).
     let range = match (height_like, manifest.height_range) {
         (true, Some(r)) => (r.min, r.max),
         _ => {
-            let mut range = (f32::INFINITY, f32::NEG_INFINITY);
+            let mut values = Vec::with_capacity(pw as usize * ph as usize);
             for py in 0..ph {
-                for v in row_at(py * step)?.into_iter().filter(|v| !v.is_nan()) {
-                    range = (range.0.min(v), range.1.max(v));
-                }
+                values.extend(row_at(py * step)?);
             }
-            if range.0 > range.1 {
-                (0.0, 1.0)
-            } else {
-                range
-            }
+            percentile_range(values).unwrap_or((0.0, 1.0))
         }
     };
     let span = (range.1 - range.0).max(1e-6);
@@ -431,4 +439,16 @@ pub fn hypsometric(t: f32) -> [f32; 3] {
         }
     }
     STOPS[4].1
+}
+
+#[cfg(test)]
+mod percentile_tests {
+    #[test]
+    fn the_stretch_skips_nan_and_the_outer_percent() {
+        let mut v: Vec<f32> = (0..1000).map(|i| i as f32).collect();
+        v.extend([f32::NAN; 50]);
+        v[0] = -1e9; // a pit, as a sky-view factor has
+        assert_eq!(super::percentile_range(v), Some((10.0, 990.0)));
+        assert_eq!(super::percentile_range(vec![f32::NAN]), None);
+    }
 }

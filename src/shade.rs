@@ -112,11 +112,7 @@ pub fn shade_posts(asset: &Asset<Mmap>, shade: Shade) -> Result<(Vec<f32>, usize
     }
     // Stretch the 1st..99th percentiles to black..white: the map shows
     // relative light, as Stewart's figures do.
-    let mut sorted: Vec<f32> = out.iter().copied().filter(|v| !v.is_nan()).collect();
-    if !sorted.is_empty() {
-        sorted.sort_unstable_by(f32::total_cmp);
-        let at = |p: usize| sorted[(sorted.len() * p / 100).min(sorted.len() - 1)];
-        let (lo, hi) = (at(1), at(99));
+    if let Some((lo, hi)) = crate::export::percentile_range(out.clone()) {
         let span = (hi - lo).max(1e-9);
         out.iter_mut()
             .for_each(|v| *v = ((*v - lo) / span).clamp(0.0, 1.0));
