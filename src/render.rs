@@ -153,8 +153,9 @@ pub enum Shadows {
     Rays,
     /// The horizons stage's angles: the share of the sun's disc above the
     /// horizon (`lit_fraction`, radius 0.27 degrees), bilinear between the
-    /// four posts around the hit. No ray; soft edges; the true terrain's
-    /// horizons whatever the exaggeration.
+    /// four posts around the hit. No ray; soft edges. Under an exaggeration
+    /// `e` the sun stands where it does over the exaggerated surface: at
+    /// `atan(tan(elevation) / e)` over the true one.
     Horizons,
 }
 
@@ -214,6 +215,15 @@ pub fn render(
     } else {
         1.0
     };
+    // Shading and shadows are of the same, exaggerated surface: towards
+    // the sun over it is, over the true heights, a ray whose rise is
+    // divided by e (and a sun that much lower).
+    let sun_true = Sun {
+        azimuth: opts.sun.azimuth,
+        elevation: (opts.sun.elevation.to_radians().tan() / e)
+            .atan()
+            .to_degrees(),
+    };
     let horizons = match opts.shadows {
         Shadows::Horizons => Some(terrabake_format::horizons::HorizonMap::open(asset).map_err(
             |e| {
@@ -256,7 +266,7 @@ pub fn render(
                                     let origin = [hit.point[0], hit.point[1], hit.point[2] + lift];
                                     let shadow = Ray {
                                         origin,
-                                        dir: sun,
+                                        dir: sun_true.direction(),
                                         t_min: 0.0,
                                         t_max: f64::INFINITY,
                                     };
@@ -269,7 +279,7 @@ pub fn render(
                                 (Shadows::Horizons, Some(map)) => {
                                     let (col, row) =
                                         (hit.point[0] / cell.0, rows_max - hit.point[1] / cell.1);
-                                    lit_between_posts(map, (col, row), opts.sun)?
+                                    lit_between_posts(map, (col, row), sun_true)?
                                 }
                                 _ => 1.0,
                             }

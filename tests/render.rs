@@ -280,3 +280,44 @@ fn horizon_shadows_agree_with_shadow_rays() {
         "{disagree} pixels disagree, {shadowed} shadowed"
     );
 }
+
+/// Under a vertical exaggeration the shadows are those of the exaggerated
+/// surface that is shaded (a lower sun over the true heights): the demo's
+/// view at 8x casts shadows over a tenth of the picture (it cast them on 79
+/// of 655,360 pixels when shadow rays used the true surface).
+#[test]
+fn shadows_fall_on_the_exaggerated_surface() {
+    use terrabake::render::{Camera, Shadows};
+    let dir = tempfile::tempdir().unwrap();
+    let srtm = Asset::open(srtm_with_pyramid(dir.path())).unwrap();
+    let tracer = Tracer::new(&srtm).unwrap();
+    let demo_view = Camera {
+        eye: [30000.0, 8000.0, 4500.0],
+        look_at: [55000.0, 60000.0, 500.0],
+        fov: 60.0,
+    };
+    let cast = |e: f64| {
+        let picture = |shadows| {
+            let opts = RenderOptions {
+                width: 256,
+                height: 160,
+                method: Method::Hierarchical,
+                sun: Sun {
+                    azimuth: 290.0,
+                    elevation: 10.0,
+                },
+                every: 1,
+                shadows,
+                exaggeration: e,
+            };
+            render(&srtm, &tracer, &demo_view, &opts).unwrap().0.rgb
+        };
+        let (a, b) = (picture(Shadows::Rays), picture(Shadows::Off));
+        a.chunks(3).zip(b.chunks(3)).filter(|(p, q)| p != q).count()
+    };
+    let (true_surface, exaggerated) = (cast(1.0), cast(8.0));
+    assert!(
+        exaggerated > 256 * 160 / 20 && exaggerated > 5 * true_surface,
+        "{exaggerated} pixels in cast shadow at 8x, {true_surface} at 1x"
+    );
+}
