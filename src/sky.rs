@@ -196,11 +196,7 @@ impl Stage for SkyStage {
         let bar = progress.bar(h.div_ceil(ts) as u64, "sky layers", "tile rows");
         // Outside the area of interest every layer holds its fill value
         // (NaN, or no edge for the edge count): only its rows are computed.
-        let wanted = {
-            let r = share.rows(h);
-            let (a, b) = (r.start.max(ay0), r.end.min(ay1));
-            a..b.max(a)
-        };
+        let wanted = share.rows_within(h, ay0..ay1);
         for y0 in (0..h).step_by(ts) {
             let rows = ts.min(h - y0);
             if y0 >= wanted.end || y0 + rows <= wanted.start {

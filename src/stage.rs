@@ -149,6 +149,18 @@ impl Share {
         }
     }
 
+    /// The rows of a `height`-row layer this share computes within `area`
+    /// (an area of interest's rows; empty where they do not meet).
+    pub fn rows_within(
+        &self,
+        height: usize,
+        area: std::ops::Range<usize>,
+    ) -> std::ops::Range<usize> {
+        let r = self.rows(height);
+        let start = r.start.max(area.start);
+        start..r.end.min(area.end).max(start)
+    }
+
     /// The bands of a `count`-band layer this share computes.
     pub fn bands(&self, count: usize) -> std::ops::Range<usize> {
         match *self {

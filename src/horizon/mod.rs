@@ -588,11 +588,7 @@ impl Stage for HorizonsStage {
         // the share's) are computed where rows are independent, and only
         // its columns by bounded `line`.
         let aoi = self.area(w, h);
-        let rows = {
-            let r = share.rows(h);
-            let (a, b) = (r.start.max(aoi[1]), r.end.min(aoi[3]));
-            a..b.max(a)
-        };
+        let rows = share.rows_within(h, aoi[1]..aoi[3]);
         let cols = aoi[0]..aoi[2];
         // Bounded `line` holds only the rows it computes and those within
         // reach of them (a part of a partitioned bake: its share; an area of
