@@ -185,7 +185,7 @@ impl LayerWriter {
             source,
         })?;
         let io_err = |source| Error::Io {
-            at: Location::layer(&tmp_path, format!("{}@{}", spec.name, spec.level)),
+            at: Location::layer(&final_path, format!("{}@{}", spec.name, spec.level)),
             source,
         };
         let mut header = LayerHeader {
@@ -232,9 +232,11 @@ impl LayerWriter {
         self.pushed
     }
 
+    /// Where errors say the layer is: the file it is being written as (its
+    /// temporary's name means nothing to a user).
     fn at(&self) -> Location {
         Location::layer(
-            &self.tmp_path,
+            &self.dir.join(&self.file_name),
             format!("{}@{}", self.spec.name, self.spec.level),
         )
     }
