@@ -236,7 +236,7 @@ impl LayerWriter {
     /// temporary's name means nothing to a user).
     fn at(&self) -> Location {
         Location::layer(
-            &self.dir.join(&self.file_name),
+            self.dir.join(&self.file_name),
             format!("{}@{}", self.spec.name, self.spec.level),
         )
     }
