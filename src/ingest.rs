@@ -189,6 +189,7 @@ impl Stage for IngestStage {
         &self,
         _: &terrabake_format::Asset<terrabake_format::Mmap>,
         _: &Path,
+        _: &Share,
         _: Progress,
     ) -> Result<Vec<LayerEntry>> {
         bail!("ingest creates an asset: it runs through Stage::create")

@@ -660,22 +660,30 @@ pub fn differences(a: &Asset<Mmap>, b: &Asset<Mmap>) -> Result<Vec<String>> {
             ));
             continue;
         }
-        let n = e.width as usize * e.height as usize;
-        let (mut va, mut vb) = (vec![0f32; n], vec![0f32; n]);
-        for band in 0..e.bands {
-            la.read_rows_f32(band, 0, &mut va)?;
-            lb.read_rows_f32(band, 0, &mut vb)?;
-            let same =
-                |i: usize| va[i].to_bits() == vb[i].to_bits() || (va[i].is_nan() && vb[i].is_nan());
-            if let Some(i) = (0..n).find(|&i| !same(i)) {
-                out.push(format!(
-                    "{} band {band}: post ({}, {}) is {} here, {} in the other",
-                    e.key(),
-                    i % e.width as usize,
-                    i / e.width as usize,
-                    va[i],
-                    vb[i]
-                ));
+        // A band of rows at a time (about 4 MiB a side), not whole layers:
+        // comparing two large assets holds no more than that.
+        let (w, h) = (e.width as usize, e.height as usize);
+        let rows = ((1 << 20) / w).clamp(1, h);
+        let (mut va, mut vb) = (vec![0f32; rows * w], vec![0f32; rows * w]);
+        'band: for band in 0..e.bands {
+            for y0 in (0..h).step_by(rows) {
+                let n = rows.min(h - y0) * w;
+                la.read_rows_f32(band, y0 as u32, &mut va[..n])?;
+                lb.read_rows_f32(band, y0 as u32, &mut vb[..n])?;
+                let same = |i: usize| {
+                    va[i].to_bits() == vb[i].to_bits() || (va[i].is_nan() && vb[i].is_nan())
+                };
+                if let Some(i) = (0..n).find(|&i| !same(i)) {
+                    out.push(format!(
+                        "{} band {band}: post ({}, {}) is {} here, {} in the other",
+                        e.key(),
+                        i % w,
+                        y0 + i / w,
+                        va[i],
+                        vb[i]
+                    ));
+                    continue 'band;
+                }
             }
         }
     }

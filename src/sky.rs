@@ -144,12 +144,8 @@ impl Stage for SkyStage {
         }
     }
 
-    fn run(&self, asset: &Asset<Mmap>, dir: &Path, progress: Progress) -> Result<Vec<LayerEntry>> {
-        self.run_share(asset, dir, &Share::All, progress)
-    }
-
     /// Tile rows outside the share's rows are not computed.
-    fn run_share(
+    fn run(
         &self,
         asset: &Asset<Mmap>,
         dir: &Path,

@@ -60,23 +60,18 @@ pub trait Stage {
             Reach::Whole => Split::Join,
         }
     }
-    /// [`Stage::run`] for one part of a partitioned bake: the outputs'
-    /// chunks in `share` must be exact; the others may hold the layers'
-    /// fill value. By default the whole stage runs (correct, and as slow
-    /// as one machine).
-    fn run_share(
+    /// Writes the stage's layers into `dir` (with `terrabake_format::LayerWriter`)
+    /// and returns their entries, not yet committed. The outputs' chunks in
+    /// `share` must be exact; a stage may leave the others at the layers'
+    /// fill value (a part of a partitioned bake), or compute them too: a
+    /// stage that never splits ignores the share.
+    fn run(
         &self,
         asset: &Asset<Mmap>,
         dir: &Path,
         share: &Share,
         progress: Progress,
-    ) -> Result<Vec<LayerEntry>> {
-        let _ = share;
-        self.run(asset, dir, progress)
-    }
-    /// Writes the stage's layers into `dir` (with `terrabake_format::LayerWriter`)
-    /// and returns their entries, not yet committed.
-    fn run(&self, asset: &Asset<Mmap>, dir: &Path, progress: Progress) -> Result<Vec<LayerEntry>>;
+    ) -> Result<Vec<LayerEntry>>;
     /// Whether the stage creates the asset (ingest) rather than adding to
     /// one: the runner then calls [`Stage::create`], not [`Stage::run`].
     fn creates_asset(&self) -> bool {
@@ -281,11 +276,9 @@ fn write_stage(
         (manifest, entries)
     } else {
         let asset = opened.with_context(|| format!("{}: cannot open asset", dir.display()))?;
-        let entries = match share {
-            Share::All => stage.run(&asset, dir, progress),
-            share => stage.run_share(&asset, dir, share, progress),
-        }
-        .with_context(failed)?;
+        let entries = stage
+            .run(&asset, dir, share, progress)
+            .with_context(failed)?;
         (asset.manifest().clone(), entries)
     };
     let outputs: Vec<String> = entries.iter().map(LayerEntry::key).collect();

@@ -276,6 +276,25 @@ fn a_bad_set_of_parts_is_refused_by_name_and_nothing_is_committed() {
         Asset::open(&out).expect("the previous asset still opens");
     };
 
+    // verify --same-as names the first post that differs.
+    let shifted = tmp.path().join("shifted.tbake");
+    ok(terrabake(&[
+        "ingest",
+        path(&src),
+        "-o",
+        path(&shifted),
+        "--z-offset",
+        "1",
+        "-q",
+    ]));
+    let compared = terrabake(&["verify", path(&out), "--same-as", path(&shifted)]);
+    assert_eq!(compared.status.code(), Some(3));
+    assert!(
+        stdout(&compared).contains("height@0 band 0: post (0, 0)"),
+        "{}",
+        stdout(&compared)
+    );
+
     refused(part("3", "3", &recipe), &["--part 3", "0..3"]);
     refused(assemble(), &["no parts"]);
     ok(part("0", "3", &recipe));

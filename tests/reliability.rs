@@ -682,6 +682,7 @@ fn a_failed_stage_removes_its_own_files() {
             &self,
             asset: &Asset<Mmap>,
             dir: &Path,
+            _: &terrabake::stage::Share,
             _: terrabake::progress::Progress,
         ) -> anyhow::Result<Vec<LayerEntry>> {
             let h = asset.height()?;

@@ -31,7 +31,13 @@ impl Stage for Offset {
     fn params(&self) -> serde_json::Value {
         serde_json::json!({ "add": self.add })
     }
-    fn run(&self, asset: &Asset<Mmap>, dir: &Path, _progress: Progress) -> Result<Vec<LayerEntry>> {
+    fn run(
+        &self,
+        asset: &Asset<Mmap>,
+        dir: &Path,
+        _: &terrabake::stage::Share,
+        _progress: Progress,
+    ) -> Result<Vec<LayerEntry>> {
         let height = asset.height()?;
         let (w, h, ts) = (height.width(), height.height(), height.tile_size());
         let spec = LayerSpec {

@@ -385,7 +385,14 @@ impl Stage for ConesStage {
         Ok(())
     }
 
-    fn run(&self, asset: &Asset<Mmap>, dir: &Path, progress: Progress) -> Result<Vec<LayerEntry>> {
+    /// Never split (it runs at the join): every chunk, whatever the share.
+    fn run(
+        &self,
+        asset: &Asset<Mmap>,
+        dir: &Path,
+        _: &crate::stage::Share,
+        progress: Progress,
+    ) -> Result<Vec<LayerEntry>> {
         let height = asset.height()?;
         let (w, h, ts) = (height.width(), height.height(), height.tile_size());
         anyhow::ensure!(w >= 2 && h >= 2, "a {w} x {h} DEM has no cells");

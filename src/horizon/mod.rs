@@ -564,13 +564,9 @@ impl Stage for HorizonsStage {
         }
     }
 
-    fn run(&self, asset: &Asset<Mmap>, dir: &Path, progress: Progress) -> Result<Vec<LayerEntry>> {
-        self.run_share(asset, dir, &Share::All, progress)
-    }
-
     /// Bands outside the share are not computed; rows outside it are not
     /// where the rows are independent (bounded `line` and `sector`).
-    fn run_share(
+    fn run(
         &self,
         asset: &Asset<Mmap>,
         dir: &Path,
