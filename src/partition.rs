@@ -485,17 +485,10 @@ fn commit_parts(
     let n = parts.len() as u32;
     let m = parts[0].1.manifest();
     let (h, ts) = (m.height as usize, m.tile_size as usize);
-    let row_owner: Vec<usize> = (0..h.div_ceil(ts))
-        .map(|ty| {
-            (0..n)
-                .find(|&i| {
-                    Part { index: i, count: n }
-                        .own_rows(h, ts)
-                        .contains(&(ty * ts))
-                })
-                .expect("every tile row has an owner") as usize
-        })
-        .collect();
+    let row_owner = owners(n, h.div_ceil(ts), |part| {
+        let rows = part.own_rows(h, ts);
+        rows.start / ts..rows.end.div_ceil(ts)
+    });
     // The layers the parts computed, each with how its chunks are owned.
     let mut adopted = vec![(format!("{HEIGHT_LAYER}@0"), Split::Rows { halo: 0 })];
     for (stage, split) in &plan.stages {
@@ -590,17 +583,18 @@ fn adopt(
         &format!("assemble {}", e.key()),
         "chunks",
     );
+    let band_owner = owners(n, e.bands as usize, |part| {
+        Share::Bands {
+            part: part.index,
+            parts: part.count,
+        }
+        .bands(e.bands as usize)
+    });
     for chunk in 0..writer.spec().chunk_count() {
         let (band, row) = ((chunk / (tx * ty)) as usize, ((chunk / tx) % ty) as usize);
         let owner = match split {
             Split::Rows { .. } => row_owner[row],
-            Split::Bands => (0..n)
-                .find(|&i| {
-                    Share::Bands { part: i, parts: n }
-                        .bands(e.bands as usize)
-                        .contains(&band)
-                })
-                .expect("every band has an owner") as usize,
+            Split::Bands => band_owner[band],
             Split::Join => unreachable!("joined stages are not adopted"),
         };
         let stored = layers[owner].stored_chunk(chunk).with_context(|| {
@@ -688,6 +682,18 @@ pub fn differences(a: &Asset<Mmap>, b: &Asset<Mmap>) -> Result<Vec<String>> {
         }
     }
     Ok(out)
+}
+
+/// For each of `len` tile rows or bands, the part of `n` whose share
+/// (`share_of`) holds it.
+fn owners(n: u32, len: usize, share_of: impl Fn(Part) -> Range<usize>) -> Vec<usize> {
+    let mut owner = vec![0; len];
+    for index in 0..n {
+        for i in share_of(Part { index, count: n }) {
+            owner[i] = index as usize;
+        }
+    }
+    owner
 }
 
 /// What a layer's stored values mean: type, bands, grid, the bands'
