@@ -3,6 +3,7 @@
 //! it here, which pads, encodes (in parallel) and appends the tiles in order.
 
 use rayon::prelude::*;
+use terrabake_format::writer::ZSTD_LEVEL;
 use terrabake_format::{encode_tile, Codec, Element, EncodedTile, LayerWriter};
 use zerocopy::IntoBytes;
 
@@ -14,9 +15,6 @@ pub fn row_bands(height: usize, rows: usize) -> Vec<std::ops::Range<usize>> {
         .map(|r0| r0..(r0 + rows).min(height))
         .collect()
 }
-
-/// zstd level for tiles: 3 is zstd's default, fast to write and to read.
-pub const ZSTD_LEVEL: i32 = 3;
 
 /// Appends one row of tiles taken from `band`, a row-major block of
 /// `width x rows` elements (`rows <= tile_size`; the last band of a grid may

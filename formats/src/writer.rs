@@ -121,6 +121,10 @@ pub struct EncodedTile {
     pub constant: Option<u64>,
 }
 
+/// The zstd level tiles are written with: zstd's default, fast to write
+/// and to read.
+pub const ZSTD_LEVEL: i32 = 3;
+
 /// Encodes one tile's bytes (`tile_size²` elements of `elem_size` bytes).
 /// A zstd tile that would not be smaller than raw is stored raw.
 pub fn encode_tile(raw: &[u8], elem_size: usize, codec: Codec, zstd_level: i32) -> EncodedTile {
@@ -298,7 +302,7 @@ impl LayerWriter {
                 .flatten()
                 .copied()
                 .collect();
-        let tile = encode_tile(&raw, elem, self.spec.codec, 3);
+        let tile = encode_tile(&raw, elem, self.spec.codec, ZSTD_LEVEL);
         self.push_at(chunk, tile)
     }
 
