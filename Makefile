@@ -5,32 +5,47 @@ BIN := target/release/terrabake
 DEMO_DEM := data/srtm3_n07w006_geographic_int16.tif
 OUT ?= out
 
-.PHONY: all build demo test test-full bake-parts bake-slurm test-slurm fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-reader fixtures fmt lint clean
+.PHONY: all build demo test test-full test-page bake-parts bake-slurm test-slurm fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-reader fixtures fmt lint clean
 
 all: build
 
 build:
 	$(CARGO) build --release --locked
 
-## Bake the bundled SRTM tile: asset, summary (text and JSON), verification, previews.
+## Bake the bundled SRTM tile: asset, summary (text and JSON), verification,
+## previews with legends, and out/index.html, one page with all of them.
 demo: build
 	mkdir -p $(OUT)
 	$(BIN) bake $(DEMO_DEM) -o $(OUT)/srtm.tbake --recipe pipelines/demo.toml
-	$(BIN) info $(OUT)/srtm.tbake | tee $(OUT)/srtm.summary.txt
+	$(BIN) info $(OUT)/srtm.tbake > $(OUT)/srtm.summary.txt
 	$(BIN) info $(OUT)/srtm.tbake --json > $(OUT)/srtm.summary.json
-	$(BIN) verify $(OUT)/srtm.tbake
+	$(BIN) verify $(OUT)/srtm.tbake > $(OUT)/srtm.verify.txt
 	$(BIN) export $(OUT)/srtm.tbake --layer height --style relief -o $(OUT)/srtm_relief.png
 	$(BIN) export $(OUT)/srtm.tbake --layer height --style gray -o $(OUT)/srtm_gray16.png
-	$(BIN) render $(OUT)/srtm.tbake --camera 30000,8000,4500 --look-at 55000,60000,500 --fov 60 --sun 290,10 --exaggerate 8 --size 1024x640 --method parametric --stats -o $(OUT)/srtm_view.png
+	$(BIN) render $(OUT)/srtm.tbake --camera 30000,8000,4500 --look-at 55000,60000,500 --fov 60 --sun 290,10 --exaggerate 8 --size 1024x640 --method parametric --stats -o $(OUT)/srtm_view.png > $(OUT)/srtm_view.stats.txt
 	$(BIN) export $(OUT)/srtm.tbake --layer horizon -o $(OUT)/srtm_horizon.tif
-	$(BIN) export $(OUT)/srtm.tbake --layer svf --style gray -o $(OUT)/srtm_svf.png
+	$(BIN) export $(OUT)/srtm.tbake --layer svf -o $(OUT)/srtm_svf.png
 	$(BIN) render $(OUT)/srtm.tbake --shade sky -o $(OUT)/srtm_sky.png
 	$(BIN) render $(OUT)/srtm.tbake --shade sun:250,15 -o $(OUT)/srtm_sun.png
+	$(BIN) page $(OUT)/srtm.tbake -o $(OUT)/index.html \
+	  --picture "$(OUT)/srtm_view.png=Traced through the asset (parametric tracing, shadow rays, sun at 290, 10 degrees, heights x8)" \
+	  --picture "$(OUT)/srtm_relief.png=Heights: hypsometric tint and hillshade" \
+	  --picture "$(OUT)/srtm_svf.png=Sky-view factor from 32 exact horizon lines" \
+	  --picture "$(OUT)/srtm_sky.png=Overcast sky light from the horizons alone (Stewart's radiosity)" \
+	  --picture "$(OUT)/srtm_sun.png=Sun at 250, 15 degrees: shadows and sky from the horizons alone" \
+	  --chart "docs/charts/horizons_horizon.svg=Horizon angle error against bake time, every method (make bench-horizons)" \
+	  --chart "docs/charts/horizons_svf.svg=Sky-view factor error against bake time (make bench-horizons)" \
+	  --chart "docs/charts/cones_speed.svg=Parametric tracing: rays per second against cone slices (make bench-cones)" \
+	  --chart "docs/charts/trace_scaling_time.svg=Time per ray against DEM size, every tracer (make bench-trace)" \
+	  --text "$(OUT)/srtm_view.stats.txt=The view's tracing statistics" \
+	  --text "$(OUT)/srtm.verify.txt=terrabake verify"
+	@cat $(OUT)/srtm.summary.txt
 	@echo
+	@echo "page:     $(OUT)/index.html (open it in a browser: every picture, chart and summary below)"
 	@echo "asset:    $(OUT)/srtm.tbake"
 	@echo "summary:  $(OUT)/srtm.summary.txt ($(OUT)/srtm.summary.json)"
 	@echo "previews: $(OUT)/srtm_relief.png $(OUT)/srtm_gray16.png $(OUT)/srtm_view.png"
-	@echo "horizons: $(OUT)/srtm_horizon.tif (16 bands, degrees) $(OUT)/srtm_svf.png $(OUT)/srtm_sky.png $(OUT)/srtm_sun.png"
+	@echo "horizons: $(OUT)/srtm_horizon.tif (32 bands, degrees) $(OUT)/srtm_svf.png $(OUT)/srtm_sky.png $(OUT)/srtm_sun.png"
 
 ## Every test, in the release profile that `make demo` (and `make build`)
 ## already built: the dependencies are compiled once for both.
@@ -41,6 +56,11 @@ test:
 ## ([profile.test]: optimised, but checked); CI runs it after `make test`.
 test-full:
 	$(CARGO) test --workspace --locked
+
+## The demo page in a real headless browser (Debian's chromium, installed
+## if missing): it loads, every picture shows, the console stays quiet.
+test-page: demo
+	bash pipelines/page/check.sh $(OUT)/index.html
 
 ## Partitioned bakes (docs/SCALE.md). On one box, the parts as make jobs:
 ##   make bake-parts SRC=dem.tif OUT=dem.tbake RECIPE=pipelines/demo.toml PARTS=8 -j8

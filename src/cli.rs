@@ -84,7 +84,7 @@ pub enum Command {
     /// compass order); quantised layers are decoded. A PNG shows one band (--band).
     #[command(after_help = "Examples:\n  terrabake export dem.tbake -o dem.tif\n  \
 terrabake export dem.tbake --layer horizon -o horizon.tif\n  \
-terrabake export dem.tbake --layer svf --style gray -o svf.png")]
+terrabake export dem.tbake --layer svf -o svf.png")]
     Export {
         asset: PathBuf,
         /// Layer name (see `terrabake info`).
@@ -93,10 +93,12 @@ terrabake export dem.tbake --layer svf --style gray -o svf.png")]
         /// Pyramid level of the layer.
         #[arg(long, default_value_t = 0)]
         level: u32,
-        /// PNG style: `relief` (hypsometric tint with hillshade, nodata transparent) or
-        /// `gray` (16-bit, min to max).
-        #[arg(long, value_enum, default_value = "relief")]
-        style: PngStyle,
+        /// PNG style: `relief` (hypsometric tint with hillshade and a legend; the default for
+        /// heights), `ramp` (viridis from the 1st to the 99th percentile with a legend; the
+        /// default for other layers) or `gray` (16-bit, min to max, no legend: a heightmap for
+        /// engines). Nodata is transparent (black in `gray`).
+        #[arg(long, value_enum)]
+        style: Option<PngStyle>,
         /// The band a PNG shows (GeoTIFF and EXR carry all bands).
         #[arg(long, default_value_t = 0)]
         band: u32,
@@ -266,6 +268,10 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
         /// Vertical exaggeration (camera heights are then in exaggerated metres).
         #[arg(long, default_value_t = 1.0, allow_hyphen_values = true, value_parser = crate::args::parse_positive)]
         exaggerate: f64,
+        /// Shading normals: smooth (post normals interpolated across cells) or flat (each
+        /// triangle's own, facets showing). Hits and shadows are exact either way.
+        #[arg(long, value_enum, default_value = "smooth")]
+        normals: crate::render::Normals,
         #[arg(short, long)]
         output: PathBuf,
         /// Print rays per second and mean steps per ray.
@@ -277,6 +283,8 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
     },
     /// Benchmark the tracers on the sixteen built-in views, side by side (Paglieroni's Table 1).
     BenchViews(crate::bench::views::BenchViewsArgs),
+    /// Write one self-contained HTML page with an asset's summary, pictures and charts.
+    Page(crate::page::PageArgs),
     /// Ingest a DEM and run every stage of a recipe, skipping work already done.
     ///
     /// A recipe is a TOML file: an [ingest] table with ingest's options (tile, codec,

@@ -17,6 +17,7 @@ use terrabake_format::{Asset, Layer, Mmap};
 use tiff::encoder::{colortype, TiffEncoder, TiffKind, TiffKindBig, TiffKindStandard};
 use tiff::tags::Tag;
 
+use crate::legend::{Legend, Ramp, Stretch};
 use crate::progress::Progress;
 
 /// Writes `path` through a temporary file beside it
@@ -198,14 +199,58 @@ impl ExportKind {
     }
 }
 
-/// How a PNG preview colours heights.
+/// How a PNG preview colours a layer.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum PngStyle {
-    /// Heights from min (black) to max (white), 16-bit.
+    /// The values from min (black) to max (white), 16-bit gray, no legend:
+    /// a heightmap for engines, not a picture.
     Gray,
     /// Hypsometric tint (green lowlands to brown and white peaks) times a
-    /// hillshade lit from the north-west at 45 degrees; nodata is transparent.
+    /// hillshade lit from the north-west at 45 degrees, with a legend;
+    /// nodata is transparent. The default for heights.
     Relief,
+    /// Viridis from the 1st to the 99th percentile, with a legend; nodata
+    /// is transparent. The default for every other layer.
+    Ramp,
+}
+
+impl PngStyle {
+    /// The style for `layer` when none is asked for.
+    pub fn default_for(layer: &str) -> Self {
+        if is_height_like(layer) {
+            PngStyle::Relief
+        } else {
+            PngStyle::Ramp
+        }
+    }
+}
+
+/// Heights and their pyramids: metres of the DEM, stretched over its range.
+fn is_height_like(layer: &str) -> bool {
+    layer == terrabake_format::HEIGHT_LAYER || layer.starts_with("pyramid")
+}
+
+/// What a layer's map shows, with its unit, for legends.
+pub fn layer_title(layer: &str, band: u32, bands: u32) -> String {
+    use terrabake_format::layers as l;
+    let band = if bands > 1 {
+        format!(", band {band} of {bands}")
+    } else {
+        String::new()
+    };
+    match layer {
+        l::HEIGHT => "height (m)".into(),
+        l::PYRAMID_MAX => "pyramid: tallest corner below (m)".into(),
+        l::PYRAMID_MIN => "pyramid: lowest corner below (m)".into(),
+        l::CONE_APEX => "cone apex height (m)".into(),
+        l::CONE_SLOPE => "cone slope (m across per m up)".into(),
+        l::HORIZON => format!("horizon angle (degrees){band}"),
+        l::SVF => "sky-view factor (0-1)".into(),
+        l::SVF_COSINE => "cosine sky-view factor (0-1)".into(),
+        l::OPENNESS => "positive openness (degrees)".into(),
+        l::HORIZON_EDGE => "bands open past the DEM's edge".into(),
+        other => format!("{other}{band}"),
+    }
 }
 
 /// Exports `layer` to `out`: every band to GeoTIFF (one TIFF band each) and
@@ -214,10 +259,11 @@ pub fn export_layer(
     asset: &Asset<Mmap>,
     layer: &Layer<Mmap>,
     out: &Path,
-    style: PngStyle,
+    style: Option<PngStyle>,
     band: u32,
     progress: Progress,
 ) -> Result<()> {
+    let style = style.unwrap_or_else(|| PngStyle::default_for(&layer.entry().name));
     let (w, h, bands) = (layer.width(), layer.height(), layer.bands());
     if band >= bands {
         bail!(
@@ -245,8 +291,7 @@ pub fn export_layer(
     };
     // The source's nodata value only for heights (a real horizon or svf
     // could equal it); NaN for the rest.
-    let height_like = layer.entry().name == terrabake_format::HEIGHT_LAYER
-        || layer.entry().name.starts_with("pyramid");
+    let height_like = is_height_like(&layer.entry().name);
     match ExportKind::from_path(out)? {
         ExportKind::GeoTiff => {
             let nodata = Some(match (&manifest.nodata.source_value, height_like) {
@@ -297,18 +342,6 @@ pub fn export_layer(
     }
 }
 
-/// The 1st and 99th percentiles of the values that are not NaN (the
-/// stretch of previews and shaded maps), or `None` when all are NaN.
-pub fn percentile_range(mut values: Vec<f32>) -> Option<(f32, f32)> {
-    values.retain(|v| !v.is_nan());
-    if values.is_empty() {
-        return None;
-    }
-    values.sort_unstable_by(f32::total_cmp);
-    let at = |p: usize| values[(values.len() * p / 100).min(values.len() - 1)];
-    Some((at(1), at(99)))
-}
-
 /// Largest side of a PNG preview; larger layers are subsampled.
 pub const PREVIEW_MAX_SIDE: u32 = 4096;
 
@@ -328,33 +361,45 @@ fn write_png_preview(
         layer.read_rows_f32(band, y.min(h - 1), &mut full)?;
         Ok((0..pw).map(|x| full[(x * step) as usize]).collect())
     };
-    // Heights scale by the DEM's range; other layers from their 1st to
-    // their 99th percentile (a sky-view factor's few pits would otherwise
-    // leave the rest of the map white).
-    let range = match (height_like, manifest.height_range) {
-        (true, Some(r)) => (r.min, r.max),
+    // Heights scale by the DEM's range; other layers by percentiles.
+    let mut stretch = match (height_like, manifest.height_range) {
+        (true, Some(r)) => Stretch::linear(r.min, r.max, "the DEM's full range"),
         _ => {
             let mut values = Vec::with_capacity(pw as usize * ph as usize);
             for py in 0..ph {
                 values.extend(row_at(py * step)?);
             }
-            percentile_range(values).unwrap_or((0.0, 1.0))
+            Stretch::percentiles(values).unwrap_or_else(|| Stretch::linear(0.0, 1.0, "no values"))
         }
     };
-    let span = (range.1 - range.0).max(1e-6);
+    if style == PngStyle::Relief {
+        stretch.note += "; lit from the north-west";
+    }
+    let legend = Legend {
+        title: layer_title(&layer.entry().name, band, layer.bands()),
+        ramp: match style {
+            PngStyle::Relief => Ramp::Hypsometric,
+            _ => Ramp::Viridis,
+        },
+        stretch,
+    };
     // Metres per preview pixel, for the hillshade's slopes.
     let (dx, dy) = (
         manifest.cell_size.dx * f64::from(step),
         manifest.cell_size.dy * f64::from(step),
     );
+    let legend_rows = match style {
+        PngStyle::Gray => 0,
+        _ => crate::legend::height(pw),
+    };
     write_atomically(out, |file| {
-        let mut enc = png::Encoder::new(file, pw, ph);
+        let mut enc = png::Encoder::new(file, pw, ph + legend_rows);
         match style {
             PngStyle::Gray => {
                 enc.set_color(png::ColorType::Grayscale);
                 enc.set_depth(png::BitDepth::Sixteen);
             }
-            PngStyle::Relief => {
+            PngStyle::Relief | PngStyle::Ramp => {
                 enc.set_color(png::ColorType::Rgba);
                 enc.set_depth(png::BitDepth::Eight);
             }
@@ -367,20 +412,22 @@ fn write_png_preview(
             let mut bytes = Vec::with_capacity(pw as usize * 4);
             for px in 0..pw as usize {
                 let z = here[px];
+                let t = legend.stretch.position(z);
                 match style {
                     PngStyle::Gray => {
                         let v = if z.is_nan() {
                             0
                         } else {
-                            (((z - range.0) / span) * 65535.0).round() as u16
+                            (t * 65535.0).round() as u16
                         };
                         bytes.extend_from_slice(&v.to_be_bytes());
                     }
+                    _ if z.is_nan() => bytes.extend_from_slice(&[0, 0, 0, 0]),
+                    PngStyle::Ramp => {
+                        let [r, g, b] = legend.colour(z);
+                        bytes.extend_from_slice(&[r, g, b, 255]);
+                    }
                     PngStyle::Relief => {
-                        if z.is_nan() {
-                            bytes.extend_from_slice(&[0, 0, 0, 0]);
-                            continue;
-                        }
                         let pick = |v: f32| if v.is_nan() { z } else { v };
                         let left = pick(here[px.saturating_sub(1)]);
                         let right = pick(here[(px + 1).min(pw as usize - 1)]);
@@ -389,7 +436,7 @@ fn write_png_preview(
                             f64::from(right - left) / (2.0 * dx),
                             f64::from(down - up) / (2.0 * dy),
                         );
-                        let [r, g, b] = hypsometric((z - range.0) / span);
+                        let [r, g, b] = crate::legend::hypsometric(t);
                         let s = 0.35 + 0.65 * shade;
                         bytes.extend_from_slice(&[
                             (r * s) as u8,
@@ -402,6 +449,13 @@ fn write_png_preview(
             }
             writer.write_all(&bytes)?;
             above = std::mem::replace(&mut here, below);
+        }
+        if legend_rows > 0 {
+            let panel: Vec<u8> = crate::legend::render(pw, &legend)
+                .into_iter()
+                .flat_map(|[r, g, b]| [r, g, b, 255])
+                .collect();
+            writer.write_all(&panel)?;
         }
         writer.finish()?;
         header.finish()?;
@@ -419,36 +473,4 @@ fn hillshade(dzdx: f64, dzdy: f64) -> f32 {
     let light = [az.sin() * el.cos(), az.cos() * el.cos(), el.sin()];
     let d = (normal[0] * light[0] + normal[1] * light[1] + normal[2] * light[2]) / len;
     d.clamp(0.0, 1.0) as f32
-}
-
-/// A hypsometric tint for t in 0..1 (lowland green, upland tan, peaks white).
-pub fn hypsometric(t: f32) -> [f32; 3] {
-    const STOPS: [(f32, [f32; 3]); 5] = [
-        (0.0, [62.0, 128.0, 72.0]),
-        (0.3, [150.0, 180.0, 100.0]),
-        (0.6, [200.0, 170.0, 120.0]),
-        (0.85, [150.0, 120.0, 100.0]),
-        (1.0, [250.0, 250.0, 250.0]),
-    ];
-    let t = t.clamp(0.0, 1.0);
-    for pair in STOPS.windows(2) {
-        let ((t0, c0), (t1, c1)) = (pair[0], pair[1]);
-        if t <= t1 {
-            let f = (t - t0) / (t1 - t0);
-            return [0, 1, 2].map(|i| c0[i] + f * (c1[i] - c0[i]));
-        }
-    }
-    STOPS[4].1
-}
-
-#[cfg(test)]
-mod percentile_tests {
-    #[test]
-    fn the_stretch_skips_nan_and_the_outer_percent() {
-        let mut v: Vec<f32> = (0..1000).map(|i| i as f32).collect();
-        v.extend([f32::NAN; 50]);
-        v[0] = -1e9; // a pit, as a sky-view factor has
-        assert_eq!(super::percentile_range(v), Some((10.0, 990.0)));
-        assert_eq!(super::percentile_range(vec![f32::NAN]), None);
-    }
 }

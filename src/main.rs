@@ -70,6 +70,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
     };
     match cli.command {
         Command::BenchViews(args) => args.run(&say)?,
+        Command::Page(args) => args.run(&say)?,
         Command::BenchCones(args) => args.run(progress, &say)?,
         Command::BenchHorizons(args) => args.run(&say)?,
         Command::Ingest {
@@ -166,6 +167,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             no_shadows,
             horizon_shadows,
             exaggerate,
+            normals,
             output,
             stats,
             json,
@@ -195,6 +197,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
                     (false, false) => Shadows::Rays,
                 },
                 exaggeration: exaggerate,
+                normals,
             };
             let (image, st) = render(&opened, &tracer, &cam, &opts)?;
             write_png(&output, &image)?;

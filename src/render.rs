@@ -143,6 +143,53 @@ pub struct RenderOptions {
     /// Vertical exaggeration of the terrain (1: true heights). The camera
     /// and look-at heights are in exaggerated metres.
     pub exaggeration: f64,
+    /// Shading normals: smooth across cells, or each triangle's own.
+    pub normals: Normals,
+}
+
+/// The normals that shading uses. Hits and shadows are of the triangles
+/// either way; only the light on them differs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Normals {
+    /// Post normals by central differences, bilinear across each cell
+    /// (`surface::smooth_normal`): no facets.
+    Smooth,
+    /// The normal of the triangle hit: every facet shows.
+    Flat,
+}
+
+/// The smooth normal (unit, true heights) at `hit`, from the 4 x 4 posts
+/// around its cell; posts outside the DEM are missing.
+fn smooth_normal_at<D: AsRef<[u8]>>(
+    height: &terrabake_format::Layer<D>,
+    hit: &terrabake_format::trace::Hit,
+    cell: (f64, f64),
+    rows_max: f64,
+) -> terrabake_format::Result<[f64; 3]> {
+    let (c, r) = hit.cell;
+    let (x0, y0) = (c.saturating_sub(1), r.saturating_sub(1));
+    let (x1, y1) = ((c + 3).min(height.width()), (r + 3).min(height.height()));
+    let mut window = [0f32; 16];
+    height.read_window(
+        0,
+        x0,
+        y0,
+        x1 - x0,
+        y1 - y0,
+        &mut window[..((x1 - x0) * (y1 - y0)) as usize],
+    )?;
+    let mut posts = [f32::NAN; 16];
+    for y in y0..y1 {
+        for x in x0..x1 {
+            let at = ((y - y0) * (x1 - x0) + (x - x0)) as usize;
+            posts[((y + 1 - r) * 4 + (x + 1 - c)) as usize] = window[at];
+        }
+    }
+    let east = hit.point[0] / cell.0 - f64::from(c);
+    let north = f64::from(r) + 1.0 - (rows_max - hit.point[1] / cell.1);
+    Ok(normalize(terrabake_format::surface::smooth_normal(
+        &posts, east, north, cell.0, cell.1,
+    )))
 }
 
 /// Where sun shadows come from.
@@ -234,6 +281,7 @@ pub fn render(
     };
     let m = asset.manifest();
     let (cell, rows_max) = ((m.cell_size.dx, m.cell_size.dy), f64::from(m.height - 1));
+    let height = asset.height()?;
     let start = std::time::Instant::now();
     let projector = camera.projector(w, h);
     let traced_rows: Vec<u32> = (0..h).step_by(every as usize).collect();
@@ -252,7 +300,10 @@ pub fn render(
                     None => sky(&ray),
                     Some(hit) => {
                         hits += 1;
-                        let n = hit.normal.map(f64::from);
+                        let n = match opts.normals {
+                            Normals::Flat => hit.normal.map(f64::from),
+                            Normals::Smooth => smooth_normal_at(height, &hit, cell, rows_max)?,
+                        };
                         let n = normalize([n[0] * e, n[1] * e, n[2]]);
                         let lambert = (n[0] * sun[0] + n[1] * sun[1] + n[2] * sun[2]).max(0.0);
                         let lit = if lambert <= 0.0 {
@@ -285,7 +336,7 @@ pub fn render(
                             }
                         };
                         let t = ((hit.point[2] - range.0) / (range.1 - range.0).max(1e-9)) as f32;
-                        let tint = crate::export::hypsometric(t);
+                        let tint = crate::legend::hypsometric(t);
                         let light = 0.25 + 0.75 * (lit * lambert) as f32;
                         tint.map(|c| (c * light).clamp(0.0, 255.0) as u8)
                     }

@@ -20,6 +20,7 @@ use terrabake_format::{Asset, Mmap};
 use crate::horizon::sky::{radiosity, sun_glow, SkyTable};
 use crate::horizon::terrain::{RowScale, Terrain};
 use crate::horizon::{band_bounds, read_heights, read_horizons};
+use crate::legend::{Legend, Ramp, Stretch};
 use crate::render::{Image, Sun};
 
 /// What lights the map.
@@ -55,7 +56,8 @@ impl std::str::FromStr for Shade {
 const ALBEDO: f64 = 0.5;
 const SUN_RADIUS: f64 = 0.27;
 
-/// Brightness in 0..1 of every post (NaN for nodata or no horizon), row-major.
+/// The light on every post as a share of what a flat, open plain receives
+/// under the same sky and sun (NaN for nodata or no horizon), row-major.
 pub fn shade_posts(asset: &Asset<Mmap>, shade: Shade) -> Result<(Vec<f32>, usize, usize)> {
     use std::f64::consts::PI;
     // The stage's cosine sky-view factor is the uniform sky's irradiance / pi.
@@ -71,6 +73,7 @@ pub fn shade_posts(asset: &Asset<Mmap>, shade: Shade) -> Result<(Vec<f32>, usize
         .iter()
         .map(|&f| radiosity(PI * f64::from(f), f64::from(f), ALBEDO) as f32)
         .collect();
+    let mut plain = radiosity(PI, 1.0, ALBEDO);
     if let Shade::Sun(sun) = shade {
         let (z, _, _) = read_heights(asset)?;
         let (bands, azimuths) = read_horizons(asset)?;
@@ -86,6 +89,13 @@ pub fn shade_posts(asset: &Asset<Mmap>, shade: Shade) -> Result<(Vec<f32>, usize
             sun_glow(sun.azimuth, sun.elevation, 20, 0.05),
         );
         let s = sun.direction();
+        let flat = vec![0f32; bands.len()];
+        plain = radiosity(
+            PI * disc_fraction_above(sun.elevation, 0.0, SUN_RADIUS) * s[2].max(0.0)
+                + table.irradiance([0.0, 0.0, 1.0], &flat),
+            1.0,
+            ALBEDO,
+        );
         // The sun's azimuth between two bands, as `lit_fraction` takes it.
         let (a, b, f) = bands_around(&azimuths, sun.azimuth);
         out.par_chunks_mut(w).enumerate().for_each(|(row, out)| {
@@ -110,40 +120,49 @@ pub fn shade_posts(asset: &Asset<Mmap>, shade: Shade) -> Result<(Vec<f32>, usize
             }
         });
     }
-    // Stretch the 1st..99th percentiles to black..white: the map shows
-    // relative light, as Stewart's figures do.
-    if let Some((lo, hi)) = crate::export::percentile_range(out.clone()) {
-        let span = (hi - lo).max(1e-9);
-        out.iter_mut()
-            .for_each(|v| *v = ((*v - lo) / span).clamp(0.0, 1.0));
+    if plain > 0.0 {
+        out.iter_mut().for_each(|v| *v /= plain as f32);
     }
     Ok((out, w, h))
 }
 
-/// Writes the shaded map as a PNG (nodata black), subsampled to at most
-/// `max_side` pixels across.
+/// Writes the shaded map as a PNG, subsampled to at most `max_side` pixels
+/// across, with a legend: gray, equalised between the 1st and the 99th
+/// percentile (the map shows relative light, as Stewart's figures do, and
+/// most posts of a real DEM crowd near an open plain's light; nodata
+/// black).
 pub fn write_shade_png(asset: &Asset<Mmap>, shade: Shade, out: &Path, max_side: u32) -> Result<()> {
     let (values, w, h) = shade_posts(asset, shade)?;
     let step = (w.max(h) as u32).div_ceil(max_side).max(1) as usize;
     let (pw, ph) = (w.div_ceil(step), h.div_ceil(step));
-    let mut rgb = Vec::with_capacity(pw * ph * 3);
-    for y in (0..h).step_by(step) {
-        for x in (0..w).step_by(step) {
-            let v = values[y * w + x];
-            let g = if v.is_nan() {
-                0
-            } else {
-                (v * 255.0).round() as u8
-            };
-            rgb.extend_from_slice(&[g, g, g]);
-        }
-    }
-    crate::render::write_png(
-        out,
-        &Image {
-            width: pw as u32,
-            height: ph as u32,
-            rgb,
-        },
-    )
+    let shown: Vec<f32> = (0..h)
+        .step_by(step)
+        .flat_map(|y| (0..w).step_by(step).map(move |x| (y, x)))
+        .map(|(y, x)| values[y * w + x])
+        .collect();
+    let stretch =
+        Stretch::equalised(shown.clone()).unwrap_or_else(|| Stretch::linear(0.0, 1.0, "no values"));
+    let title = match shade {
+        Shade::Sky => "overcast sky light (albedo 0.5), share of an open plain's".to_string(),
+        Shade::Sun(sun) => format!(
+            "sun at {}, {} deg and its sky (albedo 0.5), share of an open plain's",
+            sun.azimuth, sun.elevation
+        ),
+    };
+    let legend = Legend {
+        title,
+        ramp: Ramp::Gray,
+        stretch,
+    };
+    let mut rgb: Vec<u8> = shown
+        .iter()
+        .flat_map(|&v| if v.is_nan() { [0; 3] } else { legend.colour(v) })
+        .collect();
+    let legend_rows = crate::legend::append(&mut rgb, pw as u32, &legend);
+    let map = Image {
+        width: pw as u32,
+        height: ph as u32 + legend_rows,
+        rgb,
+    };
+    crate::render::write_png(out, &map)
 }

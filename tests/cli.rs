@@ -155,15 +155,21 @@ fn png_and_exr_exports() {
     let mut reader = decoder.read_info().unwrap();
     let mut buf = vec![0; reader.output_buffer_size().unwrap()];
     let info = reader.next_frame(&mut buf).unwrap();
+    // The map, then its legend under it.
+    let legend_rows = terrabake::legend::height(300);
     assert_eq!(
         (info.width, info.height, info.color_type),
-        (300, 200, png::ColorType::Rgba)
+        (300, 200 + legend_rows, png::ColorType::Rgba)
     );
     let original = heights(&Asset::open(&asset).unwrap());
     // Nodata is transparent, everything else opaque.
     for (i, z) in original.iter().enumerate() {
         assert_eq!(buf[i * 4 + 3] == 0, z.is_nan(), "pixel {i}");
     }
+    // The legend is opaque, with text in black ink.
+    let legend = &buf[300 * 200 * 4..];
+    assert!(legend.chunks(4).all(|p| p[3] == 255));
+    assert!(legend.chunks(4).filter(|p| p[..3] == [0, 0, 0]).count() > 100);
     let exr_path = dir.path().join("height.exr");
     ok(&["export", s(&asset), "-o", s(&exr_path), "-q"]);
     let back = dir.path().join("back.tbake");

@@ -53,6 +53,7 @@ fn every_method_renders_the_same_picture() {
                 every: 1,
                 shadows: terrabake::render::Shadows::Rays,
                 exaggeration: 1.0,
+                normals: terrabake::render::Normals::Smooth,
             };
             let (image, stats) = render(&asset, &tracer, &views[view], &opts).unwrap();
             assert_eq!(stats.primary_rays, 80 * 60);
@@ -250,6 +251,7 @@ fn horizon_shadows_agree_with_shadow_rays() {
             every: 1,
             shadows,
             exaggeration: 1.0,
+            normals: terrabake::render::Normals::Smooth,
         };
         render(&asset, &tracer, view, &opts).unwrap().0.rgb
     };
@@ -309,6 +311,7 @@ fn shadows_fall_on_the_exaggerated_surface() {
                 every: 1,
                 shadows,
                 exaggeration: e,
+                normals: terrabake::render::Normals::Smooth,
             };
             render(&srtm, &tracer, &demo_view, &opts).unwrap().0.rgb
         };
@@ -320,4 +323,56 @@ fn shadows_fall_on_the_exaggerated_surface() {
         exaggerated > 256 * 160 / 20 && exaggerated > 5 * true_surface,
         "{exaggerated} pixels in cast shadow at 8x, {true_surface} at 1x"
     );
+}
+
+/// Smooth normals take the facets out of the picture: on the demo's view,
+/// the light changes less from one pixel to the next than with each
+/// triangle's own normal, while every hit, and so the silhouette, stays.
+#[test]
+fn smooth_normals_show_no_facets() {
+    use terrabake::render::{Camera, Normals, Shadows};
+    let dir = tempfile::tempdir().unwrap();
+    let srtm = Asset::open(srtm_with_pyramid(dir.path())).unwrap();
+    let tracer = Tracer::new(&srtm).unwrap();
+    let view = Camera {
+        eye: [30000.0, 8000.0, 4500.0],
+        look_at: [55000.0, 60000.0, 500.0],
+        fov: 60.0,
+    };
+    let picture = |normals| {
+        let opts = RenderOptions {
+            width: 320,
+            height: 200,
+            method: Method::Hierarchical,
+            sun: Sun {
+                azimuth: 290.0,
+                elevation: 30.0,
+            },
+            every: 1,
+            shadows: Shadows::Off,
+            exaggeration: 4.0,
+            normals,
+        };
+        render(&srtm, &tracer, &view, &opts).unwrap().0.rgb
+    };
+    let (smooth, flat) = (picture(Normals::Smooth), picture(Normals::Flat));
+    // The sky is where it was: same hits.
+    let sky =
+        |rgb: &[u8]| -> Vec<bool> { rgb.chunks(3).map(|p| p[2] > p[0] && p[2] > 200).collect() };
+    assert_eq!(sky(&smooth), sky(&flat));
+    // Total variation of the green channel along rows.
+    let variation = |rgb: &[u8]| -> u64 {
+        rgb.chunks(3 * 320)
+            .flat_map(|row| {
+                row.chunks(3)
+                    .collect::<Vec<_>>()
+                    .windows(2)
+                    .map(|w| u64::from(w[0][1].abs_diff(w[1][1])))
+                    .collect::<Vec<_>>()
+            })
+            .sum()
+    };
+    let (s, f) = (variation(&smooth), variation(&flat));
+    eprintln!("variation smooth {s}, flat {f}");
+    assert!(s * 2 < f, "smooth {s} against flat {f}");
 }

@@ -88,6 +88,59 @@ impl Cell {
     }
 }
 
+/// The smooth upward normal (not normalised) at `(east, north)` fractions
+/// of a cell, for shading: each corner post's normal by central
+/// differences over its neighbours, bilinear between the four corners
+/// (Gouraud's interpolation, applied to normals as Phong does). The flat
+/// [`Cell::normal`] shows every triangle as a facet; this one is
+/// continuous across cell edges and equals it on a plane.
+///
+/// `posts` is the 4 x 4 window of posts around the cell, row-major from
+/// the north: the cell's corners are `posts[5]` (north-west), `posts[6]`,
+/// `posts[9]` and `posts[10]` (south-east). A post outside the DEM or
+/// nodata is NaN; a corner then takes a one-sided difference, or none
+/// (a zero slope) where both sides are missing. Cells of `dx x dy` metres.
+pub fn smooth_normal(posts: &[f32; 16], east: f64, north: f64, dx: f64, dy: f64) -> [f64; 3] {
+    let p = |row: usize, col: usize| f64::from(posts[row * 4 + col]);
+    // A slope from the posts before and after one, over the gap they span.
+    let slope =
+        |before: f64, here: f64, after: f64, step: f64| match (before.is_nan(), after.is_nan()) {
+            (false, false) => (after - before) / (2.0 * step),
+            (true, false) => (after - here) / step,
+            (false, true) => (here - before) / step,
+            (true, true) => 0.0,
+        };
+    let corner = |row: usize, col: usize| -> [f64; 2] {
+        let here = p(row, col);
+        if here.is_nan() {
+            return [f64::NAN; 2];
+        }
+        [
+            slope(p(row, col - 1), here, p(row, col + 1), dx),
+            // North is up the window: rows decrease northwards.
+            slope(p(row + 1, col), here, p(row - 1, col), dy),
+        ]
+    };
+    let (e, n) = (east.clamp(0.0, 1.0), north.clamp(0.0, 1.0));
+    let (mut slopes, mut weight) = ([0.0; 2], 0.0);
+    for (row, col, w) in [
+        (1, 1, (1.0 - e) * n),
+        (1, 2, e * n),
+        (2, 1, (1.0 - e) * (1.0 - n)),
+        (2, 2, e * (1.0 - n)),
+    ] {
+        let s = corner(row, col);
+        if w > 0.0 && !s[0].is_nan() {
+            slopes = [slopes[0] + w * s[0], slopes[1] + w * s[1]];
+            weight += w;
+        }
+    }
+    if weight == 0.0 {
+        return [0.0, 0.0, 1.0];
+    }
+    [-slopes[0] / weight, -slopes[1] / weight, 1.0]
+}
+
 /// A ray in grid space: `u` east in posts (column), `v` south in posts (row),
 /// `z` in metres; `point(t) = origin + t * dir`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -186,4 +239,82 @@ pub fn intersect_cell(cell: &Cell, c: u32, r: u32, ray: &GridRay, t0: f64, t1: f
         }
     }
     None
+}
+
+#[cfg(test)]
+mod smooth_normal_tests {
+    use super::{smooth_normal, Cell};
+
+    /// The 4 x 4 window around cell `(c, r)` of the heights `z(column, row)`.
+    fn window(z: impl Fn(i32, i32) -> f32, c: i32, r: i32) -> [f32; 16] {
+        std::array::from_fn(|i| z(c - 1 + (i % 4) as i32, r - 1 + (i / 4) as i32))
+    }
+
+    #[test]
+    fn on_a_plane_it_is_the_triangles_normal() {
+        // 3 m per column east, 2 m per row south; cells of 10 x 20 m.
+        let z = |c: i32, r: i32| (3 * c + 2 * r) as f32;
+        let posts = window(z, 5, 7);
+        let cell = Cell {
+            nw: posts[5],
+            ne: posts[6],
+            sw: posts[9],
+            se: posts[10],
+        };
+        for (e, n) in [(0.1, 0.8), (0.5, 0.5), (0.9, 0.2)] {
+            let flat = cell.normal(e, n, 10.0, 20.0);
+            let smooth = smooth_normal(&posts, e, n, 10.0, 20.0);
+            for k in 0..3 {
+                assert!((flat[k] - smooth[k]).abs() < 1e-12, "{flat:?} {smooth:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn it_is_continuous_across_cell_edges_where_facets_are_not() {
+        let z = |c: i32, r: i32| ((c * c) as f32) * 0.5 + (r * r) as f32;
+        let (west, east) = (window(z, 4, 4), window(z, 5, 4));
+        let a = smooth_normal(&west, 1.0, 0.3, 1.0, 1.0);
+        let b = smooth_normal(&east, 0.0, 0.3, 1.0, 1.0);
+        assert_eq!(a, b);
+        // The triangles either side of the edge tilt differently.
+        let cell = |p: &[f32; 16]| Cell {
+            nw: p[5],
+            ne: p[6],
+            sw: p[9],
+            se: p[10],
+        };
+        assert_ne!(
+            cell(&west).normal(1.0, 0.3, 1.0, 1.0),
+            cell(&east).normal(0.0, 0.3, 1.0, 1.0)
+        );
+        // At a post, the central difference of the quadratic is exact:
+        // at post (5, 4), dz/dx = 5 and z falls northwards by 2r = 8 per row.
+        let at_post = smooth_normal(&east, 0.0, 1.0, 1.0, 1.0);
+        assert_eq!(at_post, [-5.0, 8.0, 1.0]);
+    }
+
+    #[test]
+    fn missing_posts_take_one_sided_differences_or_none() {
+        let z = |c: i32, _r: i32| (2 * c) as f32;
+        let mut posts = window(z, 0, 0);
+        // West of the DEM: the west column is outside.
+        for row in 0..4 {
+            posts[row * 4] = f32::NAN;
+        }
+        assert_eq!(smooth_normal(&posts, 0.0, 0.0, 1.0, 1.0), [-2.0, -0.0, 1.0]);
+        let lonely = {
+            let mut p = [f32::NAN; 16];
+            p[9] = 7.0;
+            p
+        };
+        assert_eq!(
+            smooth_normal(&lonely, 0.0, 0.0, 1.0, 1.0),
+            [-0.0, -0.0, 1.0]
+        );
+        assert_eq!(
+            smooth_normal(&[f32::NAN; 16], 0.5, 0.5, 1.0, 1.0),
+            [0.0, 0.0, 1.0]
+        );
+    }
 }

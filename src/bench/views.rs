@@ -53,6 +53,7 @@ pub fn bench_views(
             every: every * 4,
             shadows: Shadows::Off,
             exaggeration: 1.0,
+            normals: crate::render::Normals::Flat,
         };
         render(asset, &tracer, cam, &warm)?;
     }
@@ -69,6 +70,7 @@ pub fn bench_views(
             every,
             shadows: Shadows::Off,
             exaggeration: 1.0,
+            normals: crate::render::Normals::Flat,
         };
         let (mut rays, mut hits, mut seconds, mut steps, mut cells, mut nodes) =
             (0u64, 0u64, 0.0, 0.0, 0.0, 0.0);
