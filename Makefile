@@ -50,14 +50,14 @@ demo: build
 ## Every test, in the release profile that `make demo` (and `make build`)
 ## already built: the dependencies are compiled once for both.
 test:
-	$(CARGO) test --release --workspace --locked
+	$(CARGO) test --release --locked
 
 ## Every test again with debug assertions and overflow checks
 ## ([profile.test]: optimised, but checked), and the tracers' full matrices
 ## (10^6 rays per method and terrain, against 2 x 10^5 in `make test`);
 ## CI runs it after `make test`.
 test-full:
-	TERRABAKE_TRACE_RAYS=1000000 $(CARGO) test --workspace --locked
+	TERRABAKE_TRACE_RAYS=1000000 $(CARGO) test --locked
 
 ## The demo page in a real headless browser (Debian's chromium, installed
 ## if missing): it loads, every picture shows, the console stays quiet.
@@ -122,7 +122,7 @@ bench-cones: build
 
 ## Reader micro-benchmarks (criterion).
 bench-reader:
-	$(CARGO) bench -p terrabake-format --bench reader
+	$(CARGO) bench -p terrabake-bench --bench reader
 
 ## Regenerate the GDAL-made TIFF fixtures (needs Debian's python3-gdal).
 ## The v1 compatibility asset is never regenerated: see tests/fixtures/README.md.

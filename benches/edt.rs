@@ -1,5 +1,5 @@
 //! The exact distance transform of one slice plane (groundwork for the cone
-//! stage): `cargo bench --bench edt`.
+//! stage): `cargo bench -p terrabake-bench --bench edt`.
 
 use criterion::{criterion_group, criterion_main, Criterion};
 

@@ -1,5 +1,5 @@
 //! Horizon algorithms on one core: one line direction and one Stewart
-//! sector over a fractal DEM (`cargo bench --bench horizons`). Whole-stage
+//! sector over a fractal DEM (`cargo bench -p terrabake-bench --bench horizons`). Whole-stage
 //! figures come from `terrabake bench-horizons` (docs/BENCHMARKS.md).
 
 use criterion::{criterion_group, criterion_main, Criterion};

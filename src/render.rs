@@ -274,7 +274,10 @@ pub fn render(
     let horizons = match opts.shadows {
         Shadows::Horizons => Some(terrabake_format::horizons::HorizonMap::open(asset).map_err(
             |e| {
-                anyhow::anyhow!("{e}: horizon shadows need the horizons stage (terrabake horizons)")
+                anyhow::anyhow!(
+                    "{e}: horizon shadows need the horizons stage (terrabake horizons {})",
+                    asset.dir().display()
+                )
             },
         )?),
         _ => None,

@@ -64,7 +64,10 @@ pub fn shade_posts(asset: &Asset<Mmap>, shade: Shade) -> Result<(Vec<f32>, usize
     let svf_layer = asset
         .layer(terrabake_format::horizons::SVF_COSINE, 0)
         .map_err(|e| {
-            anyhow::anyhow!("{e}: shaded maps need the horizons stage (terrabake horizons)")
+            anyhow::anyhow!(
+                "{e}: shaded maps need the horizons stage (terrabake horizons {})",
+                asset.dir().display()
+            )
         })?;
     let (w, h) = (svf_layer.width() as usize, svf_layer.height() as usize);
     let mut svf_cosine = vec![0f32; w * h];

@@ -1,6 +1,7 @@
 //! The rules of ARCHITECTURE.md that a test can hold: the pipeline's module
-//! graph has no circle, the format crate knows nothing of the pipeline, and
-//! the CLI's `main.rs` stays thin.
+//! graph has no circle, the format crate knows nothing of the pipeline, the
+//! CLI's `main.rs` stays thin, and the test build shares the release
+//! build's compiled crates.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
@@ -130,5 +131,67 @@ fn main_rs_stays_thin() {
     assert!(
         lines <= 300,
         "src/main.rs has {lines} lines: move work into the library"
+    );
+}
+
+/// `make test` reuses the library that `make demo` built: the normal build
+/// turns on every feature that the dev-dependencies turn on in crates both
+/// use (Cargo.toml says which), or cargo compiles the library twice.
+#[test]
+fn the_test_build_shares_the_release_build() {
+    let features = |edges: &str| -> BTreeMap<String, String> {
+        let out = std::process::Command::new(env!("CARGO"))
+            .args([
+                "tree",
+                "--offline",
+                "--locked",
+                "-p",
+                "terrabake",
+                "-p",
+                "terrabake-format",
+            ])
+            .args([
+                "-e",
+                edges,
+                "-f",
+                "{p} [{f}]",
+                "--prefix",
+                "none",
+                "--no-dedupe",
+            ])
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .output()
+            .expect("cargo runs");
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let mut map = BTreeMap::<String, BTreeSet<String>>::new();
+        for line in String::from_utf8_lossy(&out.stdout).lines() {
+            if let Some((package, rest)) = line.split_once(" [") {
+                let features = rest.rsplit_once(']').map_or("", |r| r.0);
+                map.entry(package.replace(" (*)", "")).or_default().extend(
+                    features
+                        .split(',')
+                        .filter(|f| !f.is_empty())
+                        .map(String::from),
+                );
+            }
+        }
+        map.into_iter()
+            .map(|(k, v)| (k, v.into_iter().collect::<Vec<_>>().join(",")))
+            .collect()
+    };
+    let (build, test) = (features("normal,build"), features("normal,build,dev"));
+    let differ: Vec<String> = build
+        .iter()
+        .filter(|(package, f)| test.get(*package) != Some(*f))
+        .map(|(package, f)| format!("{package}: build [{f}], test [{}]", test[package]))
+        .collect();
+    assert!(
+        differ.is_empty(),
+        "turn these features on in Cargo.toml's [dependencies]:\n{}",
+        differ.join("\n")
     );
 }

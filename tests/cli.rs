@@ -320,9 +320,16 @@ fn errors_name_the_file_and_exit_1() {
     let out = terrabake(&["export", s(&bare), "--layer", "nosuch", "-o", s(&png)]);
     assert_eq!(out.status.code(), Some(1));
     assert!(
-        stderr(&out).contains("nosuch@0 (it has height@0)"),
+        stderr(&out).contains("bare.tbake: asset has no layer nosuch@0 (it has height@0)"),
         "{}",
         stderr(&out)
+    );
+    let out = terrabake(&["render", s(&bare), "--shade", "sky", "-o", s(&png)]);
+    assert_eq!(out.status.code(), Some(1));
+    let msg = stderr(&out);
+    assert!(
+        msg.contains(&format!("terrabake horizons {}", s(&bare))),
+        "{msg}"
     );
     for (method, command) in [
         ("hierarchical", "terrabake pyramid"),

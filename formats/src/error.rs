@@ -67,8 +67,10 @@ pub enum Error {
         #[source]
         source: std::io::Error,
     },
-    #[error("asset has no layer {name}@{level}{}", if available.is_empty() { String::new() } else { format!(" (it has {})", available.join(", ")) })]
+    #[error("{}: asset has no layer {name}@{level}{}", asset.display(), if available.is_empty() { String::new() } else { format!(" (it has {})", available.join(", ")) })]
     NoLayer {
+        /// The asset's directory.
+        asset: std::path::PathBuf,
         name: String,
         level: u32,
         /// The layers the asset does have, `name@level`, when known.

@@ -855,6 +855,7 @@ impl<D: AsRef<[u8]>> Asset<D> {
             .iter()
             .find(|l| l.entry.name == name && l.entry.level == level)
             .ok_or_else(|| Error::NoLayer {
+                asset: self.dir.clone(),
                 name: name.to_string(),
                 level,
                 available: self.layers.iter().map(|l| l.entry.key()).collect(),

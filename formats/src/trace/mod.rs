@@ -139,6 +139,8 @@ impl std::str::FromStr for Method {
 /// A tracer over an opened asset. Cheap to create; `Sync`, so one tracer
 /// serves every render thread.
 pub struct Tracer<'a, D> {
+    /// The asset's directory, for errors.
+    asset: &'a std::path::Path,
     height: &'a Layer<D>,
     /// Max pyramid, level 0 (cells) upwards: the stored levels, then
     /// levels built in memory from the stored top up to a single node.
@@ -364,6 +366,7 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
             }
         }
         Ok(Self {
+            asset: asset.dir(),
             height,
             pyramid,
             cones: ConePlanes::open(asset)?,
@@ -527,6 +530,7 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
     fn parametric(&self, st: &mut Trace<'a, D>) {
         let Some(cones) = &self.cones else {
             st.err = Some(Error::NoLayer {
+                asset: self.asset.to_path_buf(),
                 name: CONE_SLOPE.into(),
                 level: 0,
                 available: Vec::new(),
@@ -678,6 +682,7 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
     fn hierarchical(&self, st: &mut Trace<'a, D>) {
         let Some(top_level) = self.pyramid.last() else {
             st.err = Some(Error::NoLayer {
+                asset: self.asset.to_path_buf(),
                 name: PYRAMID_MAX.into(),
                 level: 0,
                 available: Vec::new(),

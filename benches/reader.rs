@@ -1,10 +1,10 @@
 //! Reader costs: opening an asset, and reading tiles, posts and bilinear
 //! samples from raw (mapped in place) and zstd (cached) layers.
 //!
-//! `cargo bench -p terrabake-format --bench reader`; set
+//! `cargo bench -p terrabake-bench --bench reader`; set
 //! `TERRABAKE_BENCH_ASSET=path/to/asset` to also time opening that asset.
 
-#[path = "../tests/common/mod.rs"]
+#[path = "../formats/tests/common/mod.rs"]
 mod common;
 
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
