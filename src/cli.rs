@@ -283,6 +283,9 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
     },
     /// Benchmark the tracers on the sixteen built-in views, side by side (Paglieroni's Table 1).
     BenchViews(crate::bench::views::BenchViewsArgs),
+    /// Measure the horizon and sky-view factor errors a bake achieved against exact references,
+    /// and check them against a budget.
+    Check(crate::check::CheckArgs),
     /// Write one self-contained HTML page with an asset's summary, pictures and charts.
     Page(crate::page::PageArgs),
     /// Ingest a DEM and run every stage of a recipe, skipping work already done.

@@ -43,6 +43,8 @@
 pub mod args;
 pub mod asset;
 pub mod bench;
+pub mod budget;
+pub mod check;
 pub mod cli;
 pub mod cones;
 pub mod edt;

@@ -71,6 +71,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
     match cli.command {
         Command::BenchViews(args) => args.run(&say)?,
         Command::Page(args) => args.run(&say)?,
+        Command::Check(args) => return args.run(progress),
         Command::BenchCones(args) => args.run(progress, &say)?,
         Command::BenchHorizons(args) => args.run(&say)?,
         Command::Ingest {

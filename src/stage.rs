@@ -332,6 +332,34 @@ fn drop_dependents(manifest: &mut terrabake_format::Manifest, stage: &str, rewri
     }
 }
 
+/// Records a measurement of the asset that writes no layer (`terrabake
+/// check`): one record named `name` replacing any earlier one, with
+/// `inputs` so that rewriting any of them drops it, committed under the
+/// writer lock.
+pub fn record_measurement(
+    dir: &Path,
+    name: &str,
+    params: serde_json::Value,
+    inputs: Vec<String>,
+) -> Result<()> {
+    let writer = AssetWriter::open(dir, crate::asset::Wait::Wait)?;
+    let asset =
+        Asset::open(dir).with_context(|| format!("{}: cannot open asset", dir.display()))?;
+    let mut manifest = asset.manifest().clone();
+    drop(asset);
+    manifest.provenance.stages.retain(|r| r.stage != name);
+    manifest.provenance.stages.push(StageRecord {
+        stage: name.into(),
+        params,
+        tool: crate::tool_version(),
+        finished_unix: unix_now(),
+        outputs: Vec::new(),
+        inputs,
+    });
+    commit_manifest(writer.lock_held(), &manifest)?;
+    Ok(())
+}
+
 /// Seconds since the Unix epoch (stage records).
 pub fn unix_now() -> u64 {
     std::time::SystemTime::now()

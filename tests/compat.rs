@@ -82,6 +82,11 @@ fn quantised_fixture_reads_forever() {
         .with_curvature(stage.curvature_coefficient(&asset));
     let map = HorizonMap::open(&asset).unwrap();
     let mut decoded = vec![0f32; w * h];
+    // The fixture was baked before the sweep met posts that only a corner
+    // ties to the surface (a line grazing them between two holes): there
+    // its angles are lower than the exact ones, never higher, because a
+    // missed vertex can only lower a horizon.
+    let (mut grazed, mut compared) = (0usize, 0usize);
     for (b, band) in bands.iter().enumerate() {
         assert_eq!(band.azimuth, azimuths[b]);
         let (exact, _) = band_horizons(&terrain, band, BandOptions::default());
@@ -93,13 +98,17 @@ fn quantised_fixture_reads_forever() {
             if want.is_nan() {
                 assert!(got.is_nan(), "({x}, {y}) band {b}");
             } else {
-                assert!(
-                    (got - want).abs() <= 0.355,
-                    "({x}, {y}) band {b}: {got} vs {want}"
-                );
+                compared += 1;
+                if (got - want).abs() > 0.355 {
+                    assert!(got < want, "({x}, {y}) band {b}: {got} vs {want}");
+                    grazed += 1;
+                }
             }
         }
     }
+
+    assert!(grazed * 100 < compared, "{grazed} of {compared} angles differ");
+    eprintln!("{grazed} of {compared} angles below the exact ones (grazed posts)");
 
     let planes = ConePlanes::open(&asset).unwrap().expect("cone planes");
     let apex = asset.layer("cone_apex", 0).unwrap();

@@ -21,7 +21,7 @@ use terrabake_format::horizons::bands_around;
 
 use super::chart::{log_log_svg, Series};
 use super::markdown_table;
-use crate::horizon::sky::{BandIntegrals, SkySums};
+use crate::horizon::sky::{svf_of_horizons, BandIntegrals};
 use crate::horizon::terrain::Terrain;
 use crate::horizon::{band_horizons, plan_bands, Band, BandKind, BandOptions, Method};
 
@@ -88,12 +88,7 @@ pub struct AccuracyRow {
 }
 
 fn svf_of(integrals: &[BandIntegrals], values: &[Vec<f32>], post: usize) -> f64 {
-    let mut sums = SkySums::default();
-    for (band, v) in integrals.iter().zip(values) {
-        let h = f64::from(v[post]);
-        sums.add(h, h.to_radians().sin_cos(), band, [0.0, 0.0, 1.0]);
-    }
-    sums.svf()
+    svf_of_horizons(integrals, values.iter().map(|v| f64::from(v[post])))
 }
 
 fn integrals(bands: &[Band]) -> Vec<BandIntegrals> {

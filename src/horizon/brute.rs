@@ -13,13 +13,10 @@ use super::terrain::Terrain;
 /// Surface height at fractional post coordinates `(col, row)` (row grows
 /// south), from any cell with a surface that contains the point.
 fn surface_at(t: &Terrain, col: f64, row: f64) -> Option<f64> {
+    // The cells whose closed square holds v: one, or two on a grid line.
     let around = |v: f64| {
         let (lo, hi) = ((v - 1e-9).floor() as i64, (v + 1e-9).floor() as i64);
-        if lo == hi {
-            vec![lo]
-        } else {
-            vec![lo, hi]
-        }
+        [lo, hi].into_iter().take(if lo == hi { 1 } else { 2 })
     };
     for c in around(col) {
         for r in around(row) {
@@ -87,9 +84,16 @@ pub fn line_horizon(
     let step_len = |k: f64| {
         (a * t.dx * t.row_scale.at_half((2.0 * pr + (2.0 * k + 1.0) * b) as i64)).hypot(b * t.dy)
     };
-    let distance = |s: f64| {
-        let whole = s.floor();
-        (0..whole as i64).map(|k| step_len(k as f64)).sum::<f64>() + (s - whole) * step_len(whole)
+    // Crossings in order, so that the whole steps' metres are summed once
+    // along the line rather than again for every crossing.
+    crossings.sort_unstable_by(f64::total_cmp);
+    let (mut whole_steps, mut metres) = (0i64, 0.0);
+    let mut distance = |s: f64| {
+        while ((whole_steps + 1) as f64) <= s {
+            metres += step_len(whole_steps as f64);
+            whole_steps += 1;
+        }
+        metres + (s - whole_steps as f64) * step_len(whole_steps as f64)
     };
     let mut best = f64::NEG_INFINITY;
     for s in crossings {

@@ -45,7 +45,9 @@
 //! the same bits.
 //!
 //! **Nodata and edges.** A vertex exists when a segment beside it lies in a
-//! cell with a surface; nodata posts receive nothing (NaN). A post with no
+//! cell with a surface, and a post when it is a corner of such a cell (a
+//! line may graze it between two holes); nodata posts receive nothing
+//! (NaN). A post with no
 //! surface ahead within the DEM gets -90 degrees.
 //!
 //! **Maximum distance.** A bounded horizon breaks the stack's amortisation
@@ -296,10 +298,14 @@ impl Placed<'_> {
         if !(self.t.contains(a.0, a.1) && self.t.contains(b.0, b.1)) {
             return None;
         }
-        if !(self.segment_exists((col, row), k) || self.segment_exists((col, row), k + 1)) {
-            return None;
-        }
-        Some(self.height_unchecked(a, b, v.wb))
+        let on_surface = if v.wb == 0.0 {
+            // A post: on the surface when any cell it is a corner of is,
+            // whether or not the line runs through that cell.
+            self.post_on_surface(a)
+        } else {
+            self.segment_exists((col, row), k) || self.segment_exists((col, row), k + 1)
+        };
+        on_surface.then(|| self.height_unchecked(a, b, v.wb))
     }
 
     #[inline]
@@ -312,13 +318,14 @@ impl Placed<'_> {
         za + wb * (zb - za)
     }
 
-    /// Whether post `(col, row)` is a vertex of the surface along the line.
-    fn post_exists(&self, (col, row): (i64, i64)) -> bool {
-        let n = self.stencil.vertices.len();
-        let (a, b) = self.stencil.step;
+    /// Whether post `(col, row)` lies on the surface: a corner of a cell
+    /// with a surface. A line that only grazes such a corner between two
+    /// holes still meets the terrain there (the brute force's definition).
+    fn post_on_surface(&self, (col, row): (i64, i64)) -> bool {
         !self.t.at(col as usize, row as usize).is_nan()
-            && (self.segment_exists((col, row), 0)
-                || self.segment_exists((col - a, row - b), n - 1))
+            && [(-1, -1), (0, -1), (-1, 0), (0, 0)]
+                .iter()
+                .any(|&(c, r)| self.t.cell_exists(col + c, row + r))
     }
 }
 
@@ -453,7 +460,7 @@ impl Sweep<'_> {
         }
         stats.posts += 1;
         let wp = self.w_of(lane.t, f64::from(zp));
-        let q = if !self.nodata || self.placed.post_exists((lane.col, lane.row)) {
+        let q = if !self.nodata || self.placed.post_on_surface((lane.col, lane.row)) {
             stats.vertices += 1;
             push(&mut lane.hull, lane.t, wp, &mut stats.pops)
         } else {

@@ -97,6 +97,19 @@ impl SkySums {
     }
 }
 
+/// The sky-view factor (Zakšek's, over the horizontal) of a post whose
+/// horizon is `horizons` degrees in the bands of `integrals`, in order.
+pub fn svf_of_horizons(
+    integrals: &[BandIntegrals],
+    horizons: impl IntoIterator<Item = f64>,
+) -> f64 {
+    let mut sums = SkySums::default();
+    for (band, h) in integrals.iter().zip(horizons) {
+        sums.add(h, h.to_radians().sin_cos(), band, [0.0, 0.0, 1.0]);
+    }
+    sums.svf()
+}
+
 /// A sky radiance distribution tabulated for Stewart's direct primary
 /// irradiance: per azimuth sample and per elevation bin, the cumulative
 /// integral from the zenith down of `L(u) u cos(el)` (three components), so
