@@ -2,17 +2,9 @@
 //! references computed from the heights alone, never from the baked layers
 //! (docs/PLANNING.md).
 //!
-//! **Posts.** `samples` posts drawn uniformly (seeded, so a check repeats)
-//! from the area the horizons stage computed, and a quarter as many again
-//! of the highest local relief (the largest height range within four posts,
-//! among twenty random candidates each): where horizons are steep, errors
-//! are largest.
-//!
-//! **Horizon reference.** At each post, the exact line horizon
-//! (`horizon::brute::line_horizon`: every crossing of the sight line with
-//! the grid, on the two-triangle surface, with the stage's curvature and
-//! refraction, and no distance limit) in `directions` grid directions, each
-//! within 0.1 degree of `i * 360 / directions`. **Error** at each post and
+//! **Reference.** `reference::Pilot`: sampled posts of the area the
+//! horizons stage computed (random, and the highest relief), and their
+//! exact line horizons in dense directions. **Error** at each post and
 //! reference azimuth: what the loader serves there
 //! (`HorizonMap::horizon_at`: the stored bands, linear between the two
 //! nearest) minus the reference. The budget's statistic is the 99th
@@ -33,22 +25,15 @@ use terrabake_format::layers::{HEIGHT, HORIZON, SVF};
 use terrabake_format::{Asset, Mmap};
 
 use crate::budget::Budget;
-use crate::horizon::sky::{svf_of_horizons, BandIntegrals};
-use crate::horizon::terrain::{RowScale, Terrain};
-use crate::horizon::{brute, plan_bands, read_heights, BandKind, HorizonsStage, Method};
+use crate::horizon::HorizonsStage;
+use crate::plan::Candidate;
 use crate::progress::Progress;
+pub use crate::reference::{percentile, Pilot, Sampling};
 
 /// How a check samples.
-#[derive(Debug, Clone, Copy)]
-pub struct CheckOptions {
-    /// Random posts; a quarter as many of the highest relief are added.
-    pub samples: usize,
-    pub seed: u64,
-    /// Reference directions.
-    pub directions: usize,
-}
+pub type CheckOptions = Sampling;
 
-impl Default for CheckOptions {
+impl Default for Sampling {
     fn default() -> Self {
         Self {
             samples: 400,
@@ -82,8 +67,11 @@ pub struct CheckReport {
     pub bytes: u64,
     pub seconds: f64,
     pub seed: u64,
-    /// The budget checked against, and each limit's verdict.
+    /// The budget checked against (given, or the recorded plan's), and
+    /// each limit's verdict.
     pub budget: Option<Budget>,
+    /// What the recorded plan (`bake --budget`) predicted, if any.
+    pub predicted: Option<Candidate>,
     pub verdicts: Vec<Verdict>,
 }
 
@@ -102,79 +90,6 @@ impl CheckReport {
     pub fn within_budget(&self) -> bool {
         self.verdicts.iter().all(|v| v.met != Some(false))
     }
-}
-
-/// A SplitMix64 stream: seeded, so that a check repeats.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n as u64) as usize
-    }
-}
-
-/// The sampled posts `(col, row)`: random ones, then those of the highest
-/// relief; no nodata post, none twice.
-fn sample_posts(
-    z: &[f32],
-    w: usize,
-    [x0, y0, x1, y1]: [usize; 4],
-    opts: &CheckOptions,
-) -> (Vec<(usize, usize)>, usize) {
-    let mut rng = Rng(opts.seed);
-    let draw = |rng: &mut Rng| -> Option<(usize, usize)> {
-        (0..32).find_map(|_| {
-            let (c, r) = (x0 + rng.below(x1 - x0), y0 + rng.below(y1 - y0));
-            (!z[r * w + c].is_nan()).then_some((c, r))
-        })
-    };
-    let mut posts: Vec<(usize, usize)> = (0..opts.samples).filter_map(|_| draw(&mut rng)).collect();
-    let h = z.len() / w;
-    let relief = |(c, r): (usize, usize)| -> f32 {
-        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
-        for rr in r.saturating_sub(4)..(r + 5).min(h) {
-            for cc in c.saturating_sub(4)..(c + 5).min(w) {
-                let v = z[rr * w + cc];
-                if !v.is_nan() {
-                    lo = lo.min(v);
-                    hi = hi.max(v);
-                }
-            }
-        }
-        hi - lo
-    };
-    let wanted = opts.samples / 4;
-    let mut candidates: Vec<(f32, (usize, usize))> = (0..wanted * 20)
-        .filter_map(|_| draw(&mut rng))
-        .map(|p| (relief(p), p))
-        .collect();
-    candidates.sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
-    let before = posts.len();
-    for (_, p) in candidates {
-        if posts.len() - before == wanted {
-            break;
-        }
-        if !posts.contains(&p) {
-            posts.push(p);
-        }
-    }
-    let relief_posts = posts.len() - before;
-    (posts, relief_posts)
-}
-
-/// The value at `p` percent of sorted `v` (0 when empty).
-fn percentile(v: &[f64], p: usize) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    v[(v.len() * p / 100).min(v.len() - 1)]
 }
 
 /// Bytes of the regular files in `dir`.
@@ -217,45 +132,25 @@ pub fn check(
     if opts.samples == 0 || opts.directions < 4 {
         bail!("a check needs at least one sample and four reference directions");
     }
-    let (z, w, h) = read_heights(asset)?;
     let m = asset.manifest();
-    let row_scale = crate::geo::row_scale(m.georef.as_ref(), h as u32);
-    let terrain = Terrain::new(&z, w, h, m.cell_size.dx, m.cell_size.dy)
-        .with_row_scale(RowScale::new(&row_scale))
-        .with_curvature(stage.curvature_coefficient(asset));
-    let (posts, relief_posts) = sample_posts(&z, w, stage.area(w, h), opts);
-    if posts.is_empty() {
-        bail!(
-            "{}: the area holds no post with a height to check",
-            dir.display()
-        );
-    }
-    let reference = plan_bands(
-        Method::Line,
-        opts.directions,
-        m.cell_size.dx,
-        m.cell_size.dy,
-        Some(0.1),
-    );
-    let integrals: Vec<BandIntegrals> = reference
-        .iter()
-        .map(|b| BandIntegrals::new(b.lo, b.hi))
-        .collect();
+    let area = stage.area(m.width as usize, m.height as usize);
+    let pilot = Pilot::measure(
+        asset,
+        stage.curvature_coefficient(asset),
+        area,
+        opts,
+        progress,
+    )?;
     let svf_layer = asset.layer(SVF, 0).ok();
-    let bar = progress.bar(posts.len() as u64, "check", "posts");
     // Per post: the signed horizon errors at every reference azimuth, and
     // the svf error.
-    let per_post: Vec<Result<(Vec<f64>, Option<f64>)>> = posts
+    let per_post: Vec<Result<(Vec<f64>, Option<f64>)>> = pilot
+        .posts
         .par_iter()
-        .map(|&(c, r)| {
-            let mut errors = Vec::with_capacity(reference.len());
-            let mut exact = Vec::with_capacity(reference.len());
-            for band in &reference {
-                let BandKind::Line(direction) = &band.kind else {
-                    unreachable!("reference bands are lines")
-                };
-                let truth = f64::from(brute::line_horizon(&terrain, (c, r), direction.step, None));
-                exact.push(truth);
+        .zip(&pilot.exact)
+        .map(|(&(c, r), exact)| {
+            let mut errors = Vec::with_capacity(exact.len());
+            for (band, &truth) in pilot.reference.iter().zip(exact) {
                 if let Some(stored) = map.horizon_at(c as u32, r as u32, band.azimuth)? {
                     errors.push(stored - truth);
                 }
@@ -263,16 +158,13 @@ pub fn check(
             let svf_error = match &svf_layer {
                 Some(layer) => {
                     let stored = layer.get::<f32>(0, c as u32, r as u32)?;
-                    (!stored.is_nan())
-                        .then(|| f64::from(stored) - svf_of_horizons(&integrals, exact))
+                    (!stored.is_nan()).then(|| f64::from(stored) - pilot.svf(exact))
                 }
                 None => None,
             };
-            bar.inc(1);
             Ok((errors, svf_error))
         })
         .collect();
-    bar.finish_and_clear();
     let (mut horizon, mut svf) = (Vec::new(), Vec::new());
     for post in per_post {
         let (errors, svf_error) = post?;
@@ -285,9 +177,9 @@ pub fn check(
     svf.sort_unstable_by(f64::total_cmp);
     let layer = asset.layer(HORIZON, 0)?;
     let mut report = CheckReport {
-        posts: posts.len(),
-        relief_posts,
-        reference_directions: reference.len(),
+        posts: pilot.posts.len(),
+        relief_posts: pilot.relief_posts,
+        reference_directions: pilot.reference.len(),
         method: stage.method.name().into(),
         bands: layer.bands() as usize,
         encoding: map.encoding().name().into(),
@@ -302,10 +194,16 @@ pub fn check(
         seconds: start.elapsed().as_secs_f64(),
         seed: opts.seed,
         budget: budget.copied(),
+        predicted: None,
         verdicts: Vec::new(),
     };
-    if let Some(b) = budget {
-        report.verdicts = verdicts(&report, b);
+    let plan = crate::plan::recorded(asset);
+    if report.budget.is_none() {
+        report.budget = plan.as_ref().map(|p| p.budget);
+    }
+    report.predicted = plan.map(|p| p.chosen);
+    if let Some(b) = report.budget {
+        report.verdicts = verdicts(&report, &b);
     }
     Ok(report)
 }
@@ -398,6 +296,16 @@ pub fn describe(report: &CheckReport) -> String {
         "bytes on disk         {}\n",
         crate::report::human_bytes(report.bytes)
     );
+    if let Some(p) = &report.predicted {
+        out += &format!(
+            "planned               horizon p99 {:.3}   svf p99 {:.4}   horizon and sky layers {} ({} directions, {})\n",
+            p.horizon_p99_deg,
+            p.svf_p99,
+            crate::report::human_bytes(p.bytes),
+            p.sectors,
+            p.encoding
+        );
+    }
     if let Some(b) = &report.budget {
         out += &format!("\nbudget {b}\n");
         for v in &report.verdicts {

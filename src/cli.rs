@@ -283,6 +283,8 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
     },
     /// Benchmark the tracers on the sixteen built-in views, side by side (Paglieroni's Table 1).
     BenchViews(crate::bench::views::BenchViewsArgs),
+    /// Plan the horizons a budget needs: directions, encoding, predicted error, time and bytes.
+    Plan(crate::plan::PlanArgs),
     /// Measure the horizon and sky-view factor errors a bake achieved against exact references,
     /// and check them against a budget.
     Check(crate::check::CheckArgs),
@@ -319,8 +321,13 @@ A recipe (a shorter pipelines/demo.toml):\n  \
         #[arg(short, long)]
         output: PathBuf,
         /// A recipe from pipelines/ (TOML): ingest options and stages.
-        #[arg(long)]
-        recipe: PathBuf,
+        #[arg(long, required_unless_present = "budget")]
+        recipe: Option<PathBuf>,
+        /// Instead of a recipe, an error budget: horizon=DEG[,svf=X][,time=S][,bytes=SIZE]
+        /// [,memory=MIB]. Ingests, bakes the horizons and sky layers that `terrabake plan` chooses,
+        /// and records the plan; `terrabake check` then measures it (docs/PLANNING.md).
+        #[arg(long, conflicts_with_all = ["recipe", "parts"])]
+        budget: Option<crate::budget::Budget>,
         /// Cut the bake into this many parts (with --part).
         #[arg(long, value_name = "N", requires = "part")]
         parts: Option<u32>,

@@ -11,11 +11,12 @@ use terrabake::cli::{Cli, Command};
 use terrabake::export::export_layer;
 use terrabake::ingest::IngestStage;
 use terrabake::partition::{assemble, bake_part, Part};
+use terrabake::plan::bake_to_budget;
 use terrabake::progress::Progress;
 use terrabake::pyramid::PyramidStage;
 use terrabake::recipe::{bake, Recipe};
 use terrabake::render::{builtin_views, render, write_png, Camera, RenderOptions, Shadows};
-use terrabake::report::{describe, describe_outcome};
+use terrabake::report::describe_outcome;
 use terrabake::stage::{run_stage_in, Stage, StageOutcome};
 use terrabake_format::cones::CONE_APEX;
 use terrabake_format::horizons::HORIZON;
@@ -72,6 +73,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
         Command::BenchViews(args) => args.run(&say)?,
         Command::Page(args) => args.run(&say)?,
         Command::Check(args) => return args.run(progress),
+        Command::Plan(args) => args.run(progress)?,
         Command::BenchCones(args) => args.run(progress, &say)?,
         Command::BenchHorizons(args) => args.run(&say)?,
         Command::Ingest {
@@ -97,14 +99,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 start.elapsed(),
             ));
         }
-        Command::Info { asset, json } => {
-            let opened = open_asset(&asset)?;
-            if json {
-                println!("{}", serde_json::to_string_pretty(opened.manifest())?);
-            } else {
-                print!("{}", describe(&asset, opened.manifest()));
-            }
-        }
+        Command::Info { asset, json } => print!("{}", terrabake::report::info(&asset, json)?),
         Command::Verify {
             asset,
             same_as,
@@ -272,16 +267,24 @@ fn run(cli: Cli) -> Result<ExitCode> {
             src,
             output,
             recipe,
+            budget,
             parts,
             part,
             json,
         } => {
-            let recipe = Recipe::load(&recipe)?;
-            let outcomes = match (part, parts) {
-                (Some(i), Some(n)) => {
-                    bake_part(&src, &output, &recipe, Part::new(i, n)?, wait, progress)?
+            let outcomes = match (recipe, budget, part.zip(parts)) {
+                (Some(r), _, Some((i, n))) => bake_part(
+                    &src,
+                    &output,
+                    &Recipe::load(&r)?,
+                    Part::new(i, n)?,
+                    wait,
+                    progress,
+                )?,
+                (Some(r), ..) => bake(&src, &output, &Recipe::load(&r)?, wait, progress)?,
+                (None, b, _) => {
+                    bake_to_budget(&src, &output, &b.unwrap_or_default(), wait, progress)?
                 }
-                _ => bake(&src, &output, &recipe, wait, progress)?,
             };
             report_all(&outcomes, json)?;
         }

@@ -16,6 +16,16 @@ pub fn describe_outcome(o: &StageOutcome) -> String {
 }
 
 /// Human-readable summary of a manifest.
+/// What `terrabake info` prints: the summary, or the manifest as JSON.
+pub fn info(path: &Path, json: bool) -> anyhow::Result<String> {
+    let asset = crate::asset::open(path)?;
+    Ok(if json {
+        serde_json::to_string_pretty(asset.manifest())? + "\n"
+    } else {
+        describe(path, asset.manifest())
+    })
+}
+
 pub fn describe(path: &Path, m: &terrabake_format::Manifest) -> String {
     use std::fmt::Write;
     let mut s = String::new();

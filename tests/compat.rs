@@ -107,7 +107,10 @@ fn quantised_fixture_reads_forever() {
         }
     }
 
-    assert!(grazed * 100 < compared, "{grazed} of {compared} angles differ");
+    assert!(
+        grazed * 100 < compared,
+        "{grazed} of {compared} angles differ"
+    );
     eprintln!("{grazed} of {compared} angles below the exact ones (grazed posts)");
 
     let planes = ConePlanes::open(&asset).unwrap().expect("cone planes");

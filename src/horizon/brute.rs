@@ -72,11 +72,17 @@ pub fn line_horizon(
             (p + d * s_max, p)
         };
         // A margin for the exit point, which rounding may put a hair off.
+        let start = crossings.len();
         for k in (lo - 1e-6).ceil() as i64..=(hi + 1e-6).floor() as i64 {
             let s = (k as f64 - p) / d;
             if s > 0.0 && s <= s_max * (1.0 + 1e-12) {
                 crossings.push(s.min(s_max));
             }
+        }
+        // Each family ascending in s, so that the sort below merges three
+        // runs (linear) rather than sorting from scratch.
+        if d < 0.0 {
+            crossings[start..].reverse();
         }
     }
     // Metres from the post to parameter s: whole steps, each with the
@@ -86,7 +92,7 @@ pub fn line_horizon(
     };
     // Crossings in order, so that the whole steps' metres are summed once
     // along the line rather than again for every crossing.
-    crossings.sort_unstable_by(f64::total_cmp);
+    crossings.sort_by(f64::total_cmp);
     let (mut whole_steps, mut metres) = (0i64, 0.0);
     let mut distance = |s: f64| {
         while ((whole_steps + 1) as f64) <= s {

@@ -1,0 +1,203 @@
+//! Exact horizon references from the heights alone, at sampled posts: what
+//! `check` measures a bake against and what the planner measures a scene
+//! with (docs/PLANNING.md).
+//!
+//! **Posts.** `samples` posts drawn uniformly (seeded, so a measurement
+//! repeats) from an area, and a quarter as many again of the highest local
+//! relief (the largest height range within four posts, among twenty random
+//! candidates each): where horizons are steep, errors are largest.
+//!
+//! **Horizons.** At each post, the exact line horizon
+//! (`horizon::brute::line_horizon`: every crossing of the sight line with
+//! the grid, on the two-triangle surface, with the stage's curvature and
+//! refraction, and no distance limit) in `directions` grid directions, each
+//! within 0.1 degree of `i * 360 / directions`.
+
+use anyhow::{bail, Result};
+use rayon::prelude::*;
+use terrabake_format::{Asset, Mmap};
+
+use crate::horizon::sky::{svf_of_horizons, BandIntegrals};
+use crate::horizon::terrain::{RowScale, Terrain};
+use crate::horizon::{brute, plan_bands, read_heights, BandKind, Method};
+use crate::progress::Progress;
+
+/// How a reference samples.
+#[derive(Debug, Clone, Copy)]
+pub struct Sampling {
+    /// Random posts; a quarter as many of the highest relief are added.
+    pub samples: usize,
+    pub seed: u64,
+    /// Reference directions.
+    pub directions: usize,
+}
+
+/// A SplitMix64 stream: seeded, so that a check repeats.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+    fn below(&mut self, n: usize) -> usize {
+        (self.next() % n as u64) as usize
+    }
+}
+
+/// The sampled posts `(col, row)`: random ones, then those of the highest
+/// relief; no nodata post, none twice.
+fn sample_posts(
+    z: &[f32],
+    w: usize,
+    [x0, y0, x1, y1]: [usize; 4],
+    opts: &Sampling,
+) -> (Vec<(usize, usize)>, usize) {
+    let mut rng = Rng(opts.seed);
+    let draw = |rng: &mut Rng| -> Option<(usize, usize)> {
+        (0..32).find_map(|_| {
+            let (c, r) = (x0 + rng.below(x1 - x0), y0 + rng.below(y1 - y0));
+            (!z[r * w + c].is_nan()).then_some((c, r))
+        })
+    };
+    let mut posts: Vec<(usize, usize)> = (0..opts.samples).filter_map(|_| draw(&mut rng)).collect();
+    let h = z.len() / w;
+    let relief = |(c, r): (usize, usize)| -> f32 {
+        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+        for rr in r.saturating_sub(4)..(r + 5).min(h) {
+            for cc in c.saturating_sub(4)..(c + 5).min(w) {
+                let v = z[rr * w + cc];
+                if !v.is_nan() {
+                    lo = lo.min(v);
+                    hi = hi.max(v);
+                }
+            }
+        }
+        hi - lo
+    };
+    let wanted = opts.samples / 4;
+    let mut candidates: Vec<(f32, (usize, usize))> = (0..wanted * 20)
+        .filter_map(|_| draw(&mut rng))
+        .map(|p| (relief(p), p))
+        .collect();
+    candidates.sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
+    let before = posts.len();
+    for (_, p) in candidates {
+        if posts.len() - before == wanted {
+            break;
+        }
+        if !posts.contains(&p) {
+            posts.push(p);
+        }
+    }
+    let relief_posts = posts.len() - before;
+    (posts, relief_posts)
+}
+
+/// The exact horizons of sampled posts in dense directions, from the heights
+/// alone: what `check` measures a bake against and what the planner
+/// measures a scene with.
+#[derive(Debug)]
+pub struct Pilot {
+    /// The posts `(col, row)`: random ones, then those of the highest relief.
+    pub posts: Vec<(usize, usize)>,
+    pub relief_posts: usize,
+    /// The reference directions (grid lines within 0.1 degree of
+    /// `i * 360 / directions`), and their bands' integrals for the svf.
+    pub reference: Vec<crate::horizon::Band>,
+    integrals: Vec<BandIntegrals>,
+    /// Per post, the exact horizon in each reference direction, degrees.
+    pub exact: Vec<Vec<f64>>,
+}
+
+impl Pilot {
+    /// Samples `asset`'s posts within `area` and computes their exact
+    /// horizons with the curvature coefficient `curvature`.
+    pub fn measure(
+        asset: &Asset<Mmap>,
+        curvature: f64,
+        area: [usize; 4],
+        opts: &Sampling,
+        progress: Progress,
+    ) -> Result<Self> {
+        let dir = asset.dir();
+        if opts.samples == 0 || opts.directions < 4 {
+            bail!("a check needs at least one sample and four reference directions");
+        }
+        let (z, w, h) = read_heights(asset)?;
+        let m = asset.manifest();
+        let row_scale = crate::geo::row_scale(m.georef.as_ref(), h as u32);
+        let terrain = Terrain::new(&z, w, h, m.cell_size.dx, m.cell_size.dy)
+            .with_row_scale(RowScale::new(&row_scale))
+            .with_curvature(curvature);
+        let (posts, relief_posts) = sample_posts(&z, w, area, opts);
+        if posts.is_empty() {
+            bail!(
+                "{}: the area holds no post with a height to measure",
+                dir.display()
+            );
+        }
+        let reference = plan_bands(
+            Method::Line,
+            opts.directions,
+            m.cell_size.dx,
+            m.cell_size.dy,
+            Some(0.1),
+        );
+        let integrals = reference
+            .iter()
+            .map(|b| BandIntegrals::new(b.lo, b.hi))
+            .collect();
+        let bar = progress.bar(posts.len() as u64, "exact horizons", "posts");
+        let exact = posts
+            .par_iter()
+            .map(|&(c, r)| {
+                let horizon = reference
+                    .iter()
+                    .map(|band| {
+                        let BandKind::Line(direction) = &band.kind else {
+                            unreachable!("reference bands are lines")
+                        };
+                        f64::from(brute::line_horizon(&terrain, (c, r), direction.step, None))
+                    })
+                    .collect();
+                bar.inc(1);
+                horizon
+            })
+            .collect();
+        bar.finish_and_clear();
+        Ok(Self {
+            posts,
+            relief_posts,
+            reference,
+            integrals,
+            exact,
+        })
+    }
+
+    /// Zakšek's sky-view factor of a post's reference horizons.
+    pub fn svf(&self, exact: &[f64]) -> f64 {
+        svf_of_horizons(&self.integrals, exact.iter().copied())
+    }
+}
+
+/// The value at `p` percent of sorted `v` (0 when empty).
+pub fn percentile(v: &[f64], p: usize) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    v[(v.len() * p / 100).min(v.len() - 1)]
+}
+
+/// The value at `p` percent of `v` once sorted, without sorting it all
+/// (0 when empty).
+pub fn percentile_unsorted(mut v: Vec<f64>, p: usize) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    let at = (v.len() * p / 100).min(v.len() - 1);
+    *v.select_nth_unstable_by(at, f64::total_cmp).1
+}
