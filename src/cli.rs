@@ -63,6 +63,7 @@ pub enum Command {
     },
     /// Describe an asset: shape, cell size, georeferencing, layers, nodata, provenance.
     Info {
+        /// The asset directory (made by `terrabake ingest` or `terrabake bake`).
         asset: PathBuf,
         /// The manifest as JSON, for scripts.
         #[arg(long)]
@@ -70,11 +71,14 @@ pub enum Command {
     },
     /// Check every checksum and structural invariant of an asset (exit status 3 if any fails).
     Verify {
+        /// The asset directory (made by `terrabake ingest` or `terrabake bake`).
         asset: PathBuf,
         /// Also check that every layer decodes to the same values, bit for bit, as this
         /// asset's (a partitioned bake against one machine's, say).
         #[arg(long, value_name = "OTHER")]
         same_as: Option<PathBuf>,
+        /// Print the result as JSON on stdout: chunks and layers checked, ok, and the problems (none
+        /// when the asset is sound).
         #[arg(long)]
         json: bool,
     },
@@ -86,6 +90,7 @@ pub enum Command {
 terrabake export dem.tbake --layer horizon -o horizon.tif\n  \
 terrabake export dem.tbake --layer svf -o svf.png")]
     Export {
+        /// The asset directory (made by `terrabake ingest` or `terrabake bake`).
         asset: PathBuf,
         /// Layer name (see `terrabake info`).
         #[arg(long, default_value = "height")]
@@ -102,18 +107,22 @@ terrabake export dem.tbake --layer svf -o svf.png")]
         /// The band a PNG shows (GeoTIFF and EXR carry all bands).
         #[arg(long, default_value_t = 0)]
         band: u32,
+        /// The file to write: .tif (GeoTIFF), .exr or .png (a preview), by its extension.
         #[arg(short, long)]
         output: PathBuf,
     },
     /// Write a synthetic terrain as a float32 GeoTIFF (30 m posts), strip by strip, at any size.
     Synth {
+        /// The terrain to write.
         #[arg(value_enum)]
         kind: SynthKind,
         /// WIDTHxHEIGHT in posts.
         #[arg(long, value_parser = parse_size)]
         size: (u32, u32),
+        /// Seed of the random terrains (the same seed writes the same file).
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// The GeoTIFF to write.
         #[arg(short, long)]
         output: PathBuf,
     },
@@ -122,10 +131,12 @@ terrabake export dem.tbake --layer svf -o svf.png")]
     /// Level 0 holds each cell's tallest and lowest corner; each level above the max and min of
     /// 2 x 2 blocks, up to one tile. Skipped when the asset already has them.
     Pyramid {
+        /// The asset directory (made by `terrabake ingest` or `terrabake bake`).
         asset: PathBuf,
         /// Rebuild even if the asset already has an up-to-date pyramid.
         #[arg(long)]
         force: bool,
+        /// Print the stage's record as JSON on stdout (layers written, parameters, seconds).
         #[arg(long)]
         json: bool,
     },
@@ -144,12 +155,14 @@ terrabake export dem.tbake --layer svf -o svf.png")]
 terrabake cones dem.tbake --slices 256 --encoding u16 --json"
     )]
     Cones {
+        /// The asset directory (made by `terrabake ingest` or `terrabake bake`).
         asset: PathBuf,
         #[command(flatten)]
         stage: ConesStage,
         /// Rebuild even if the asset already has up-to-date planes.
         #[arg(long)]
         force: bool,
+        /// Print the stage's record as JSON on stdout (layers written, parameters, seconds).
         #[arg(long)]
         json: bool,
     },
@@ -173,6 +186,7 @@ terrabake horizons dem.tbake --sectors 32 --aoi 100,100,400,400 --max-error 0.01
 terrabake export dem.tbake --layer horizon -o horizon.tif"
     )]
     Horizons {
+        /// The asset directory (made by `terrabake ingest` or `terrabake bake`).
         asset: PathBuf,
         #[command(flatten)]
         stage: HorizonsStage,
@@ -183,6 +197,7 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
         /// Recompute even if the asset already has up-to-date horizons.
         #[arg(long)]
         force: bool,
+        /// Print the stage's record as JSON on stdout (layers written, parameters, seconds).
         #[arg(long)]
         json: bool,
     },
@@ -192,12 +207,14 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
     /// Reads the committed horizon layer and the horizons stage's recorded parameters (area of
     /// interest, curvature); `terrabake horizons` runs it unless --no-sky.
     Sky {
+        /// The asset directory (made by `terrabake ingest` or `terrabake bake`).
         asset: PathBuf,
         #[command(flatten)]
         stage: crate::sky::SkyStage,
         /// Recompute even if the asset already has up-to-date sky layers.
         #[arg(long)]
         force: bool,
+        /// Print the stage's record as JSON on stdout (layers written, parameters, seconds).
         #[arg(long)]
         json: bool,
     },
@@ -227,6 +244,7 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
     /// heights' metres (`terrabake info` gives the extent). Use --view 1..16 for the built-in
     /// oblique views of the tracing benchmark, or --camera and --look-at.
     Render {
+        /// The asset directory (made by `terrabake ingest` or `terrabake bake`).
         asset: PathBuf,
         /// Instead of a perspective view: an overhead map shaded from the stored horizons alone,
         /// `sky` (overcast sky, radiosity) or `sun:AZ,EL` (sun disc and Stewart's sky); needs the
@@ -272,6 +290,7 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
         /// triangle's own, facets showing). Hits and shadows are exact either way.
         #[arg(long, value_enum, default_value = "smooth")]
         normals: crate::render::Normals,
+        /// The PNG to write (its directory is created).
         #[arg(short, long)]
         output: PathBuf,
         /// Print rays per second and mean steps per ray.
@@ -283,6 +302,9 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
     },
     /// Benchmark the tracers on the sixteen built-in views, side by side (Paglieroni's Table 1).
     BenchViews(crate::bench::views::BenchViewsArgs),
+    /// Plan, bake and check each DEM at each budget: achieved error, time and bytes against the
+    /// budget (the planner's chart).
+    BenchPlan(crate::bench::plan::BenchPlanArgs),
     /// Plan the horizons a budget needs: directions, encoding, predicted error, time and bytes.
     Plan(crate::plan::PlanArgs),
     /// Measure the horizon and sky-view factor errors a bake achieved against exact references,

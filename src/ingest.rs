@@ -51,6 +51,7 @@ pub struct IngestOptions {
     /// Heights are `sample * z_scale + z_offset` (for PNG heightmaps, say).
     #[arg(long, default_value_t = 1.0, allow_hyphen_values = true, value_parser = crate::args::parse_finite)]
     pub z_scale: f64,
+    /// Metres added to every height after --z-scale (see there).
     #[arg(long, default_value_t = 0.0, allow_hyphen_values = true, value_parser = crate::args::parse_finite)]
     pub z_offset: f64,
     /// Tile codec: `raw` (read in place from the mapping) or `zstd` (smaller; decompressed into a cache).

@@ -74,6 +74,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
         Command::Page(args) => args.run(&say)?,
         Command::Check(args) => return args.run(progress),
         Command::Plan(args) => args.run(progress)?,
+        Command::BenchPlan(args) => args.run(&say)?,
         Command::BenchCones(args) => args.run(progress, &say)?,
         Command::BenchHorizons(args) => args.run(&say)?,
         Command::Ingest {

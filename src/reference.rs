@@ -32,6 +32,18 @@ pub struct Sampling {
     pub directions: usize,
 }
 
+/// `check`'s sampling: 400 random posts (and 100 of the highest relief),
+/// seed 1, 720 directions.
+impl Default for Sampling {
+    fn default() -> Self {
+        Self {
+            samples: 400,
+            seed: 1,
+            directions: 720,
+        }
+    }
+}
+
 /// A SplitMix64 stream: seeded, so that a check repeats.
 struct Rng(u64);
 
@@ -192,12 +204,12 @@ pub fn percentile(v: &[f64], p: usize) -> f64 {
     v[(v.len() * p / 100).min(v.len() - 1)]
 }
 
-/// The value at `p` percent of `v` once sorted, without sorting it all
-/// (0 when empty).
-pub fn percentile_unsorted(mut v: Vec<f64>, p: usize) -> f64 {
+/// The value at quantile `q` (0..1) of `v` once sorted, without sorting
+/// it all (0 when empty).
+pub fn quantile_unsorted(mut v: Vec<f64>, q: f64) -> f64 {
     if v.is_empty() {
         return 0.0;
     }
-    let at = (v.len() * p / 100).min(v.len() - 1);
+    let at = ((v.len() as f64 * q) as usize).min(v.len() - 1);
     *v.select_nth_unstable_by(at, f64::total_cmp).1
 }

@@ -177,6 +177,27 @@ pub struct StageOutcome {
     pub seconds: f64,
 }
 
+/// The latest record of `stage` in `manifest`.
+pub fn record_of<'m>(
+    manifest: &'m terrabake_format::Manifest,
+    stage: &str,
+) -> Option<&'m StageRecord> {
+    manifest
+        .provenance
+        .stages
+        .iter()
+        .rev()
+        .find(|r| r.stage == stage)
+}
+
+/// The parameters of the latest record of `stage`, read as `T`.
+pub fn recorded_params<T: serde::de::DeserializeOwned>(
+    manifest: &terrabake_format::Manifest,
+    stage: &str,
+) -> Option<T> {
+    serde_json::from_value(record_of(manifest, stage)?.params.clone()).ok()
+}
+
 /// Whether `stages` already holds a record of `stage` with `params` whose
 /// outputs the asset still has.
 pub fn already_done(
@@ -184,12 +205,7 @@ pub fn already_done(
     stage: &str,
     params: &serde_json::Value,
 ) -> Option<Vec<String>> {
-    let record = manifest
-        .provenance
-        .stages
-        .iter()
-        .rev()
-        .find(|r| r.stage == stage)?;
+    let record = record_of(manifest, stage)?;
     let present = record
         .outputs
         .iter()

@@ -104,29 +104,24 @@ fn a_budget_not_met_exits_4_and_the_result_is_recorded_until_a_rebake() {
     let dir = tempfile::tempdir().unwrap();
     let asset = baked(dir.path(), SynthKind::Spike, 8, None, AngleEncoding::U8);
     let a = asset.to_str().unwrap();
-    let out = terrabake(&[
-        "check",
-        a,
-        "--samples",
-        "40",
-        "--directions",
-        "90",
-        "--budget",
-        "horizon=0.001",
-    ]);
+    let check_with = |budget: &str, more: &[&str]| {
+        let mut args = vec![
+            "check",
+            a,
+            "--samples",
+            "40",
+            "--directions",
+            "90",
+            "--budget",
+            budget,
+        ];
+        args.extend_from_slice(more);
+        terrabake(&args)
+    };
+    let out = check_with("horizon=0.001", &[]);
     assert_eq!(out.status.code(), Some(4), "{}", stderr(&out));
     assert!(stdout(&out).contains("EXCEEDED"), "{}", stdout(&out));
-    let out = terrabake(&[
-        "check",
-        a,
-        "--samples",
-        "40",
-        "--directions",
-        "90",
-        "--budget",
-        "horizon=89",
-        "--json",
-    ]);
+    let out = check_with("horizon=89", &["--json"]);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
     let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(report["verdicts"][0]["met"], serde_json::Value::Bool(true));

@@ -851,3 +851,23 @@ fn sizes_that_cannot_be_served_are_refused_before_work() {
         .collect();
     assert!(!left.iter().any(|n| n.starts_with("huge")), "{left:?}");
 }
+
+/// Every argument of every command says what it is in `--help`.
+#[test]
+fn every_argument_has_a_help_line() {
+    use clap::CommandFactory;
+    let cli = terrabake::cli::Cli::command();
+    let mut missing = Vec::new();
+    for command in cli.get_subcommands() {
+        for arg in command.get_arguments() {
+            let id = arg.get_id().as_str();
+            if id == "help" || id == "version" {
+                continue;
+            }
+            if arg.get_help().is_none() && arg.get_long_help().is_none() {
+                missing.push(format!("{} {id}", command.get_name()));
+            }
+        }
+    }
+    assert!(missing.is_empty(), "no help line: {missing:?}");
+}

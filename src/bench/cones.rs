@@ -192,6 +192,7 @@ pub fn tradeoff_charts(prefix: &Path, rows: &[TradeoffRow]) -> Result<()> {
 /// `terrabake bench-cones`: its flags.
 #[derive(Debug, Clone, clap::Args)]
 pub struct BenchConesArgs {
+    /// The asset to measure (an ingested DEM).
     pub asset: std::path::PathBuf,
     /// Slice counts and/or exact, comma-separated.
     #[arg(
@@ -212,6 +213,7 @@ pub struct BenchConesArgs {
     /// Write PREFIX_steps.svg and PREFIX_speed.svg.
     #[arg(long)]
     pub chart: Option<std::path::PathBuf>,
+    /// Print the rows as JSON.
     #[arg(long)]
     pub json: bool,
 }

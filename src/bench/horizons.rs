@@ -321,6 +321,7 @@ pub fn accuracy_charts(prefix: &Path, rows: &[AccuracyRow]) -> Result<()> {
 /// `terrabake bench-horizons`: its flags.
 #[derive(Debug, Clone, clap::Args)]
 pub struct BenchHorizonsArgs {
+    /// The asset to measure (an ingested DEM).
     pub asset: std::path::PathBuf,
     /// Band counts for the accuracy study, comma-separated.
     #[arg(long, value_delimiter = ',', default_value = "8,16,32,64,128,256")]
@@ -344,6 +345,7 @@ pub struct BenchHorizonsArgs {
     /// Write PREFIX_horizon.svg and PREFIX_svf.svg.
     #[arg(long)]
     pub chart: Option<std::path::PathBuf>,
+    /// Print the rows as JSON.
     #[arg(long)]
     pub json: bool,
 }

@@ -8,12 +8,15 @@
 //!   time, per slice count and encoding.
 //! - [`horizons`]: the horizon methods' speed, and their accuracy against a
 //!   dense exact reference.
+//! - [`plan`]: planned bakes, their achieved error and cost against the
+//!   budget.
 //! - [`markdown_table`] and [`chart`]: the one table writer and the one
 //!   chart writer they all use.
 
 pub mod chart;
 pub mod cones;
 pub mod horizons;
+pub mod plan;
 pub mod views;
 
 /// A Markdown table: a header row, the separator, then one row per item.

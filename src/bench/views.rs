@@ -298,6 +298,7 @@ pub struct BenchViewsArgs {
     /// Instead of the views: cost per ray in N azimuths (shallow rays from a grid of origins).
     #[arg(long)]
     pub directions: Option<u32>,
+    /// Print the rows as JSON.
     #[arg(long)]
     pub json: bool,
 }

@@ -489,14 +489,7 @@ impl HorizonsStage {
 
     /// The parameters the horizons stage last ran with on this asset.
     pub fn recorded(asset: &Asset<Mmap>) -> Option<Self> {
-        let record = asset
-            .manifest()
-            .provenance
-            .stages
-            .iter()
-            .rev()
-            .find(|r| r.stage == "horizons")?;
-        serde_json::from_value(record.params.clone()).ok()
+        crate::stage::recorded_params(asset.manifest(), "horizons")
     }
 }
 

@@ -1,0 +1,234 @@
+//! The planner's chart (`terrabake bench-plan`): for each DEM and budget,
+//! plan, bake what the plan says, and measure what the bake achieved with
+//! `check` on posts the plan never saw: budget against achieved error, and
+//! budget against bake time and bytes (docs/PLANNING.md).
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::Result;
+use serde::Serialize;
+
+use super::chart::{log_log_svg, Series};
+use super::markdown_table;
+use crate::budget::Budget;
+use crate::check::{check, CheckOptions};
+use crate::progress::Progress;
+use crate::stage::run_stage;
+
+/// One DEM and one budget: predicted and achieved.
+#[derive(Debug, Clone, Serialize)]
+pub struct PlanRow {
+    pub dem: String,
+    pub budget_deg: f64,
+    pub sectors: usize,
+    pub encoding: String,
+    pub predicted_p99_deg: f64,
+    pub achieved_p99_deg: f64,
+    pub achieved_svf_p99: f64,
+    pub predicted_seconds: f64,
+    /// Wall seconds of the horizons and sky stages.
+    pub bake_seconds: f64,
+    pub plan_seconds: f64,
+    pub predicted_bytes: u64,
+    pub met: bool,
+    /// The planner refused the budget (the rest of the row is empty).
+    pub refused: bool,
+}
+
+impl PlanRow {
+    fn refused(dem: &str, budget_deg: f64) -> Self {
+        Self {
+            dem: dem.into(),
+            budget_deg,
+            sectors: 0,
+            encoding: String::new(),
+            predicted_p99_deg: f64::NAN,
+            achieved_p99_deg: f64::NAN,
+            achieved_svf_p99: f64::NAN,
+            predicted_seconds: f64::NAN,
+            bake_seconds: f64::NAN,
+            plan_seconds: f64::NAN,
+            predicted_bytes: 0,
+            met: false,
+            refused: true,
+        }
+    }
+}
+
+/// `terrabake bench-plan`: its arguments.
+#[derive(clap::Args, Debug)]
+pub struct BenchPlanArgs {
+    /// Ingested assets; their horizon and sky layers are baked again for each budget.
+    #[arg(required = true)]
+    pub assets: Vec<PathBuf>,
+    /// Horizon budgets, degrees (the 99th percentile of the absolute error).
+    #[arg(long, value_delimiter = ',', default_value = "0.25,0.5,1,2,4")]
+    pub budgets: Vec<f64>,
+    /// Write PREFIX_error.svg (achieved against budget) and PREFIX_cost.svg (bake seconds
+    /// against budget).
+    #[arg(long, value_name = "PREFIX")]
+    pub chart: Option<PathBuf>,
+    /// Print the rows as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+impl BenchPlanArgs {
+    pub fn run(&self, say: &dyn Fn(String)) -> Result<()> {
+        let mut rows = Vec::new();
+        for path in &self.assets {
+            let dem = path.file_stem().map_or_else(
+                || path.display().to_string(),
+                |s| s.to_string_lossy().into_owned(),
+            );
+            for &horizon in &self.budgets {
+                let budget = Budget {
+                    horizon,
+                    ..Default::default()
+                };
+                let start = Instant::now();
+                let asset = crate::asset::open(path)?;
+                let plan = match crate::plan::plan(&asset, &budget, Progress::hidden()) {
+                    Ok(plan) => plan,
+                    Err(e) => {
+                        say(format!("{dem} {horizon} deg: refused: {e:#}"));
+                        rows.push(PlanRow::refused(&dem, horizon));
+                        continue;
+                    }
+                };
+                drop(asset);
+                let plan_seconds = start.elapsed().as_secs_f64();
+                let start = Instant::now();
+                run_stage(path, &plan.horizons_stage(), true, Progress::hidden())?;
+                run_stage(
+                    path,
+                    &crate::sky::SkyStage::default(),
+                    true,
+                    Progress::hidden(),
+                )?;
+                let bake_seconds = start.elapsed().as_secs_f64();
+                let report = check(
+                    &crate::asset::open(path)?,
+                    &CheckOptions {
+                        samples: 400,
+                        seed: 99,
+                        directions: 720,
+                    },
+                    Some(&budget),
+                    Progress::hidden(),
+                )?;
+                say(format!(
+                    "{dem} {horizon} deg: {} directions {}, achieved p99 {:.3}",
+                    plan.chosen.sectors, plan.chosen.encoding, report.horizon_p99_deg
+                ));
+                rows.push(PlanRow {
+                    dem: dem.clone(),
+                    budget_deg: horizon,
+                    sectors: plan.chosen.sectors,
+                    encoding: plan.chosen.encoding.clone(),
+                    predicted_p99_deg: plan.chosen.horizon_p99_deg,
+                    achieved_p99_deg: report.horizon_p99_deg,
+                    achieved_svf_p99: report.svf_p99.unwrap_or(f64::NAN),
+                    predicted_seconds: plan.chosen.seconds,
+                    bake_seconds,
+                    plan_seconds,
+                    predicted_bytes: plan.chosen.bytes,
+                    met: report.within_budget(),
+                    refused: false,
+                });
+            }
+        }
+        if self.json {
+            println!("{}", serde_json::to_string_pretty(&rows)?);
+        } else {
+            print!("{}", table(&rows));
+        }
+        if let Some(prefix) = &self.chart {
+            charts(prefix, &rows)?;
+        }
+        Ok(())
+    }
+}
+
+fn table(rows: &[PlanRow]) -> String {
+    markdown_table(
+        &[
+            "DEM",
+            "budget (deg)",
+            "directions",
+            "encoding",
+            "predicted p99",
+            "achieved p99",
+            "achieved svf p99",
+            "plan (s)",
+            "bake (s)",
+            "predicted bake (s)",
+            "bytes (MiB)",
+            "met",
+        ],
+        rows.iter().map(|r| {
+            vec![
+                r.dem.clone(),
+                format!("{}", r.budget_deg),
+                r.sectors.to_string(),
+                r.encoding.clone(),
+                format!("{:.3}", r.predicted_p99_deg),
+                format!("{:.3}", r.achieved_p99_deg),
+                format!("{:.4}", r.achieved_svf_p99),
+                format!("{:.1}", r.plan_seconds),
+                format!("{:.2}", r.bake_seconds),
+                format!("{:.2}", r.predicted_seconds),
+                format!("{:.1}", r.predicted_bytes as f64 / f64::from(1 << 20)),
+                match (r.refused, r.met) {
+                    (true, _) => "refused",
+                    (false, true) => "yes",
+                    (false, false) => "NO",
+                }
+                .into(),
+            ]
+        }),
+    )
+}
+
+fn charts(prefix: &std::path::Path, rows: &[PlanRow]) -> Result<()> {
+    let mut dems: Vec<&str> = rows.iter().map(|r| r.dem.as_str()).collect();
+    dems.dedup();
+    let series = |y: &dyn Fn(&PlanRow) -> f64| -> Vec<Series> {
+        dems.iter()
+            .map(|&dem| Series {
+                name: dem.to_string(),
+                points: rows
+                    .iter()
+                    .filter(|r| r.dem == dem && !r.refused)
+                    .map(|r| (r.budget_deg, y(r)))
+                    .collect(),
+            })
+            .collect()
+    };
+    let mut error = series(&|r| r.achieved_p99_deg);
+    let budgets: Vec<f64> = rows.iter().map(|r| r.budget_deg).collect();
+    error.push(Series {
+        name: "the budget (achieved must lie below)".into(),
+        points: budgets.iter().map(|&b| (b, b)).collect(),
+    });
+    let with = |suffix: &str| {
+        let mut p = prefix.as_os_str().to_owned();
+        p.push(suffix);
+        PathBuf::from(p)
+    };
+    log_log_svg(
+        &with("_error.svg"),
+        "Planned bakes: achieved horizon error against the budget",
+        "horizon budget, p99 (degrees)",
+        "achieved p99 (degrees), independent posts",
+        &error,
+    )?;
+    log_log_svg(
+        &with("_cost.svg"),
+        "Planned bakes: bake time against the budget (2 cores)",
+        "horizon budget, p99 (degrees)",
+        "horizons and sky stages (s)",
+        &series(&|r| r.bake_seconds),
+    )
+}
