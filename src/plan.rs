@@ -23,7 +23,7 @@
 //! more bytes or time. Explicit `--sectors` and `--encoding` are not taken
 //! here: `check` says what they achieve.
 //!
-//! **Cost model.** Time: `posts * S^1.4 / rate`, fitted by
+//! **Cost model.** Time: `posts * S^1.31 / 1.22e7` seconds, fitted by
 //! `pipelines/fit_plan_models.sh` to the line stage and the sky stage on
 //! the bundled tile (longer grid steps at more directions make a direction
 //! cost more than the last); bytes: the layers' raw tiles.
@@ -65,8 +65,8 @@ const BUDGET_SHARE_QUANTISATION: f64 = 0.25;
 pub const PILOT_SEED: u64 = 0x504c_414e;
 /// Fitted by pipelines/fit_plan_models.sh (docs/PLANNING.md): seconds =
 /// posts * S^EXPONENT / RATE on the 2-core reference machine.
-pub const TIME_EXPONENT: f64 = 1.4;
-pub const TIME_RATE: f64 = 6.6e7;
+pub const TIME_EXPONENT: f64 = 1.31;
+pub const TIME_RATE: f64 = 1.22e7;
 /// Bytes per post of the sky stage's layers (three f32 and one u16).
 const SKY_BYTES_PER_POST: u64 = 14;
 
