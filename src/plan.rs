@@ -173,6 +173,13 @@ fn predict(pilot: &Pilot, sectors: usize, encoding: AngleEncoding, q: f64) -> (f
     (quantile_unsorted(horizon, q), quantile_unsorted(svf, q))
 }
 
+/// `x` rounded up at `decimals` decimals: a limit to relax to that,
+/// printed, still suffices.
+fn round_up(x: f64, decimals: i32) -> f64 {
+    let scale = 10f64.powi(decimals);
+    (x * scale).ceil() / scale
+}
+
 /// Plans the horizons of `asset` for `budget`.
 pub fn plan(asset: &Asset<Mmap>, budget: &Budget, progress: Progress) -> Result<Plan> {
     budget.validate().map_err(anyhow::Error::msg)?;
@@ -207,14 +214,14 @@ pub fn plan(asset: &Asset<Mmap>, budget: &Budget, progress: Progress) -> Result<
     // The encoding: the coarsest whose worst error is a quarter of the
     // budget, in degrees and (for the svf, which a change of h radians in
     // every direction moves by at most h) in radians.
-    let quantisation_share = BUDGET_SHARE_QUANTISATION;
+    let share = BUDGET_SHARE_QUANTISATION;
     let encoding = [AngleEncoding::U8, AngleEncoding::U16, AngleEncoding::F32]
         .into_iter()
         .find(|e| {
-            e.max_error_deg() <= quantisation_share * budget.horizon
+            e.max_error_deg() <= share * budget.horizon
                 && budget
                     .svf
-                    .is_none_or(|s| e.max_error_deg().to_radians() <= quantisation_share * s)
+                    .is_none_or(|s| e.max_error_deg().to_radians() <= share * s)
         })
         .unwrap_or(AngleEncoding::F32);
     // The directions: the fewest whose error between directions alone
@@ -231,13 +238,14 @@ pub fn plan(asset: &Asset<Mmap>, budget: &Budget, progress: Progress) -> Result<
         }
     };
     let mut candidates = Vec::new();
-    let mut sectors = None;
+    let (mut sectors, mut deciding) = (None, (0.0, 0.0));
     for &s in &CANDIDATES {
         let exact = candidate(s, AngleEncoding::F32);
         // Decided on the 99.5th percentile: where a lone spike is seen in
         // about 1 % of the azimuths, the 99th sits on a knife's edge and a
         // pilot can find it small where a check finds it large.
         let (horizon, svf) = predict(&pilot, s, AngleEncoding::F32, DECISION_QUANTILE);
+        deciding = (horizon, svf);
         let meets = horizon <= BUDGET_SHARE_DIRECTIONS * budget.horizon
             && budget
                 .svf
@@ -250,16 +258,18 @@ pub fn plan(asset: &Asset<Mmap>, budget: &Budget, progress: Progress) -> Result<
     }
     let Some(sectors) = sectors else {
         let closest = candidates.last().expect("candidates");
+        // What to relax to: what the most directions leave, at the
+        // quantile that decides, over the share of the budget it gets.
         bail!(
             "budget {budget} cannot be met with up to {} line directions on this scene: {} directions leave a horizon p99 of {:.3} degrees and an svf p99 of {:.4} between them; relax horizon to at least {:.3}{}",
             closest.sectors,
             closest.sectors,
             closest.horizon_p99_deg,
             closest.svf_p99,
-            closest.horizon_p99_deg / BUDGET_SHARE_DIRECTIONS,
+            round_up(deciding.0 / BUDGET_SHARE_DIRECTIONS, 3),
             budget.svf.map_or(String::new(), |_| format!(
                 " and svf to at least {:.4}",
-                closest.svf_p99 / BUDGET_SHARE_DIRECTIONS
+                round_up(deciding.1 / BUDGET_SHARE_DIRECTIONS, 4)
             )),
         );
     };
