@@ -1,8 +1,9 @@
 //! The user's error budget: how well a scene must be modelled, in the
 //! user's terms (docs/PLANNING.md defines each error: its reference and its
 //! statistic). On the command line
-//! `--budget horizon=DEG[,svf=X][,shade=FRACTION][,time=SECONDS][,bytes=SIZE][,memory=MIB]`;
-//! in a recipe a `[budget]` table with the same keys.
+//! `--budget horizon=DEG[,svf=X][,shade=FRACTION][,time=SECONDS][,bytes=SIZE][,memory=MIB]`.
+//! It deserialises from a TOML table with the same keys (unknown keys
+//! refused), for recipes; recipes do not hold a budget yet.
 //!
 //! - `horizon`: the 99th percentile, over posts and azimuths, of the
 //!   absolute horizon angle error in degrees, at *any* azimuth: what the
