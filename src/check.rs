@@ -291,7 +291,7 @@ pub fn describe(report: &CheckReport) -> String {
             p.svf_p99,
             crate::report::human_bytes(p.bytes),
             p.sectors,
-            p.encoding
+            p.encoding.name()
         );
     }
     if let Some(b) = &report.budget {

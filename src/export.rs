@@ -202,8 +202,9 @@ impl ExportKind {
 /// How a PNG preview colours a layer.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum PngStyle {
-    /// The values from min (black) to max (white), 16-bit gray, no legend:
-    /// a heightmap for engines, not a picture.
+    /// 16-bit gray, no legend: a heightmap for engines, not a picture.
+    /// Heights from min (black) to max (white); other layers from their 1st
+    /// to their 99th percentile.
     Gray,
     /// Hypsometric tint (green lowlands to brown and white peaks) times a
     /// hillshade lit from the north-west at 45 degrees, with a legend;
@@ -424,7 +425,7 @@ fn write_png_preview(
                     }
                     _ if z.is_nan() => bytes.extend_from_slice(&[0, 0, 0, 0]),
                     PngStyle::Ramp => {
-                        let [r, g, b] = legend.colour(z);
+                        let [r, g, b] = legend.ramp.colour(t);
                         bytes.extend_from_slice(&[r, g, b, 255]);
                     }
                     PngStyle::Relief => {

@@ -45,10 +45,9 @@ fn parse_captioned(s: &str) -> Result<(PathBuf, String), String> {
 
 impl PageArgs {
     pub fn run(&self, say: &dyn Fn(String)) -> Result<()> {
-        let asset = crate::asset::open(&self.asset)?;
         let mut texts = vec![(
             "Summary (terrabake info)".to_string(),
-            crate::report::describe(&self.asset, asset.manifest()),
+            crate::report::info(&self.asset, false)?,
         )];
         for (path, heading) in &self.text {
             let text = std::fs::read_to_string(path)

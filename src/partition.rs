@@ -441,12 +441,7 @@ pub fn assemble(
     )?;
     let m = first.1.manifest();
     let plan = Plan::new(&recipe, m)?;
-    let ingest = m
-        .provenance
-        .stages
-        .iter()
-        .find(|r| r.stage == "ingest")
-        .context("part 0 has no ingest record")?;
+    let ingest = crate::stage::record_of(m, "ingest").context("part 0 has no ingest record")?;
     if plan.fingerprint(ingest.params.clone()) != first.0.plan {
         bail!(
             "{}: the parts' records and their assets disagree; bake the parts again",

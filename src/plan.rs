@@ -74,7 +74,7 @@ const SKY_BYTES_PER_POST: u64 = 14;
 #[derive(Debug, Clone, Serialize, serde::Deserialize)]
 pub struct Candidate {
     pub sectors: usize,
-    pub encoding: String,
+    pub encoding: AngleEncoding,
     pub horizon_p99_deg: f64,
     pub svf_p99: f64,
     /// Bytes of the horizon and sky layers.
@@ -122,7 +122,7 @@ impl Plan {
             sectors: self.chosen.sectors,
             method: Method::Line,
             direction_tolerance: Some(0.1),
-            encoding: Some(encoding_named(&self.chosen.encoding)),
+            encoding: Some(self.chosen.encoding),
             ..Default::default()
         };
         if let Some(mib) = self.budget.memory {
@@ -132,17 +132,26 @@ impl Plan {
     }
 }
 
-fn encoding_named(name: &str) -> AngleEncoding {
-    [AngleEncoding::U8, AngleEncoding::U16, AngleEncoding::F32]
-        .into_iter()
-        .find(|e| e.name() == name)
-        .unwrap_or(AngleEncoding::F32)
+/// The absolute errors a bake would make at the pilot's posts: the
+/// horizon's (degrees) at every post and reference azimuth, the svf's at
+/// every post.
+struct Errors {
+    horizon: Vec<f64>,
+    svf: Vec<f64>,
 }
 
-/// Predicted errors of `sectors` directions stored as `encoding`, at the
-/// pilot's posts: the horizon's (degrees) and the svf's absolute error at
-/// quantile `q`.
-fn predict(pilot: &Pilot, sectors: usize, encoding: AngleEncoding, q: f64) -> (f64, f64) {
+impl Errors {
+    /// The horizon's and the svf's errors at quantile `q`.
+    fn at(&mut self, q: f64) -> (f64, f64) {
+        (
+            quantile_unsorted(&mut self.horizon, q),
+            quantile_unsorted(&mut self.svf, q),
+        )
+    }
+}
+
+/// The errors of `sectors` directions stored as `encoding`.
+fn predict(pilot: &Pilot, sectors: usize, encoding: AngleEncoding) -> Errors {
     let every = PILOT_DIRECTIONS / sectors;
     let azimuths: Vec<f64> = (0..sectors)
         .map(|i| pilot.reference[i * every].azimuth)
@@ -170,7 +179,7 @@ fn predict(pilot: &Pilot, sectors: usize, encoding: AngleEncoding, q: f64) -> (f
             svf.push((s - truth).abs());
         }
     }
-    (quantile_unsorted(horizon, q), quantile_unsorted(svf, q))
+    Errors { horizon, svf }
 }
 
 /// `x` rounded up at `decimals` decimals: a limit to relax to that,
@@ -186,11 +195,11 @@ pub fn plan(asset: &Asset<Mmap>, budget: &Budget, progress: Progress) -> Result<
     let m = asset.manifest();
     let (w, h) = (m.width as usize, m.height as usize);
     let posts = (w * h) as u64;
-    let stage = HorizonsStage::default();
+    let curvature = HorizonsStage::default().curvature_coefficient(asset);
     let start = Instant::now();
     let pilot = Pilot::measure(
         asset,
-        stage.curvature_coefficient(asset),
+        curvature,
         [0, 0, w, h],
         &Sampling {
             samples: 240,
@@ -207,7 +216,7 @@ pub fn plan(asset: &Asset<Mmap>, budget: &Budget, progress: Progress) -> Result<
             .height_range
             .map_or(0.0, |r| f64::from(r.max) - f64::from(r.min)),
         nodata_share: m.nodata.count as f64 / posts.max(1) as f64,
-        curvature: stage.curvature_coefficient(asset) > 0.0,
+        curvature: curvature > 0.0,
         pilot_posts: pilot.posts.len(),
         pilot_seconds: start.elapsed().as_secs_f64(),
     };
@@ -226,11 +235,11 @@ pub fn plan(asset: &Asset<Mmap>, budget: &Budget, progress: Progress) -> Result<
         .unwrap_or(AngleEncoding::F32);
     // The directions: the fewest whose error between directions alone
     // (f32 angles) is within the share of the budget left to it.
-    let candidate = |sectors: usize, encoding: AngleEncoding| {
-        let (horizon_p99_deg, svf_p99) = predict(&pilot, sectors, encoding, 0.99);
+    let candidate = |sectors: usize, encoding: AngleEncoding, errors: &mut Errors| {
+        let (horizon_p99_deg, svf_p99) = errors.at(0.99);
         Candidate {
             sectors,
-            encoding: encoding.name().into(),
+            encoding,
             horizon_p99_deg,
             svf_p99,
             bytes: posts * ((sectors * encoding.elem().size()) as u64 + SKY_BYTES_PER_POST),
@@ -240,11 +249,12 @@ pub fn plan(asset: &Asset<Mmap>, budget: &Budget, progress: Progress) -> Result<
     let mut candidates = Vec::new();
     let (mut sectors, mut deciding) = (None, (0.0, 0.0));
     for &s in &CANDIDATES {
-        let exact = candidate(s, AngleEncoding::F32);
+        let mut errors = predict(&pilot, s, AngleEncoding::F32);
+        let exact = candidate(s, AngleEncoding::F32, &mut errors);
         // Decided on the 99.5th percentile: where a lone spike is seen in
         // about 1 % of the azimuths, the 99th sits on a knife's edge and a
         // pilot can find it small where a check finds it large.
-        let (horizon, svf) = predict(&pilot, s, AngleEncoding::F32, DECISION_QUANTILE);
+        let (horizon, svf) = errors.at(DECISION_QUANTILE);
         deciding = (horizon, svf);
         let meets = horizon <= BUDGET_SHARE_DIRECTIONS * budget.horizon
             && budget
@@ -273,7 +283,7 @@ pub fn plan(asset: &Asset<Mmap>, budget: &Budget, progress: Progress) -> Result<
             )),
         );
     };
-    let chosen = candidate(sectors, encoding);
+    let chosen = candidate(sectors, encoding, &mut predict(&pilot, sectors, encoding));
     for (what, limit, predicted) in [
         ("bytes", budget.bytes.map(|b| b as f64), chosen.bytes as f64),
         ("time", budget.time, chosen.seconds),
@@ -283,7 +293,7 @@ pub fn plan(asset: &Asset<Mmap>, budget: &Budget, progress: Progress) -> Result<
                 bail!(
                     "budget {budget}: the plan that meets the error budget ({} directions, {}) needs {what} {predicted:.0}, over the limit {limit:.0}; relax {what}, or horizon (fewer directions)",
                     chosen.sectors,
-                    chosen.encoding
+                    chosen.encoding.name()
                 );
             }
         }
@@ -324,7 +334,7 @@ pub fn plan(asset: &Asset<Mmap>, budget: &Budget, progress: Progress) -> Result<
         },
         Choice {
             what: "encoding".into(),
-            chosen: chosen.encoding.clone(),
+            chosen: chosen.encoding.name().into(),
             why: format!(
                 "the coarsest whose worst error ({:.4} deg) is within {BUDGET_SHARE_QUANTISATION} of the budget",
                 encoding.max_error_deg()

@@ -13,6 +13,8 @@
 //! refraction, and no distance limit) in `directions` grid directions, each
 //! within 0.1 degree of `i * 360 / directions`.
 
+use std::collections::HashSet;
+
 use anyhow::{bail, Result};
 use rayon::prelude::*;
 use terrabake_format::{Asset, Mmap};
@@ -21,6 +23,7 @@ use crate::horizon::sky::{svf_of_horizons, BandIntegrals};
 use crate::horizon::terrain::{RowScale, Terrain};
 use crate::horizon::{brute, plan_bands, read_heights, BandKind, Method};
 use crate::progress::Progress;
+use crate::synth::SplitMix64;
 
 /// How a reference samples.
 #[derive(Debug, Clone, Copy)]
@@ -44,22 +47,6 @@ impl Default for Sampling {
     }
 }
 
-/// A SplitMix64 stream: seeded, so that a check repeats.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n as u64) as usize
-    }
-}
-
 /// The sampled posts `(col, row)`: random ones, then those of the highest
 /// relief; no nodata post, none twice.
 fn sample_posts(
@@ -68,14 +55,20 @@ fn sample_posts(
     [x0, y0, x1, y1]: [usize; 4],
     opts: &Sampling,
 ) -> (Vec<(usize, usize)>, usize) {
-    let mut rng = Rng(opts.seed);
-    let draw = |rng: &mut Rng| -> Option<(usize, usize)> {
+    let mut rng = SplitMix64(opts.seed);
+    let draw = |rng: &mut SplitMix64| -> Option<(usize, usize)> {
         (0..32).find_map(|_| {
             let (c, r) = (x0 + rng.below(x1 - x0), y0 + rng.below(y1 - y0));
             (!z[r * w + c].is_nan()).then_some((c, r))
         })
     };
-    let mut posts: Vec<(usize, usize)> = (0..opts.samples).filter_map(|_| draw(&mut rng)).collect();
+    // Random posts may repeat; a set keeps each once (and the relief posts
+    // apart from them) in time linear in the samples.
+    let mut seen = HashSet::new();
+    let mut posts: Vec<(usize, usize)> = (0..opts.samples)
+        .filter_map(|_| draw(&mut rng))
+        .filter(|&p| seen.insert(p))
+        .collect();
     let h = z.len() / w;
     let relief = |(c, r): (usize, usize)| -> f32 {
         let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
@@ -101,7 +94,7 @@ fn sample_posts(
         if posts.len() - before == wanted {
             break;
         }
-        if !posts.contains(&p) {
+        if seen.insert(p) {
             posts.push(p);
         }
     }
@@ -205,8 +198,9 @@ pub fn percentile(v: &[f64], p: usize) -> f64 {
 }
 
 /// The value at quantile `q` (0..1) of `v` once sorted, without sorting
-/// it all (0 when empty).
-pub fn quantile_unsorted(mut v: Vec<f64>, q: f64) -> f64 {
+/// it all (0 when empty); `v` is left reordered, so that several
+/// quantiles of one slice cost a selection each.
+pub fn quantile_unsorted(v: &mut [f64], q: f64) -> f64 {
     if v.is_empty() {
         return 0.0;
     }

@@ -92,15 +92,21 @@ pub fn shade_posts(asset: &Asset<Mmap>, shade: Shade) -> Result<(Vec<f32>, usize
             sun_glow(sun.azimuth, sun.elevation, 20, 0.05),
         );
         let s = sun.direction();
-        let flat = vec![0f32; bands.len()];
-        plain = radiosity(
-            PI * disc_fraction_above(sun.elevation, 0.0, SUN_RADIUS) * s[2].max(0.0)
-                + table.irradiance([0.0, 0.0, 1.0], &flat),
-            1.0,
-            ALBEDO,
-        );
         // The sun's azimuth between two bands, as `lit_fraction` takes it.
         let (a, b, f) = bands_around(&azimuths, sun.azimuth);
+        // The light on a surface with unit `normal`, horizon `horizon` and
+        // cosine sky-view factor `svf_cosine`.
+        let light = |normal: [f64; 3], horizon: &[f32], svf_cosine: f64| {
+            let hz = f64::from(horizon[a]) + f * f64::from(horizon[b] - horizon[a]);
+            let lit = disc_fraction_above(sun.elevation, hz, SUN_RADIUS);
+            let direct = lit * (normal[0] * s[0] + normal[1] * s[1] + normal[2] * s[2]).max(0.0);
+            radiosity(
+                PI * direct + table.irradiance(normal, horizon),
+                svf_cosine,
+                ALBEDO,
+            )
+        };
+        plain = light([0.0, 0.0, 1.0], &vec![0f32; bands.len()], 1.0);
         out.par_chunks_mut(w).enumerate().for_each(|(row, out)| {
             let mut horizon = vec![0f32; bands.len()];
             for (col, o) in out.iter_mut().enumerate() {
@@ -114,12 +120,7 @@ pub fn shade_posts(asset: &Asset<Mmap>, shade: Shade) -> Result<(Vec<f32>, usize
                 if o.is_nan() || horizon.iter().any(|v| v.is_nan()) {
                     continue;
                 }
-                let hz = f64::from(horizon[a]) + f * f64::from(horizon[b] - horizon[a]);
-                let lit = disc_fraction_above(sun.elevation, hz, SUN_RADIUS);
-                let direct =
-                    lit * (normal[0] * s[0] + normal[1] * s[1] + normal[2] * s[2]).max(0.0);
-                let sky = table.irradiance(normal, &horizon);
-                *o = radiosity(PI * direct + sky, f64::from(svf_cosine[i]), ALBEDO) as f32;
+                *o = light(normal, &horizon, f64::from(svf_cosine[i])) as f32;
             }
         });
     }

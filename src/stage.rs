@@ -308,18 +308,13 @@ fn write_stage(
     for entry in entries {
         manifest.upsert_layer(entry);
     }
-    manifest
-        .provenance
-        .stages
-        .retain(|r| r.stage != stage.name());
-    manifest.provenance.stages.push(StageRecord {
-        stage: stage.name().into(),
+    put_record(
+        &mut manifest,
+        stage.name(),
         params,
-        tool: crate::tool_version(),
-        finished_unix: unix_now(),
-        outputs: outputs.clone(),
-        inputs: stage.inputs(),
-    });
+        outputs.clone(),
+        stage.inputs(),
+    );
     commit_manifest(writer.lock_held(), &manifest)?;
     Ok(StageOutcome {
         stage: stage.name().into(),
@@ -363,17 +358,28 @@ pub fn record_measurement(
         Asset::open(dir).with_context(|| format!("{}: cannot open asset", dir.display()))?;
     let mut manifest = asset.manifest().clone();
     drop(asset);
-    manifest.provenance.stages.retain(|r| r.stage != name);
+    put_record(&mut manifest, name, params, Vec::new(), inputs);
+    commit_manifest(writer.lock_held(), &manifest)?;
+    Ok(())
+}
+
+/// Replaces the record of `stage` in `manifest` with one made now.
+fn put_record(
+    manifest: &mut terrabake_format::Manifest,
+    stage: &str,
+    params: serde_json::Value,
+    outputs: Vec<String>,
+    inputs: Vec<String>,
+) {
+    manifest.provenance.stages.retain(|r| r.stage != stage);
     manifest.provenance.stages.push(StageRecord {
-        stage: name.into(),
+        stage: stage.into(),
         params,
         tool: crate::tool_version(),
         finished_unix: unix_now(),
-        outputs: Vec::new(),
+        outputs,
         inputs,
     });
-    commit_manifest(writer.lock_held(), &manifest)?;
-    Ok(())
 }
 
 /// Seconds since the Unix epoch (stage records).

@@ -120,13 +120,15 @@ impl BenchPlanArgs {
                 )?;
                 say(format!(
                     "{dem} {horizon} deg: {} directions {}, achieved p99 {:.3}",
-                    plan.chosen.sectors, plan.chosen.encoding, report.horizon_p99_deg
+                    plan.chosen.sectors,
+                    plan.chosen.encoding.name(),
+                    report.horizon_p99_deg
                 ));
                 rows.push(PlanRow {
                     dem: dem.clone(),
                     budget_deg: horizon,
                     sectors: plan.chosen.sectors,
-                    encoding: plan.chosen.encoding.clone(),
+                    encoding: plan.chosen.encoding.name().into(),
                     predicted_p99_deg: plan.chosen.horizon_p99_deg,
                     achieved_p99_deg: report.horizon_p99_deg,
                     achieved_svf_p99: report.svf_p99.unwrap_or(f64::NAN),
