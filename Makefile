@@ -27,12 +27,15 @@ demo: build
 	$(BIN) export $(OUT)/srtm.tbake --layer svf -o $(OUT)/srtm_svf.png
 	$(BIN) render $(OUT)/srtm.tbake --shade sky -o $(OUT)/srtm_sky.png
 	$(BIN) render $(OUT)/srtm.tbake --shade sun:250,15 -o $(OUT)/srtm_sun.png
+	$(BIN) export $(OUT)/srtm.tbake --layer total_viewshed -o $(OUT)/srtm_total_viewshed.png
+	$(BIN) viewshed $(OUT)/srtm.tbake --observer -5.5,7.5 --crs lonlat --observer-height 10 -o $(OUT)/srtm_viewshed.tif
 	$(BIN) page $(OUT)/srtm.tbake -o $(OUT)/index.html \
 	  --picture "$(OUT)/srtm_view.png=Traced through the asset (parametric tracing, shadow rays, sun at 290, 10 degrees, heights x8)" \
 	  --picture "$(OUT)/srtm_relief.png=Heights: hypsometric tint and hillshade" \
 	  --picture "$(OUT)/srtm_svf.png=Sky-view factor from 32 exact horizon lines" \
 	  --picture "$(OUT)/srtm_sky.png=Overcast sky light from the horizons alone (Stewart's radiosity)" \
 	  --picture "$(OUT)/srtm_sun.png=Sun at 250, 15 degrees: shadows and sky from the horizons alone" \
+	  --picture "$(OUT)/srtm_total_viewshed.png=Total viewshed: area seen within 5 km from 1.7 m above each post, square metres" \
 	  --chart "docs/charts/horizons_horizon.svg=Horizon angle error against bake time, every method (make bench-horizons)" \
 	  --chart "docs/charts/horizons_svf.svg=Sky-view factor error against bake time (make bench-horizons)" \
 	  --chart "docs/charts/cones_speed.svg=Parametric tracing: rays per second against cone slices (make bench-cones)" \
@@ -46,6 +49,7 @@ demo: build
 	@echo "summary:  $(OUT)/srtm.summary.txt ($(OUT)/srtm.summary.json)"
 	@echo "previews: $(OUT)/srtm_relief.png $(OUT)/srtm_gray16.png $(OUT)/srtm_view.png"
 	@echo "horizons: $(OUT)/srtm_horizon.tif (32 bands, degrees) $(OUT)/srtm_svf.png $(OUT)/srtm_sky.png $(OUT)/srtm_sun.png"
+	@echo "viewshed: $(OUT)/srtm_total_viewshed.png $(OUT)/srtm_viewshed.tif (from 5.5 W 7.5 N, eye 10 m: band 1 visible, band 2 angle)"
 
 ## Every test, in the release profile that `make demo` (and `make build`)
 ## already built: the dependencies are compiled once for both.

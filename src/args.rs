@@ -36,6 +36,18 @@ pub fn parse_point(s: &str) -> Result<[f64; 3], String> {
     }
 }
 
+/// `X,Y`: two finite numbers (a position in some coordinates).
+pub fn parse_xy(s: &str) -> Result<(f64, f64), String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|p| p.trim().parse::<f64>().map_err(|e| format!("{p:?}: {e}")))
+        .collect::<Result<_, _>>()?;
+    match v[..] {
+        [x, y] if x.is_finite() && y.is_finite() => Ok((x, y)),
+        _ => Err(format!("{s:?}: expected X,Y (two numbers)")),
+    }
+}
+
 pub fn parse_sun(s: &str) -> Result<Sun, String> {
     let (az, el) = s
         .split_once(',')

@@ -15,6 +15,22 @@ use crate::ingest::IngestOptions;
 use crate::render::Sun;
 use crate::synth::SynthKind;
 
+/// A stage run on its own: the asset, the stage's flags, and what every
+/// stage command takes.
+#[derive(clap::Args, Debug)]
+pub struct StageCommand<S: clap::Args> {
+    /// The asset directory (made by `terrabake ingest` or `terrabake bake`).
+    pub asset: PathBuf,
+    #[command(flatten)]
+    pub stage: S,
+    /// Recompute even if the asset already has up-to-date layers of this stage.
+    #[arg(long)]
+    pub force: bool,
+    /// Print the stage's record as JSON on stdout (layers written, parameters, seconds).
+    #[arg(long)]
+    pub json: bool,
+}
+
 #[derive(Parser, Debug)]
 #[command(
     name = "terrabake",
@@ -206,18 +222,7 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
     ///
     /// Reads the committed horizon layer and the horizons stage's recorded parameters (area of
     /// interest, curvature); `terrabake horizons` runs it unless --no-sky.
-    Sky {
-        /// The asset directory (made by `terrabake ingest` or `terrabake bake`).
-        asset: PathBuf,
-        #[command(flatten)]
-        stage: crate::sky::SkyStage,
-        /// Recompute even if the asset already has up-to-date sky layers.
-        #[arg(long)]
-        force: bool,
-        /// Print the stage's record as JSON on stdout (layers written, parameters, seconds).
-        #[arg(long)]
-        json: bool,
-    },
+    Sky(StageCommand<crate::sky::SkyStage>),
     /// Chart the horizon methods' accuracy against their time, and time them on the whole DEM.
     ///
     /// Accuracy: on a centred crop, every method and band count against a reference of 1024
@@ -305,6 +310,9 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
     /// Plan, bake and check each DEM at each budget: achieved error, time and bytes against the
     /// budget (the planner's chart).
     BenchPlan(crate::bench::plan::BenchPlanArgs),
+    /// Timonen's tables on our terrains: visible points, horizons and iterations per point, sweep
+    /// times against the naive method, scaling with line length, error against directions.
+    BenchVisibility(crate::bench::visibility::BenchVisibilityArgs),
     /// Plan the horizons a budget needs: directions, encoding, predicted error, time and bytes.
     Plan(crate::plan::PlanArgs),
     /// Measure the horizon and sky-view factor errors a bake achieved against exact references,
@@ -312,6 +320,11 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
     Check(crate::check::CheckArgs),
     /// Write one self-contained HTML page with an asset's summary, pictures and charts.
     Page(crate::page::PageArgs),
+    /// One observer's viewshed as a GeoTIFF: which posts it sees, and at what elevation angle.
+    Viewshed(crate::viewshed::command::ViewshedArgs),
+    /// Add the total viewshed: at every post, the area an eye above it sees (square metres),
+    /// by Timonen's azimuthal sweeps with the convex hull tree.
+    TotalViewshed(StageCommand<crate::viewshed::stage::TotalViewshedStage>),
     /// Ingest a DEM and run every stage of a recipe, skipping work already done.
     ///
     /// A recipe is a TOML file: an [ingest] table with ingest's options (tile, codec,

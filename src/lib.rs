@@ -71,6 +71,7 @@ pub mod source;
 pub mod stage;
 pub mod synth;
 pub mod tiling;
+pub mod viewshed;
 
 /// `terrabake <version>`, recorded in every manifest.
 pub fn tool_version() -> String {

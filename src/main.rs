@@ -72,9 +72,12 @@ fn run(cli: Cli) -> Result<ExitCode> {
     match cli.command {
         Command::BenchViews(args) => args.run(&say)?,
         Command::Page(args) => args.run(&say)?,
+        Command::Viewshed(args) => args.run(&say)?,
+        Command::TotalViewshed(c) => report(&run_stage(&c.asset, &c.stage, c.force)?, c.json)?,
         Command::Check(args) => return args.run(progress),
         Command::Plan(args) => args.run(progress)?,
         Command::BenchPlan(args) => args.run(&say)?,
+        Command::BenchVisibility(args) => args.run(&say)?,
         Command::BenchCones(args) => args.run(progress, &say)?,
         Command::BenchHorizons(args) => args.run(&say)?,
         Command::Ingest {
@@ -233,14 +236,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             say(describe_outcome(&outcome));
             say(how);
         }
-        Command::Sky {
-            asset,
-            stage,
-            force,
-            json,
-        } => {
-            report(&run_stage(&asset, &stage, force)?, json)?;
-        }
+        Command::Sky(c) => report(&run_stage(&c.asset, &c.stage, c.force)?, c.json)?,
         Command::Horizons {
             asset,
             stage,

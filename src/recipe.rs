@@ -97,7 +97,14 @@ impl Recipe {
 }
 
 /// The stages this build provides, by recipe name.
-pub const STAGES: [&str; 4] = ["pyramid", "cones", "horizons", "sky"];
+pub const STAGES: [&str; 6] = [
+    "pyramid",
+    "cones",
+    "horizons",
+    "sky",
+    "viewshed",
+    "total_viewshed",
+];
 
 /// The stage a recipe step names, its table deserialised into the stage's
 /// parameter type (unknown keys refused by name) and checked.
@@ -120,6 +127,8 @@ pub fn stage_from_recipe(step: &RecipeStage) -> Result<Box<dyn Stage>> {
         "cones" => typed::<crate::cones::ConesStage>(&step.params),
         "horizons" => typed::<crate::horizon::HorizonsStage>(&step.params),
         "sky" => typed::<crate::sky::SkyStage>(&step.params),
+        "viewshed" => typed::<crate::viewshed::stage::ViewshedStage>(&step.params),
+        "total_viewshed" => typed::<crate::viewshed::stage::TotalViewshedStage>(&step.params),
         other => bail!(
             "no stage '{other}' in this build of terrabake (after ingest: {})",
             STAGES.join(", ")

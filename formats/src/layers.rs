@@ -30,8 +30,20 @@ pub const OPENNESS: &str = "openness";
 /// higher than its highest post, could rise above.
 pub const HORIZON_EDGE: &str = "horizon_edge";
 
+/// Per post (u8), one band per observer: 1 where the observer sees a target
+/// above the post, 0 where not, 255 beyond the distance or on nodata
+/// (viewshed stage).
+pub const VIEWSHED: &str = "viewshed";
+/// Per post (f32), one band per observer: the elevation angle of the post's
+/// ground from the observer's eye, degrees, curvature included; NaN where
+/// [`VIEWSHED`] is 255.
+pub const VIEWSHED_ANGLE: &str = "viewshed_angle";
+/// Per post (f32), the area of terrain an eye above the post sees within
+/// the stage's distance, square metres (total_viewshed stage).
+pub const TOTAL_VIEWSHED: &str = "total_viewshed";
+
 /// Every name above, in the order stages write them.
-pub const ALL: [&str; 10] = [
+pub const ALL: [&str; 13] = [
     HEIGHT,
     PYRAMID_MAX,
     PYRAMID_MIN,
@@ -42,4 +54,7 @@ pub const ALL: [&str; 10] = [
     SVF_COSINE,
     OPENNESS,
     HORIZON_EDGE,
+    VIEWSHED,
+    VIEWSHED_ANGLE,
+    TOTAL_VIEWSHED,
 ];

@@ -18,6 +18,7 @@ pub mod cones;
 pub mod horizons;
 pub mod plan;
 pub mod views;
+pub mod visibility;
 
 /// A Markdown table: a header row, the separator, then one row per item.
 pub fn markdown_table(header: &[&str], rows: impl IntoIterator<Item = Vec<String>>) -> String {

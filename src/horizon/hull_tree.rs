@@ -18,6 +18,22 @@
 //! (Algorithm 1, iteratively); a point that starts a new convex section is
 //! duplicated as a permanent leaf.
 //!
+//! **Safe zone** (sec. 7, Algorithm 3). Most often the new point simply
+//! replaces the old root: every child of the old root moves to it and no
+//! grandchild changes. With the safe zone on ([`HullTree::with_safe_zone`]),
+//! the tree keeps, for distances `b1..b2` just ahead, the lowest of the
+//! lines from each child's first grandchild through that child (Algorithm
+//! 3); a new point below it (by a margin against rounding) whose old root's
+//! nearest child fails the convexity test takes the old root's place in
+//! O(1), with exactly the tree Algorithm 1 would leave. The zone is
+//! rebuilt, O(children), after any other change or when a point lands
+//! beyond `b2`.
+//!
+//! **A raised eye.** [`HullTree::eye_horizons`] gives the local horizons
+//! of a point above the profile's end (an observer's eye, not a profile
+//! point) by running Algorithm 1's tests against the eye without changing
+//! the tree: the tree then goes on with the ground.
+//!
 //! We depart from the paper in two details: the convex/concave test of
 //! eq. 1 uses the chord between neighbours (our profile vertices are not
 //! evenly spaced), and the recursion runs on an explicit stack.
@@ -43,16 +59,155 @@ pub struct HullTree {
     convex: Vec<bool>,
     /// Calls of the convexity step (Timonen's iterations).
     pub iterations: u64,
+    safe_zone: bool,
+    zone: Option<Zone>,
+    /// Points that replaced the root through the safe zone.
+    pub replacements: u64,
+    /// Children visited to rebuild the safe zone.
+    pub zone_visits: u64,
+}
+
+/// The safe zone: for distances `b1 < d <= b2`, a point below the chord
+/// from `(b1, h1)` to `(b2, h2)` leaves every first grandchild's test
+/// passing.
+#[derive(Debug, Clone, Copy)]
+struct Zone {
+    b1: f64,
+    b2: f64,
+    h1: f64,
+    h2: f64,
+}
+
+/// How far ahead the safe zone reaches, in spacings of the last step.
+const ZONE_STEPS: f64 = 8.0;
+
+/// The orientation of three profile points `(d, h)`: positive when they
+/// turn counter-clockwise, zero when collinear, exactly for the floating
+/// point inputs (Shewchuk's adaptive predicate, the `robust` crate). Every
+/// visibility decision goes through it, so that methods that decide the
+/// same question in different orders agree at exact ties (flat plateaus,
+/// repeated heights, an eye level with a far ridge), as rounded cross
+/// products do not.
+#[inline]
+pub fn orient([d0, h0]: [f64; 2], [d1, h1]: [f64; 2], [d2, h2]: [f64; 2]) -> f64 {
+    robust::orient2d(
+        robust::Coord { x: d0, y: h0 },
+        robust::Coord { x: d1, y: h1 },
+        robust::Coord { x: d2, y: h2 },
+    )
 }
 
 /// Whether `mid` is strictly above the chord from `far` to `near`.
-fn above([d0, h0]: [f64; 2], [d1, h1]: [f64; 2], [d2, h2]: [f64; 2]) -> bool {
-    (h1 - h0) * (d2 - d0) > (h2 - h0) * (d1 - d0)
+#[inline]
+fn above(far: [f64; 2], mid: [f64; 2], near: [f64; 2]) -> bool {
+    orient(far, mid, near) < 0.0
+}
+
+/// Whether, seen from `eye` (nearer than both), point `a` rises strictly
+/// higher than point `b`: a steeper sight line.
+#[inline]
+pub fn steeper(eye: [f64; 2], a: [f64; 2], b: [f64; 2]) -> bool {
+    orient(eye, a, b) > 0.0
 }
 
 impl HullTree {
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// A tree that replaces its root through the safe zone where it can.
+    pub fn with_safe_zone() -> Self {
+        Self {
+            safe_zone: true,
+            ..Self::default()
+        }
+    }
+
+    /// Empties the tree for a new profile, keeping its memory, its safe
+    /// zone setting and its counters.
+    pub fn restart(&mut self) {
+        self.points.clear();
+        self.nodes.clear();
+        self.convex.clear();
+        self.root = None;
+        self.zone = None;
+    }
+
+    /// The root's children (Timonen's horizons before duplicates and
+    /// continuations are dropped).
+    pub fn root_children(&self) -> usize {
+        let mut n = 0;
+        let mut c = self.root.and_then(|r| self.nodes[r].first);
+        while let Some(v) = c {
+            n += 1;
+            c = self.nodes[v].next;
+        }
+        n
+    }
+
+    /// The number of points pushed.
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    /// Rebuilds the safe zone ahead of the root (Algorithm 3).
+    fn rebuild_zone(&mut self) {
+        let Some(root) = self.root else { return };
+        let [d, _] = self.at(root);
+        let n = self.points.len();
+        let step = if n >= 2 {
+            d - self.points[n - 2][0]
+        } else {
+            0.0
+        };
+        let (b1, b2) = (d, d + ZONE_STEPS * step);
+        let (mut h1, mut h2) = (f64::INFINITY, f64::INFINITY);
+        let mut child = self.nodes[root].first;
+        while let Some(c) = child {
+            self.zone_visits += 1;
+            if let Some(g) = self.nodes[c].first {
+                let ([dg, hg], [dc, hc]) = (self.at(g), self.at(c));
+                let line = |x: f64| hc + (hc - hg) / (dc - dg) * (x - dc);
+                (h1, h2) = (h1.min(line(b1)), h2.min(line(b2)));
+            }
+            child = self.nodes[c].next;
+        }
+        self.zone = (b2 > b1).then_some(Zone { b1, b2, h1, h2 });
+    }
+
+    /// Puts point `n` in the root's place where the safe zone allows.
+    fn replace_root(&mut self, n: usize) -> bool {
+        let Some(root) = self.root.filter(|_| self.safe_zone) else {
+            return false;
+        };
+        let [d, h] = self.points[n];
+        if self.zone.is_none_or(|z| d > z.b2) {
+            self.rebuild_zone();
+        }
+        let Some(z) = self.zone.filter(|z| d > z.b1 && d <= z.b2) else {
+            return false;
+        };
+        let chord = if z.h1.is_finite() && z.h2.is_finite() {
+            z.h1 + (z.h2 - z.h1) * (d - z.b1) / (z.b2 - z.b1)
+        } else {
+            f64::INFINITY
+        };
+        let margin = 1e-9 * (1.0 + z.h1.abs().max(z.h2.abs()).min(1e12));
+        let Some(last) = self.nodes[root].last else {
+            return false;
+        };
+        // NaN heights never replace the root.
+        let below = h < chord - margin;
+        if !below || above(self.at(last), self.at(root), [d, h]) {
+            return false;
+        }
+        self.nodes[root].point = n;
+        self.replacements += 1;
+        true
     }
 
     fn node(&mut self, point: usize) -> usize {
@@ -112,6 +267,10 @@ impl HullTree {
         let n = self.points.len();
         self.points.push([d, h]);
         self.convex.push(true);
+        if self.replace_root(n) {
+            self.segment_start(n);
+            return;
+        }
         let root = self.node(n);
         let Some(old) = self.root.replace(root) else {
             return;
@@ -140,14 +299,23 @@ impl HullTree {
                 stack.push((g, c)); // step deeper
             }
         }
-        // Did the previous point start a new convex section (eq. 1)? Then
-        // it starts a segment: a permanent leaf under the root.
+        self.segment_start(n);
+        if self.safe_zone {
+            self.rebuild_zone();
+        }
+    }
+
+    /// Did the point before `n` start a new convex section (eq. 1)? Then it
+    /// starts a segment: a permanent leaf under the root.
+    fn segment_start(&mut self, n: usize) {
+        let root = self.root.expect("a root");
         let prev = n - 1;
         if prev >= 1 {
             let (a, b, c) = (self.points[prev - 1], self.points[prev], self.points[n]);
-            let here = if above(a, b, c) {
+            let turn = orient(a, b, c);
+            let here = if turn < 0.0 {
                 true
-            } else if above([a[0], -a[1]], [b[0], -b[1]], [c[0], -c[1]]) {
+            } else if turn > 0.0 {
                 false
             } else {
                 self.convex[prev - 1]
@@ -159,6 +327,60 @@ impl HullTree {
             let leaf = self.node(prev);
             self.link(leaf, root, None);
         }
+    }
+
+    /// The local horizon points, as profile indices, nearest first, of an
+    /// eye at `(d, h)` beyond the newest point (`d` greater than its
+    /// distance): Algorithm 1's tests against the eye, on a stack, without
+    /// changing the tree. `stack` is scratch space; returns the tests run.
+    pub fn eye_horizons(
+        &self,
+        [d, h]: [f64; 2],
+        out: &mut Vec<usize>,
+        stack: &mut Vec<(usize, Option<usize>)>,
+    ) -> u64 {
+        out.clear();
+        let Some(root) = self.root else { return 0 };
+        let eye = [d, h];
+        let mut tests = 0;
+        stack.clear();
+        stack.push((root, self.nodes[root].first));
+        while let Some((par, next)) = stack.last_mut() {
+            let par = *par;
+            match *next {
+                // Every child of `par` went to the eye: `par` is off every
+                // hull, unless it never had a child (a segment's start).
+                None => {
+                    if self.nodes[par].first.is_none() {
+                        out.push(self.nodes[par].point);
+                    }
+                    stack.pop();
+                }
+                Some(c) => {
+                    tests += 1;
+                    if above(self.at(c), self.at(par), eye) {
+                        out.push(self.nodes[par].point);
+                        stack.pop();
+                    } else {
+                        *next = self.nodes[c].next;
+                        stack.push((c, self.nodes[c].first));
+                    }
+                }
+            }
+        }
+        // The newest point is always seen; whether it starts a segment for
+        // the eye is the filter's to say.
+        out.push(self.points.len() - 1);
+        self.keep_transitions(eye, out);
+        tests
+    }
+
+    /// Sorts candidate horizon points nearest first and keeps those beyond
+    /// which the view from `eye` does not simply go on (see `horizons`).
+    fn keep_transitions(&self, eye: [f64; 2], out: &mut Vec<usize>) {
+        out.sort_unstable_by(|a, b| b.cmp(a));
+        out.dedup();
+        out.retain(|&i| i == 0 || steeper(eye, self.points[i], self.points[i - 1]));
     }
 
     /// The local horizon points of the newest point, as profile indices,
@@ -174,13 +396,9 @@ impl HullTree {
             }
             child = self.nodes[c].prev;
         }
-        out.sort_unstable_by(|a, b| b.cmp(a));
-        out.dedup();
         // A segment's hull may end on a point beyond which the view goes
         // on into the next segment (both visible): not a transition.
-        let [dr, hr] = self.points[self.points.len() - 1];
-        let slope = |i: usize| (self.points[i][1] - hr) / (dr - self.points[i][0]);
-        out.retain(|&i| i == 0 || slope(i - 1) < slope(i));
+        self.keep_transitions(self.points[self.points.len() - 1], &mut out);
         out
     }
 }
@@ -192,15 +410,13 @@ impl HullTree {
 /// is the first point of the profile). Nearest first.
 pub fn local_horizons_brute(profile: &[[f64; 2]]) -> Vec<usize> {
     let n = profile.len() - 1;
-    let [dr, hr] = profile[n];
-    let slope = |i: usize| (profile[i][1] - hr) / (dr - profile[i][0]);
+    let eye = profile[n];
     let mut out = Vec::new();
-    let mut steepest = f64::NEG_INFINITY;
+    let mut steepest: Option<usize> = None;
     for i in (0..n).rev() {
-        let s = slope(i);
-        if s >= steepest {
-            steepest = s;
-            if i == 0 || slope(i - 1) < s {
+        if steepest.is_none_or(|s| !steeper(eye, profile[s], profile[i])) {
+            steepest = Some(i);
+            if i == 0 || steeper(eye, profile[i], profile[i - 1]) {
                 out.push(i);
             }
         }
@@ -250,6 +466,51 @@ mod tests {
                     proptest::prop_assert_eq!(tree.horizons(), local_horizons_brute(&profile), "{:?}", profile);
                 }
             }
+        }
+
+        /// An eye above the newest point sees what the brute force from
+        /// the eye sees, and the safe zone changes nothing but the work.
+        #[test]
+        fn eye_and_safe_zone_equal_brute_force(
+            steps in proptest::collection::vec((1u8..4, 0u8..12), 1..60),
+            eye in 0u8..6,
+        ) {
+            let mut profile: Vec<[f64; 2]> = Vec::new();
+            let mut d = 0.0;
+            let (mut plain, mut zoned) = (HullTree::new(), HullTree::with_safe_zone());
+            let (mut out, mut stack) = (Vec::new(), Vec::new());
+            for (step, h) in steps {
+                d += f64::from(step);
+                if !profile.is_empty() {
+                    let e = [d, f64::from(h) + f64::from(eye)];
+                    let mut seen = profile.clone();
+                    seen.push(e);
+                    zoned.eye_horizons(e, &mut out, &mut stack);
+                    proptest::prop_assert_eq!(&out, &local_horizons_brute(&seen), "{:?}", seen);
+                }
+                profile.push([d, f64::from(h)]);
+                plain.push(d, f64::from(h));
+                zoned.push(d, f64::from(h));
+                proptest::prop_assert_eq!(zoned.horizons(), plain.horizons());
+            }
+        }
+
+        /// Timonen's bound (sec. 6): a line of n points and m horizons in
+        /// all costs at most 2m + n iterations of Algorithm 1.
+        #[test]
+        fn iterations_within_two_m_plus_n(
+            steps in proptest::collection::vec((0.01f64..3.0, -50f64..50.0), 1..200)
+        ) {
+            let mut tree = HullTree::new();
+            let mut m = 0;
+            let mut d = 0.0;
+            for (step, h) in &steps {
+                d += step;
+                tree.push(d, *h);
+                m += tree.horizons().len() as u64;
+            }
+            let n = steps.len() as u64;
+            proptest::prop_assert!(tree.iterations <= 2 * m + n, "{} > 2 {m} + {n}", tree.iterations);
         }
 
         /// The same with real-valued spacing and heights.

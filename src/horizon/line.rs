@@ -622,6 +622,85 @@ impl BandedSweep {
     }
 }
 
+/// One vertex of a line's profile ([`line_profile`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ProfileVertex {
+    /// Metres along the line from its far post, growing towards the near
+    /// end (the crossings beyond the far post are negative).
+    pub d: f64,
+    /// Height, NaN for a nodata post.
+    pub z: f64,
+    /// The post, where the vertex is one.
+    pub post: Option<(usize, usize)>,
+    /// Whether the vertex lies on the surface (crossings are only listed
+    /// where they do; a post with a height may stand between holes).
+    pub surface: bool,
+    /// Whether the line from the previous vertex on the surface to this one
+    /// runs over the surface all the way.
+    pub piece: bool,
+}
+
+/// The profile of the line of direction `stencil` whose far post is `far`
+/// (its `step` neighbour off the DEM), far end first: the crossings still
+/// on the DEM beyond the far post, then post by post towards the near end,
+/// each post after the crossings of the step behind it. `lengths` are the
+/// direction's [`step_lengths`]. The same vertices and heights the sweep
+/// of [`line_horizons`] pushes.
+pub fn line_profile(
+    terrain: &Terrain,
+    stencil: &Stencil,
+    lengths: &[f64],
+    far: (i64, i64),
+    out: &mut Vec<ProfileVertex>,
+) {
+    out.clear();
+    let placed = Placed {
+        t: terrain,
+        stencil,
+    };
+    let n = stencil.vertices.len();
+    let (a, b) = stencil.step;
+    let (mut post, mut t) = (far, 0.0);
+    // Whether every raw piece since the last vertex on the surface is.
+    let mut piece = false;
+    loop {
+        let len = lengths[post.1 as usize];
+        for k in (0..n - 1).rev() {
+            piece &= placed.segment_exists(post, k + 1);
+            if let Some(z) = placed.vertex(post, k) {
+                let d = -(t + stencil.vertices[k].s * len);
+                out.push(ProfileVertex {
+                    d,
+                    z,
+                    post: None,
+                    surface: true,
+                    piece,
+                });
+                piece = true;
+            }
+        }
+        piece &= placed.segment_exists(post, 0);
+        let z = f64::from(terrain.at(post.0 as usize, post.1 as usize));
+        let surface = placed.post_on_surface(post);
+        out.push(ProfileVertex {
+            d: -t,
+            z,
+            post: Some((post.0 as usize, post.1 as usize)),
+            surface,
+            piece,
+        });
+        if surface {
+            piece = true;
+        }
+        let next = (post.0 - a, post.1 - b);
+        if !terrain.contains(next.0, next.1) {
+            return;
+        }
+        t -= lengths[next.1 as usize];
+        post = next;
+    }
+}
+
 /// Line horizons in direction `dir` at every post of `terrain`, in degrees
 /// (NaN for nodata posts), into `out` (one value per post): one band.
 pub fn line_horizons(terrain: &Terrain, dir: &GridDirection, out: &mut [f32]) -> SweepStats {

@@ -365,6 +365,57 @@ impl Default for HorizonsStage {
     }
 }
 
+/// The curvature coefficient `c` of the drop `c d^2` on an asset: with
+/// refraction coefficient `refraction` where `on` (by default, where the
+/// DEM is georeferenced), else 0.
+pub fn curvature_for(m: &terrabake_format::Manifest, on: Option<bool>, refraction: f64) -> f64 {
+    let on = on.unwrap_or_else(|| {
+        m.georef
+            .as_ref()
+            .is_some_and(|g| g.crs_kind != CrsKind::Unknown)
+    });
+    if on {
+        terrain::curvature_coefficient(refraction)
+    } else {
+        0.0
+    }
+}
+
+/// A whole DEM held in memory, as the in-core algorithms take it.
+#[derive(Debug, Clone)]
+pub struct HeldDem {
+    pub z: Vec<f32>,
+    pub width: usize,
+    pub height: usize,
+    pub dx: f64,
+    pub dy: f64,
+    /// [`crate::geo::row_scale`] of the grid.
+    pub row_scale: Vec<f64>,
+}
+
+impl HeldDem {
+    /// The asset's `height` layer, whole.
+    pub fn read(asset: &Asset<Mmap>) -> Result<Self> {
+        let (z, width, height) = read_heights(asset)?;
+        let m = asset.manifest();
+        Ok(Self {
+            z,
+            width,
+            height,
+            dx: m.cell_size.dx,
+            dy: m.cell_size.dy,
+            row_scale: crate::geo::row_scale(m.georef.as_ref(), height as u32),
+        })
+    }
+
+    /// The DEM as the algorithms see it, with curvature coefficient `c`.
+    pub fn terrain(&self, curvature: f64) -> Terrain<'_> {
+        Terrain::new(&self.z, self.width, self.height, self.dx, self.dy)
+            .with_row_scale(RowScale::new(&self.row_scale))
+            .with_curvature(curvature)
+    }
+}
+
 /// Reads the whole `height` layer (NaN for nodata).
 pub fn read_heights(asset: &Asset<Mmap>) -> Result<(Vec<f32>, usize, usize)> {
     let height = asset.height()?;
@@ -466,18 +517,7 @@ impl HorizonsStage {
     /// The curvature coefficient `c` of the drop `c d^2` (0 when
     /// curvature is off; on by default for georeferenced DEMs).
     pub fn curvature_coefficient(&self, asset: &Asset<Mmap>) -> f64 {
-        let on = self.curvature.unwrap_or_else(|| {
-            asset
-                .manifest()
-                .georef
-                .as_ref()
-                .is_some_and(|g| g.crs_kind != CrsKind::Unknown)
-        });
-        if on {
-            terrain::curvature_coefficient(self.refraction)
-        } else {
-            0.0
-        }
+        curvature_for(asset.manifest(), self.curvature, self.refraction)
     }
 
     /// The area of interest, or the whole `w x h` DEM.
