@@ -5,7 +5,7 @@ BIN := target/release/terrabake
 DEMO_DEM := data/srtm3_n07w006_geographic_int16.tif
 OUT ?= out
 
-.PHONY: all build demo test test-full test-page bake-parts bake-slurm test-slurm fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-reader fixtures fmt lint clean
+.PHONY: all build demo test test-full test-page bake-parts bake-slurm test-slurm fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-visibility bench-reader fixtures fmt lint clean
 
 all: build
 
@@ -113,6 +113,15 @@ bench-trace: build
 ## memory against DEM size (docs/charts/horizons_*.svg).
 bench-horizons: build
 	BIN=$(BIN) bash pipelines/bench_horizons.sh
+
+## Timonen's tables on the SRTM tile and synthetic terrains, the bounded
+## total viewshed, charts docs/charts/visibility_*.svg; then the observer
+## viewsheds beside GRASS r.viewshed (installed if missing).
+bench-visibility: build
+	mkdir -p $(OUT)/bench
+	$(BIN) ingest $(DEMO_DEM) -o $(OUT)/bench/srtm.tbake -q
+	$(BIN) bench-visibility $(OUT)/bench/srtm.tbake --crop 512 --directions 16 --scaling 128,256,512,1024,2048 --bounded 5000 --chart docs/charts/visibility
+	bash pipelines/compare_grass_viewshed.sh
 
 ## Out-of-core line horizons: a 1 GiB DEM in a 512 MiB cgroup (root).
 bench-horizons-ooc: build

@@ -25,6 +25,8 @@
 //!   and its algorithms.
 //! - [`sky`]: the sky stage (sky-view factors, openness, the edge count)
 //!   from the committed horizons.
+//! - [`viewshed`]: observer viewsheds and Timonen's total viewshed (the
+//!   `viewshed` and `total_viewshed` stages, `terrabake viewshed`).
 //! - [`ordered`]: parallel steps written in a fixed order, so that files
 //!   do not depend on thread timing.
 //! - [`partition`]: partitioned bakes (one part of N, on any node) and the

@@ -100,3 +100,14 @@ pub fn check_height(flag: &str, value: f64) -> Result<()> {
     }
     Ok(())
 }
+
+/// Refuses a maximum distance that is not a positive number of metres (a
+/// recipe's; the command line's parser refuses its own).
+pub fn check_distance(max_distance: Option<f64>) -> Result<()> {
+    if let Some(d) = max_distance.filter(|d| !(*d > 0.0 && d.is_finite())) {
+        bail!(
+            "max_distance = {d} (--max-distance): a distance must be a positive number of metres"
+        );
+    }
+    Ok(())
+}

@@ -16,16 +16,11 @@ use crate::stage::{Share, Stage};
 use crate::tiling::push_tile_row;
 use crate::viewshed::observer::{observer_viewshed, Observer, OUTSIDE};
 use crate::viewshed::total::{total_viewshed, Method, TotalOptions};
-use crate::viewshed::{check_height, observer_post, Crs};
+use crate::viewshed::{check_distance, check_height, observer_post, Crs};
 
 /// Bytes a post costs in memory beyond the DEM: the total viewshed's sum
 /// (f64) per worker.
 const TOTAL_BYTES_PER_POST_AND_WORKER: u64 = 8;
-
-/// The curvature options both stages share with the horizons stage.
-fn curvature(asset: &Asset<Mmap>, on: Option<bool>, refraction: f64) -> f64 {
-    curvature_for(asset.manifest(), on, refraction)
-}
 
 /// Refuses a DEM whose in-core work needs more than `max` bytes.
 fn check_memory(stage: &str, w: usize, h: usize, per_post: u64, max: u64) -> Result<()> {
@@ -98,9 +93,7 @@ impl Stage for ViewshedStage {
         }
         check_height("observer_height (--observer-height)", self.observer_height)?;
         check_height("target_height (--target-height)", self.target_height)?;
-        if let Some(d) = self.max_distance.filter(|d| !(*d > 0.0 && d.is_finite())) {
-            bail!("max_distance = {d} (--max-distance): a distance must be a positive number of metres");
-        }
+        check_distance(self.max_distance)?;
         Ok(())
     }
 
@@ -123,7 +116,7 @@ impl Stage for ViewshedStage {
             .iter()
             .map(|&xy| observer_post(m, &dem, xy, self.crs))
             .collect::<Result<Vec<_>>>()?;
-        let terrain = dem.terrain(curvature(asset, self.curvature, self.refraction));
+        let terrain = dem.terrain(curvature_for(m, self.curvature, self.refraction));
         let bands = posts.len() as u32;
         let where_ = |(c, r): (usize, usize)| format!("({c}, {r})");
         let list = posts
@@ -287,9 +280,7 @@ impl Stage for TotalViewshedStage {
 
     fn check(&self) -> Result<()> {
         check_height("observer_height (--observer-height)", self.observer_height)?;
-        if let Some(d) = self.max_distance.filter(|d| !(*d > 0.0 && d.is_finite())) {
-            bail!("max_distance = {d} (--max-distance): a distance must be a positive number of metres");
-        }
+        check_distance(self.max_distance)?;
         crate::args::parse_sectors(&self.directions.to_string())
             .map_err(|e| anyhow::anyhow!("directions = {} (--directions): {e}", self.directions))?;
         Ok(())
@@ -317,7 +308,7 @@ impl Stage for TotalViewshedStage {
             self.max_memory,
         )?;
         let dem = HeldDem::read(asset)?;
-        let terrain = dem.terrain(curvature(asset, self.curvature, self.refraction));
+        let terrain = dem.terrain(curvature_for(m, self.curvature, self.refraction));
         let bar = progress.bar(self.directions as u64, "total viewshed", "directions");
         let opts = self.options(m.cell_size.dx.min(m.cell_size.dy));
         let (area, _) = total_viewshed(&terrain, &opts, &|| bar.inc(1));
