@@ -119,6 +119,51 @@ pub fn row_scale(georef: Option<&Georef>, height: u32) -> Vec<f64> {
         .collect()
 }
 
+/// The UTM zone of an EPSG code on WGS 84 (326zz north, 327zz south):
+/// `(zone, south)`.
+pub fn utm_zone(epsg: u32) -> Option<(u32, bool)> {
+    match epsg {
+        32601..=32660 => Some((epsg - 32600, false)),
+        32701..=32760 => Some((epsg - 32700, true)),
+        _ => None,
+    }
+}
+
+/// Longitude and latitude (degrees, WGS 84) to UTM easting and northing
+/// (metres) in `zone`: Krüger's series to the third order in the third
+/// flattening (Karney 2011, eq. 7-9), within a millimetre inside a zone
+/// and its neighbours' first degrees. One projection, for placing
+/// observers given in longitude and latitude on a UTM DEM; terrabake does
+/// not otherwise reproject.
+pub fn lonlat_to_utm(lon: f64, lat: f64, (zone, south): (u32, bool)) -> (f64, f64) {
+    const A: f64 = 6_378_137.0;
+    const F: f64 = 1.0 / 298.257_223_563;
+    const K0: f64 = 0.9996;
+    let n = F / (2.0 - F);
+    let big_a = A / (1.0 + n) * (1.0 + n * n / 4.0 + n.powi(4) / 64.0);
+    let alpha = [
+        n / 2.0 - 2.0 * n * n / 3.0 + 5.0 * n.powi(3) / 16.0,
+        13.0 * n * n / 48.0 - 3.0 * n.powi(3) / 5.0,
+        61.0 * n.powi(3) / 240.0,
+    ];
+    let (phi, dlam) = (
+        lat.to_radians(),
+        (lon - (f64::from(zone) * 6.0 - 183.0)).to_radians(),
+    );
+    let c = 2.0 * n.sqrt() / (1.0 + n);
+    let t = (phi.sin().atanh() - c * (c * phi.sin()).atanh()).sinh();
+    let xi = t.atan2(dlam.cos());
+    let eta = (dlam.sin() / (1.0 + t * t).sqrt()).atanh();
+    let (mut e, mut nn) = (eta, xi);
+    for (j, a) in alpha.iter().enumerate() {
+        let k = 2.0 * (j + 1) as f64;
+        e += a * (k * xi).cos() * (k * eta).sinh();
+        nn += a * (k * xi).sin() * (k * eta).cosh();
+    }
+    let false_north = if south { 10_000_000.0 } else { 0.0 };
+    (500_000.0 + K0 * big_a * e, false_north + K0 * big_a * nn)
+}
+
 /// A GeoKey directory for a local metric grid with no named CRS (synthetic
 /// terrains): projected, user-defined, metres.
 pub fn local_metric_keys(raster_type: RasterType) -> Vec<u16> {
@@ -179,6 +224,22 @@ mod tests {
         assert!((s[0] - ratio(60.5 - half)).abs() < 1e-4, "{}", s[0]);
         assert!((s[2398] - ratio(59.5 + half)).abs() < 1e-4, "{}", s[2398]);
         assert!(row_scale(None, 10).is_empty());
+    }
+
+    #[test]
+    fn utm_agrees_with_proj_to_a_millimetre() {
+        // gdaltransform -s_srs EPSG:4326 -t_srs EPSG:326zz/327zz (PROJ 9).
+        for (lon, lat, epsg, e, n) in [
+            (-5.5, 7.5, 32630, 224_091.647_128_896, 829_808.794_871_788),
+            (-5.25, 7.75, 32630, 251_841.241_006_499, 857_317.456_555_568),
+            (-73.98, -40.5, 32718, 586_429.257_794_364, 5_516_245.604_644_61),
+            (9.9, 60.2, 32632, 549_895.568_472_582, 6_674_025.143_608_15),
+            (-3.0, 7.9, 32630, 500_000.0, 873_242.723_060_886),
+        ] {
+            let (x, y) = lonlat_to_utm(lon, lat, utm_zone(epsg).unwrap());
+            assert!((x - e).abs() < 1e-3 && (y - n).abs() < 1e-3, "{lon},{lat}: {x},{y}");
+        }
+        assert_eq!(utm_zone(4326), None);
     }
 
     #[test]

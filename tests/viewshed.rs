@@ -324,7 +324,7 @@ mod cli {
             ),
             (
                 &["--observer", "5,5", "--crs", "lonlat"][..],
-                "not on a geographic grid",
+                "neither on a geographic grid",
                 1,
             ),
             (

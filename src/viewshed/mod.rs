@@ -38,7 +38,8 @@ pub enum Crs {
     /// geographic grid); grid posts for a DEM without georeferencing.
     #[default]
     Native,
-    /// Longitude, latitude in degrees (on a geographic DEM: its datum).
+    /// Longitude, latitude in degrees (WGS 84): on a geographic DEM, or one in a
+    /// WGS 84 UTM zone (EPSG 326zz/327zz).
     Lonlat,
     /// Column, row of the grid (0, 0 is the north-west post).
     Grid,
@@ -72,10 +73,16 @@ pub fn observer_post(
         (Crs::Lonlat, Some(g)) if g.crs_kind == CrsKind::Geographic => g
             .world_to_post(x, y)
             .ok_or_else(|| anyhow::anyhow!("{said}: the DEM's geotransform is singular"))?,
+        (Crs::Lonlat, Some(g)) if g.epsg.and_then(crate::geo::utm_zone).is_some() => {
+            let zone = g.epsg.and_then(crate::geo::utm_zone).expect("a UTM zone");
+            let (e, n) = crate::geo::lonlat_to_utm(x, y, zone);
+            g.world_to_post(e, n)
+                .ok_or_else(|| anyhow::anyhow!("{said}: the DEM's geotransform is singular"))?
+        }
         (Crs::Lonlat, _) => bail!(
-            "{said}: this DEM is not on a geographic grid, and terrabake does not project \
-             longitude and latitude; give the DEM's own coordinates (--crs native, e.g. from \
-             `gdaltransform -t_srs` of the DEM) or grid posts (--crs grid)"
+            "{said}: this DEM is neither on a geographic grid nor in a WGS 84 UTM zone, and \
+             terrabake projects no other CRS; give the DEM's own coordinates (--crs native, \
+             e.g. from `gdaltransform -t_srs` of the DEM) or grid posts (--crs grid)"
         ),
     };
     let (c, r) = (col.round(), row.round());
