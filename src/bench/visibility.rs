@@ -44,11 +44,11 @@ pub struct BenchVisibilityArgs {
     /// tree, hull tree with the safe zone).
     #[arg(long, value_parser = crate::args::parse_positive)]
     pub bounded: Option<f64>,
-    /// Line lengths (DEM sides) of the scaling study (Fig. 8), comma-separated; empty: skip.
-    #[arg(long, value_delimiter = ',', default_value = "128,256,512,1024,2048")]
+    /// Line lengths (DEM sides) of the scaling study (Fig. 8), comma-separated; none given: skip.
+    #[arg(long, value_delimiter = ',', num_args = 0.., default_value = "128,256,512,1024,2048")]
     pub scaling: Vec<usize>,
-    /// Direction counts of the error study, against 1024 directions; empty: skip.
-    #[arg(long, value_delimiter = ',', default_value = "4,8,16,32,64,128,256")]
+    /// Direction counts of the error study, against 1024 directions; none given: skip.
+    #[arg(long, value_delimiter = ',', num_args = 0.., default_value = "4,8,16,32,64,128,256")]
     pub errors: Vec<usize>,
     /// Write PREFIX_scaling.svg and PREFIX_directions.svg.
     #[arg(long)]
@@ -73,6 +73,10 @@ pub struct TableRow {
     /// per post and direction, and the eye's tests.
     pub horizons: f64,
     pub iterations: f64,
+    /// The root's children per pushed vertex, and iterations per pushed
+    /// vertex: Timonen's bound is `t <= 2 m + 1` per vertex.
+    pub root_children_per_vertex: f64,
+    pub iterations_per_vertex: f64,
     pub eye_tests: f64,
     /// Share of pushes that replaced the root through the safe zone.
     pub replaced: f64,
@@ -227,6 +231,8 @@ impl BenchVisibilityArgs {
             visible: ns.visible_vertices as f64 / r,
             horizons: ts.horizons as f64 / r,
             iterations: ts.iterations as f64 / r,
+            root_children_per_vertex: ts.root_children as f64 / ts.vertices as f64,
+            iterations_per_vertex: ts.iterations as f64 / ts.vertices as f64,
             eye_tests: ts.eye_tests as f64 / r,
             replaced: zs.replacements as f64 / zs.vertices.max(1) as f64,
             naive_s: naive_s / k as f64,
@@ -488,6 +494,7 @@ pub fn tables(r: &Report) -> String {
             "t_a/naive",
             "eye tests",
             "safe-zone replacements",
+            "per vertex: root children m, iterations t",
         ],
         r.tables.iter().map(|t| {
             vec![
@@ -502,6 +509,7 @@ pub fn tables(r: &Report) -> String {
                 format!("{:.2} %", 100.0 * t.iterations / t.behind),
                 f(t.eye_tests, 2),
                 format!("{:.0} %", 100.0 * t.replaced),
+                format!("{:.2}, {:.2}", t.root_children_per_vertex, t.iterations_per_vertex),
             ]
         }),
     );

@@ -75,8 +75,10 @@ pub struct TotalStats {
     pub visible_vertices: u64,
     /// Local horizons of the eyes (`m`, Table 2).
     pub horizons: u64,
-    /// Iterations of Algorithm 1 that kept the trees (`t`, Table 2).
+    /// Iterations of Algorithm 1 that kept the trees (`t`, Table 2), and
+    /// the root's children after each push (the `m` of its bound).
     pub iterations: u64,
+    pub root_children: u64,
     /// Tests run to answer the raised eyes.
     pub eye_tests: u64,
     /// Roots replaced through the safe zone, and children visited to
@@ -95,6 +97,7 @@ impl std::ops::AddAssign for TotalStats {
         self.visible_vertices += o.visible_vertices;
         self.horizons += o.horizons;
         self.iterations += o.iterations;
+        self.root_children += o.root_children;
         self.eye_tests += o.eye_tests;
         self.replacements += o.replacements;
         self.zone_visits += o.zone_visits;
@@ -425,6 +428,7 @@ fn sweep_line(
         }
     }
     stats.iterations = tree.iterations;
+    stats.root_children = tree.root_children;
     stats.replacements = tree.replacements;
     stats.zone_visits = tree.zone_visits;
     stats
