@@ -329,7 +329,7 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
     ///
     /// A recipe is a TOML file: an [ingest] table with ingest's options (tile, codec,
     /// cell_size, nodata, z_scale, z_offset...), then one [[stage]] table per stage, in order,
-    /// with `name` (pyramid, cones, horizons, sky) and that command's options, dashes written as
+    /// with `name` (pyramid, cones, horizons, sky, viewshed, total_viewshed) and its options, dashes as
     /// underscores (max_distance = 3000.0, max_error_deg = 0.1). Unknown keys are refused by
     /// name, and the whole recipe is checked before ingest starts. A stage whose recorded
     /// options match and whose layers are present is skipped, so a bake that stopped resumes

@@ -509,7 +509,10 @@ pub fn tables(r: &Report) -> String {
                 format!("{:.2} %", 100.0 * t.iterations / t.behind),
                 f(t.eye_tests, 2),
                 format!("{:.0} %", 100.0 * t.replaced),
-                format!("{:.2}, {:.2}", t.root_children_per_vertex, t.iterations_per_vertex),
+                format!(
+                    "{:.2}, {:.2}",
+                    t.root_children_per_vertex, t.iterations_per_vertex
+                ),
             ]
         }),
     );
