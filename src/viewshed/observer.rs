@@ -123,9 +123,9 @@ fn sight(terrain: &Terrain, obs: &Observer, (col, row): (usize, usize)) -> Optio
 }
 
 /// One family of crossings of a sight line: the lines `k = a u + b v` for
-/// integer `k` strictly between the ends, in order from the observer. Each
-/// yields `t` and the exact position as `(cell column, cell row, fraction
-/// numerator, denominator)` along the family's own axis.
+/// integer `k` strictly between the ends, in order from the observer. A
+/// crossing's position is computed in integers (a cell and a fraction's
+/// numerator), so that one on a post is recognised exactly.
 #[derive(Debug, Clone, Copy)]
 enum Family {
     /// `u = k`: vertical grid lines.

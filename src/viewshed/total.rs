@@ -221,7 +221,7 @@ impl Eye {
     }
 
     /// Where the sight line of slope `m` meets the piece from vertex `j + 1`
-    /// (or the post) to vertex `j`.
+    /// out to vertex `j`.
     fn meet(&self, p: &Pushed, j: usize, m: f64) -> f64 {
         let (da, wa) = (p.d[j + 1], p.w[j + 1]);
         let (db, wb) = (p.d[j], p.w[j]);
