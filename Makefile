@@ -120,7 +120,8 @@ bench-horizons: build
 bench-visibility: build
 	mkdir -p $(OUT)/bench
 	$(BIN) ingest $(DEMO_DEM) -o $(OUT)/bench/srtm.tbake -q
-	$(BIN) bench-visibility $(OUT)/bench/srtm.tbake --crop 512 --directions 16 --scaling 128,256,512,1024,2048 --bounded 5000 --chart docs/charts/visibility
+	$(BIN) bench-visibility $(OUT)/bench/srtm.tbake --crop 1024 --directions 16 --scaling --errors --bounded 5000
+	$(BIN) bench-visibility $(OUT)/bench/srtm.tbake --crop 512 --directions 16 --scaling 128,256,512,1024,2048 --chart docs/charts/visibility
 	bash pipelines/compare_grass_viewshed.sh
 
 ## Out-of-core line horizons: a 1 GiB DEM in a 512 MiB cgroup (root).

@@ -190,7 +190,7 @@ pub struct TotalViewshedStage {
     /// Refraction coefficient k of the curvature drop.
     #[arg(long, default_value_t = DEFAULT_REFRACTION)]
     pub refraction: f64,
-    /// auto (the faster for the reach: naive below 200 posts of reach, else hull-tree),
+    /// auto (the faster for the reach: naive below 500 posts of reach, else hull-tree),
     /// hull-tree (Timonen's convex hull tree) or naive (each post walks its lines). The same
     /// areas either way; not recorded.
     #[arg(long, value_enum, default_value = "auto")]
@@ -239,11 +239,11 @@ pub enum TotalMethod {
 }
 
 /// Reach in posts below which `auto` walks each post's lines: measured on
-/// the bundled SRTM tile (docs/BENCHMARKS.md), the naive walk costs in
-/// proportion to the reach and the hull tree hardly depends on it; with 32
-/// directions they tie near 20 km (217 posts), and the tree is 2.8x faster
-/// at 60 km.
-pub const NAIVE_BELOW_POSTS: f64 = 200.0;
+/// the bundled SRTM tile with 32 directions (docs/BENCHMARKS.md), the naive
+/// walk costs in proportion to the reach and the hull tree hardly depends
+/// on it; the walk is 3.5x faster at 5 km (54 posts), 1.2x at 40 km, and
+/// the tree 1.25x faster at 60 km (650 posts).
+pub const NAIVE_BELOW_POSTS: f64 = 500.0;
 
 impl TotalViewshedStage {
     /// The algorithm's options on a grid of spacing `spacing` (the smaller

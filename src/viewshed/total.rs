@@ -315,20 +315,21 @@ fn area_by_walking(p: &Pushed, eye: &Eye) -> (f64, u64, u64) {
         steps += 1;
         let here = (j, eye.slope(p, j));
         let at_least = |b: Option<(usize, f64)>| b.is_none_or(|b| !eye.steeper_known(p, b, here));
-        // The piece from the nearer vertex (or the post) out to vertex j:
-        // its slope is monotone, so its visible part is one end of it.
-        if at_least(near) && at_least(best) {
-            let on = near.map_or(eye.tail, |(a, _)| p.piece[a]);
-            let hi = match (near, best) {
-                (None, _) => eye.d,
-                (Some(a), Some(b)) if eye.steeper_known(p, b, a) => eye.meet(p, j, b.1),
-                (Some((a, _)), _) => p.d[a],
-            };
-            if on {
-                area += eye.stretch_piece(p.d[j], hi);
-            }
-        }
+        // Most vertices are hidden: one comparison with the steepest.
         if at_least(best) {
+            // The piece from the nearer vertex (or the post) out to vertex
+            // j: its slope is monotone, so its visible part is one end of it.
+            if at_least(near) {
+                let on = near.map_or(eye.tail, |(a, _)| p.piece[a]);
+                let hi = match (near, best) {
+                    (None, _) => eye.d,
+                    (Some(a), Some(b)) if eye.steeper_known(p, b, a) => eye.meet(p, j, b.1),
+                    (Some((a, _)), _) => p.d[a],
+                };
+                if on {
+                    area += eye.stretch_piece(p.d[j], hi);
+                }
+            }
             seen += 1;
             best = Some(here);
         }
