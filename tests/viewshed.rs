@@ -215,18 +215,24 @@ mod cli {
     use terrabake_format::layers::{TOTAL_VIEWSHED, VIEWSHED, VIEWSHED_ANGLE};
     use terrabake_format::Asset;
 
-    /// A 96 x 80 fractal asset, local metres (no georeferencing).
-    fn asset(dir: &std::path::Path) -> std::path::PathBuf {
+    /// A synthetic GeoTIFF `dir/t.tif`.
+    fn synth_tif(dir: &std::path::Path, kind: SynthKind, (w, h): (u32, u32)) -> std::path::PathBuf {
         let tif = dir.join("t.tif");
         terrabake::synth::write_geotiff(
             &tif,
-            SynthKind::Fractal,
-            96,
-            80,
+            kind,
+            w,
+            h,
             4,
             terrabake::progress::Progress::hidden(),
         )
         .unwrap();
+        tif
+    }
+
+    /// A 96 x 80 fractal asset (a local metric grid).
+    fn asset(dir: &std::path::Path) -> std::path::PathBuf {
+        let tif = synth_tif(dir, SynthKind::Fractal, (96, 80));
         let out = dir.join("t.tbake");
         let o = terrabake(&[
             "ingest",
@@ -345,16 +351,7 @@ mod cli {
     #[test]
     fn a_recipe_bakes_observers_and_the_total_viewshed() {
         let dir = tempfile::tempdir().unwrap();
-        let tif = dir.path().join("t.tif");
-        terrabake::synth::write_geotiff(
-            &tif,
-            SynthKind::Sine,
-            64,
-            48,
-            2,
-            terrabake::progress::Progress::hidden(),
-        )
-        .unwrap();
+        let tif = synth_tif(dir.path(), SynthKind::Sine, (64, 48));
         let recipe = dir.path().join("r.toml");
         std::fs::write(
             &recipe,
