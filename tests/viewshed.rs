@@ -346,6 +346,39 @@ mod cli {
             assert!(!stderr(&o).contains("panicked"));
         }
         assert!(!out.exists(), "nothing written on a refusal");
+        // An observer on a nodata post.
+        let holes = dir.path().join("holes");
+        std::fs::create_dir(&holes).unwrap();
+        let tif = synth_tif(&holes, SynthKind::Holes, (64, 64));
+        let a = holes.join("h.tbake");
+        assert!(terrabake(&[
+            "ingest",
+            tif.to_str().unwrap(),
+            "-o",
+            a.to_str().unwrap(),
+            "-q"
+        ])
+        .status
+        .success());
+        let z = common::heights(&Asset::open(&a).unwrap());
+        let hole = z.iter().position(|v| v.is_nan()).expect("a hole");
+        let at = format!("{},{}", hole % 64, hole / 64);
+        let o = terrabake(&[
+            "viewshed",
+            a.to_str().unwrap(),
+            "--observer",
+            &at,
+            "--crs",
+            "grid",
+            "-o",
+            out.to_str().unwrap(),
+        ]);
+        assert_eq!(o.status.code(), Some(1));
+        assert!(
+            stderr(&o).contains("which has no height (nodata)"),
+            "{}",
+            stderr(&o)
+        );
     }
 
     #[test]
