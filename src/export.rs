@@ -250,6 +250,9 @@ pub fn layer_title(layer: &str, band: u32, bands: u32) -> String {
         l::SVF_COSINE => "cosine sky-view factor (0-1)".into(),
         l::OPENNESS => "positive openness (degrees)".into(),
         l::HORIZON_EDGE => "bands open past the DEM's edge".into(),
+        l::VIEWSHED => format!("seen from the observer (1 seen, 0 hidden){band}"),
+        l::VIEWSHED_ANGLE => format!("elevation angle from the observer (degrees){band}"),
+        l::TOTAL_VIEWSHED => "total viewshed: area seen (m2)".into(),
         other => format!("{other}{band}"),
     }
 }
