@@ -20,8 +20,7 @@ use rayon::prelude::*;
 use terrabake_format::{Asset, Mmap};
 
 use crate::horizon::sky::{svf_of_horizons, BandIntegrals};
-use crate::horizon::terrain::{RowScale, Terrain};
-use crate::horizon::{brute, plan_bands, read_heights, BandKind, Method};
+use crate::horizon::{brute, plan_bands, BandKind, HeldDem, Method};
 use crate::progress::Progress;
 use crate::synth::SplitMix64;
 
@@ -132,13 +131,10 @@ impl Pilot {
         if opts.samples == 0 || opts.directions < 4 {
             bail!("a check needs at least one sample and four reference directions");
         }
-        let (z, w, h) = read_heights(asset)?;
         let m = asset.manifest();
-        let row_scale = crate::geo::row_scale(m.georef.as_ref(), h as u32);
-        let terrain = Terrain::new(&z, w, h, m.cell_size.dx, m.cell_size.dy)
-            .with_row_scale(RowScale::new(&row_scale))
-            .with_curvature(curvature);
-        let (posts, relief_posts) = sample_posts(&z, w, area, opts);
+        let dem = HeldDem::read(asset)?;
+        let terrain = dem.terrain(curvature);
+        let (posts, relief_posts) = sample_posts(&dem.z, dem.width, area, opts);
         if posts.is_empty() {
             bail!(
                 "{}: the area holds no post with a height to measure",

@@ -353,11 +353,9 @@ pub struct BenchHorizonsArgs {
 impl BenchHorizonsArgs {
     /// Runs the study and prints its tables (or JSON); `say` reports files.
     pub fn run(&self, say: &dyn Fn(String)) -> Result<()> {
-        use crate::horizon::terrain::RowScale;
         use anyhow::Context;
         let opened = crate::asset::open(&self.asset)?;
-        let (z, w, h) = crate::horizon::read_heights(&opened)?;
-        let cs = &opened.manifest().cell_size;
+        let dem = crate::horizon::HeldDem::read(&opened)?;
         let runs = self
             .speed
             .iter()
@@ -369,8 +367,7 @@ impl BenchHorizonsArgs {
                 Ok((m, k.parse::<usize>().context("--speed METHOD:COUNT")?))
             })
             .collect::<Result<Vec<_>>>()?;
-        let row_scale = crate::geo::row_scale(opened.manifest().georef.as_ref(), h as u32);
-        let whole = Terrain::new(&z, w, h, cs.dx, cs.dy).with_row_scale(RowScale::new(&row_scale));
+        let whole = dem.terrain(0.0);
         let speed_rows = speed(&whole, &runs);
         let study = accuracy_study(
             &whole,

@@ -301,7 +301,7 @@ impl Placed<'_> {
         let on_surface = if v.wb == 0.0 {
             // A post: on the surface when any cell it is a corner of is,
             // whether or not the line runs through that cell.
-            self.post_on_surface(a)
+            self.t.post_on_surface(a.0, a.1)
         } else {
             self.segment_exists((col, row), k) || self.segment_exists((col, row), k + 1)
         };
@@ -316,16 +316,6 @@ impl Placed<'_> {
         }
         let zb = f64::from(self.t.at(b.0 as usize, b.1 as usize));
         za + wb * (zb - za)
-    }
-
-    /// Whether post `(col, row)` lies on the surface: a corner of a cell
-    /// with a surface. A line that only grazes such a corner between two
-    /// holes still meets the terrain there (the brute force's definition).
-    fn post_on_surface(&self, (col, row): (i64, i64)) -> bool {
-        !self.t.at(col as usize, row as usize).is_nan()
-            && [(-1, -1), (0, -1), (-1, 0), (0, 0)]
-                .iter()
-                .any(|&(c, r)| self.t.cell_exists(col + c, row + r))
     }
 }
 
@@ -460,7 +450,7 @@ impl Sweep<'_> {
         }
         stats.posts += 1;
         let wp = self.w_of(lane.t, f64::from(zp));
-        let q = if !self.nodata || self.placed.post_on_surface((lane.col, lane.row)) {
+        let q = if !self.nodata || self.placed.t.post_on_surface(lane.col, lane.row) {
             stats.vertices += 1;
             push(&mut lane.hull, lane.t, wp, &mut stats.pops)
         } else {
@@ -681,7 +671,7 @@ pub fn line_profile(
         }
         piece &= placed.segment_exists(post, 0);
         let z = f64::from(terrain.at(post.0 as usize, post.1 as usize));
-        let surface = placed.post_on_surface(post);
+        let surface = terrain.post_on_surface(post.0, post.1);
         out.push(ProfileVertex {
             d: -t,
             z,

@@ -141,6 +141,15 @@ impl<'a> Terrain<'a> {
                 .all(|&(i, j)| !self.at((c + i) as usize, (r + j) as usize).is_nan())
     }
 
+    /// Whether post `(col, row)` lies on the surface: a corner of a cell
+    /// with a surface (its own height is then not nodata). A line that only
+    /// grazes such a corner between two holes still meets the terrain there.
+    pub fn post_on_surface(&self, col: i64, row: i64) -> bool {
+        [(-1, -1), (0, -1), (-1, 0), (0, 0)]
+            .iter()
+            .any(|&(c, r)| self.cell_exists(col + c, row + r))
+    }
+
     pub fn has_nodata(&self) -> bool {
         self.z.iter().any(|v| v.is_nan())
     }

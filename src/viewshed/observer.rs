@@ -93,18 +93,14 @@ impl Sight {
     }
 }
 
-/// Metres east and south per column and row seen from `observer`.
-fn spacing(terrain: &Terrain, observer: (usize, usize)) -> (f64, f64) {
-    (terrain.dx_at(observer.1), terrain.dy)
-}
-
 fn sight(terrain: &Terrain, obs: &Observer, (col, row): (usize, usize)) -> Option<Sight> {
     let z0 = f64::from(terrain.at(obs.col, obs.row));
     let z1 = f64::from(terrain.at(col, row));
     if z1.is_nan() {
         return None;
     }
-    let (sx, sy) = spacing(terrain, (obs.col, obs.row));
+    // Metres per column and row at the observer (see the module docs).
+    let (sx, sy) = (terrain.dx_at(obs.row), terrain.dy);
     let du = col as f64 - obs.col as f64;
     let dv = row as f64 - obs.row as f64;
     let length = (du * sx).hypot(dv * sy);
@@ -175,7 +171,7 @@ impl Family {
                 };
                 let (a, b) = (at(cell_lo), at(cell_lo + 1));
                 if r == 0 {
-                    post_on_surface(terrain, a).then(|| z(a.0, a.1))
+                    terrain.post_on_surface(a.0, a.1).then(|| z(a.0, a.1))
                 } else {
                     // The cells either side of the edge from a to b.
                     let side = |o: i64| match self {
@@ -231,13 +227,6 @@ impl Family {
         let (a, b) = (self.coord(s.from), self.coord(s.to));
         (a, b, (b - a).signum())
     }
-}
-
-/// Whether post `(c, r)` is a corner of a cell with a surface.
-fn post_on_surface(terrain: &Terrain, (c, r): (i64, i64)) -> bool {
-    [(-1, -1), (0, -1), (-1, 0), (0, 0)]
-        .iter()
-        .any(|&(i, j)| terrain.cell_exists(c + i, r + j))
 }
 
 /// Whether the observer sees the target above post `target`, by every

@@ -38,6 +38,7 @@
 
 use rayon::prelude::*;
 
+use crate::horizon::band_bounds;
 use crate::horizon::hull_tree::{steeper, HullTree};
 use crate::horizon::line::{
     default_tolerance, grid_directions, line_profile, step_lengths, GridDirection, ProfileVertex,
@@ -110,19 +111,11 @@ impl std::ops::AddAssign for TotalStats {
 /// of the circle in radians (half the gaps to its neighbours).
 pub fn directions(terrain: &Terrain, count: usize) -> Vec<(GridDirection, f64)> {
     let dirs = grid_directions(count, terrain.dx, terrain.dy, default_tolerance(count));
-    let n = dirs.len();
-    (0..n)
-        .map(|i| {
-            let gap = |a: f64, b: f64| (b - a).rem_euclid(360.0);
-            let before = gap(dirs[(i + n - 1) % n].azimuth, dirs[i].azimuth);
-            let after = gap(dirs[i].azimuth, dirs[(i + 1) % n].azimuth);
-            let share = if n == 1 {
-                360.0
-            } else {
-                0.5 * (before + after)
-            };
-            (dirs[i].clone(), share.to_radians())
-        })
+    let azimuths: Vec<f64> = dirs.iter().map(|d| d.azimuth).collect();
+    // The horizon bands' bounds: half-way to each neighbour.
+    dirs.into_iter()
+        .zip(band_bounds(&azimuths))
+        .map(|(dir, (lo, hi))| (dir, (hi - lo).to_radians()))
         .collect()
 }
 
