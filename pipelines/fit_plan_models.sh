@@ -24,3 +24,22 @@ done | tee "$WORK/runs" | awk -v posts="$posts" '
   END {
     b = (n * sxy - sx * sy) / (n * sxx - sx * sx); a = (sy - b * sx) / n;
     printf "fit: seconds = posts * S^%.2f / %.3g\n", b, exp(-a) }'
+
+# Bounded line horizons (a walk of each post's reach per direction, the DEM
+# in memory): seconds = posts * S * (PER_LINE + PER_CELL * D / cell), with
+# D / cell the reach in posts (cell: the mean of dx and dy). Fitted by least
+# squares on S in {16, 48} and D in {1000, 3000} metres.
+cell=$("$BIN" info "$WORK/srtm.tbake" --json | tr -d ' \n' | sed -E 's/.*"cell_size":\{"dx":([0-9.]+),"dy":([0-9.]+).*/\1 \2/' | awk '{print ($1 + $2) / 2}')
+for d in 1000 3000; do
+  for s in 16 48; do
+    start=$(date +%s.%N)
+    "$BIN" horizons "$WORK/srtm.tbake" --sectors "$s" --direction-tolerance 0.1 --encoding u16 \
+      --max-distance "$d" --force -q
+    echo "$s $d $(awk -v a="$start" -v b="$(date +%s.%N)" 'BEGIN {print b - a}')"
+  done
+done | awk -v posts="$posts" -v cell="$cell" '
+  { x = $2 / cell; y = $3 / (posts * $1); n++; sx += x; sy += y; sxx += x * x; sxy += x * y;
+    printf "S %4d, D %5d m: %7.2f s\n", $1, $2, $3 }
+  END {
+    b = (n * sxy - sx * sy) / (n * sxx - sx * sx); a = (sy - b * sx) / n;
+    printf "fit: seconds = posts * S * (%.3g + %.3g * D / cell)\n", a, b }'

@@ -171,6 +171,208 @@ impl fmt::Display for Budget {
     }
 }
 
+/// One thing a scene needs baked (`--needs`, a comma list).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Need {
+    /// Horizon angles at any azimuth (the `horizon` layer).
+    Horizons,
+    /// Sky-view factors (the `svf` layer, from the horizons).
+    Svf,
+    /// Sky light on slopes (`svf` and `svf_cosine`, from the horizons).
+    Sky,
+    /// Sun shadows for given sun positions or a day's sun path (from the
+    /// horizons; the `shade` budget measures them).
+    Sun,
+    /// Exact ray tracing (the max/min pyramid: hierarchical tracing).
+    Tracing,
+    /// Fast exact ray tracing (the pyramid and the cone planes: parametric
+    /// tracing, the same hits in fewer steps).
+    FastTracing,
+}
+
+impl Need {
+    pub const ALL: [Need; 6] = [
+        Need::Horizons,
+        Need::Svf,
+        Need::Sky,
+        Need::Sun,
+        Need::Tracing,
+        Need::FastTracing,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Need::Horizons => "horizons",
+            Need::Svf => "svf",
+            Need::Sky => "sky",
+            Need::Sun => "sun",
+            Need::Tracing => "tracing",
+            Need::FastTracing => "fast_tracing",
+        }
+    }
+}
+
+/// What a scene needs: a set of [`Need`]s, in their declared order. The
+/// default is horizons and sky-view factors.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(transparent)]
+pub struct Needs(Vec<Need>);
+
+impl Needs {
+    pub fn new(mut needs: Vec<Need>) -> Self {
+        needs.sort_unstable();
+        needs.dedup();
+        Self(needs)
+    }
+
+    pub fn has(&self, need: Need) -> bool {
+        self.0.contains(&need)
+    }
+
+    /// Whether anything needed is derived from horizon maps.
+    pub fn horizons(&self) -> bool {
+        [Need::Horizons, Need::Svf, Need::Sky, Need::Sun]
+            .iter()
+            .any(|&n| self.has(n))
+    }
+
+    /// Whether the svf must be baked and budgeted.
+    pub fn svf(&self) -> bool {
+        self.has(Need::Svf) || self.has(Need::Sky)
+    }
+}
+
+impl Default for Needs {
+    fn default() -> Self {
+        Self::new(vec![Need::Horizons, Need::Svf])
+    }
+}
+
+impl FromStr for Needs {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        let needs = s
+            .split(',')
+            .map(str::trim)
+            .filter(|n| !n.is_empty())
+            .map(|n| {
+                let key = n.replace('-', "_");
+                Need::ALL
+                    .into_iter()
+                    .find(|need| need.name() == key)
+                    .ok_or_else(|| {
+                        format!(
+                            "{n:?}: not a need (horizons, svf, sky, sun, tracing, fast_tracing)"
+                        )
+                    })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        if needs.is_empty() {
+            return Err(
+                "--needs: name at least one of horizons, svf, sky, sun, tracing, fast_tracing"
+                    .into(),
+            );
+        }
+        Ok(Self::new(needs))
+    }
+}
+
+impl fmt::Display for Needs {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let names: Vec<&str> = self.0.iter().map(|n| n.name()).collect();
+        f.write_str(&names.join(","))
+    }
+}
+
+/// A sun position: azimuth clockwise from north and elevation, degrees.
+pub type SunPosition = [f64; 2];
+
+/// Sun positions on the command line: `AZ,EL;AZ,EL;...` degrees.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SunPositions(pub Vec<SunPosition>);
+
+impl FromStr for SunPositions {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        let positions = parse_sun_positions(s)?;
+        if positions.is_empty() {
+            return Err("give at least one sun position: AZ,EL;AZ,EL;... degrees".into());
+        }
+        Ok(Self(positions))
+    }
+}
+
+/// `AZ,EL;AZ,EL;...`: sun positions in degrees.
+fn parse_sun_positions(s: &str) -> Result<Vec<SunPosition>, String> {
+    s.split(';')
+        .map(str::trim)
+        .filter(|p| !p.is_empty())
+        .map(|p| {
+            let (az, el) = p
+                .split_once(',')
+                .ok_or_else(|| format!("{p:?}: expected AZ,EL in degrees"))?;
+            let number = |v: &str| {
+                v.trim()
+                    .parse::<f64>()
+                    .ok()
+                    .filter(|x| x.is_finite())
+                    .ok_or_else(|| format!("{p:?}: expected AZ,EL in degrees"))
+            };
+            let (az, el) = (number(az)?, number(el)?);
+            if !(0.0..=90.0).contains(&el) {
+                return Err(format!("{p:?}: a sun elevation lies in 0..90 degrees"));
+            }
+            Ok([az.rem_euclid(360.0), el])
+        })
+        .collect()
+}
+
+/// What to plan for: the budget, the needs, and for `sun` the sun positions
+/// (given, or a day's path at the scene's latitude). On the command line
+/// `--budget`, `--needs`, `--sun`, `--sun-day`; in a recipe a `[plan]`
+/// table with the same keys (unknown ones refused).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Request {
+    pub budget: Budget,
+    #[serde(default)]
+    pub needs: Needs,
+    /// Sun positions `[azimuth, elevation]`, degrees.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub sun: Vec<SunPosition>,
+    /// A day of the year (1-366): the sun every 15 minutes while it is up,
+    /// at the scene's central latitude.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sun_day: Option<u32>,
+}
+
+impl Request {
+    /// The budget and the needs agree: a shade budget needs the sun and its
+    /// positions, the sun needs positions; the message says what to add.
+    pub fn validate(&self) -> Result<(), String> {
+        self.budget.validate()?;
+        let positions = !self.sun.is_empty() || self.sun_day.is_some();
+        if self.needs.has(Need::Sun) && !positions {
+            return Err("--needs sun: give the sun positions (--sun AZ,EL;AZ,EL...) or a day of the year (--sun-day N)".into());
+        }
+        if self.budget.shade.is_some() && !self.needs.has(Need::Sun) {
+            return Err(format!(
+                "budget shade={}: add sun to --needs (and its positions: --sun or --sun-day)",
+                self.budget.shade.unwrap_or_default()
+            ));
+        }
+        if let Some(day) = self.sun_day {
+            if !(1..=366).contains(&day) {
+                return Err(format!("sun_day={day}: a day of the year is 1 to 366"));
+            }
+        }
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -17,26 +17,30 @@
 
 use std::time::Instant;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use rayon::prelude::*;
 use serde::Serialize;
+use terrabake_format::cones::ConePlanes;
 use terrabake_format::horizons::HorizonMap;
 use terrabake_format::layers::{HEIGHT, HORIZON, SVF};
+use terrabake_format::surface::Cell;
+use terrabake_format::trace::{Method as TraceMethod, Ray, Tracer};
 use terrabake_format::{Asset, Mmap};
 
-use crate::budget::Budget;
-use crate::horizon::HorizonsStage;
-use crate::plan::Candidate;
+use crate::budget::{Budget, SunPosition};
+use crate::horizon::{HeldDem, HorizonsStage};
+use crate::plan::{Baked, Candidate};
 use crate::progress::Progress;
 pub use crate::reference::{percentile, Pilot, Sampling};
+use crate::synth::SplitMix64;
 
 /// How a check samples (the default: 400 posts and 100 of the highest
 /// relief, seed 1, 720 directions).
 pub type CheckOptions = Sampling;
 
-/// What a check measured.
+/// What a check measured of the horizons and what derives from them.
 #[derive(Debug, Clone, Serialize)]
-pub struct CheckReport {
+pub struct HorizonCheck {
     pub posts: usize,
     pub relief_posts: usize,
     pub reference_directions: usize,
@@ -54,6 +58,34 @@ pub struct CheckReport {
     /// Absolute sky-view factor error over posts (`None`: no svf layer).
     pub svf_p99: Option<f64>,
     pub svf_max: Option<f64>,
+    /// The share of (post, sun position) pairs whose sun/shade state the
+    /// stored horizons get wrong (`None`: no sun positions).
+    pub shade_share: Option<f64>,
+    pub sun_positions: usize,
+}
+
+/// What a check measured of the tracing layers, by brute force.
+#[derive(Debug, Clone, Serialize)]
+pub struct TracingCheck {
+    /// Cells whose cone was checked against every cell of the DEM.
+    pub cone_cells: usize,
+    /// Cells whose stored cone holds terrain (must be 0).
+    pub cone_violations: usize,
+    /// Mean, over the checked cells, of the stored slope over the widest
+    /// slope its apex allows (1: as wide as can be).
+    pub cone_tightness: Option<f64>,
+    /// Random rays traced by each method and by the brute force.
+    pub rays: usize,
+    /// Per method, the rays whose hit differs from the brute force's (must
+    /// be 0).
+    pub mismatches: Vec<(String, usize)>,
+}
+
+/// What a check measured.
+#[derive(Debug, Clone, Serialize)]
+pub struct CheckReport {
+    pub horizons: Option<HorizonCheck>,
+    pub tracing: Option<TracingCheck>,
     /// Bytes of the asset's files on disk.
     pub bytes: u64,
     pub seconds: f64,
@@ -61,8 +93,10 @@ pub struct CheckReport {
     /// The budget checked against (given, or the recorded plan's), and
     /// each limit's verdict.
     pub budget: Option<Budget>,
-    /// What the recorded plan (`bake --budget`) predicted, if any.
+    /// What the recorded plan predicted for the horizons, if any.
     pub predicted: Option<Candidate>,
+    /// What the planned bake measured of itself (time, peak memory).
+    pub baked: Option<Baked>,
     pub verdicts: Vec<Verdict>,
 }
 
@@ -72,14 +106,19 @@ pub struct Verdict {
     pub what: &'static str,
     pub achieved: Option<f64>,
     pub limit: f64,
-    /// `None`: not measured by `check` (yet).
+    /// `None`: not measured.
     pub met: Option<bool>,
 }
 
 impl CheckReport {
-    /// Whether every measured limit was met.
+    /// Whether every measured limit was met, and the tracing layers are
+    /// exact.
     pub fn within_budget(&self) -> bool {
         self.verdicts.iter().all(|v| v.met != Some(false))
+            && self
+                .tracing
+                .as_ref()
+                .is_none_or(|t| t.cone_violations == 0 && t.mismatches.iter().all(|(_, n)| *n == 0))
     }
 }
 
@@ -97,23 +136,69 @@ fn bytes_on_disk(dir: &std::path::Path) -> u64 {
         .unwrap_or(0)
 }
 
-/// Measures `asset`'s horizons and sky-view factor against the exact
-/// references, and `budget`'s limits against them.
+/// Measures `asset`'s horizons, sky-view factors, sun/shade states and
+/// tracing layers against exact references, and `budget`'s limits against
+/// them. The sun positions are `sun`, else the recorded plan's.
 pub fn check(
     asset: &Asset<Mmap>,
     opts: &CheckOptions,
     budget: Option<&Budget>,
+    sun: &[SunPosition],
     progress: Progress,
 ) -> Result<CheckReport> {
     let start = Instant::now();
     let dir = asset.dir();
-    let map = HorizonMap::open(asset).with_context(|| {
-        format!(
-            "{}: nothing to check: the asset has no horizon layer (terrabake horizons {})",
+    let plan = crate::plan::recorded(asset);
+    let sun = if sun.is_empty() {
+        plan.as_ref().map_or(&[][..], |p| &p.sun[..])
+    } else {
+        sun
+    };
+    let horizons = match HorizonMap::open(asset) {
+        Ok(map) => Some(check_horizons(asset, &map, opts, sun, progress)?),
+        Err(_) => None,
+    };
+    let tracing = check_tracing(asset, opts)?;
+    if horizons.is_none() && tracing.is_none() {
+        bail!(
+            "{}: nothing to check: the asset has no horizon layer, pyramid or cone planes (terrabake horizons {})",
             dir.display(),
             dir.display()
-        )
-    })?;
+        );
+    }
+    let mut report = CheckReport {
+        horizons,
+        tracing,
+        bytes: bytes_on_disk(dir),
+        seconds: start.elapsed().as_secs_f64(),
+        seed: opts.seed,
+        budget: budget.copied(),
+        predicted: None,
+        baked: None,
+        verdicts: Vec::new(),
+    };
+    if report.budget.is_none() {
+        report.budget = plan.as_ref().map(|p| p.budget);
+    }
+    if let Some(plan) = plan {
+        report.predicted = plan.chosen;
+        report.baked = plan.baked;
+    }
+    if let Some(b) = report.budget {
+        report.verdicts = verdicts(&report, &b);
+    }
+    Ok(report)
+}
+
+/// The horizons against exact line horizons at sampled posts.
+fn check_horizons(
+    asset: &Asset<Mmap>,
+    map: &HorizonMap<'_, Mmap>,
+    opts: &CheckOptions,
+    sun: &[SunPosition],
+    progress: Progress,
+) -> Result<HorizonCheck> {
+    let dir = asset.dir();
     let Some(stage) = HorizonsStage::recorded(asset) else {
         bail!(
             "{}: the horizon layer has no stage record to check it against",
@@ -130,19 +215,33 @@ pub fn check(
         progress,
     )?;
     let svf_layer = asset.layer(SVF, 0).ok();
-    // Per post: the signed horizon errors at every reference azimuth, and
-    // the svf error.
-    let per_post: Vec<Result<(Vec<f64>, Option<f64>)>> = pilot
+    // Each sun at the nearest reference direction, where both the exact
+    // and the served horizon are known.
+    let step = 360.0 / pilot.reference.len() as f64;
+    let suns: Vec<(usize, f64)> = sun
+        .iter()
+        .map(|&[az, el]| ((az / step).round() as usize % pilot.reference.len(), el))
+        .collect();
+    // Per post: the signed horizon errors at every reference azimuth, the
+    // svf error, and the wrong sun/shade states.
+    type PostErrors = (Vec<f64>, Option<f64>, usize);
+    let per_post: Vec<Result<PostErrors>> = pilot
         .posts
         .par_iter()
         .zip(&pilot.exact)
         .map(|(&(c, r), exact)| {
             let mut errors = Vec::with_capacity(exact.len());
-            for (band, &truth) in pilot.reference.iter().zip(exact) {
-                if let Some(stored) = map.horizon_at(c as u32, r as u32, band.azimuth)? {
+            let mut served = vec![None; exact.len()];
+            for ((band, &truth), out) in pilot.reference.iter().zip(exact).zip(&mut served) {
+                *out = map.horizon_at(c as u32, r as u32, band.azimuth)?;
+                if let Some(stored) = *out {
                     errors.push(stored - truth);
                 }
             }
+            let wrong = suns
+                .iter()
+                .filter(|&&(j, el)| served[j].is_some_and(|s| (el > s) != (el > exact[j])))
+                .count();
             let svf_error = match &svf_layer {
                 Some(layer) => {
                     let stored = layer.get::<f32>(0, c as u32, r as u32)?;
@@ -150,21 +249,22 @@ pub fn check(
                 }
                 None => None,
             };
-            Ok((errors, svf_error))
+            Ok((errors, svf_error, wrong))
         })
         .collect();
-    let (mut horizon, mut svf) = (Vec::new(), Vec::new());
+    let (mut horizon, mut svf, mut wrong) = (Vec::new(), Vec::new(), 0);
     for post in per_post {
-        let (errors, svf_error) = post?;
+        let (errors, svf_error, w) = post?;
         horizon.extend(errors);
         svf.extend(svf_error.map(f64::abs));
+        wrong += w;
     }
     let bias = horizon.iter().sum::<f64>() / horizon.len().max(1) as f64;
     let mut horizon: Vec<f64> = horizon.into_iter().map(f64::abs).collect();
     horizon.sort_unstable_by(f64::total_cmp);
     svf.sort_unstable_by(f64::total_cmp);
     let layer = asset.layer(HORIZON, 0)?;
-    let mut report = CheckReport {
+    Ok(HorizonCheck {
         posts: pilot.posts.len(),
         relief_posts: pilot.relief_posts,
         reference_directions: pilot.reference.len(),
@@ -178,22 +278,145 @@ pub fn check(
         horizon_bias_deg: bias,
         svf_p99: (!svf.is_empty()).then(|| percentile(&svf, 99)),
         svf_max: svf.last().copied(),
-        bytes: bytes_on_disk(dir),
-        seconds: start.elapsed().as_secs_f64(),
-        seed: opts.seed,
-        budget: budget.copied(),
-        predicted: None,
-        verdicts: Vec::new(),
-    };
-    let plan = crate::plan::recorded(asset);
-    if report.budget.is_none() {
-        report.budget = plan.as_ref().map(|p| p.budget);
+        shade_share: (!suns.is_empty())
+            .then(|| wrong as f64 / (suns.len() * pilot.posts.len()) as f64),
+        sun_positions: suns.len(),
+    })
+}
+
+/// The cone planes and the tracers against brute force: `samples` random
+/// cells' cones against every cell of the DEM, and `4 * samples` random
+/// rays traced by every method the asset serves and by the brute force.
+/// `None` when the asset has neither a pyramid nor cone planes.
+fn check_tracing(asset: &Asset<Mmap>, opts: &CheckOptions) -> Result<Option<TracingCheck>> {
+    let tracer = Tracer::new(asset)?;
+    if !tracer.has_pyramid() && !tracer.has_cones() {
+        return Ok(None);
     }
-    report.predicted = plan.map(|p| p.chosen);
-    if let Some(b) = report.budget {
-        report.verdicts = verdicts(&report, &b);
+    let dem = HeldDem::read(asset)?;
+    let (w, h) = (dem.width, dem.height);
+    let (cw, ch) = (w - 1, h - 1);
+    let mut rng = SplitMix64(opts.seed ^ 0x7472_6163);
+    // Each cell's tallest corner (-inf without surface).
+    let tall: Vec<f32> = (0..cw * ch)
+        .map(|i| {
+            let (c, r) = (i % cw, i / cw);
+            let z = |cc: usize, rr: usize| dem.z[rr * w + cc];
+            Cell {
+                nw: z(c, r),
+                ne: z(c + 1, r),
+                sw: z(c, r + 1),
+                se: z(c + 1, r + 1),
+            }
+            .max()
+        })
+        .collect();
+    let (mut cone_cells, mut cone_violations, mut tightness) = (0, 0, None);
+    if let Some(planes) = ConePlanes::open(asset)? {
+        let cells: Vec<usize> = (0..opts.samples.min(cw * ch))
+            .map(|_| rng.below(cw * ch))
+            .collect();
+        // Distance between the closed squares of two cells.
+        let gap = |a: usize, b: usize| (a.abs_diff(b).saturating_sub(1)) as f64;
+        let found: Vec<Result<(bool, Option<f64>)>> = cells
+            .par_iter()
+            .map(|&i| {
+                let cone = planes.cone((i % cw) as u32, (i / cw) as u32)?;
+                let (mut holds_terrain, mut widest) = (false, f64::INFINITY);
+                for (j, &z) in tall.iter().enumerate() {
+                    let rise = f64::from(z) - cone.apex;
+                    if rise > 0.0 {
+                        let d = (gap(i % cw, j % cw) * dem.dx).hypot(gap(i / cw, j / cw) * dem.dy);
+                        holds_terrain |= d < cone.slope * rise;
+                        widest = widest.min(d / rise);
+                    }
+                }
+                Ok((
+                    holds_terrain,
+                    (widest.is_finite() && widest > 0.0).then(|| cone.slope / widest),
+                ))
+            })
+            .collect();
+        let mut ratios = Vec::new();
+        for f in found {
+            let (bad, ratio) = f?;
+            cone_cells += 1;
+            cone_violations += usize::from(bad);
+            ratios.extend(ratio);
+        }
+        tightness = (!ratios.is_empty()).then(|| ratios.iter().sum::<f64>() / ratios.len() as f64);
     }
-    Ok(report)
+    // Rays from anywhere above the lowest post, in any direction.
+    let (xm, ym) = tracer.extent();
+    let m = asset.manifest();
+    let (lo, hi) = m
+        .height_range
+        .map_or((0.0, 1.0), |r| (f64::from(r.min), f64::from(r.max)));
+    let span = (hi - lo).max(1.0);
+    let unit = |rng: &mut SplitMix64| (rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
+    let rays: Vec<Ray> = (0..4 * opts.samples)
+        .map(|_| {
+            let origin = [
+                unit(&mut rng) * xm,
+                unit(&mut rng) * ym,
+                lo + unit(&mut rng) * 1.5 * span,
+            ];
+            let (z, phi) = (
+                2.0 * unit(&mut rng) - 1.0,
+                unit(&mut rng) * std::f64::consts::TAU,
+            );
+            let s = (1.0 - z * z).sqrt();
+            Ray {
+                origin,
+                dir: [s * phi.cos(), s * phi.sin(), z],
+                t_min: 0.0,
+                t_max: f64::INFINITY,
+            }
+        })
+        .collect();
+    let mut methods = Vec::new();
+    if tracer.has_pyramid() {
+        methods.push(TraceMethod::Hierarchical);
+    }
+    if tracer.has_cones() {
+        methods.push(TraceMethod::Parametric);
+    }
+    let mut mismatches = Vec::new();
+    let reference: Vec<_> = rays
+        .par_iter()
+        .map(|ray| {
+            tracer
+                .trace(ray, TraceMethod::BruteForce)
+                .map(|(hit, _)| hit)
+        })
+        .collect::<Result<_, _>>()?;
+    for method in methods {
+        // The same point: both miss, or `t` agrees to 1e-5 relative, the
+        // tracer tests' bar (a hit on an edge may name either cell that
+        // holds it, so cells are not compared).
+        let wrong = rays
+            .par_iter()
+            .zip(&reference)
+            .map(|(ray, want)| {
+                let (got, _) = tracer.trace(ray, method)?;
+                Ok(usize::from(match (got, want) {
+                    (None, None) => false,
+                    (Some(a), Some(b)) => (a.t - b.t).abs() > 1e-5 * b.t.abs().max(1.0),
+                    _ => true,
+                }))
+            })
+            .collect::<Result<Vec<usize>>>()?
+            .into_iter()
+            .sum();
+        mismatches.push((method.name().to_string(), wrong));
+    }
+    Ok(Some(TracingCheck {
+        cone_cells,
+        cone_violations,
+        cone_tightness: tightness,
+        rays: rays.len(),
+        mismatches,
+    }))
 }
 
 /// Each limit of `b` against `report`.
@@ -204,37 +427,47 @@ fn verdicts(report: &CheckReport, b: &Budget) -> Vec<Verdict> {
         limit,
         met: achieved.map(|a| a <= limit),
     };
-    let mut v = vec![measured(
-        "horizon p99 (deg)",
-        Some(report.horizon_p99_deg),
-        b.horizon,
-    )];
+    let h = report.horizons.as_ref();
+    let mut v = Vec::new();
+    if let Some(h) = h {
+        v.push(measured(
+            "horizon p99 (deg)",
+            Some(h.horizon_p99_deg),
+            b.horizon,
+        ));
+    }
+    // Asked for and not there is not met.
+    let required = |mut verdict: Verdict| {
+        verdict.met = Some(verdict.met == Some(true));
+        verdict
+    };
     if let Some(limit) = b.svf {
-        // Asked for and not there is not met.
-        let mut svf = measured("svf p99", report.svf_p99, limit);
-        svf.met = Some(svf.met == Some(true));
-        v.push(svf);
+        v.push(required(measured(
+            "svf p99",
+            h.and_then(|h| h.svf_p99),
+            limit,
+        )));
+    }
+    if let Some(limit) = b.shade {
+        v.push(required(measured(
+            "shade share",
+            h.and_then(|h| h.shade_share),
+            limit,
+        )));
     }
     if let Some(limit) = b.bytes {
         v.push(measured("bytes", Some(report.bytes as f64), limit as f64));
     }
-    for (what, limit) in [("shade share", b.shade), ("time (s)", b.time)] {
-        if let Some(limit) = limit {
-            v.push(Verdict {
-                what,
-                achieved: None,
-                limit,
-                met: None,
-            });
-        }
+    let baked = report.baked.as_ref();
+    if let Some(limit) = b.time {
+        v.push(measured("time (s)", baked.map(|b| b.seconds), limit));
     }
     if let Some(limit) = b.memory {
-        v.push(Verdict {
-            what: "memory (MiB)",
-            achieved: None,
-            limit: limit as f64,
-            met: None,
-        });
+        v.push(measured(
+            "memory (MiB)",
+            baked.map(|b| b.peak_memory_mib),
+            limit as f64,
+        ));
     }
     v
 }
@@ -256,42 +489,77 @@ pub fn record(dir: &std::path::Path, report: &CheckReport) -> Result<()> {
 
 /// The report as a table for people.
 pub fn describe(report: &CheckReport) -> String {
-    let mut out = format!(
-        "checked {} posts ({} of the highest relief) against exact line horizons in {} directions ({:.1} s)\n\
-         baked: {} horizons, {} bands, {}{}\n\n",
-        report.posts,
-        report.relief_posts,
-        report.reference_directions,
-        report.seconds,
-        report.method,
-        report.bands,
-        report.encoding,
-        report
-            .max_distance
-            .map_or(String::new(), |d| format!(", max distance {d} m")),
-    );
-    out += &format!(
-        "horizon error (deg)   p50 {:.3}   p99 {:.3}   max {:.3}   bias {:+.3}\n",
-        report.horizon_p50_deg,
-        report.horizon_p99_deg,
-        report.horizon_max_deg,
-        report.horizon_bias_deg
-    );
-    if let (Some(p99), Some(max)) = (report.svf_p99, report.svf_max) {
-        out += &format!("svf error             p99 {p99:.4}   max {max:.4}\n");
+    let mut out = String::new();
+    if let Some(h) = &report.horizons {
+        out += &format!(
+            "checked {} posts ({} of the highest relief) against exact line horizons in {} directions
+             baked: {} horizons, {} bands, {}{}
+
+",
+            h.posts,
+            h.relief_posts,
+            h.reference_directions,
+            h.method,
+            h.bands,
+            h.encoding,
+            h.max_distance
+                .map_or(String::new(), |d| format!(", max distance {d} m")),
+        );
+        out += &format!(
+            "horizon error (deg)   p50 {:.3}   p99 {:.3}   max {:.3}   bias {:+.3}\n",
+            h.horizon_p50_deg, h.horizon_p99_deg, h.horizon_max_deg, h.horizon_bias_deg
+        );
+        if let (Some(p99), Some(max)) = (h.svf_p99, h.svf_max) {
+            out += &format!("svf error             p99 {p99:.4}   max {max:.4}\n");
+        }
+        if let Some(share) = h.shade_share {
+            out += &format!(
+                "sun/shade wrong       {share:.4} of {} posts x {} sun positions\n",
+                h.posts, h.sun_positions
+            );
+        }
+    }
+    if let Some(t) = &report.tracing {
+        if t.cone_cells > 0 {
+            out += &format!(
+                "cone planes           {} cells against every cell: {} hold terrain, {}\n",
+                t.cone_cells,
+                t.cone_violations,
+                t.cone_tightness
+                    .map_or("no taller terrain".into(), |r| format!(
+                        "mean slope {:.1} % of the widest its apex allows",
+                        100.0 * r
+                    )),
+            );
+        }
+        for (method, wrong) in &t.mismatches {
+            out += &format!(
+                "rays, {method:<13}  {} random rays against the brute force: {wrong} differ\n",
+                t.rays
+            );
+        }
     }
     out += &format!(
-        "bytes on disk         {}\n",
-        crate::report::human_bytes(report.bytes)
+        "bytes on disk         {}\nchecked in            {:.1} s\n",
+        crate::report::human_bytes(report.bytes),
+        report.seconds
     );
+    if let Some(b) = &report.baked {
+        out += &format!(
+            "baked in              {:.1} s, peak memory {:.0} MiB\n",
+            b.seconds, b.peak_memory_mib
+        );
+    }
     if let Some(p) = &report.predicted {
         out += &format!(
-            "planned               horizon p99 {:.3}   svf p99 {:.4}   horizon and sky layers {} ({} directions, {})\n",
+            "planned               horizon p99 {:.3}   svf p99 {:.4}{}   horizon and sky layers {} ({} directions, {}{})\n",
             p.horizon_p99_deg,
             p.svf_p99,
+            p.shade_share.map_or(String::new(), |s| format!("   shade {s:.4}")),
             crate::report::human_bytes(p.bytes),
             p.sectors,
-            p.encoding.name()
+            p.encoding.name(),
+            p.max_distance.map_or(String::new(), |d| format!(", within {:.1} km", d / 1000.0)),
         );
     }
     if let Some(b) = &report.budget {
@@ -301,7 +569,7 @@ pub fn describe(report: &CheckReport) -> String {
             let verdict = match v.met {
                 Some(true) => "met",
                 Some(false) => "EXCEEDED",
-                None => "not measured by check yet",
+                None => "not measured (time and memory are measured by a planned bake)",
             };
             out += &format!(
                 "  {:<20} {:>12} <= {:<10} {verdict}\n",
@@ -336,6 +604,10 @@ pub struct CheckArgs {
     /// (docs/PLANNING.md defines each).
     #[arg(long)]
     pub budget: Option<Budget>,
+    /// Sun positions for the shade share: AZ,EL;AZ,EL;... degrees (default: the recorded
+    /// plan's).
+    #[arg(long, allow_hyphen_values = true)]
+    pub sun: Option<crate::budget::SunPositions>,
     /// Measure only: leave the manifest as it is (by default the result is recorded in it).
     #[arg(long)]
     pub no_record: bool,
@@ -351,8 +623,10 @@ impl CheckArgs {
             samples: self.samples as usize,
             seed: self.seed,
             directions: self.directions as usize,
+            records: false,
         };
-        let report = check(&asset, &opts, self.budget.as_ref(), progress)?;
+        let sun = self.sun.clone().map(|s| s.0).unwrap_or_default();
+        let report = check(&asset, &opts, self.budget.as_ref(), &sun, progress)?;
         drop(asset);
         if !self.no_record {
             record(&self.asset, &report)?;

@@ -356,15 +356,15 @@ A recipe (a shorter pipelines/demo.toml):\n  \
         #[arg(short, long)]
         output: PathBuf,
         /// A recipe from pipelines/ (TOML): ingest options and stages.
-        #[arg(long, required_unless_present = "budget")]
+        #[arg(long, required_unless_present = "budget", conflicts_with = "budget")]
         recipe: Option<PathBuf>,
-        /// Instead of a recipe, an error budget: horizon=DEG[,svf=X][,time=S][,bytes=SIZE]
-        /// [,memory=MIB]. Ingests, bakes the horizons and sky layers that `terrabake plan` chooses,
-        /// and records the plan; `terrabake check` then measures it (docs/PLANNING.md).
-        #[arg(long, conflicts_with_all = ["recipe", "parts"])]
-        budget: Option<crate::budget::Budget>,
+        /// Instead of a recipe, an error budget and what the scene needs (--budget, --needs,
+        /// --sun, --sun-day): ingests, bakes the stages `terrabake plan` chooses, and records the
+        /// plan; `terrabake check` then measures it (docs/PLANNING.md).
+        #[command(flatten)]
+        request: crate::plan::RequestArgs,
         /// Cut the bake into this many parts (with --part).
-        #[arg(long, value_name = "N", requires = "part")]
+        #[arg(long, value_name = "N", requires = "part", conflicts_with = "budget")]
         parts: Option<u32>,
         /// Bake only this part, 0 to N - 1 (with --parts).
         #[arg(long, value_name = "I", requires = "parts")]

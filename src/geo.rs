@@ -119,6 +119,23 @@ pub fn row_scale(georef: Option<&Georef>, height: u32) -> Vec<f64> {
         .collect()
 }
 
+/// The latitude (degrees) at the centre of a `w x h` grid: exact on
+/// geographic grids; on WGS 84 UTM grids the footpoint latitude of the
+/// centre's northing on a sphere of the rectifying radius (within 0.2
+/// degrees: enough for a sun path); `None` otherwise.
+pub fn central_latitude(georef: &Georef, w: u32, h: u32) -> Option<f64> {
+    let (_, y) = georef.post_to_world(f64::from(w) / 2.0, f64::from(h) / 2.0);
+    match georef.crs_kind {
+        CrsKind::Geographic => Some(y),
+        _ => {
+            let (_, south) = utm_zone(georef.epsg?)?;
+            const K0_RECTIFYING_RADIUS: f64 = 0.9996 * 6_367_449.146;
+            let northing = if south { y - 10_000_000.0 } else { y };
+            Some((northing / K0_RECTIFYING_RADIUS).to_degrees())
+        }
+    }
+}
+
 /// The UTM zone of an EPSG code on WGS 84 (326zz north, 327zz south):
 /// `(zone, south)`.
 pub fn utm_zone(epsg: u32) -> Option<(u32, bool)> {

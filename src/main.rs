@@ -11,7 +11,6 @@ use terrabake::cli::{Cli, Command};
 use terrabake::export::export_layer;
 use terrabake::ingest::IngestStage;
 use terrabake::partition::{assemble, bake_part, Part};
-use terrabake::plan::bake_to_budget;
 use terrabake::progress::Progress;
 use terrabake::pyramid::PyramidStage;
 use terrabake::recipe::{bake, Recipe};
@@ -264,12 +263,12 @@ fn run(cli: Cli) -> Result<ExitCode> {
             src,
             output,
             recipe,
-            budget,
+            request,
             parts,
             part,
             json,
         } => {
-            let outcomes = match (recipe, budget, part.zip(parts)) {
+            let outcomes = match (recipe, request.request(), part.zip(parts)) {
                 (Some(r), _, Some((i, n))) => bake_part(
                     &src,
                     &output,
@@ -279,8 +278,12 @@ fn run(cli: Cli) -> Result<ExitCode> {
                     progress,
                 )?,
                 (Some(r), ..) => bake(&src, &output, &Recipe::load(&r)?, wait, progress)?,
-                (None, b, _) => {
-                    bake_to_budget(&src, &output, &b.unwrap_or_default(), wait, progress)?
+                (None, plan, _) => {
+                    let recipe = Recipe {
+                        plan,
+                        ..Default::default()
+                    };
+                    bake(&src, &output, &recipe, wait, progress)?
                 }
             };
             report_all(&outcomes, json)?;

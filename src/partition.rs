@@ -237,6 +237,12 @@ pub fn bake_part(
     wait: Wait,
     progress: Progress,
 ) -> Result<Vec<StageOutcome>> {
+    if recipe.plan.is_some() {
+        bail!(
+            "{}: a recipe with a [plan] bakes on one machine (the plan measures the whole scene); run `terrabake plan`, then write the stages it chooses into the recipe to bake it in parts",
+            recipe.path.display()
+        );
+    }
     let (ingest, m) = describe(recipe, src)?;
     let plan = Plan::new(recipe, &m)?;
     let fingerprint = plan.fingerprint(ingest.params());

@@ -1,49 +1,50 @@
-//! The planner (`terrabake plan`, `terrabake bake --budget`): from the
-//! user's error budget to the horizons a scene needs, with the predicted
-//! error, time and bytes of each choice and the cheaper choice it rejected
+//! The planner (`terrabake plan`, `terrabake bake --budget`, a recipe's
+//! `[plan]`): from what a scene needs and the user's error budget to the
+//! stages and layers to bake, with the predicted error, time, bytes and
+//! memory of each choice and the cheaper choice it rejected
 //! (docs/PLANNING.md).
 //!
 //! **Error model: the scene measures itself.** A pilot ([`Pilot`]) computes
 //! exact line horizons in 720 directions at a few hundred posts (random,
-//! and those of the highest relief), with a seed apart from `check`'s. For
-//! `S` line directions (a divisor of 720, so that each stored direction is
-//! a reference direction) the planner keeps the reference at those
-//! directions, encodes them as the stage would (u8, u16 or f32), serves
-//! every reference azimuth from them as the loader does (linear between
-//! the two nearest), and takes the 99th percentile of the absolute error:
-//! the prediction is the error of that very bake at those posts. The
-//! sky-view factor is predicted the same way, from the `S` stored bands
-//! against the 720.
+//! and those of the highest relief), with a seed apart from `check`'s, and
+//! keeps each sight line's records (where its running maximum rose), so
+//! that the horizon cut at any distance is known too. For `S` line
+//! directions (a divisor of 720, so that each stored direction is a
+//! reference direction), a distance limit and an encoding, the planner
+//! makes the stored angles the stage would, serves every reference azimuth
+//! from them as the loader does (linear between the two nearest), and
+//! measures the error: the prediction is the error of that very bake at
+//! those posts. The svf and the sun/shade state at the sun positions are
+//! predicted the same way.
 //!
-//! **Choice.** The fewest directions whose error between directions (with
-//! f32 angles) is within 0.6 of the budget, and the coarsest encoding whose
-//! worst error is within a quarter of it; the rest of the budget covers
-//! the posts the pilot did not see. Fixed shares keep the plan monotone: a
-//! looser budget never gives more directions or a finer encoding, so never
-//! more bytes or time. Explicit `--sectors` and `--encoding` are not taken
-//! here: `check` says what they achieve.
+//! **Choice.** Each decision takes a fixed share of the budget, measured
+//! on its own: the directions (interpolation alone, 0.6), the distance
+//! limit (the cut alone, 0.05), the encoding (quantisation alone, 0.25);
+//! the rest (0.1) covers the posts the pilot did not see. Each decision is
+//! monotone in the budget, so a looser budget never gives more directions,
+//! a longer reach or a finer encoding: never more bytes or time.
 //!
-//! **Cost model.** Time: `posts * S^1.31 / 1.22e7` seconds, fitted by
-//! `pipelines/fit_plan_models.sh` to the line stage and the sky stage on
-//! the bundled tile (longer grid steps at more directions make a direction
-//! cost more than the last); bytes: the layers' raw tiles.
-//!
-//! What it does not plan yet: the distance limit (every plan is exact to
-//! the DEM's edge), sector or sampled methods, cone slices, tile size and
-//! codec, sun/shade budgets, and `--needs`.
+//! **Cost models**, fitted by `pipelines/fit_plan_models.sh` on the bundled
+//! tile (2 cores): unbounded line sweeps `posts * S^1.34 / 1.34e7` s;
+//! bounded lines (a walk of each post's reach) `posts * S * (4.29e-8 +
+//! 8.04e-9 * D / cell)` s; bytes from the layers' tiles; memory from the
+//! tile row the line stage holds per band. The bake takes the faster of the
+//! two line routes that fits the memory limit.
 
 use std::time::Instant;
 
 use anyhow::{bail, Result};
-use serde::Serialize;
-use terrabake_format::horizons::AngleEncoding;
+use serde::{Deserialize, Serialize};
+use terrabake_format::horizons::{bands_around, AngleEncoding};
 use terrabake_format::{Asset, Mmap};
 
-use crate::budget::Budget;
+use crate::budget::{Budget, Need, Needs, Request, SunPosition};
 use crate::horizon::sky::{svf_of_horizons, BandIntegrals};
 use crate::horizon::{band_bounds, HorizonsStage, Method};
 use crate::progress::Progress;
 use crate::reference::{quantile_unsorted, Pilot, Sampling};
+use crate::sky::{SkyLayer, SkyStage};
+use crate::stage::Stage;
 
 /// Reference directions of the pilot; candidates divide it.
 const PILOT_DIRECTIONS: usize = 720;
@@ -51,39 +52,67 @@ const PILOT_DIRECTIONS: usize = 720;
 const CANDIDATES: [usize; 20] = [
     4, 6, 8, 10, 12, 16, 18, 20, 24, 30, 36, 40, 48, 60, 72, 90, 120, 180, 240, 360,
 ];
-/// The shares of the budget: the error between directions (planned from
-/// f32 angles) and the encoding's worst error; the rest (0.15) covers the
-/// posts the pilot did not see. Fixed shares make the plan monotone: a
-/// looser budget never gives more directions or a finer encoding, so never
-/// more bytes or time.
-const BUDGET_SHARE_DIRECTIONS: f64 = 0.6;
-/// The pilot's quantile that decides the directions (the budget's is 0.99).
+/// Distance limits the planner considers, metres.
+const DISTANCES: [f64; 18] = [
+    250.0, 500.0, 1e3, 1.5e3, 2e3, 3e3, 5e3, 7.5e3, 1e4, 1.5e4, 2e4, 3e4, 5e4, 7.5e4, 1e5, 1.5e5,
+    2e5, 3e5,
+];
+/// The shares of the budget: interpolation between directions, the
+/// distance limit, quantisation; the rest (0.1) covers the posts the pilot
+/// did not see.
+const SHARE_DIRECTIONS: f64 = 0.6;
+const SHARE_DISTANCE: f64 = 0.05;
+const SHARE_QUANTISATION: f64 = 0.25;
+/// The pilot's quantile that decides (the budget's is 0.99): where a lone
+/// spike is seen in about 1 % of the azimuths, the 99th sits on a knife's
+/// edge and a pilot can find it small where a check finds it large.
 const DECISION_QUANTILE: f64 = 0.995;
-const BUDGET_SHARE_QUANTISATION: f64 = 0.25;
 /// The pilot's seed: apart from `check`'s default, so that a check of a
 /// planned bake measures posts the plan never saw.
 pub const PILOT_SEED: u64 = 0x504c_414e;
-/// Fitted by pipelines/fit_plan_models.sh (docs/PLANNING.md): seconds =
-/// posts * S^EXPONENT / RATE on the 2-core reference machine.
-pub const TIME_EXPONENT: f64 = 1.31;
-pub const TIME_RATE: f64 = 1.22e7;
-/// Bytes per post of the sky stage's layers (three f32 and one u16).
-const SKY_BYTES_PER_POST: u64 = 14;
+/// Fitted by pipelines/fit_plan_models.sh (docs/PLANNING.md), 2 cores:
+/// unbounded line horizons and the sky stage, seconds = posts *
+/// S^EXPONENT / RATE.
+pub const TIME_EXPONENT: f64 = 1.34;
+pub const TIME_RATE: f64 = 1.34e7;
+/// Bounded line horizons and the sky stage: seconds = posts * S *
+/// (PER_LINE + PER_CELL * D / cell).
+pub const BOUNDED_PER_LINE: f64 = 4.29e-8;
+pub const BOUNDED_PER_CELL: f64 = 8.04e-9;
+/// Seconds per post of the pyramid and of the cone planes (slices from the
+/// data), measured on the bundled tile (2 cores, 0.13 s and 1.15 s).
+const PYRAMID_SECONDS_PER_POST: f64 = 9.0e-8;
+const CONES_SECONDS_PER_POST: f64 = 8.0e-7;
+/// Peak memory, measured on the bundled tile: a base of 40 MiB, 10.7 bytes
+/// per post and band of a tile row of horizons in flight (97 MiB at 16
+/// directions, 463 MiB at 120), the DEM itself (4 bytes a post) for bounded
+/// lines, and 32 bytes a post for in-core cone planes.
+const BASE_MIB: f64 = 40.0;
+const LINE_BYTES_PER_ROW_POST_BAND: f64 = 10.7;
+const CONES_BYTES_PER_POST: f64 = 32.0;
 
-/// One count of directions and one encoding, predicted.
-#[derive(Debug, Clone, Serialize, serde::Deserialize)]
+/// One count of directions, distance limit and encoding, predicted.
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Candidate {
     pub sectors: usize,
     pub encoding: AngleEncoding,
+    /// The distance limit baked, metres (`None`: the whole DEM).
+    #[serde(default)]
+    pub max_distance: Option<f64>,
     pub horizon_p99_deg: f64,
     pub svf_p99: f64,
+    /// The share of (post, sun position) pairs whose sun/shade state is
+    /// wrong, when the scene needs the sun.
+    #[serde(default)]
+    pub shade_share: Option<f64>,
     /// Bytes of the horizon and sky layers.
     pub bytes: u64,
+    /// Seconds of the horizons and sky stages.
     pub seconds: f64,
 }
 
 /// What the planner measured of the scene.
-#[derive(Debug, Clone, Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Scene {
     pub width: u32,
     pub height: u32,
@@ -91,12 +120,18 @@ pub struct Scene {
     pub relief_m: f64,
     pub nodata_share: f64,
     pub curvature: bool,
+    /// The farthest two posts lie apart, metres.
+    #[serde(default)]
+    pub extent_m: f64,
+    /// The scene's central latitude, degrees, when it is known.
+    #[serde(default)]
+    pub latitude_deg: Option<f64>,
     pub pilot_posts: usize,
     pub pilot_seconds: f64,
 }
 
 /// One decision and its reason.
-#[derive(Debug, Clone, Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Choice {
     pub what: String,
     pub chosen: String,
@@ -104,55 +139,150 @@ pub struct Choice {
     pub rejected: Option<String>,
 }
 
-/// The plan: the stage to run and why.
-#[derive(Debug, Clone, Serialize, serde::Deserialize)]
+/// What the planned bake measured of itself (recorded by the bake).
+#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+pub struct Baked {
+    /// Wall seconds of the stages after ingest.
+    pub seconds: f64,
+    /// Peak resident memory of the bake's process, MiB.
+    pub peak_memory_mib: f64,
+}
+
+/// The plan: the stages to run, why, and what they will cost.
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Plan {
     pub budget: Budget,
+    #[serde(default)]
+    pub needs: Needs,
+    /// The sun positions the shade is planned for, degrees.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub sun: Vec<SunPosition>,
     pub scene: Scene,
-    pub chosen: Candidate,
+    /// The horizons, when a need derives from them.
+    pub chosen: Option<Candidate>,
+    /// Beyond this distance (metres) terrain moves the horizon by less than
+    /// its share of the budget at the pilot's posts: the reach of a bounded
+    /// bake, a partitioned bake's halo (`None`: every distance matters).
+    #[serde(default)]
+    pub safe_distance: Option<f64>,
+    #[serde(default)]
+    pub sky_layers: Vec<SkyLayer>,
+    #[serde(default)]
+    pub pyramid: bool,
+    #[serde(default)]
+    pub cones: bool,
+    /// Predicted for the whole bake after ingest.
+    #[serde(default)]
+    pub seconds: f64,
+    #[serde(default)]
+    pub bytes: u64,
+    #[serde(default)]
+    pub memory_mib: f64,
     pub choices: Vec<Choice>,
-    /// Every candidate the planner predicted, cheapest first per encoding.
+    /// Every candidate the planner predicted, fewest directions first.
     pub candidates: Vec<Candidate>,
+    /// Stages a recipe gave explicitly: they were baked instead of the
+    /// plan's, and `check` measures what they achieved.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub overridden: Vec<String>,
+    #[serde(default)]
+    pub baked: Option<Baked>,
 }
 
 impl Plan {
-    /// The horizons stage that bakes the plan.
-    pub fn horizons_stage(&self) -> HorizonsStage {
+    /// The horizons stage that bakes the plan, if the needs take one.
+    pub fn horizons_stage(&self) -> Option<HorizonsStage> {
+        let chosen = self.chosen.as_ref()?;
         let mut stage = HorizonsStage {
-            sectors: self.chosen.sectors,
+            sectors: chosen.sectors,
             method: Method::Line,
+            max_distance: chosen.max_distance,
             direction_tolerance: Some(0.1),
-            encoding: Some(self.chosen.encoding),
+            encoding: Some(chosen.encoding),
             ..Default::default()
         };
         if let Some(mib) = self.budget.memory {
             stage.max_memory = mib << 20;
         }
-        stage
+        Some(stage)
+    }
+
+    /// Every stage the plan bakes after ingest, in the order they run.
+    pub fn stages(&self) -> Vec<Box<dyn Stage>> {
+        let mut stages: Vec<Box<dyn Stage>> = Vec::new();
+        if self.pyramid {
+            stages.push(Box::new(crate::pyramid::PyramidStage));
+        }
+        if self.cones {
+            let mut cones = crate::cones::ConesStage::default();
+            if let Some(mib) = self.budget.memory {
+                cones.max_memory = mib << 20;
+            }
+            stages.push(Box::new(cones));
+        }
+        if let Some(h) = self.horizons_stage() {
+            stages.push(Box::new(h));
+        }
+        if !self.sky_layers.is_empty() {
+            stages.push(Box::new(SkyStage {
+                layers: self.sky_layers.clone(),
+            }));
+        }
+        stages
     }
 }
 
-/// The absolute errors a bake would make at the pilot's posts: the
-/// horizon's (degrees) at every post and reference azimuth, the svf's at
-/// every post.
+/// A sun position as the pilot sees it: the nearest reference direction.
+#[derive(Debug, Clone, Copy)]
+struct PilotSun {
+    direction: usize,
+    elevation: f64,
+}
+
+/// The errors a bake would make at the pilot's posts: the horizon's
+/// (degrees) at every post and reference azimuth, the svf's at every post,
+/// and the sun/shade states it gets wrong.
 struct Errors {
     horizon: Vec<f64>,
     svf: Vec<f64>,
+    shade_wrong: usize,
+    shade_pairs: usize,
 }
 
 impl Errors {
-    /// The horizon's and the svf's errors at quantile `q`.
-    fn at(&mut self, q: f64) -> (f64, f64) {
+    /// The horizon's and the svf's errors at quantile `q`, and the share of
+    /// wrong sun/shade states (`None` without sun positions).
+    fn at(&mut self, q: f64) -> (f64, f64, Option<f64>) {
         (
             quantile_unsorted(&mut self.horizon, q),
             quantile_unsorted(&mut self.svf, q),
+            (self.shade_pairs > 0).then(|| self.shade_wrong as f64 / self.shade_pairs as f64),
         )
+    }
+
+    /// Whether these errors, at the deciding quantile, stay within `share`
+    /// of every limit the budget sets for them.
+    fn within(&mut self, budget: &Budget, share: f64) -> bool {
+        let (horizon, svf, shade) = self.at(DECISION_QUANTILE);
+        horizon <= share * budget.horizon
+            && budget.svf.is_none_or(|v| svf <= share * v)
+            && budget
+                .shade
+                .is_none_or(|v| shade.is_none_or(|s| s <= share * v))
     }
 }
 
-/// The errors of `sectors` directions stored as `encoding`.
-fn predict(pilot: &Pilot, sectors: usize, encoding: AngleEncoding) -> Errors {
-    let every = PILOT_DIRECTIONS / sectors;
+/// The errors at the pilot's posts of storing, for every `every`-th
+/// reference direction, `stored(post, direction)` degrees, served at every
+/// reference azimuth as the loader serves it (linear between the two
+/// nearest stored directions).
+fn errors(
+    pilot: &Pilot,
+    every: usize,
+    suns: &[PilotSun],
+    stored: impl Fn(usize, usize) -> f64,
+) -> Errors {
+    let sectors = PILOT_DIRECTIONS / every;
     let azimuths: Vec<f64> = (0..sectors)
         .map(|i| pilot.reference[i * every].azimuth)
         .collect();
@@ -160,26 +290,56 @@ fn predict(pilot: &Pilot, sectors: usize, encoding: AngleEncoding) -> Errors {
         .into_iter()
         .map(|(lo, hi)| BandIntegrals::new(lo, hi))
         .collect();
-    let stored_value = |deg: f64| encoding.decode(encoding.encode(deg)).unwrap_or(f64::NAN);
-    let (mut horizon, mut svf) = (Vec::new(), Vec::new());
-    for exact in &pilot.exact {
-        let stored: Vec<f64> = (0..sectors)
-            .map(|i| stored_value(exact[i * every]))
-            .collect();
-        for (band, &truth) in pilot.reference.iter().zip(exact) {
-            let (i, j, f) = terrabake_format::horizons::bands_around(&azimuths, band.azimuth);
-            let served = stored[i] + f * (stored[j] - stored[i]);
-            if served.is_finite() && truth.is_finite() {
-                horizon.push((served - truth).abs());
+    let mut e = Errors {
+        horizon: Vec::new(),
+        svf: Vec::new(),
+        shade_wrong: 0,
+        shade_pairs: 0,
+    };
+    let mut served = vec![0.0; PILOT_DIRECTIONS];
+    for (post, exact) in pilot.exact.iter().enumerate() {
+        let kept: Vec<f64> = (0..sectors).map(|i| stored(post, i * every)).collect();
+        for ((band, &truth), out) in pilot.reference.iter().zip(exact).zip(&mut served) {
+            let (i, j, f) = bands_around(&azimuths, band.azimuth);
+            *out = kept[i] + f * (kept[j] - kept[i]);
+            if out.is_finite() && truth.is_finite() {
+                e.horizon.push((*out - truth).abs());
             }
         }
-        let s = svf_of_horizons(&integrals, stored.iter().copied());
+        for sun in suns {
+            let lit = |h: f64| sun.elevation > h;
+            e.shade_pairs += 1;
+            if lit(served[sun.direction]) != lit(exact[sun.direction]) {
+                e.shade_wrong += 1;
+            }
+        }
+        let s = svf_of_horizons(&integrals, kept.iter().copied());
         let truth = pilot.svf(exact);
         if s.is_finite() && truth.is_finite() {
-            svf.push((s - truth).abs());
+            e.svf.push((s - truth).abs());
         }
     }
-    Errors { horizon, svf }
+    e
+}
+
+/// `deg` stored as `encoding` and read back.
+fn stored_as(encoding: AngleEncoding, deg: f64) -> f64 {
+    encoding.decode(encoding.encode(deg)).unwrap_or(f64::NAN)
+}
+
+/// The errors of `sectors` directions cut at `distance`, stored as
+/// `encoding`.
+fn predict(
+    pilot: &Pilot,
+    suns: &[PilotSun],
+    sectors: usize,
+    distance: Option<f64>,
+    encoding: AngleEncoding,
+) -> Errors {
+    errors(pilot, PILOT_DIRECTIONS / sectors, suns, |i, j| {
+        let angle = distance.map_or(pilot.exact[i][j], |d| pilot.bounded(i, j, d));
+        stored_as(encoding, angle)
+    })
 }
 
 /// `x` rounded up at `decimals` decimals: a limit to relax to that,
@@ -189,78 +349,314 @@ fn round_up(x: f64, decimals: i32) -> f64 {
     (x * scale).ceil() / scale
 }
 
-/// Plans the horizons of `asset` for `budget`.
-pub fn plan(asset: &Asset<Mmap>, budget: &Budget, progress: Progress) -> Result<Plan> {
-    budget.validate().map_err(anyhow::Error::msg)?;
+/// Bytes of a layer of `bands` elements of `size` bytes per post on a
+/// `w x h` grid in `tile`-post tiles (raw; edge tiles are whole).
+fn layer_bytes(w: usize, h: usize, tile: usize, size: usize, bands: usize) -> u64 {
+    (w.div_ceil(tile) * h.div_ceil(tile) * tile * tile * size * bands) as u64
+}
+
+/// Costs of the horizons and sky stages.
+struct LineCosts {
+    posts: f64,
+    width: usize,
+    height: usize,
+    tile: usize,
+    /// Sky layers baked from the horizons.
+    sky_layers: usize,
+    /// Mean post spacing, metres.
+    cell: f64,
+    /// Posts of a tile row.
+    row_posts: f64,
+}
+
+impl LineCosts {
+    fn layer_bytes(&self, size: usize, bands: usize) -> u64 {
+        layer_bytes(self.width, self.height, self.tile, size, bands)
+    }
+
+    fn seconds(&self, sectors: usize, distance: Option<f64>) -> f64 {
+        let s = sectors as f64;
+        match distance {
+            None => self.posts * s.powf(TIME_EXPONENT) / TIME_RATE,
+            Some(d) => self.posts * s * (BOUNDED_PER_LINE + BOUNDED_PER_CELL * d / self.cell),
+        }
+    }
+
+    fn memory_mib(&self, sectors: usize, distance: Option<f64>) -> f64 {
+        let held = if distance.is_some() {
+            4.0 * self.posts
+        } else {
+            0.0
+        };
+        BASE_MIB
+            + (LINE_BYTES_PER_ROW_POST_BAND * self.row_posts * sectors as f64 + held) / 1048576.0
+    }
+}
+
+/// Plans what `asset` needs for `request`.
+pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Result<Plan> {
+    request.validate().map_err(anyhow::Error::msg)?;
+    let budget = &request.budget;
+    let needs = &request.needs;
     let m = asset.manifest();
     let (w, h) = (m.width as usize, m.height as usize);
     let posts = (w * h) as u64;
+    let tile = m
+        .layer(terrabake_format::HEIGHT_LAYER, 0)
+        .map_or(256, |l| l.tile_size as usize);
     let curvature = HorizonsStage::default().curvature_coefficient(asset);
+    let (dx, dy) = (m.cell_size.dx, m.cell_size.dy);
     let start = Instant::now();
-    let pilot = Pilot::measure(
-        asset,
-        curvature,
-        [0, 0, w, h],
-        &Sampling {
-            samples: 240,
-            seed: PILOT_SEED,
-            directions: PILOT_DIRECTIONS,
-        },
-        progress,
-    )?;
+    let pilot = if needs.horizons() {
+        Some(Pilot::measure(
+            asset,
+            curvature,
+            [0, 0, w, h],
+            &Sampling {
+                samples: 240,
+                seed: PILOT_SEED,
+                directions: PILOT_DIRECTIONS,
+                records: true,
+            },
+            progress,
+        )?)
+    } else {
+        None
+    };
+    let relief_m = m
+        .height_range
+        .map_or(0.0, |r| f64::from(r.max) - f64::from(r.min));
     let scene = Scene {
         width: m.width,
         height: m.height,
-        cell_size: (m.cell_size.dx, m.cell_size.dy),
-        relief_m: m
-            .height_range
-            .map_or(0.0, |r| f64::from(r.max) - f64::from(r.min)),
+        cell_size: (dx, dy),
+        relief_m,
         nodata_share: m.nodata.count as f64 / posts.max(1) as f64,
         curvature: curvature > 0.0,
-        pilot_posts: pilot.posts.len(),
+        extent_m: ((w.saturating_sub(1)) as f64 * dx).hypot((h.saturating_sub(1)) as f64 * dy),
+        latitude_deg: m
+            .georef
+            .as_ref()
+            .and_then(|g| crate::geo::central_latitude(g, m.width, m.height)),
+        pilot_posts: pilot.as_ref().map_or(0, |p| p.posts.len()),
         pilot_seconds: start.elapsed().as_secs_f64(),
     };
-    // The encoding: the coarsest whose worst error is a quarter of the
-    // budget, in degrees and (for the svf, which a change of h radians in
-    // every direction moves by at most h) in radians.
-    let share = BUDGET_SHARE_QUANTISATION;
+    let mut sun = request.sun.clone();
+    if let Some(day) = request.sun_day {
+        let Some(latitude) = scene.latitude_deg else {
+            bail!(
+                "{}: --sun-day needs the scene's latitude, and this DEM is neither geographic nor WGS 84 UTM; give the sun positions with --sun AZ,EL;AZ,EL...",
+                asset.dir().display()
+            );
+        };
+        sun.extend(crate::shade::sun_path(latitude, day));
+    }
+    let mut sky_layers = Vec::new();
+    if needs.svf() {
+        sky_layers.push(SkyLayer::Svf);
+    }
+    if needs.has(Need::Sky) {
+        sky_layers.push(SkyLayer::SvfCosine);
+    }
+    let costs = LineCosts {
+        posts: posts as f64,
+        width: w,
+        height: h,
+        tile,
+        sky_layers: sky_layers.len(),
+        cell: (dx + dy) / 2.0,
+        row_posts: (w.div_ceil(tile) * tile * tile) as f64,
+    };
+    let (mut chosen, mut safe_distance) = (None, None);
+    let (mut choices, mut candidates) = (Vec::new(), Vec::new());
+    if let Some(pilot) = &pilot {
+        let suns: Vec<PilotSun> = sun
+            .iter()
+            .map(|&[az, el]| PilotSun {
+                direction: (az / (360.0 / PILOT_DIRECTIONS as f64)).round() as usize
+                    % PILOT_DIRECTIONS,
+                elevation: el,
+            })
+            .collect();
+        let plan = plan_horizons(pilot, &suns, budget, &costs, &scene, curvature)?;
+        candidates = plan.candidates;
+        choices = plan.choices;
+        chosen = Some(plan.chosen);
+        safe_distance = plan.safe_distance;
+    }
+    let pyramid = needs.has(Need::Tracing) || needs.has(Need::FastTracing);
+    let cones = needs.has(Need::FastTracing);
+    let cells = (w.saturating_sub(1), h.saturating_sub(1));
+    // The pyramid: max and min planes of cells, halved until one tile
+    // holds a level.
+    let pyramid_bytes = {
+        let (mut lw, mut lh, mut total) = (cells.0.max(1), cells.1.max(1), 0);
+        loop {
+            total += 2 * layer_bytes(lw, lh, tile, 4, 1);
+            if lw <= tile && lh <= tile {
+                break total;
+            }
+            (lw, lh) = (lw.div_ceil(2), lh.div_ceil(2));
+        }
+    };
+    let cones_bytes = 2 * layer_bytes(cells.0.max(1), cells.1.max(1), tile, 4, 1);
+    if pyramid {
+        choices.push(Choice {
+            what: "tracing".into(),
+            chosen: if cones {
+                "pyramid and cone planes".into()
+            } else {
+                "max/min pyramid".into()
+            },
+            why: if cones {
+                "fast tracing: parametric steps through the cone planes (slices from the data), the pyramid's exact hits in fewer steps".into()
+            } else {
+                "exact hierarchical tracing needs only the pyramid".into()
+            },
+            rejected: Some(if cones {
+                "the pyramid alone: the same hits, more steps per ray (docs/TRACING.md)".into()
+            } else {
+                format!(
+                    "cone planes as well: faster rays for {} more and {:.1} s (ask for fast_tracing)",
+                    crate::report::human_bytes(cones_bytes),
+                    posts as f64 * CONES_SECONDS_PER_POST
+                )
+            }),
+        });
+    }
+    let mut seconds = 0.0;
+    // The asset on disk: the heights and every planned layer.
+    let mut bytes = layer_bytes(w, h, tile, 4, 1);
+    let mut memory_mib = BASE_MIB;
+    if let Some(c) = &chosen {
+        seconds += c.seconds;
+        bytes += c.bytes;
+        memory_mib = memory_mib.max(costs.memory_mib(c.sectors, c.max_distance));
+    }
+    if pyramid {
+        seconds += posts as f64 * PYRAMID_SECONDS_PER_POST;
+        bytes += pyramid_bytes;
+    }
+    if cones {
+        seconds += posts as f64 * CONES_SECONDS_PER_POST;
+        bytes += cones_bytes;
+        let in_core = BASE_MIB + CONES_BYTES_PER_POST * posts as f64 / 1048576.0;
+        // Cones bake in windows within a memory limit.
+        memory_mib = memory_mib.max(budget.memory.map_or(in_core, |l| in_core.min(l as f64)));
+    }
+    choices.push(Choice {
+        what: "tiles".into(),
+        chosen: format!("{tile} posts, raw"),
+        why: "the ingest's: raw tiles are read in place from the memory mapping, no decode per read".into(),
+        rejected: Some("zstd: fewer bytes on disk, a decode on every tile read (set it in a recipe's [ingest] when bytes matter more)".into()),
+    });
+    let what_to_relax = if chosen.is_some() {
+        ", or horizon (fewer directions)"
+    } else {
+        ", or drop fast_tracing"
+    };
+    for (what, limit, predicted) in [
+        ("bytes", budget.bytes.map(|b| b as f64), bytes as f64),
+        ("time", budget.time, seconds),
+        ("memory", budget.memory.map(|m| m as f64), memory_mib),
+    ] {
+        if let Some(limit) = limit {
+            if predicted > limit {
+                bail!(
+                    "budget {budget}: the plan that meets the error budget needs {what} {predicted:.0}, over the limit {limit:.0}; relax {what}{what_to_relax}",
+                );
+            }
+        }
+    }
+    Ok(Plan {
+        budget: *budget,
+        needs: needs.clone(),
+        sun,
+        scene,
+        chosen,
+        safe_distance,
+        sky_layers,
+        pyramid,
+        cones,
+        seconds,
+        bytes,
+        memory_mib,
+        choices,
+        candidates,
+        overridden: Vec::new(),
+        baked: None,
+    })
+}
+
+/// What [`plan_horizons`] decided.
+struct HorizonPlan {
+    chosen: Candidate,
+    safe_distance: Option<f64>,
+    choices: Vec<Choice>,
+    candidates: Vec<Candidate>,
+}
+
+/// The horizons: encoding, distance limit, directions and route, each from
+/// its share of the budget (module docs).
+fn plan_horizons(
+    pilot: &Pilot,
+    suns: &[PilotSun],
+    budget: &Budget,
+    costs: &LineCosts,
+    scene: &Scene,
+    curvature: f64,
+) -> Result<HorizonPlan> {
+    let relief = scene.relief_m;
+    // The encoding: the coarsest whose worst error is within its share of
+    // the budget, in degrees and (for the svf, which a change of h radians
+    // in every direction moves by at most h) in radians, and whose rounding
+    // alone flips few enough sun/shade states.
+    let share = SHARE_QUANTISATION;
     let encoding = [AngleEncoding::U8, AngleEncoding::U16, AngleEncoding::F32]
         .into_iter()
-        .find(|e| {
+        .find(|&e| {
             e.max_error_deg() <= share * budget.horizon
                 && budget
                     .svf
                     .is_none_or(|s| e.max_error_deg().to_radians() <= share * s)
+                && (budget.shade.is_none()
+                    || errors(pilot, 1, suns, |i, j| stored_as(e, pilot.exact[i][j]))
+                        .within(budget, share))
         })
         .unwrap_or(AngleEncoding::F32);
+    // The distance: the shortest beyond which the terrain moves the
+    // horizons (in all 720 directions, f32) by at most its share.
+    let safe_distance = DISTANCES
+        .into_iter()
+        .take_while(|&d| d < scene.extent_m)
+        .find(|&d| {
+            errors(pilot, 1, suns, |i, j| pilot.bounded(i, j, d)).within(budget, SHARE_DISTANCE)
+        });
     // The directions: the fewest whose error between directions alone
-    // (f32 angles) is within the share of the budget left to it.
-    let candidate = |sectors: usize, encoding: AngleEncoding, errors: &mut Errors| {
-        let (horizon_p99_deg, svf_p99) = errors.at(0.99);
+    // (exact to the edge, f32) is within their share.
+    let mut candidates = Vec::new();
+    let candidate = |sectors: usize, distance, encoding, errors: &mut Errors| {
+        let (horizon_p99_deg, svf_p99, shade_share) = errors.at(0.99);
         Candidate {
             sectors,
             encoding,
+            max_distance: distance,
             horizon_p99_deg,
             svf_p99,
-            bytes: posts * ((sectors * encoding.elem().size()) as u64 + SKY_BYTES_PER_POST),
-            seconds: posts as f64 * (sectors as f64).powf(TIME_EXPONENT) / TIME_RATE,
+            shade_share,
+            bytes: costs.layer_bytes(encoding.elem().size(), sectors)
+                + costs.layer_bytes(4, costs.sky_layers),
+            seconds: costs.seconds(sectors, distance),
         }
     };
-    let mut candidates = Vec::new();
-    let (mut sectors, mut deciding) = (None, (0.0, 0.0));
+    let mut sectors = None;
+    let mut deciding = (0.0, 0.0);
     for &s in &CANDIDATES {
-        let mut errors = predict(&pilot, s, AngleEncoding::F32);
-        let exact = candidate(s, AngleEncoding::F32, &mut errors);
-        // Decided on the 99.5th percentile: where a lone spike is seen in
-        // about 1 % of the azimuths, the 99th sits on a knife's edge and a
-        // pilot can find it small where a check finds it large.
-        let (horizon, svf) = errors.at(DECISION_QUANTILE);
+        let mut e = predict(pilot, suns, s, None, AngleEncoding::F32);
+        let (horizon, svf, _) = e.at(DECISION_QUANTILE);
         deciding = (horizon, svf);
-        let meets = horizon <= BUDGET_SHARE_DIRECTIONS * budget.horizon
-            && budget
-                .svf
-                .is_none_or(|v| svf <= BUDGET_SHARE_DIRECTIONS * v);
-        candidates.push(exact);
+        let meets = e.within(budget, SHARE_DIRECTIONS);
+        candidates.push(candidate(s, None, AngleEncoding::F32, &mut e));
         if meets {
             sectors = Some(s);
             break;
@@ -271,87 +667,147 @@ pub fn plan(asset: &Asset<Mmap>, budget: &Budget, progress: Progress) -> Result<
         // What to relax to: what the most directions leave, at the
         // quantile that decides, over the share of the budget it gets.
         bail!(
-            "budget {budget} cannot be met with up to {} line directions on this scene: {} directions leave a horizon p99 of {:.3} degrees and an svf p99 of {:.4} between them; relax horizon to at least {:.3}{}",
+            "budget {budget} cannot be met with up to {} line directions on this scene: {} directions leave a horizon p99 of {:.3} degrees and an svf p99 of {:.4} between them{}; relax horizon to at least {:.3}{}",
             closest.sectors,
             closest.sectors,
             closest.horizon_p99_deg,
             closest.svf_p99,
-            round_up(deciding.0 / BUDGET_SHARE_DIRECTIONS, 3),
+            closest
+                .shade_share
+                .map_or(String::new(), |s| format!(", and {:.4} of the sun/shade states wrong", s)),
+            round_up(deciding.0 / SHARE_DIRECTIONS, 3),
             budget.svf.map_or(String::new(), |_| format!(
                 " and svf to at least {:.4}",
-                round_up(deciding.1 / BUDGET_SHARE_DIRECTIONS, 4)
+                round_up(deciding.1 / SHARE_DIRECTIONS, 4)
             )),
         );
     };
-    let chosen = candidate(sectors, encoding, &mut predict(&pilot, sectors, encoding));
-    for (what, limit, predicted) in [
-        ("bytes", budget.bytes.map(|b| b as f64), chosen.bytes as f64),
-        ("time", budget.time, chosen.seconds),
-    ] {
-        if let Some(limit) = limit {
-            if predicted > limit {
-                bail!(
-                    "budget {budget}: the plan that meets the error budget ({} directions, {}) needs {what} {predicted:.0}, over the limit {limit:.0}; relax {what}, or horizon (fewer directions)",
-                    chosen.sectors,
-                    chosen.encoding.name()
-                );
-            }
-        }
-    }
+    // The route: bounded lines (walk each post's reach, the DEM in memory)
+    // when that is faster and fits the memory limit, else the sweeps to
+    // the edge (out of core).
+    let fits = |d: Option<f64>| {
+        budget
+            .memory
+            .is_none_or(|l| costs.memory_mib(sectors, d) <= l as f64)
+    };
+    let bounded = safe_distance.filter(|&d| {
+        costs.seconds(sectors, Some(d)) < costs.seconds(sectors, None) && fits(Some(d))
+    });
+    let chosen = candidate(
+        sectors,
+        bounded,
+        encoding,
+        &mut predict(pilot, suns, sectors, bounded, encoding),
+    );
     let fewer = candidates.iter().rev().nth(1);
     let finer = [AngleEncoding::U8, AngleEncoding::U16]
         .into_iter()
         .filter(|e| e.max_error_deg() > encoding.max_error_deg())
         .map(|e| {
             format!(
-                "{} (worst error {:.3} deg, over a quarter of the budget)",
+                "{} (worst error {:.3} deg: over its share of the budget)",
                 e.name(),
                 e.max_error_deg()
             )
         })
         .collect::<Vec<_>>();
+    let found = candidates.last().expect("chosen");
+    // Relief and curvature bound what lies beyond D: no post sees terrain
+    // there above atan(relief / D - c D); past sqrt(relief / c) it lies
+    // below every post's horizontal plane.
+    let bound = |d: f64| (relief / d - curvature * d).atan().to_degrees();
+    let below_horizontal = (curvature > 0.0).then(|| (relief / curvature).sqrt());
+    let distance_why = match safe_distance {
+        Some(d) => format!(
+            "beyond {:.1} km the terrain moves the pilot's horizons by at most {} of the budget (p99.5); relief and curvature allow at most {:.2} deg there{}",
+            d / 1000.0,
+            SHARE_DISTANCE,
+            bound(d),
+            below_horizontal.map_or(String::new(), |b| format!(
+                ", and nothing past {:.0} km rises above a post's horizontal",
+                b / 1000.0
+            )),
+        ),
+        None => "every distance within the DEM moves some horizon by more than its share of the budget".into(),
+    };
+    let route_rejected = match (safe_distance, bounded) {
+        (Some(d), None) => Some(format!(
+            "bounded to {:.1} km: {:.1} s and {:.0} MiB (the DEM held) against {:.1} s and {:.0} MiB to the edge",
+            d / 1000.0,
+            costs.seconds(sectors, Some(d)),
+            costs.memory_mib(sectors, Some(d)),
+            costs.seconds(sectors, None),
+            costs.memory_mib(sectors, None),
+        )),
+        (_, Some(d)) => Some(format!(
+            "sweeps to the edge: {:.1} s against {:.1} s bounded to {:.1} km",
+            costs.seconds(sectors, None),
+            costs.seconds(sectors, Some(d)),
+            d / 1000.0
+        )),
+        (None, None) => None,
+    };
     let choices = vec![
         Choice {
             what: "method".into(),
             chosen: "line (exact sight lines)".into(),
-            why: "exact at every stored direction, out of core; the only error left is between directions".into(),
-            rejected: Some("sector and sampled: not planned yet".into()),
+            why: "exact at every stored direction; the only errors left are between directions, the distance cut and the encoding".into(),
+            rejected: Some(
+                "sector (Stewart's wedges: biased high by definition, its RMS error levels off at 0.67 deg however many sectors) and sampled (nearest-post rounding: levels off at 0.41 deg); 16 lines (0.12 deg) beat both in less time than either's fastest (docs/BENCHMARKS.md, horizon methods on the SRTM crop)".into(),
+            ),
         },
         Choice {
             what: "directions".into(),
-            chosen: chosen.sectors.to_string(),
+            chosen: sectors.to_string(),
             why: format!(
-                "the fewest whose error between directions (horizon p99 {:.3} deg, svf p99 {:.4}, f32) is within {BUDGET_SHARE_DIRECTIONS} of the budget",
-                candidates.last().expect("chosen").horizon_p99_deg,
-                candidates.last().expect("chosen").svf_p99
+                "the fewest whose error between directions (horizon p99 {:.3} deg, svf p99 {:.4}{}, f32) is within {SHARE_DIRECTIONS} of the budget",
+                found.horizon_p99_deg,
+                found.svf_p99,
+                found.shade_share.map_or(String::new(), |s| format!(", shade {s:.4}")),
             ),
             rejected: fewer.map(|c| {
                 format!(
-                    "{} directions: horizon p99 {:.3} deg, svf p99 {:.4}",
-                    c.sectors, c.horizon_p99_deg, c.svf_p99
+                    "{} directions: horizon p99 {:.3} deg, svf p99 {:.4}{}",
+                    c.sectors,
+                    c.horizon_p99_deg,
+                    c.svf_p99,
+                    c.shade_share.map_or(String::new(), |s| format!(", shade {s:.4}")),
                 )
             }),
         },
         Choice {
             what: "encoding".into(),
-            chosen: chosen.encoding.name().into(),
+            chosen: encoding.name().into(),
             why: format!(
-                "the coarsest whose worst error ({:.4} deg) is within {BUDGET_SHARE_QUANTISATION} of the budget",
+                "the coarsest whose worst error ({:.4} deg) is within {SHARE_QUANTISATION} of the budget",
                 encoding.max_error_deg()
             ),
             rejected: (!finer.is_empty()).then(|| finer.join("; ")),
         },
         Choice {
             what: "distance".into(),
-            chosen: "the whole DEM".into(),
-            why: "exact to the edge (a distance limit is not planned yet)".into(),
-            rejected: None,
+            chosen: safe_distance.map_or("the whole DEM".into(), |d| format!("{:.1} km", d / 1000.0)),
+            why: distance_why,
+            rejected: safe_distance
+                .and_then(|d| DISTANCES.into_iter().rev().find(|&x| x < d))
+                .map(|d| format!("{:.2} km: the terrain beyond moves the horizons by more than {SHARE_DISTANCE} of the budget", d / 1000.0)),
+        },
+        Choice {
+            what: "route".into(),
+            chosen: match bounded {
+                Some(d) => format!("bounded lines, {:.1} km, in core", d / 1000.0),
+                None => "line sweeps to the edge, out of core".into(),
+            },
+            why: match bounded {
+                Some(_) => "faster than the sweeps: each post walks only its reach (the DEM held in memory)".into(),
+                None => "the sweeps stream tile rows: memory grows with the width, not the DEM".into(),
+            },
+            rejected: route_rejected,
         },
     ];
-    Ok(Plan {
-        budget: *budget,
-        scene,
+    Ok(HorizonPlan {
         chosen,
+        safe_distance,
         choices,
         candidates,
     })
@@ -361,9 +817,14 @@ pub fn plan(asset: &Asset<Mmap>, budget: &Budget, progress: Progress) -> Result<
 pub fn describe(plan: &Plan) -> String {
     let s = &plan.scene;
     let mut out = format!(
-        "budget {}\nscene  {} x {} posts, cells {:.1} x {:.1} m, relief {:.0} m, nodata {:.2} %, curvature {}\n\
-         pilot  exact horizons in {PILOT_DIRECTIONS} directions at {} posts ({:.1} s)\n\n",
+        "budget {}\nneeds  {}{}\nscene  {} x {} posts, cells {:.1} x {:.1} m, relief {:.0} m, nodata {:.2} %, curvature {}\n",
         plan.budget,
+        plan.needs,
+        if plan.sun.is_empty() {
+            String::new()
+        } else {
+            format!(" ({} sun positions)", plan.sun.len())
+        },
         s.width,
         s.height,
         s.cell_size.0,
@@ -371,97 +832,91 @@ pub fn describe(plan: &Plan) -> String {
         s.relief_m,
         100.0 * s.nodata_share,
         if s.curvature { "on" } else { "off" },
-        s.pilot_posts,
-        s.pilot_seconds,
     );
+    if s.pilot_posts > 0 {
+        out += &format!(
+            "pilot  exact horizons in {PILOT_DIRECTIONS} directions at {} posts ({:.1} s)\n",
+            s.pilot_posts, s.pilot_seconds,
+        );
+    }
+    out += "\n";
     for c in &plan.choices {
-        out += &format!("{:<11} {:<26} {}\n", c.what, c.chosen, c.why);
+        out += &format!("{:<11} {:<34} {}\n", c.what, c.chosen, c.why);
         if let Some(r) = &c.rejected {
-            out += &format!("{:<11} {:<26} rejected: {r}\n", "", "");
+            out += &format!("{:<11} {:<34} rejected: {r}\n", "", "");
         }
     }
-    let c = &plan.chosen;
-    out += &format!(
-        "\npredicted  horizon p99 {:.3} deg   svf p99 {:.4}   time {:.1} s (2 cores)   bytes {}\n",
-        c.horizon_p99_deg,
-        c.svf_p99,
-        c.seconds,
-        crate::report::human_bytes(c.bytes)
-    );
-    out
-}
-
-/// Ingests `src` into `dir` (default ingest options), plans its horizons
-/// for `budget`, bakes them and the sky layers, and records the plan in the
-/// manifest (`check` then measures against its budget and shows the
-/// prediction beside what was achieved).
-pub fn bake_to_budget(
-    src: &std::path::Path,
-    dir: &std::path::Path,
-    budget: &Budget,
-    wait: crate::asset::Wait,
-    progress: Progress,
-) -> Result<Vec<crate::stage::StageOutcome>> {
-    use crate::stage::{run_stage_in, Stage};
-    budget.validate().map_err(anyhow::Error::msg)?;
-    let ingest = crate::ingest::IngestStage {
-        src: src.to_path_buf(),
-        options: Default::default(),
-    };
-    ingest.check()?;
-    let created = !dir.exists();
-    let writer = crate::asset::AssetWriter::create(dir, wait)?;
-    let mut outcomes = vec![run_stage_in(&writer, &ingest, false, progress)?];
-    // A budget the scene cannot meet is refused before anything is baked
-    // from the heights; an asset this call created is removed again.
-    let plan = match plan(&crate::asset::open(dir)?, budget, progress) {
-        Ok(plan) => plan,
-        Err(e) => {
-            drop(writer);
-            if created {
-                let _ = std::fs::remove_dir_all(dir);
-            }
-            return Err(e);
+    let mut predicted = Vec::new();
+    if let Some(c) = &plan.chosen {
+        predicted.push(format!("horizon p99 {:.3} deg", c.horizon_p99_deg));
+        predicted.push(format!("svf p99 {:.4}", c.svf_p99));
+        if let Some(share) = c.shade_share {
+            predicted.push(format!("shade {share:.4}"));
         }
-    };
-    for stage in [
-        &plan.horizons_stage() as &dyn Stage,
-        &crate::sky::SkyStage::default(),
-    ] {
-        outcomes.push(run_stage_in(&writer, stage, false, progress)?);
     }
-    drop(writer);
-    crate::stage::record_measurement(
-        dir,
-        "plan",
-        serde_json::to_value(&plan)?,
-        vec![format!("{}@0", terrabake_format::layers::HEIGHT)],
-    )?;
-    Ok(outcomes)
+    predicted.push(format!("time {:.1} s (2 cores)", plan.seconds));
+    predicted.push(format!("bytes {}", crate::report::human_bytes(plan.bytes)));
+    predicted.push(format!("memory {:.0} MiB", plan.memory_mib));
+    out + "\npredicted  " + &predicted.join("   ") + "\n"
 }
 
-/// The plan recorded by `bake --budget`, if the heights are still those it
+/// The plan recorded by a planned bake, if the heights are still those it
 /// planned for.
 pub fn recorded(asset: &Asset<Mmap>) -> Option<Plan> {
     crate::stage::recorded_params(asset.manifest(), "plan")
 }
 
+/// The request of a command line: `--budget`, `--needs`, `--sun`,
+/// `--sun-day`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct RequestArgs {
+    /// The budget: horizon=DEG[,svf=X][,shade=FRACTION][,time=SECONDS][,bytes=SIZE][,memory=MIB].
+    #[arg(long)]
+    pub budget: Option<Budget>,
+    /// What the scene needs, a comma list: horizons, svf, sky, sun, tracing, fast_tracing
+    /// (default: horizons,svf).
+    #[arg(long, requires = "budget")]
+    pub needs: Option<Needs>,
+    /// Sun positions for `sun` and the shade budget: AZ,EL;AZ,EL;... degrees (azimuth
+    /// clockwise from north).
+    #[arg(long, requires = "budget", allow_hyphen_values = true)]
+    pub sun: Option<crate::budget::SunPositions>,
+    /// A day of the year (1-366) for `sun`: the sun every 15 minutes while it is up, at the
+    /// scene's central latitude.
+    #[arg(long, requires = "budget", value_parser = clap::value_parser!(u32).range(1..=366))]
+    pub sun_day: Option<u32>,
+}
+
+impl RequestArgs {
+    /// The request, when a budget was given.
+    pub fn request(&self) -> Option<Request> {
+        Some(Request {
+            budget: self.budget?,
+            needs: self.needs.clone().unwrap_or_default(),
+            sun: self.sun.clone().map(|s| s.0).unwrap_or_default(),
+            sun_day: self.sun_day,
+        })
+    }
+}
+
 /// `terrabake plan`: its arguments.
 #[derive(clap::Args, Debug)]
 #[command(
-    after_help = "Example:\n  terrabake plan dem.tbake --budget horizon=0.5,svf=0.01\n  \
+    mut_arg("budget", |a| a.required(true)),
+    after_help = "Examples:\n  terrabake plan dem.tif --budget horizon=0.5,svf=0.01\n  \
+terrabake plan dem.tbake --budget horizon=1,shade=0.01 --needs horizons,sun --sun-day 172\n  \
 terrabake bake dem.tif -o dem.tbake --budget horizon=0.5   # bake what the plan says\n\n\
 The budget (docs/PLANNING.md): horizon=DEG is the 99th percentile over posts and azimuths of the \
 absolute horizon angle error, interpolation between stored directions included; svf=X the 99th \
-percentile over posts of the absolute sky-view factor error; bytes=SIZE and time=SECONDS limit the \
+percentile over posts of the absolute sky-view factor error; shade=F the share of (post, sun \
+position) pairs whose sun/shade state is wrong; bytes=SIZE, time=SECONDS and memory=MIB limit the \
 bake."
 )]
 pub struct PlanArgs {
-    /// An ingested asset (terrabake ingest DEM -o ASSET) whose horizons to plan.
-    pub asset: std::path::PathBuf,
-    /// The budget: horizon=DEG[,svf=X][,time=SECONDS][,bytes=SIZE][,memory=MIB].
-    #[arg(long)]
-    pub budget: Budget,
+    /// A DEM (ingested into a temporary asset to be measured) or an ingested asset.
+    pub src: std::path::PathBuf,
+    #[command(flatten)]
+    pub request: RequestArgs,
     /// Print the plan as JSON (every candidate with its predicted error, time and bytes).
     #[arg(long)]
     pub json: bool,
@@ -469,7 +924,21 @@ pub struct PlanArgs {
 
 impl PlanArgs {
     pub fn run(&self, progress: Progress) -> Result<()> {
-        let plan = plan(&crate::asset::open(&self.asset)?, &self.budget, progress)?;
+        let Some(request) = self.request.request() else {
+            bail!("terrabake plan needs --budget (horizon=DEG[,svf=X]...)");
+        };
+        let plan = if self.src.is_dir() {
+            plan(&crate::asset::open(&self.src)?, &request, progress)?
+        } else {
+            // A source DEM: measured through a temporary ingest (default
+            // options), removed afterwards.
+            let scratch = tempfile::Builder::new()
+                .prefix("terrabake-plan")
+                .tempdir()?;
+            let dir = scratch.path().join("scene.tbake");
+            crate::ingest::ingest(&self.src, &dir, &Default::default(), progress)?;
+            plan(&crate::asset::open(&dir)?, &request, progress)?
+        };
         if self.json {
             println!("{}", serde_json::to_string_pretty(&plan)?);
         } else {

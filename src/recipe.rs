@@ -12,6 +12,15 @@
 //! name = "pyramid"   # later stages: pyramid, cones, horizons, sky
 //! ```
 //!
+//! or, instead of (or besides) the stages, what the scene needs and how
+//! well, for the planner to choose them (`crate::plan`):
+//!
+//! ```toml
+//! [plan]
+//! needs = ["horizons", "svf"]
+//! budget = { horizon = 0.5, svf = 0.01 }
+//! ```
+//!
 //! This module sits above the stages: it imports each of them, and none of
 //! them imports it. Ingest is the stage that creates the asset, so [`bake`]
 //! runs it before the others, under the same hold of the writer lock.
@@ -43,6 +52,11 @@ pub struct Recipe {
     pub ingest: IngestOptions,
     #[serde(default, rename = "stage")]
     pub stages: Vec<RecipeStage>,
+    /// A budget and needs instead of (or besides) explicit stages: the
+    /// planner chooses the stages; a stage given explicitly wins over the
+    /// planned one of its name (docs/PLANNING.md).
+    #[serde(default)]
+    pub plan: Option<crate::budget::Request>,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -137,7 +151,11 @@ pub fn stage_from_recipe(step: &RecipeStage) -> Result<Box<dyn Stage>> {
 }
 
 /// Ingest (unless the asset already is this ingest) and every recipe stage,
-/// all under one hold of the writer lock.
+/// all under one hold of the writer lock. A recipe with a `[plan]` is
+/// planned after ingest (a budget the scene cannot meet is refused before
+/// anything is baked from the heights, and an asset this call created is
+/// removed again); the plan, with what the bake measured of itself, is
+/// recorded in the manifest for `check`.
 pub fn bake(
     src: &Path,
     dir: &Path,
@@ -147,11 +165,65 @@ pub fn bake(
 ) -> Result<Vec<StageOutcome>> {
     let ingest = recipe.ingest_stage(src);
     ingest.check()?;
-    let stages = recipe.resolve_stages()?;
+    let mut explicit: Vec<Option<Box<dyn Stage>>> =
+        recipe.resolve_stages()?.into_iter().map(Some).collect();
+    if let Some(request) = &recipe.plan {
+        request
+            .validate()
+            .map_err(anyhow::Error::msg)
+            .with_context(|| format!("{}: [plan]", recipe.path.display()))?;
+    }
+    let created = !dir.exists();
     let writer = AssetWriter::create(dir, wait)?;
-    let mut outcomes = Vec::new();
-    for stage in std::iter::once(&ingest as &dyn Stage).chain(stages.iter().map(|s| s.as_ref())) {
-        outcomes.push(run_stage_in(&writer, stage, false, progress)?);
+    let mut outcomes = vec![run_stage_in(&writer, &ingest, false, progress)?];
+    let mut plan = match &recipe.plan {
+        None => None,
+        Some(request) => match crate::plan::plan(&crate::asset::open(dir)?, request, progress) {
+            Ok(plan) => Some(plan),
+            Err(e) => {
+                drop(writer);
+                if created {
+                    let _ = std::fs::remove_dir_all(dir);
+                }
+                return Err(e);
+            }
+        },
+    };
+    // The planned stages, each replaced by an explicit one of its name,
+    // then the explicit stages the plan does not name, in recipe order.
+    let mut stages: Vec<Box<dyn Stage>> = Vec::new();
+    for planned in plan.as_ref().map(|p| p.stages()).unwrap_or_default() {
+        let given = explicit
+            .iter_mut()
+            .find(|s| s.as_ref().is_some_and(|s| s.name() == planned.name()))
+            .and_then(Option::take);
+        match given {
+            Some(stage) => {
+                if let Some(p) = plan.as_mut() {
+                    p.overridden.push(stage.name().to_string());
+                }
+                stages.push(stage);
+            }
+            None => stages.push(planned),
+        }
+    }
+    stages.extend(explicit.into_iter().flatten());
+    let start = std::time::Instant::now();
+    for stage in &stages {
+        outcomes.push(run_stage_in(&writer, stage.as_ref(), false, progress)?);
+    }
+    drop(writer);
+    if let Some(mut plan) = plan {
+        plan.baked = Some(crate::plan::Baked {
+            seconds: start.elapsed().as_secs_f64(),
+            peak_memory_mib: crate::resources::peak_memory().unwrap_or(0) as f64 / 1048576.0,
+        });
+        crate::stage::record_measurement(
+            dir,
+            "plan",
+            serde_json::to_value(&plan)?,
+            vec![format!("{}@0", terrabake_format::layers::HEIGHT)],
+        )?;
     }
     Ok(outcomes)
 }

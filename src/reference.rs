@@ -19,6 +19,7 @@ use anyhow::{bail, Result};
 use rayon::prelude::*;
 use terrabake_format::{Asset, Mmap};
 
+use crate::horizon::brute::HorizonRecord;
 use crate::horizon::sky::{svf_of_horizons, BandIntegrals};
 use crate::horizon::{brute, plan_bands, BandKind, HeldDem, Method};
 use crate::progress::Progress;
@@ -32,6 +33,8 @@ pub struct Sampling {
     pub seed: u64,
     /// Reference directions.
     pub directions: usize,
+    /// Keep each sight line's records (the planner's distance limit).
+    pub records: bool,
 }
 
 /// `check`'s sampling: 400 random posts (and 100 of the highest relief),
@@ -42,6 +45,7 @@ impl Default for Sampling {
             samples: 400,
             seed: 1,
             directions: 720,
+            records: false,
         }
     }
 }
@@ -115,6 +119,9 @@ pub struct Pilot {
     integrals: Vec<BandIntegrals>,
     /// Per post, the exact horizon in each reference direction, degrees.
     pub exact: Vec<Vec<f64>>,
+    /// Per post and reference direction, the sight line's records (empty
+    /// unless asked for): its horizon cut at any distance.
+    pub records: Vec<Vec<Vec<HorizonRecord>>>,
 }
 
 impl Pilot {
@@ -153,30 +160,50 @@ impl Pilot {
             .map(|b| BandIntegrals::new(b.lo, b.hi))
             .collect();
         let bar = progress.bar(posts.len() as u64, "exact horizons", "posts");
-        let exact = posts
+        let lines: Vec<Vec<Vec<HorizonRecord>>> = posts
             .par_iter()
-            .map(|&(c, r)| {
-                let horizon = reference
+            .map(|&post| {
+                let lines = reference
                     .iter()
                     .map(|band| {
                         let BandKind::Line(direction) = &band.kind else {
                             unreachable!("reference bands are lines")
                         };
-                        f64::from(brute::line_horizon(&terrain, (c, r), direction.step, None))
+                        brute::line_horizon_records(&terrain, post, direction.step)
                     })
                     .collect();
                 bar.inc(1);
-                horizon
+                lines
             })
             .collect();
         bar.finish_and_clear();
+        // The unbounded horizon is a line's last record (-90: nothing ahead).
+        let exact = lines
+            .iter()
+            .map(|post| {
+                post.iter()
+                    .map(|records| records.last().map_or(-90.0, |r| f64::from(r.angle)))
+                    .collect()
+            })
+            .collect();
         Ok(Self {
             posts,
             relief_posts,
             reference,
             integrals,
             exact,
+            records: if opts.records { lines } else { Vec::new() },
         })
+    }
+
+    /// Post `i`'s horizon in reference direction `j` from the terrain no
+    /// farther than `max_distance` metres (needs `Sampling::records`).
+    pub fn bounded(&self, i: usize, j: usize, max_distance: f64) -> f64 {
+        self.records[i][j]
+            .iter()
+            .take_while(|r| r.distance <= max_distance)
+            .last()
+            .map_or(-90.0, |r| f64::from(r.angle))
     }
 
     /// Zakšek's sky-view factor of a post's reference horizons.

@@ -33,6 +33,21 @@ pub fn available_memory() -> Option<u64> {
     Some(kib << 10)
 }
 
+/// The process's peak resident memory so far, bytes (`getrusage`), or
+/// `None` where it cannot be told.
+pub fn peak_memory() -> Option<u64> {
+    let mut usage = std::mem::MaybeUninit::<libc::rusage>::uninit();
+    // SAFETY: a buffer getrusage fills on success.
+    if unsafe { libc::getrusage(libc::RUSAGE_SELF, usage.as_mut_ptr()) } != 0 {
+        return None;
+    }
+    // SAFETY: getrusage returned 0, so it filled the buffer.
+    let usage = unsafe { usage.assume_init() };
+    // Kilobytes on Linux; the field's width differs between platforms.
+    #[allow(clippy::useless_conversion)]
+    Some(u64::try_from(i64::from(usage.ru_maxrss)).ok()? << 10)
+}
+
 /// Refuses to write `bytes` to `path` (`what` it is) when the file system
 /// has less free.
 pub fn ensure_disk(path: &Path, bytes: u64, what: &str) -> Result<()> {

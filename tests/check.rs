@@ -45,6 +45,7 @@ fn options(directions: usize) -> CheckOptions {
         samples: 80,
         seed: 3,
         directions,
+        records: false,
     }
 }
 
@@ -60,9 +61,11 @@ fn a_bake_of_the_references_own_directions_checks_to_nothing_on_every_terrain() 
             &Asset::open(&asset).unwrap(),
             &options(180),
             None,
+            &[],
             Progress::hidden(),
         )
         .unwrap();
+        let report = report.horizons.expect("horizons checked");
         assert!(report.posts >= 80, "{kind:?}: {} posts", report.posts);
         assert!(
             report.horizon_p99_deg < 1e-3 && report.horizon_max_deg < 1e-2,
@@ -87,8 +90,11 @@ fn fewer_bands_check_worse() {
             &Asset::open(&asset).unwrap(),
             &options(360),
             None,
+            &[],
             Progress::hidden(),
         )
+        .unwrap()
+        .horizons
         .unwrap()
         .horizon_p99_deg
     };
@@ -151,14 +157,16 @@ fn a_budget_not_met_exits_4_and_the_result_is_recorded_until_a_rebake() {
     let out = terrabake(&["check", a, "--budget", "horizon=-1"]);
     assert_eq!(out.status.code(), Some(2));
     assert!(stderr(&out).contains("horizon=-1"), "{}", stderr(&out));
-    let bare = synth_with_pyramid(
-        &dir.path().join("bare"),
-        SynthKind::Flat,
-        8,
-        8,
-        1,
-        IngestOptions::default(),
-    );
+    let tif = dir.path().join("t.tif");
+    let bare = dir.path().join("bare.tbake");
+    let out = terrabake(&[
+        "ingest",
+        tif.to_str().unwrap(),
+        "-o",
+        bare.to_str().unwrap(),
+        "-q",
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
     let out = terrabake(&["check", bare.to_str().unwrap()]);
     assert_eq!(out.status.code(), Some(1));
     assert!(

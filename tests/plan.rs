@@ -9,12 +9,11 @@ use std::path::Path;
 
 use common::*;
 use proptest::prelude::*;
-use terrabake::budget::Budget;
+use terrabake::budget::{Budget, Request};
 use terrabake::check::{check, CheckOptions};
 use terrabake::ingest::IngestOptions;
 use terrabake::plan::{plan, Plan};
 use terrabake::progress::Progress;
-use terrabake::sky::SkyStage;
 use terrabake::stage::run_stage;
 use terrabake::synth::SynthKind;
 use terrabake_format::Asset;
@@ -23,8 +22,20 @@ fn terrain(dir: &Path, kind: SynthKind, seed: u64) -> std::path::PathBuf {
     synth_with_pyramid(dir, kind, 64, 48, seed, IngestOptions::default())
 }
 
+fn request(budget: &Budget) -> Request {
+    Request {
+        budget: *budget,
+        ..Default::default()
+    }
+}
+
 fn planned(asset: &Path, budget: &Budget) -> Plan {
-    plan(&Asset::open(asset).unwrap(), budget, Progress::hidden()).unwrap()
+    plan(
+        &Asset::open(asset).unwrap(),
+        &request(budget),
+        Progress::hidden(),
+    )
+    .unwrap()
 }
 
 proptest! {
@@ -39,7 +50,7 @@ proptest! {
         let dir = tempfile::tempdir().unwrap();
         let asset = terrain(dir.path(), kind, seed);
         let budget = Budget { horizon, svf, ..Default::default() };
-        let plan = match plan(&Asset::open(&asset).unwrap(), &budget, Progress::hidden()) {
+        let plan = match plan(&Asset::open(&asset).unwrap(), &request(&budget), Progress::hidden()) {
             Ok(plan) => plan,
             // Refused: only when even the most directions leave too much.
             Err(e) => {
@@ -47,12 +58,14 @@ proptest! {
                 return Ok(());
             }
         };
-        run_stage(&asset, &plan.horizons_stage(), true, Progress::hidden()).unwrap();
-        run_stage(&asset, &SkyStage::default(), true, Progress::hidden()).unwrap();
+        for stage in plan.stages() {
+            run_stage(&asset, stage.as_ref(), true, Progress::hidden()).unwrap();
+        }
         let report = check(
             &Asset::open(&asset).unwrap(),
-            &CheckOptions { samples: 160, seed: seed + 7, directions: 720 },
+            &CheckOptions { samples: 160, seed: seed + 7, directions: 720, records: false },
             Some(&budget),
+            &[],
             Progress::hidden(),
         )
         .unwrap();
@@ -76,9 +89,17 @@ fn a_looser_budget_never_costs_more() {
                 },
             );
             if let Some(tighter) = &last {
-                let (a, b) = (&tighter.chosen, &p.chosen);
+                let (a, b) = (tighter.chosen.as_ref().unwrap(), p.chosen.as_ref().unwrap());
                 assert!(
-                    b.sectors <= a.sectors && b.bytes <= a.bytes && b.seconds <= a.seconds,
+                    b.sectors <= a.sectors
+                        && b.bytes <= a.bytes
+                        && b.seconds <= a.seconds
+                        && b.max_distance.unwrap_or(f64::INFINITY)
+                            <= a.max_distance.unwrap_or(f64::INFINITY)
+                        && p.bytes <= tighter.bytes
+                        && p.seconds <= tighter.seconds
+                        && p.safe_distance.unwrap_or(f64::INFINITY)
+                            <= tighter.safe_distance.unwrap_or(f64::INFINITY),
                     "{kind:?}: {horizon} deg costs more than the tighter budget: {b:?} against {a:?}"
                 );
             }
@@ -94,7 +115,10 @@ fn a_looser_budget_never_costs_more() {
             ),
             last.unwrap(),
         );
-        assert!(loosest.chosen.sectors < tightest.chosen.sectors, "{kind:?}");
+        assert!(
+            loosest.chosen.unwrap().sectors < tightest.chosen.unwrap().sectors,
+            "{kind:?}"
+        );
     }
 }
 
@@ -105,7 +129,7 @@ fn budgets_that_cannot_be_met_are_refused_naming_what_to_relax() {
     let refused = |budget: &str| {
         let e = plan(
             &Asset::open(&asset).unwrap(),
-            &budget.parse().unwrap(),
+            &request(&budget.parse().unwrap()),
             Progress::hidden(),
         )
         .unwrap_err();
@@ -198,4 +222,168 @@ fn bake_to_a_budget_then_check_it() {
             && text.contains("met"),
         "{text}"
     );
+}
+
+/// The synthetic terrain's GeoTIFF and an asset path beside it.
+fn source(dir: &Path, kind: SynthKind) -> (String, String) {
+    let _ = terrain(dir, kind, 4);
+    (
+        dir.join("t.tif").to_str().unwrap().to_string(),
+        dir.join("out.tbake").to_str().unwrap().to_string(),
+    )
+}
+
+fn layers(asset: &str) -> Vec<String> {
+    Asset::open(asset)
+        .unwrap()
+        .manifest()
+        .layers
+        .iter()
+        .map(|l| l.name.clone())
+        .collect()
+}
+
+#[test]
+fn the_needs_decide_what_is_baked_and_check_measures_each() {
+    let dir = tempfile::tempdir().unwrap();
+    let (tif, out) = source(dir.path(), SynthKind::Blocks);
+    let bake = terrabake(&[
+        "bake",
+        &tif,
+        "-o",
+        &out,
+        "--budget",
+        "horizon=2,shade=0.05,time=600,memory=4096",
+        "--needs",
+        "horizons,sun,fast_tracing",
+        "--sun",
+        "250,15;120,30;180,45;90,5",
+        "-q",
+    ]);
+    assert!(bake.status.success(), "{}", stderr(&bake));
+    let names = layers(&out);
+    for wanted in ["horizon", "pyramid_max", "cone_apex", "cone_slope"] {
+        assert!(names.iter().any(|n| n == wanted), "{wanted}: {names:?}");
+    }
+    // Sun shadows need no sky-view factor: none is baked.
+    assert!(!names.iter().any(|n| n.starts_with("svf")), "{names:?}");
+    let checked = terrabake(&["check", &out, "--samples", "60", "--json"]);
+    assert_eq!(checked.status.code(), Some(0), "{}", stdout(&checked));
+    let report: serde_json::Value = serde_json::from_slice(&checked.stdout).unwrap();
+    let tracing = &report["tracing"];
+    assert_eq!(tracing["cone_violations"], 0, "{tracing}");
+    assert!(tracing["cone_cells"].as_u64().unwrap() > 0, "{tracing}");
+    let mismatches = tracing["mismatches"].as_array().unwrap();
+    assert_eq!(mismatches.len(), 2, "{tracing}");
+    assert!(mismatches.iter().all(|m| m[1] == 0), "{tracing}");
+    assert_eq!(report["horizons"]["sun_positions"], 4);
+    // Every limit of the budget measured, time and memory by the bake.
+    let verdicts = report["verdicts"].as_array().unwrap();
+    for what in [
+        "horizon p99 (deg)",
+        "shade share",
+        "time (s)",
+        "memory (MiB)",
+    ] {
+        let v = verdicts
+            .iter()
+            .find(|v| v["what"] == what)
+            .unwrap_or_else(|| panic!("{what}: {verdicts:?}"));
+        assert_eq!(v["met"], true, "{v}");
+    }
+    // Tracing alone takes no horizons (and no pilot).
+    let traced = dir.path().join("traced.tbake");
+    let t = traced.to_str().unwrap();
+    let bake = terrabake(&[
+        "bake",
+        &tif,
+        "-o",
+        t,
+        "--budget",
+        "horizon=1",
+        "--needs",
+        "tracing",
+        "-q",
+    ]);
+    assert!(bake.status.success(), "{}", stderr(&bake));
+    let names = layers(t);
+    assert!(names.iter().any(|n| n == "pyramid_max"), "{names:?}");
+    assert!(
+        !names.iter().any(|n| n == "horizon" || n == "cone_apex"),
+        "{names:?}"
+    );
+    // A shade budget without the sun's positions is a clear refusal.
+    let refused = terrabake(&[
+        "bake",
+        &tif,
+        "-o",
+        t,
+        "--budget",
+        "horizon=1,shade=0.1",
+        "--needs",
+        "horizons,sun",
+    ]);
+    assert_eq!(refused.status.code(), Some(1));
+    assert!(stderr(&refused).contains("--sun"), "{}", stderr(&refused));
+}
+
+#[test]
+fn a_recipe_holds_a_plan_and_its_explicit_stages_win() {
+    let dir = tempfile::tempdir().unwrap();
+    let (tif, out) = source(dir.path(), SynthKind::Bowl);
+    let recipe = dir.path().join("r.toml");
+    std::fs::write(
+        &recipe,
+        "[plan]\nneeds = [\"horizons\", \"svf\"]\nbudget = { horizon = 1.5, svf = 0.05 }\n\n\
+         [[stage]]\nname = \"horizons\"\nsectors = 8\n",
+    )
+    .unwrap();
+    let bake = terrabake(&[
+        "bake",
+        &tif,
+        "-o",
+        &out,
+        "--recipe",
+        recipe.to_str().unwrap(),
+        "-q",
+    ]);
+    assert!(bake.status.success(), "{}", stderr(&bake));
+    let asset = Asset::open(&out).unwrap();
+    assert_eq!(asset.layer("horizon", 0).unwrap().bands(), 8);
+    assert!(asset.layer("svf", 0).is_ok(), "the plan's sky stage ran");
+    let plan = terrabake::plan::recorded(&asset).expect("the plan is recorded");
+    assert_eq!(plan.overridden, vec!["horizons".to_string()]);
+    assert!(plan.baked.is_some());
+    // A key the plan does not know is refused by name before any work.
+    std::fs::write(
+        &recipe,
+        "[plan]\nbudget = { horizon = 1.0 }\nneds = [\"svf\"]\n",
+    )
+    .unwrap();
+    let fresh = dir.path().join("fresh.tbake");
+    let bad = terrabake(&[
+        "bake",
+        &tif,
+        "-o",
+        fresh.to_str().unwrap(),
+        "--recipe",
+        recipe.to_str().unwrap(),
+    ]);
+    assert_eq!(bad.status.code(), Some(1));
+    assert!(stderr(&bad).contains("neds"), "{}", stderr(&bad));
+    assert!(!fresh.exists());
+}
+
+#[test]
+fn plan_measures_a_source_dem_and_leaves_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let (tif, _) = source(dir.path(), SynthKind::Fractal);
+    let before: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
+    let out = terrabake(&["plan", &tif, "--budget", "horizon=1,svf=0.02", "--json"]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let plan: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(plan["chosen"]["sectors"].as_u64().unwrap() >= 4, "{plan}");
+    assert_eq!(plan["needs"], serde_json::json!(["horizons", "svf"]));
+    let after: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
+    assert_eq!(before.len(), after.len());
 }

@@ -11,7 +11,7 @@ use serde::Serialize;
 
 use super::chart::{log_log_svg, Series};
 use super::markdown_table;
-use crate::budget::Budget;
+use crate::budget::{Budget, Request};
 use crate::check::{check, CheckOptions};
 use crate::progress::Progress;
 use crate::stage::run_stage;
@@ -23,6 +23,8 @@ pub struct PlanRow {
     pub budget_deg: f64,
     pub sectors: usize,
     pub encoding: String,
+    /// The distance limit baked, km (NaN: to the edge).
+    pub max_distance_km: f64,
     pub predicted_p99_deg: f64,
     pub achieved_p99_deg: f64,
     pub achieved_svf_p99: f64,
@@ -43,6 +45,7 @@ impl PlanRow {
             budget_deg,
             sectors: 0,
             encoding: String::new(),
+            max_distance_km: f64::NAN,
             predicted_p99_deg: f64::NAN,
             achieved_p99_deg: f64::NAN,
             achieved_svf_p99: f64::NAN,
@@ -87,9 +90,13 @@ impl BenchPlanArgs {
                     horizon,
                     ..Default::default()
                 };
+                let request = Request {
+                    budget,
+                    ..Default::default()
+                };
                 let start = Instant::now();
                 let asset = crate::asset::open(path)?;
-                let plan = match crate::plan::plan(&asset, &budget, Progress::hidden()) {
+                let plan = match crate::plan::plan(&asset, &request, Progress::hidden()) {
                     Ok(plan) => plan,
                     Err(e) => {
                         say(format!("{dem} {horizon} deg: refused: {e:#}"));
@@ -100,13 +107,9 @@ impl BenchPlanArgs {
                 drop(asset);
                 let plan_seconds = start.elapsed().as_secs_f64();
                 let start = Instant::now();
-                run_stage(path, &plan.horizons_stage(), true, Progress::hidden())?;
-                run_stage(
-                    path,
-                    &crate::sky::SkyStage::default(),
-                    true,
-                    Progress::hidden(),
-                )?;
+                for stage in plan.stages() {
+                    run_stage(path, stage.as_ref(), true, Progress::hidden())?;
+                }
                 let bake_seconds = start.elapsed().as_secs_f64();
                 let report = check(
                     &crate::asset::open(path)?,
@@ -114,28 +117,36 @@ impl BenchPlanArgs {
                         samples: 400,
                         seed: 99,
                         directions: 720,
+                        records: false,
                     },
                     Some(&budget),
+                    &[],
                     Progress::hidden(),
                 )?;
+                let achieved = report.horizons.as_ref().expect("the plan baked horizons");
+                let chosen = plan
+                    .chosen
+                    .as_ref()
+                    .expect("the default needs take horizons");
                 say(format!(
                     "{dem} {horizon} deg: {} directions {}, achieved p99 {:.3}",
-                    plan.chosen.sectors,
-                    plan.chosen.encoding.name(),
-                    report.horizon_p99_deg
+                    chosen.sectors,
+                    chosen.encoding.name(),
+                    achieved.horizon_p99_deg
                 ));
                 rows.push(PlanRow {
                     dem: dem.clone(),
                     budget_deg: horizon,
-                    sectors: plan.chosen.sectors,
-                    encoding: plan.chosen.encoding.name().into(),
-                    predicted_p99_deg: plan.chosen.horizon_p99_deg,
-                    achieved_p99_deg: report.horizon_p99_deg,
-                    achieved_svf_p99: report.svf_p99.unwrap_or(f64::NAN),
-                    predicted_seconds: plan.chosen.seconds,
+                    sectors: chosen.sectors,
+                    encoding: chosen.encoding.name().into(),
+                    max_distance_km: chosen.max_distance.map_or(f64::NAN, |d| d / 1000.0),
+                    predicted_p99_deg: chosen.horizon_p99_deg,
+                    achieved_p99_deg: achieved.horizon_p99_deg,
+                    achieved_svf_p99: achieved.svf_p99.unwrap_or(f64::NAN),
+                    predicted_seconds: chosen.seconds,
                     bake_seconds,
                     plan_seconds,
-                    predicted_bytes: plan.chosen.bytes,
+                    predicted_bytes: chosen.bytes,
                     met: report.within_budget(),
                     refused: false,
                 });
@@ -160,6 +171,7 @@ fn table(rows: &[PlanRow]) -> String {
             "budget (deg)",
             "directions",
             "encoding",
+            "distance (km)",
             "predicted p99",
             "achieved p99",
             "achieved svf p99",
@@ -175,6 +187,11 @@ fn table(rows: &[PlanRow]) -> String {
                 format!("{}", r.budget_deg),
                 r.sectors.to_string(),
                 r.encoding.clone(),
+                if r.max_distance_km.is_nan() {
+                    "edge".into()
+                } else {
+                    format!("{}", r.max_distance_km)
+                },
                 format!("{:.3}", r.predicted_p99_deg),
                 format!("{:.3}", r.achieved_p99_deg),
                 format!("{:.4}", r.achieved_svf_p99),

@@ -40,13 +40,42 @@ fn surface_at(t: &Terrain, col: f64, row: f64) -> Option<f64> {
 /// nodata, -90 when no surface lies ahead).
 pub fn line_horizon(
     t: &Terrain,
-    (col, row): (usize, usize),
-    (a, b): (i64, i64),
+    post: (usize, usize),
+    step: (i64, i64),
     max_distance: Option<f64>,
 ) -> f32 {
+    if t.at(post.0, post.1).is_nan() {
+        return f32::NAN;
+    }
+    line_horizon_records(t, post, step)
+        .iter()
+        .take_while(|r| max_distance.is_none_or(|m| r.distance <= m))
+        .last()
+        .map_or(-90.0, |r| r.angle)
+}
+
+/// A new highest elevation angle along a sight line, and how far out it
+/// was met: the horizon of a sight line cut at any distance `D` is the
+/// last record no farther than `D` (the planner's distance limit).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HorizonRecord {
+    /// Metres from the post (horizontal), as the bounded stage measures it.
+    pub distance: f64,
+    /// Degrees.
+    pub angle: f32,
+}
+
+/// Every record of post `(col, row)`'s sight line along grid step `(a, b)`,
+/// nearest first (angles strictly increasing; empty for nodata or when no
+/// surface lies ahead). The last one is the exact, unbounded line horizon.
+pub fn line_horizon_records(
+    t: &Terrain,
+    (col, row): (usize, usize),
+    (a, b): (i64, i64),
+) -> Vec<HorizonRecord> {
     let zp = t.at(col, row);
     if zp.is_nan() {
-        return f32::NAN;
+        return Vec::new();
     }
     let (pc, pr, a, b) = (col as f64, row as f64, a as f64, b as f64);
     // Largest s that keeps col + a s in [0, W-1] and row + b s in [0, H-1].
@@ -101,21 +130,23 @@ pub fn line_horizon(
         }
         metres + (s - whole_steps as f64) * step_len(whole_steps as f64)
     };
-    let mut best = f64::NEG_INFINITY;
+    let (mut best, mut records) = (f64::NEG_INFINITY, Vec::new());
     for s in crossings {
         if let Some(z) = surface_at(t, pc + a * s, pr + b * s) {
             let d = distance(s);
-            if max_distance.is_some_and(|m| d > m) {
-                continue;
+            let slope = (z - t.curvature * d * d - f64::from(zp)) / d;
+            if slope > best {
+                best = slope;
+                let angle = slope.atan().to_degrees() as f32;
+                // Slopes that round to one f32 angle are one record.
+                match records.last_mut() {
+                    Some(HorizonRecord { angle: last, .. }) if *last == angle => {}
+                    _ => records.push(HorizonRecord { distance: d, angle }),
+                }
             }
-            best = best.max((z - t.curvature * d * d - f64::from(zp)) / d);
         }
     }
-    if best == f64::NEG_INFINITY {
-        -90.0
-    } else {
-        best.atan().to_degrees() as f32
-    }
+    records
 }
 
 /// Stewart's sector horizon of post `(col, row)` in the sector of `frame`,
