@@ -517,8 +517,8 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
                 "the pyramid alone: the same hits, more steps per ray (docs/TRACING.md)".into()
             } else {
                 format!(
-                    "cone planes as well: faster rays for {} more and {:.1} s (ask for fast_tracing)",
-                    crate::report::human_bytes(cones_bytes),
+                    "cone planes as well: faster rays for {:.1} MiB more and {:.1} s (ask for fast_tracing)",
+                    cones_bytes as f64 / 1048576.0,
                     posts as f64 * CONES_SECONDS_PER_POST
                 )
             }),
@@ -855,7 +855,7 @@ pub fn describe(plan: &Plan) -> String {
         }
     }
     predicted.push(format!("time {:.1} s (2 cores)", plan.seconds));
-    predicted.push(format!("bytes {}", crate::report::human_bytes(plan.bytes)));
+    predicted.push(format!("bytes {:.1} MiB", plan.bytes as f64 / 1048576.0));
     predicted.push(format!("memory {:.0} MiB", plan.memory_mib));
     out + "\npredicted  " + &predicted.join("   ") + "\n"
 }
