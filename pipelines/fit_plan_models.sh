@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Fits the planner's time model (src/plan.rs: seconds = posts * S^EXPONENT
-# / RATE) to the horizons and sky stages on the bundled tile (the wall time
+# Fits the planner's time models (src/plan.rs). First the line sweeps to the
+# edge (seconds = posts * S^EXPONENT / RATE) to the horizons and sky stages on the bundled tile (the wall time
 # of `terrabake horizons`, which runs both), planned the way the planner
 # bakes (line directions within 0.1 degree, u16), S from 16 to 120, on this
 # machine's cores. Prints each run and the least-squares fit of
