@@ -33,6 +33,8 @@ pub struct PlanRow {
     pub bake_seconds: f64,
     pub plan_seconds: f64,
     pub predicted_bytes: u64,
+    /// The asset's bytes on disk after the bake, as `check` measures them.
+    pub asset_bytes: u64,
     pub met: bool,
     /// The planner refused the budget (the rest of the row is empty).
     pub refused: bool,
@@ -53,6 +55,7 @@ impl PlanRow {
             bake_seconds: f64::NAN,
             plan_seconds: f64::NAN,
             predicted_bytes: 0,
+            asset_bytes: 0,
             met: false,
             refused: true,
         }
@@ -68,8 +71,8 @@ pub struct BenchPlanArgs {
     /// Horizon budgets, degrees (the 99th percentile of the absolute error).
     #[arg(long, value_delimiter = ',', default_value = "0.25,0.5,1,2,4")]
     pub budgets: Vec<f64>,
-    /// Write PREFIX_error.svg (achieved against budget) and PREFIX_cost.svg (bake seconds
-    /// against budget).
+    /// Write PREFIX_error.svg (achieved against budget), PREFIX_cost.svg (bake seconds
+    /// against budget) and PREFIX_bytes.svg (the asset's bytes on disk against budget).
     #[arg(long, value_name = "PREFIX")]
     pub chart: Option<PathBuf>,
     /// Print the rows as JSON.
@@ -143,10 +146,11 @@ impl BenchPlanArgs {
                     predicted_p99_deg: chosen.horizon_p99_deg,
                     achieved_p99_deg: achieved.horizon_p99_deg,
                     achieved_svf_p99: achieved.svf_p99.unwrap_or(f64::NAN),
-                    predicted_seconds: chosen.seconds,
+                    predicted_seconds: plan.seconds,
                     bake_seconds,
                     plan_seconds,
-                    predicted_bytes: chosen.bytes,
+                    predicted_bytes: plan.bytes,
+                    asset_bytes: report.bytes,
                     met: report.within_budget(),
                     refused: false,
                 });
@@ -178,7 +182,8 @@ fn table(rows: &[PlanRow]) -> String {
             "plan (s)",
             "bake (s)",
             "predicted bake (s)",
-            "bytes (MiB)",
+            "predicted bytes (MiB)",
+            "bytes on disk (MiB)",
             "met",
         ],
         rows.iter().map(|r| {
@@ -199,6 +204,7 @@ fn table(rows: &[PlanRow]) -> String {
                 format!("{:.2}", r.bake_seconds),
                 format!("{:.2}", r.predicted_seconds),
                 format!("{:.1}", r.predicted_bytes as f64 / f64::from(1 << 20)),
+                format!("{:.1}", r.asset_bytes as f64 / f64::from(1 << 20)),
                 match (r.refused, r.met) {
                     (true, _) => "refused",
                     (false, true) => "yes",
@@ -249,5 +255,12 @@ fn charts(prefix: &std::path::Path, rows: &[PlanRow]) -> Result<()> {
         "horizon budget, p99 (degrees)",
         "horizons and sky stages (s)",
         &series(&|r| r.bake_seconds),
+    )?;
+    log_log_svg(
+        &with("_bytes.svg"),
+        "Planned bakes: asset bytes on disk against the budget",
+        "horizon budget, p99 (degrees)",
+        "asset on disk (MiB)",
+        &series(&|r| r.asset_bytes as f64 / 1048576.0),
     )
 }
