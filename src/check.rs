@@ -72,7 +72,8 @@ pub struct TracingCheck {
     /// Cells whose stored cone holds terrain (must be 0).
     pub cone_violations: usize,
     /// Mean, over the checked cells, of the stored slope over the widest
-    /// slope its apex allows (1: as wide as can be).
+    /// slope its apex allows (1: as wide as can be); measured on DEMs of up
+    /// to 4 M cells.
     pub cone_tightness: Option<f64>,
     /// Random rays traced by each method and by the brute force.
     pub rays: usize,
@@ -86,7 +87,8 @@ pub struct TracingCheck {
 pub struct CheckReport {
     pub horizons: Option<HorizonCheck>,
     pub tracing: Option<TracingCheck>,
-    /// Bytes of the asset's files on disk.
+    /// Bytes of the asset on disk: the manifest and the layer files it
+    /// names.
     pub bytes: u64,
     pub seconds: f64,
     pub seed: u64,
@@ -122,18 +124,18 @@ impl CheckReport {
     }
 }
 
-/// Bytes of the regular files in `dir`.
-fn bytes_on_disk(dir: &std::path::Path) -> u64 {
-    std::fs::read_dir(dir)
-        .map(|entries| {
-            entries
-                .flatten()
-                .filter_map(|e| e.metadata().ok())
-                .filter(|m| m.is_file())
-                .map(|m| m.len())
-                .sum()
-        })
-        .unwrap_or(0)
+/// Bytes of the asset: the files its manifest names (retired generations
+/// and leftovers that writers delete are not the asset) and the manifest.
+fn asset_bytes(asset: &Asset<Mmap>) -> u64 {
+    let manifest =
+        std::fs::metadata(asset.dir().join(terrabake_format::MANIFEST_FILE)).map_or(0, |m| m.len());
+    manifest
+        + asset
+            .manifest()
+            .layers
+            .iter()
+            .map(|l| l.file_len)
+            .sum::<u64>()
 }
 
 /// Measures `asset`'s horizons, sky-view factors, sun/shade states and
@@ -169,7 +171,7 @@ pub fn check(
     let mut report = CheckReport {
         horizons,
         tracing,
-        bytes: bytes_on_disk(dir),
+        bytes: asset_bytes(asset),
         seconds: start.elapsed().as_secs_f64(),
         seed: opts.seed,
         budget: budget.copied(),
@@ -284,6 +286,11 @@ fn check_horizons(
     })
 }
 
+/// DEMs of up to this many cells have every cell scanned for each checked
+/// cone (the tightness); larger ones only the window where terrain could
+/// enter it.
+const FULL_SCAN_CELLS: usize = 4_000_000;
+
 /// The cone planes and the tracers against brute force: `samples` random
 /// cells' cones against every cell of the DEM, and `4 * samples` random
 /// rays traced by every method the asset serves and by the brute force.
@@ -318,22 +325,40 @@ fn check_tracing(asset: &Asset<Mmap>, opts: &CheckOptions) -> Result<Option<Trac
             .collect();
         // Distance between the closed squares of two cells.
         let gap = |a: usize, b: usize| (a.abs_diff(b).saturating_sub(1)) as f64;
+        // Terrain can enter a cone only within `slope * (top - apex)` of
+        // its cell, so that window is exact for violations; the tightness
+        // needs every taller cell, so it is measured on DEMs of up to
+        // FULL_SCAN_CELLS cells only.
+        let top = tall.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        let full = cw * ch <= FULL_SCAN_CELLS;
         let found: Vec<Result<(bool, Option<f64>)>> = cells
             .par_iter()
             .map(|&i| {
                 let cone = planes.cone((i % cw) as u32, (i / cw) as u32)?;
+                let (ci, ri) = (i % cw, i / cw);
+                let reach = |cell: f64, n: usize| {
+                    let r = (cone.slope * (f64::from(top) - cone.apex).max(0.0) / cell).ceil();
+                    if full || !r.is_finite() || r >= n as f64 {
+                        n
+                    } else {
+                        r as usize + 1
+                    }
+                };
+                let (rx, ry) = (reach(dem.dx, cw), reach(dem.dy, ch));
                 let (mut holds_terrain, mut widest) = (false, f64::INFINITY);
-                for (j, &z) in tall.iter().enumerate() {
-                    let rise = f64::from(z) - cone.apex;
-                    if rise > 0.0 {
-                        let d = (gap(i % cw, j % cw) * dem.dx).hypot(gap(i / cw, j / cw) * dem.dy);
-                        holds_terrain |= d < cone.slope * rise;
-                        widest = widest.min(d / rise);
+                for rj in ri.saturating_sub(ry)..(ri + ry + 1).min(ch) {
+                    for cj in ci.saturating_sub(rx)..(ci + rx + 1).min(cw) {
+                        let rise = f64::from(tall[rj * cw + cj]) - cone.apex;
+                        if rise > 0.0 {
+                            let d = (gap(ci, cj) * dem.dx).hypot(gap(ri, rj) * dem.dy);
+                            holds_terrain |= d < cone.slope * rise;
+                            widest = widest.min(d / rise);
+                        }
                     }
                 }
                 Ok((
                     holds_terrain,
-                    (widest.is_finite() && widest > 0.0).then(|| cone.slope / widest),
+                    (full && widest.is_finite() && widest > 0.0).then(|| cone.slope / widest),
                 ))
             })
             .collect();

@@ -1,6 +1,6 @@
 //! The planner: on every synthetic terrain and random budgets, a planned
-//! bake meets its horizon and svf budget when `check` measures it on posts
-//! the plan never saw; a looser budget never costs more; a budget that
+//! bake meets its horizon, svf and shade budget when `check` measures it on
+//! posts the plan never saw; a looser budget never costs more; a budget that
 //! cannot be met is refused, naming what to relax, and leaves nothing.
 
 mod common;
@@ -9,7 +9,7 @@ use std::path::Path;
 
 use common::*;
 use proptest::prelude::*;
-use terrabake::budget::{Budget, Request};
+use terrabake::budget::{Budget, Need, Needs, Request};
 use terrabake::check::{check, CheckOptions};
 use terrabake::ingest::IngestOptions;
 use terrabake::plan::{plan, Plan};
@@ -45,12 +45,24 @@ proptest! {
         kind in prop::sample::select(SynthKind::ALL.to_vec()),
         horizon in 0.3f64..6.0,
         svf in prop::option::of(0.002f64..0.05),
+        shade in prop::option::of(0.02f64..0.2),
         seed in 0u64..1000,
     ) {
         let dir = tempfile::tempdir().unwrap();
         let asset = terrain(dir.path(), kind, seed);
-        let budget = Budget { horizon, svf, ..Default::default() };
-        let plan = match plan(&Asset::open(&asset).unwrap(), &request(&budget), Progress::hidden()) {
+        let budget = Budget { horizon, svf, shade, ..Default::default() };
+        // With a shade budget, twelve suns low and high around the sky.
+        let sun: Vec<[f64; 2]> = if shade.is_some() {
+            (0..12).map(|i| [f64::from(i) * 31.0, 3.0 + f64::from(i % 4) * 12.0]).collect()
+        } else {
+            Vec::new()
+        };
+        let mut needs = vec![Need::Horizons, Need::Svf];
+        if shade.is_some() {
+            needs.push(Need::Sun);
+        }
+        let request = Request { budget, needs: Needs::new(needs), sun: sun.clone(), sun_day: None };
+        let plan = match plan(&Asset::open(&asset).unwrap(), &request, Progress::hidden()) {
             Ok(plan) => plan,
             // Refused: only when even the most directions leave too much.
             Err(e) => {
@@ -65,7 +77,7 @@ proptest! {
             &Asset::open(&asset).unwrap(),
             &CheckOptions { samples: 160, seed: seed + 7, directions: 720, records: false },
             Some(&budget),
-            &[],
+            &sun,
             Progress::hidden(),
         )
         .unwrap();
