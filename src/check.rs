@@ -648,7 +648,7 @@ impl CheckArgs {
             samples: self.samples as usize,
             seed: self.seed,
             directions: self.directions as usize,
-            records: false,
+            cuts: &[],
         };
         let sun = self.sun.clone().map(|s| s.0).unwrap_or_default();
         let report = check(&asset, &opts, self.budget.as_ref(), &sun, progress)?;

@@ -88,6 +88,7 @@ const CONES_SECONDS_PER_POST: f64 = 8.0e-7;
 /// directions, 463 MiB at 120), the DEM itself (4 bytes a post) for bounded
 /// lines, and 32 bytes a post for in-core cone planes.
 const BASE_MIB: f64 = 40.0;
+// (The pilot's own memory is counted exactly: see `plan`.)
 const LINE_BYTES_PER_ROW_POST_BAND: f64 = 10.7;
 const CONES_BYTES_PER_POST: f64 = 32.0;
 
@@ -167,6 +168,10 @@ pub struct Plan {
     pub safe_distance: Option<f64>,
     #[serde(default)]
     pub sky_layers: Vec<SkyLayer>,
+    /// The tile size the plan bakes with (smaller than the ingest's when
+    /// the memory limit needs it: the bake ingests again).
+    #[serde(default)]
+    pub tile: u32,
     #[serde(default)]
     pub pyramid: bool,
     #[serde(default)]
@@ -327,17 +332,17 @@ fn stored_as(encoding: AngleEncoding, deg: f64) -> f64 {
     encoding.decode(encoding.encode(deg)).unwrap_or(f64::NAN)
 }
 
-/// The errors of `sectors` directions cut at `distance`, stored as
-/// `encoding`.
+/// The errors of `sectors` directions cut at `DISTANCES[distance]`, stored
+/// as `encoding`.
 fn predict(
     pilot: &Pilot,
     suns: &[PilotSun],
     sectors: usize,
-    distance: Option<f64>,
+    distance: Option<usize>,
     encoding: AngleEncoding,
 ) -> Errors {
     errors(pilot, PILOT_DIRECTIONS / sectors, suns, |i, j| {
-        let angle = distance.map_or(pilot.exact[i][j], |d| pilot.bounded(i, j, d));
+        let angle = distance.map_or(pilot.exact[i][j], |k| pilot.bounded(i, j, k));
         stored_as(encoding, angle)
     })
 }
@@ -356,6 +361,7 @@ fn layer_bytes(w: usize, h: usize, tile: usize, size: usize, bands: usize) -> u6
 }
 
 /// Costs of the horizons and sky stages.
+#[derive(Clone, Copy)]
 struct LineCosts {
     posts: f64,
     width: usize,
@@ -365,11 +371,14 @@ struct LineCosts {
     sky_layers: usize,
     /// Mean post spacing, metres.
     cell: f64,
-    /// Posts of a tile row.
-    row_posts: f64,
 }
 
 impl LineCosts {
+    /// Posts of a tile row (edge tiles whole).
+    fn row_posts(&self) -> f64 {
+        (self.width.div_ceil(self.tile) * self.tile * self.tile) as f64
+    }
+
     fn layer_bytes(&self, size: usize, bands: usize) -> u64 {
         layer_bytes(self.width, self.height, self.tile, size, bands)
     }
@@ -389,7 +398,7 @@ impl LineCosts {
             0.0
         };
         BASE_MIB
-            + (LINE_BYTES_PER_ROW_POST_BAND * self.row_posts * sectors as f64 + held) / 1048576.0
+            + (LINE_BYTES_PER_ROW_POST_BAND * self.row_posts() * sectors as f64 + held) / 1048576.0
     }
 }
 
@@ -416,7 +425,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
                 samples: 240,
                 seed: PILOT_SEED,
                 directions: PILOT_DIRECTIONS,
-                records: true,
+                cuts: &DISTANCES,
             },
             progress,
         )?)
@@ -458,14 +467,13 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
     if needs.has(Need::Sky) {
         sky_layers.push(SkyLayer::SvfCosine);
     }
-    let costs = LineCosts {
+    let mut costs = LineCosts {
         posts: posts as f64,
         width: w,
         height: h,
         tile,
         sky_layers: sky_layers.len(),
         cell: (dx + dy) / 2.0,
-        row_posts: (w.div_ceil(tile) * tile * tile) as f64,
     };
     let (mut chosen, mut safe_distance) = (None, None);
     let (mut choices, mut candidates) = (Vec::new(), Vec::new());
@@ -484,6 +492,18 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
         chosen = Some(plan.chosen);
         safe_distance = plan.safe_distance;
     }
+    // The tile size: the ingest's, unless the tile row of every direction
+    // that the line sweeps hold would not fit the memory limit; then the
+    // largest smaller power of two (down to 32) that fits, for a re-ingest.
+    let ingested_tile = tile;
+    if let (Some(c), Some(limit)) = (chosen.as_mut(), budget.memory) {
+        while costs.memory_mib(c.sectors, c.max_distance) > limit as f64 && costs.tile > 32 {
+            costs.tile /= 2;
+        }
+        c.bytes = costs.layer_bytes(c.encoding.elem().size(), c.sectors)
+            + costs.layer_bytes(4, costs.sky_layers);
+    }
+    let tile = costs.tile;
     let pyramid = needs.has(Need::Tracing) || needs.has(Need::FastTracing);
     let cones = needs.has(Need::FastTracing);
     let cells = (w.saturating_sub(1), h.saturating_sub(1));
@@ -527,7 +547,13 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
     let mut seconds = 0.0;
     // The asset on disk: the heights and every planned layer.
     let mut bytes = layer_bytes(w, h, tile, 4, 1);
+    // The pilot holds the DEM (4 bytes a post) and, per post and reference
+    // direction, the exact horizon (8 bytes) and its cuts (4 bytes each).
     let mut memory_mib = BASE_MIB;
+    if let Some(pilot) = &pilot {
+        let per_post = PILOT_DIRECTIONS * (8 + 4 * DISTANCES.len());
+        memory_mib += (4 * posts as usize + pilot.posts.len() * per_post) as f64 / 1048576.0;
+    }
     if let Some(c) = &chosen {
         seconds += c.seconds;
         bytes += c.bytes;
@@ -544,11 +570,32 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
         // Cones bake in windows within a memory limit.
         memory_mib = memory_mib.max(budget.memory.map_or(in_core, |l| in_core.min(l as f64)));
     }
-    choices.push(Choice {
-        what: "tiles".into(),
-        chosen: format!("{tile} posts, raw"),
-        why: "the ingest's: raw tiles are read in place from the memory mapping, no decode per read".into(),
-        rejected: Some("zstd: fewer bytes on disk, a decode on every tile read (set it in a recipe's [ingest] when bytes matter more)".into()),
+    let line_row = |t: usize| {
+        let at = LineCosts { tile: t, ..costs };
+        chosen
+            .as_ref()
+            .map_or(0.0, |c| at.memory_mib(c.sectors, c.max_distance))
+    };
+    choices.push(if tile == ingested_tile {
+        Choice {
+            what: "tiles".into(),
+            chosen: format!("{tile} posts, raw"),
+            why: "the ingest's: raw tiles are read in place from the memory mapping, no decode per read (derived layers are always raw)".into(),
+            rejected: Some("zstd heights: fewer bytes on disk, a decode on every tile read (set codec in a recipe's [ingest] when bytes matter more)".into()),
+        }
+    } else {
+        Choice {
+            what: "tiles".into(),
+            chosen: format!("{tile} posts, raw (ingest again)"),
+            why: format!(
+                "the line sweeps hold a tile row of every direction: {:.0} MiB at {tile} posts fits the memory limit",
+                line_row(tile)
+            ),
+            rejected: Some(format!(
+                "{ingested_tile} posts (the ingest's): {:.0} MiB, over the limit",
+                line_row(ingested_tile)
+            )),
+        }
     });
     let what_to_relax = if chosen.is_some() {
         ", or horizon (fewer directions)"
@@ -576,6 +623,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
         chosen,
         safe_distance,
         sky_layers,
+        tile: tile as u32,
         pyramid,
         cones,
         seconds,
@@ -626,12 +674,12 @@ fn plan_horizons(
         .unwrap_or(AngleEncoding::F32);
     // The distance: the shortest beyond which the terrain moves the
     // horizons (in all 720 directions, f32) by at most its share.
-    let safe_distance = DISTANCES
-        .into_iter()
-        .take_while(|&d| d < scene.extent_m)
-        .find(|&d| {
-            errors(pilot, 1, suns, |i, j| pilot.bounded(i, j, d)).within(budget, SHARE_DISTANCE)
+    let safe_cut = (0..DISTANCES.len())
+        .take_while(|&k| DISTANCES[k] < scene.extent_m)
+        .find(|&k| {
+            errors(pilot, 1, suns, |i, j| pilot.bounded(i, j, k)).within(budget, SHARE_DISTANCE)
         });
+    let safe_distance = safe_cut.map(|k| DISTANCES[k]);
     // The directions: the fewest whose error between directions alone
     // (exact to the edge, f32) is within their share.
     let mut candidates = Vec::new();
@@ -690,14 +738,16 @@ fn plan_horizons(
             .memory
             .is_none_or(|l| costs.memory_mib(sectors, d) <= l as f64)
     };
-    let bounded = safe_distance.filter(|&d| {
-        costs.seconds(sectors, Some(d)) < costs.seconds(sectors, None) && fits(Some(d))
+    let bounded_cut = safe_cut.filter(|&k| {
+        let d = Some(DISTANCES[k]);
+        costs.seconds(sectors, d) < costs.seconds(sectors, None) && fits(d)
     });
+    let bounded = bounded_cut.map(|k| DISTANCES[k]);
     let chosen = candidate(
         sectors,
         bounded,
         encoding,
-        &mut predict(pilot, suns, sectors, bounded, encoding),
+        &mut predict(pilot, suns, sectors, bounded_cut, encoding),
     );
     let fewer = candidates.iter().rev().nth(1);
     let finer = [AngleEncoding::U8, AngleEncoding::U16]

@@ -176,18 +176,20 @@ pub fn bake(
     let created = !dir.exists();
     let writer = AssetWriter::create(dir, wait)?;
     let mut outcomes = vec![run_stage_in(&writer, &ingest, false, progress)?];
-    let mut plan = match &recipe.plan {
-        None => None,
-        Some(request) => match crate::plan::plan(&crate::asset::open(dir)?, request, progress) {
-            Ok(plan) => Some(plan),
-            Err(e) => {
-                drop(writer);
-                if created {
-                    let _ = std::fs::remove_dir_all(dir);
-                }
-                return Err(e);
+    let planned = recipe
+        .plan
+        .as_ref()
+        .map(|request| plan_ingested(dir, recipe, src, request, &writer, &mut outcomes, progress))
+        .transpose();
+    let mut plan = match planned {
+        Ok(plan) => plan,
+        Err(e) => {
+            drop(writer);
+            if created {
+                let _ = std::fs::remove_dir_all(dir);
             }
-        },
+            return Err(e);
+        }
     };
     // The planned stages, each replaced by an explicit one of its name,
     // then the explicit stages the plan does not name, in recipe order.
@@ -226,4 +228,40 @@ pub fn bake(
         )?;
     }
     Ok(outcomes)
+}
+
+/// Plans the ingested asset for `request`. When the plan needs smaller
+/// tiles than the ingest's (the memory limit), ingests again with them and
+/// plans again, unless the recipe set the tile itself: explicit parameters
+/// win, so that is refused naming both ways out.
+fn plan_ingested(
+    dir: &Path,
+    recipe: &Recipe,
+    src: &Path,
+    request: &crate::budget::Request,
+    writer: &AssetWriter,
+    outcomes: &mut Vec<StageOutcome>,
+    progress: Progress,
+) -> Result<crate::plan::Plan> {
+    let plan = crate::plan::plan(&crate::asset::open(dir)?, request, progress)?;
+    if plan.tile == recipe.ingest.tile_size {
+        return Ok(plan);
+    }
+    let explicit = toml::from_str::<toml::Table>(&recipe.text)
+        .ok()
+        .and_then(|t| t.get("ingest")?.get("tile").cloned())
+        .is_some();
+    if explicit {
+        bail!(
+            "{}: [ingest] tile = {} leaves the line sweeps over memory={} MiB; set tile = {} or relax memory",
+            recipe.path.display(),
+            recipe.ingest.tile_size,
+            request.budget.memory.unwrap_or_default(),
+            plan.tile
+        );
+    }
+    let mut ingest = recipe.ingest_stage(src);
+    ingest.options.tile_size = plan.tile;
+    outcomes.push(run_stage_in(writer, &ingest, false, progress)?);
+    crate::plan::plan(&crate::asset::open(dir)?, request, progress)
 }

@@ -19,7 +19,6 @@ use anyhow::{bail, Result};
 use rayon::prelude::*;
 use terrabake_format::{Asset, Mmap};
 
-use crate::horizon::brute::HorizonRecord;
 use crate::horizon::sky::{svf_of_horizons, BandIntegrals};
 use crate::horizon::{brute, plan_bands, BandKind, HeldDem, Method};
 use crate::progress::Progress;
@@ -33,8 +32,9 @@ pub struct Sampling {
     pub seed: u64,
     /// Reference directions.
     pub directions: usize,
-    /// Keep each sight line's records (the planner's distance limit).
-    pub records: bool,
+    /// Distances (metres) at which to keep each sight line's horizon cut
+    /// off (the planner's distance limit); empty for none.
+    pub cuts: &'static [f64],
 }
 
 /// `check`'s sampling: 400 random posts (and 100 of the highest relief),
@@ -45,7 +45,7 @@ impl Default for Sampling {
             samples: 400,
             seed: 1,
             directions: 720,
-            records: false,
+            cuts: &[],
         }
     }
 }
@@ -119,9 +119,11 @@ pub struct Pilot {
     integrals: Vec<BandIntegrals>,
     /// Per post, the exact horizon in each reference direction, degrees.
     pub exact: Vec<Vec<f64>>,
-    /// Per post and reference direction, the sight line's records (empty
-    /// unless asked for): its horizon cut at any distance.
-    pub records: Vec<Vec<Vec<HorizonRecord>>>,
+    /// Per post, the horizon of each reference direction `j` cut off at
+    /// each of the `n` cut distances `k`, at `j * n + k`, degrees (empty
+    /// without cuts).
+    cut: Vec<Vec<f32>>,
+    cuts: usize,
 }
 
 impl Pilot {
@@ -160,50 +162,47 @@ impl Pilot {
             .map(|b| BandIntegrals::new(b.lo, b.hi))
             .collect();
         let bar = progress.bar(posts.len() as u64, "exact horizons", "posts");
-        let lines: Vec<Vec<Vec<HorizonRecord>>> = posts
+        // Each line's records give its exact horizon (the last) and its
+        // horizon cut off at any distance (the last record within it); only
+        // the cuts asked for are kept, as a bowl's lines are records all
+        // the way out.
+        let cuts = opts.cuts;
+        let lines: Vec<(Vec<f64>, Vec<f32>)> = posts
             .par_iter()
             .map(|&post| {
-                let lines = reference
-                    .iter()
-                    .map(|band| {
-                        let BandKind::Line(direction) = &band.kind else {
-                            unreachable!("reference bands are lines")
-                        };
-                        brute::line_horizon_records(&terrain, post, direction.step)
-                    })
-                    .collect();
+                let (mut exact, mut cut) = (Vec::new(), Vec::new());
+                for band in &reference {
+                    let BandKind::Line(direction) = &band.kind else {
+                        unreachable!("reference bands are lines")
+                    };
+                    let records = brute::line_horizon_records(&terrain, post, direction.step);
+                    exact.push(f64::from(brute::horizon_within(&records, None)));
+                    cut.extend(
+                        cuts.iter()
+                            .map(|&d| brute::horizon_within(&records, Some(d))),
+                    );
+                }
                 bar.inc(1);
-                lines
+                (exact, cut)
             })
             .collect();
         bar.finish_and_clear();
-        // The unbounded horizon is a line's last record (-90: nothing ahead).
-        let exact = lines
-            .iter()
-            .map(|post| {
-                post.iter()
-                    .map(|records| records.last().map_or(-90.0, |r| f64::from(r.angle)))
-                    .collect()
-            })
-            .collect();
+        let (exact, cut) = lines.into_iter().unzip();
         Ok(Self {
             posts,
             relief_posts,
             reference,
             integrals,
             exact,
-            records: if opts.records { lines } else { Vec::new() },
+            cut,
+            cuts: cuts.len(),
         })
     }
 
     /// Post `i`'s horizon in reference direction `j` from the terrain no
-    /// farther than `max_distance` metres (needs `Sampling::records`).
-    pub fn bounded(&self, i: usize, j: usize, max_distance: f64) -> f64 {
-        self.records[i][j]
-            .iter()
-            .take_while(|r| r.distance <= max_distance)
-            .last()
-            .map_or(-90.0, |r| f64::from(r.angle))
+    /// farther than cut distance `k` (`Sampling::cuts`), degrees.
+    pub fn bounded(&self, i: usize, j: usize, k: usize) -> f64 {
+        f64::from(self.cut[i][j * self.cuts + k])
     }
 
     /// Zakšek's sky-view factor of a post's reference horizons.

@@ -45,7 +45,7 @@ fn options(directions: usize) -> CheckOptions {
         samples: 80,
         seed: 3,
         directions,
-        records: false,
+        cuts: &[],
     }
 }
 

@@ -75,7 +75,7 @@ proptest! {
         }
         let report = check(
             &Asset::open(&asset).unwrap(),
-            &CheckOptions { samples: 160, seed: seed + 7, directions: 720, records: false },
+            &CheckOptions { samples: 160, seed: seed + 7, directions: 720, cuts: &[] },
             Some(&budget),
             &sun,
             Progress::hidden(),
@@ -398,4 +398,51 @@ fn plan_measures_a_source_dem_and_leaves_nothing() {
     assert_eq!(plan["needs"], serde_json::json!(["horizons", "svf"]));
     let after: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
     assert_eq!(before.len(), after.len());
+}
+
+#[test]
+fn a_memory_limit_picks_smaller_tiles_unless_the_recipe_set_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let (tif, out) = source(dir.path(), SynthKind::Bowl);
+    // 180 directions hold a 256-post tile row each: about 160 MiB predicted;
+    // 128-post tiles hold a quarter of that.
+    let bake = terrabake(&[
+        "bake",
+        &tif,
+        "-o",
+        &out,
+        "--budget",
+        "horizon=0.5,memory=100",
+        "-q",
+    ]);
+    assert!(bake.status.success(), "{}", stderr(&bake));
+    let asset = Asset::open(&out).unwrap();
+    let plan = terrabake::plan::recorded(&asset).expect("recorded");
+    assert!(plan.tile < 256 && plan.memory_mib <= 100.0, "{plan:?}");
+    assert_eq!(asset.layer("horizon", 0).unwrap().tile_size(), plan.tile);
+    let checked = terrabake(&["check", &out, "--samples", "40"]);
+    assert_eq!(checked.status.code(), Some(0), "{}", stdout(&checked));
+    // The recipe's own tile wins: refused, naming the tile that would fit.
+    let recipe = dir.path().join("r.toml");
+    std::fs::write(
+        &recipe,
+        "[ingest]\ntile = 256\n\n[plan]\nbudget = { horizon = 0.5, memory = 100 }\n",
+    )
+    .unwrap();
+    let fresh = dir.path().join("fresh.tbake");
+    let refused = terrabake(&[
+        "bake",
+        &tif,
+        "-o",
+        fresh.to_str().unwrap(),
+        "--recipe",
+        recipe.to_str().unwrap(),
+    ]);
+    assert_eq!(refused.status.code(), Some(1));
+    assert!(
+        stderr(&refused).contains(&format!("set tile = {}", plan.tile)),
+        "{}",
+        stderr(&refused)
+    );
+    assert!(!fresh.exists());
 }

@@ -120,7 +120,7 @@ impl BenchPlanArgs {
                         samples: 400,
                         seed: 99,
                         directions: 720,
-                        records: false,
+                        cuts: &[],
                     },
                     Some(&budget),
                     &[],

@@ -47,7 +47,14 @@ pub fn line_horizon(
     if t.at(post.0, post.1).is_nan() {
         return f32::NAN;
     }
-    line_horizon_records(t, post, step)
+    horizon_within(&line_horizon_records(t, post, step), max_distance)
+}
+
+/// The horizon of a sight line with these records from the terrain no
+/// farther than `max_distance` metres: the last record within it, degrees
+/// (-90 when none).
+pub fn horizon_within(records: &[HorizonRecord], max_distance: Option<f64>) -> f32 {
+    records
         .iter()
         .take_while(|r| max_distance.is_none_or(|m| r.distance <= m))
         .last()
