@@ -5,7 +5,7 @@ BIN := target/release/terrabake
 DEMO_DEM := data/srtm3_n07w006_geographic_int16.tif
 OUT ?= out
 
-.PHONY: all build demo test test-full test-page bake-parts bake-slurm test-slurm fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-visibility bench-reader fixtures fmt lint clean
+.PHONY: all build demo test test-full test-page bake-parts bake-slurm test-slurm fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-visibility bench-plan bench-reader fixtures fmt lint clean
 
 all: build
 
@@ -133,6 +133,13 @@ bench-horizons-ooc: build
 bench-cones: build
 	BIN=$(BIN) bash pipelines/bench_cones.sh
 	BIN=$(BIN) bash pipelines/bench_cones_out_of_core.sh
+
+## The planner's charts: plan, bake and check the bundled tile, the held-out
+## DEMs and the synthetic terrains at five budgets (docs/charts/planning_*.svg,
+## the table in docs/BENCHMARKS.md); then refit its time models.
+bench-plan: build
+	BIN=$(BIN) bash pipelines/bench_plan.sh
+	BIN=$(BIN) bash pipelines/fit_plan_models.sh
 
 ## Reader micro-benchmarks (criterion).
 bench-reader:
