@@ -29,6 +29,7 @@ demo: build
 	$(BIN) render $(OUT)/srtm.tbake --shade sun:250,15 -o $(OUT)/srtm_sun.png
 	$(BIN) export $(OUT)/srtm.tbake --layer total_viewshed -o $(OUT)/srtm_total_viewshed.png
 	$(BIN) viewshed $(OUT)/srtm.tbake --observer -5.5,7.5 --crs lonlat --observer-height 10 -o $(OUT)/srtm_viewshed.tif
+	$(BIN) check $(OUT)/srtm.tbake --samples 100 --no-record > $(OUT)/srtm.check.txt
 	$(BIN) page $(OUT)/srtm.tbake -o $(OUT)/index.html \
 	  --picture "$(OUT)/srtm_view.png=Traced through the asset (parametric tracing, shadow rays, sun at 290, 10 degrees, heights x8)" \
 	  --picture "$(OUT)/srtm_relief.png=Heights: hypsometric tint and hillshade" \
@@ -41,6 +42,7 @@ demo: build
 	  --chart "docs/charts/cones_speed.svg=Parametric tracing: rays per second against cone slices (make bench-cones)" \
 	  --chart "docs/charts/trace_scaling_time.svg=Time per ray against DEM size, every tracer (make bench-trace)" \
 	  --text "$(OUT)/srtm_view.stats.txt=The view's tracing statistics" \
+	  --text "$(OUT)/srtm.check.txt=terrabake check: the baked horizons, cone planes and tracers against exact references from the heights" \
 	  --text "$(OUT)/srtm.verify.txt=terrabake verify"
 	@cat $(OUT)/srtm.summary.txt
 	@echo
@@ -49,6 +51,7 @@ demo: build
 	@echo "summary:  $(OUT)/srtm.summary.txt ($(OUT)/srtm.summary.json)"
 	@echo "previews: $(OUT)/srtm_relief.png $(OUT)/srtm_gray16.png $(OUT)/srtm_view.png"
 	@echo "horizons: $(OUT)/srtm_horizon.tif (32 bands, degrees) $(OUT)/srtm_svf.png $(OUT)/srtm_sky.png $(OUT)/srtm_sun.png"
+	@echo "check:    $(OUT)/srtm.check.txt (achieved horizon error; cones and rays against the brute force)"
 	@echo "viewshed: $(OUT)/srtm_total_viewshed.png $(OUT)/srtm_viewshed.tif (from 5.5 W 7.5 N, eye 10 m: band 1 visible, band 2 angle)"
 
 ## Every test, in the release profile that `make demo` (and `make build`)

@@ -517,10 +517,8 @@ pub fn describe(report: &CheckReport) -> String {
     let mut out = String::new();
     if let Some(h) = &report.horizons {
         out += &format!(
-            "checked {} posts ({} of the highest relief) against exact line horizons in {} directions
-             baked: {} horizons, {} bands, {}{}
-
-",
+            "checked {} posts ({} of the highest relief) against exact line horizons in {} directions\n\
+             baked: {} horizons, {} bands, {}{}\n\n",
             h.posts,
             h.relief_posts,
             h.reference_directions,
