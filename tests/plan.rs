@@ -259,19 +259,17 @@ fn layers(asset: &str) -> Vec<String> {
 fn the_needs_decide_what_is_baked_and_check_measures_each() {
     let dir = tempfile::tempdir().unwrap();
     let (tif, out) = source(dir.path(), SynthKind::Blocks);
-    let bake = terrabake(&[
-        "bake",
+    let bake = planned_bake(
         &tif,
-        "-o",
         &out,
-        "--budget",
-        "horizon=2,shade=0.05,time=600,memory=4096",
-        "--needs",
-        "horizons,sun,fast_tracing",
-        "--sun",
-        "250,15;120,30;180,45;90,5",
-        "-q",
-    ]);
+        &[
+            "horizon=2,shade=0.05,time=600,memory=4096",
+            "--needs",
+            "horizons,sun,fast_tracing",
+            "--sun",
+            "250,15;120,30;180,45;90,5",
+        ],
+    );
     assert!(bake.status.success(), "{}", stderr(&bake));
     let names = layers(&out);
     for wanted in ["horizon", "pyramid_max", "cone_apex", "cone_slope"] {
@@ -306,17 +304,7 @@ fn the_needs_decide_what_is_baked_and_check_measures_each() {
     // Tracing alone takes no horizons (and no pilot).
     let traced = dir.path().join("traced.tbake");
     let t = traced.to_str().unwrap();
-    let bake = terrabake(&[
-        "bake",
-        &tif,
-        "-o",
-        t,
-        "--budget",
-        "horizon=1",
-        "--needs",
-        "tracing",
-        "-q",
-    ]);
+    let bake = planned_bake(&tif, t, &["horizon=1", "--needs", "tracing"]);
     assert!(bake.status.success(), "{}", stderr(&bake));
     let names = layers(t);
     assert!(names.iter().any(|n| n == "pyramid_max"), "{names:?}");
@@ -325,16 +313,7 @@ fn the_needs_decide_what_is_baked_and_check_measures_each() {
         "{names:?}"
     );
     // A shade budget without the sun's positions is a clear refusal.
-    let refused = terrabake(&[
-        "bake",
-        &tif,
-        "-o",
-        t,
-        "--budget",
-        "horizon=1,shade=0.1",
-        "--needs",
-        "horizons,sun",
-    ]);
+    let refused = planned_bake(&tif, t, &["horizon=1,shade=0.1", "--needs", "horizons,sun"]);
     assert_eq!(refused.status.code(), Some(1));
     assert!(stderr(&refused).contains("--sun"), "{}", stderr(&refused));
 }
@@ -367,23 +346,12 @@ fn a_recipe_holds_a_plan_and_its_explicit_stages_win() {
     assert_eq!(plan.overridden, vec!["horizons".to_string()]);
     assert!(plan.baked.is_some());
     // A key the plan does not know is refused by name before any work.
-    std::fs::write(
-        &recipe,
-        "[plan]\nbudget = { horizon = 1.0 }\nneds = [\"svf\"]\n",
-    )
-    .unwrap();
-    let fresh = dir.path().join("fresh.tbake");
-    let bad = terrabake(&[
-        "bake",
+    let message = refused_recipe(
+        dir.path(),
         &tif,
-        "-o",
-        fresh.to_str().unwrap(),
-        "--recipe",
-        recipe.to_str().unwrap(),
-    ]);
-    assert_eq!(bad.status.code(), Some(1));
-    assert!(stderr(&bad).contains("neds"), "{}", stderr(&bad));
-    assert!(!fresh.exists());
+        "[plan]\nbudget = { horizon = 1.0 }\nneds = [\"svf\"]\n",
+    );
+    assert!(message.contains("neds"), "{message}");
 }
 
 #[test]
@@ -406,15 +374,7 @@ fn a_memory_limit_picks_smaller_tiles_unless_the_recipe_set_them() {
     let (tif, out) = source(dir.path(), SynthKind::Bowl);
     // 180 directions hold a 256-post tile row each: about 160 MiB predicted;
     // 128-post tiles hold a quarter of that.
-    let bake = terrabake(&[
-        "bake",
-        &tif,
-        "-o",
-        &out,
-        "--budget",
-        "horizon=0.5,memory=100",
-        "-q",
-    ]);
+    let bake = planned_bake(&tif, &out, &["horizon=0.5,memory=100"]);
     assert!(bake.status.success(), "{}", stderr(&bake));
     let asset = Asset::open(&out).unwrap();
     let plan = terrabake::plan::recorded(&asset).expect("recorded");
@@ -423,26 +383,40 @@ fn a_memory_limit_picks_smaller_tiles_unless_the_recipe_set_them() {
     let checked = terrabake(&["check", &out, "--samples", "40"]);
     assert_eq!(checked.status.code(), Some(0), "{}", stdout(&checked));
     // The recipe's own tile wins: refused, naming the tile that would fit.
-    let recipe = dir.path().join("r.toml");
-    std::fs::write(
-        &recipe,
-        "[ingest]\ntile = 256\n\n[plan]\nbudget = { horizon = 0.5, memory = 100 }\n",
-    )
-    .unwrap();
-    let fresh = dir.path().join("fresh.tbake");
-    let refused = terrabake(&[
-        "bake",
+    let message = refused_recipe(
+        dir.path(),
         &tif,
+        "[ingest]\ntile = 256\n\n[plan]\nbudget = { horizon = 0.5, memory = 100 }\n",
+    );
+    assert!(
+        message.contains(&format!("set tile = {}", plan.tile)),
+        "{message}"
+    );
+}
+
+/// `terrabake bake TIF -o OUT --budget ARGS... -q`.
+fn planned_bake(tif: &str, out: &str, budget_and_more: &[&str]) -> std::process::Output {
+    let mut args = vec!["bake", tif, "-o", out, "--budget"];
+    args.extend_from_slice(budget_and_more);
+    args.push("-q");
+    terrabake(&args)
+}
+
+/// Bakes `tif` with the recipe `text` into a new asset: refused with exit
+/// status 1 and no asset left; the message.
+fn refused_recipe(dir: &Path, tif: &str, text: &str) -> String {
+    let recipe = dir.join("refused.toml");
+    std::fs::write(&recipe, text).unwrap();
+    let fresh = dir.join("fresh.tbake");
+    let out = terrabake(&[
+        "bake",
+        tif,
         "-o",
         fresh.to_str().unwrap(),
         "--recipe",
         recipe.to_str().unwrap(),
     ]);
-    assert_eq!(refused.status.code(), Some(1));
-    assert!(
-        stderr(&refused).contains(&format!("set tile = {}", plan.tile)),
-        "{}",
-        stderr(&refused)
-    );
+    assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
     assert!(!fresh.exists());
+    stderr(&out)
 }
