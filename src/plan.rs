@@ -35,6 +35,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Result};
 use serde::{Deserialize, Serialize};
+use terrabake_format::cones::ConeEncoding;
 use terrabake_format::horizons::{bands_around, AngleEncoding};
 use terrabake_format::{Asset, Mmap};
 
@@ -127,6 +128,16 @@ pub struct Scene {
     /// The scene's central latitude, degrees, when it is known.
     #[serde(default)]
     pub latitude_deg: Option<f64>,
+    /// The east-west post spacing on the first and the last row, metres
+    /// (they differ with latitude on geographic grids).
+    #[serde(default)]
+    pub dx_range_m: Option<(f64, f64)>,
+    /// The slope at the pilot's posts (random ones and those of the
+    /// highest relief): median and 90th percentile, degrees.
+    #[serde(default)]
+    pub slope_p50_deg: Option<f64>,
+    #[serde(default)]
+    pub slope_p90_deg: Option<f64>,
     pub pilot_posts: usize,
     pub pilot_seconds: f64,
 }
@@ -176,6 +187,10 @@ pub struct Plan {
     pub pyramid: bool,
     #[serde(default)]
     pub cones: bool,
+    /// How the cone planes are stored: f32, or u16 where the bytes limit
+    /// needs it (both conservative: the same hits).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cone_encoding: Option<ConeEncoding>,
     /// Predicted for the whole bake after ingest.
     #[serde(default)]
     pub seconds: f64,
@@ -219,7 +234,10 @@ impl Plan {
             stages.push(Box::new(crate::pyramid::PyramidStage));
         }
         if self.cones {
-            let mut cones = crate::cones::ConesStage::default();
+            let mut cones = crate::cones::ConesStage {
+                encoding: self.cone_encoding.unwrap_or(ConeEncoding::F32),
+                ..Default::default()
+            };
             if let Some(mib) = self.budget.memory {
                 cones.max_memory = mib << 20;
             }
@@ -447,6 +465,13 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
             .georef
             .as_ref()
             .and_then(|g| crate::geo::central_latitude(g, m.width, m.height)),
+        dx_range_m: pilot.as_ref().map(|p| p.dx_range),
+        slope_p50_deg: pilot
+            .as_ref()
+            .map(|p| quantile_unsorted(&mut p.slope_deg.clone(), 0.5)),
+        slope_p90_deg: pilot
+            .as_ref()
+            .map(|p| quantile_unsorted(&mut p.slope_deg.clone(), 0.9)),
         pilot_posts: pilot.as_ref().map_or(0, |p| p.posts.len()),
         pilot_seconds: start.elapsed().as_secs_f64(),
     };
@@ -519,7 +544,8 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
             (lw, lh) = (lw.div_ceil(2), lh.div_ceil(2));
         }
     };
-    let cones_bytes = 2 * layer_bytes(cells.0.max(1), cells.1.max(1), tile, 4, 1);
+    let planes = |size: usize| 2 * layer_bytes(cells.0.max(1), cells.1.max(1), tile, size, 1);
+    let cones_bytes = planes(4);
     if pyramid {
         choices.push(Choice {
             what: "tracing".into(),
@@ -563,9 +589,41 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
         seconds += posts as f64 * PYRAMID_SECONDS_PER_POST;
         bytes += pyramid_bytes;
     }
+    // The cone planes: f32, or u16 (half the bytes, a few more steps per
+    // ray, the same hits) when only that fits the bytes limit.
+    let mut cone_encoding = None;
     if cones {
+        let f32_fits = budget.bytes.is_none_or(|l| bytes + cones_bytes <= l);
+        let encoding = if f32_fits {
+            ConeEncoding::F32
+        } else {
+            ConeEncoding::U16
+        };
+        let stored = if f32_fits { cones_bytes } else { planes(2) };
+        choices.push(Choice {
+            what: "cone planes".into(),
+            chosen: format!("{}, slices from the data", encoding.name()),
+            why: if f32_fits {
+                "the apex and slope as computed, rounded conservatively".into()
+            } else {
+                format!(
+                    "f32 planes ({:.1} MiB) would pass the bytes limit; u16 stores {:.1} MiB and stays conservative",
+                    cones_bytes as f64 / 1048576.0,
+                    stored as f64 / 1048576.0
+                )
+            },
+            rejected: Some(if f32_fits {
+                format!(
+                    "u16: {:.1} MiB less, a few more steps per ray (docs/CONES.md)",
+                    (cones_bytes - planes(2)) as f64 / 1048576.0
+                )
+            } else {
+                "f32: over the bytes limit".into()
+            }),
+        });
+        cone_encoding = Some(encoding);
         seconds += posts as f64 * CONES_SECONDS_PER_POST;
-        bytes += cones_bytes;
+        bytes += stored;
         let in_core = BASE_MIB + CONES_BYTES_PER_POST * posts as f64 / 1048576.0;
         // Cones bake in windows within a memory limit.
         memory_mib = memory_mib.max(budget.memory.map_or(in_core, |l| in_core.min(l as f64)));
@@ -626,6 +684,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
         tile: tile as u32,
         pyramid,
         cones,
+        cone_encoding,
         seconds,
         bytes,
         memory_mib,
@@ -883,6 +942,13 @@ pub fn describe(plan: &Plan) -> String {
         100.0 * s.nodata_share,
         if s.curvature { "on" } else { "off" },
     );
+    if let (Some(p50), Some(p90), Some((top, bottom))) =
+        (s.slope_p50_deg, s.slope_p90_deg, s.dx_range_m)
+    {
+        out += &format!(
+            "       slope p50 {p50:.1} deg, p90 {p90:.1} deg at the pilot's posts; east-west spacing {top:.1} m (first row) to {bottom:.1} m (last)\n"
+        );
+    }
     if s.pilot_posts > 0 {
         out += &format!(
             "pilot  exact horizons in {PILOT_DIRECTIONS} directions at {} posts ({:.1} s)\n",

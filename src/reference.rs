@@ -124,6 +124,12 @@ pub struct Pilot {
     /// without cuts).
     cut: Vec<Vec<f32>>,
     cuts: usize,
+    /// Per post, the terrain's slope there, degrees (central differences;
+    /// one-sided at edges and beside holes).
+    pub slope_deg: Vec<f64>,
+    /// The east-west post spacing on the first and the last row, metres
+    /// (they differ on geographic grids).
+    pub dx_range: (f64, f64),
 }
 
 impl Pilot {
@@ -188,6 +194,28 @@ impl Pilot {
             .collect();
         bar.finish_and_clear();
         let (exact, cut) = lines.into_iter().unzip();
+        let slope_deg = posts
+            .iter()
+            .map(|&(c, r)| {
+                // Half the height change across the post per metre, each
+                // way; a missing neighbour leaves the post itself.
+                let z = |cc: usize, rr: usize| {
+                    let v = terrain.at(cc, rr);
+                    if v.is_nan() {
+                        terrain.at(c, r)
+                    } else {
+                        v
+                    }
+                };
+                let (c0, c1) = (c.saturating_sub(1), (c + 1).min(dem.width - 1));
+                let (r0, r1) = (r.saturating_sub(1), (r + 1).min(dem.height - 1));
+                let gx =
+                    f64::from(z(c1, r) - z(c0, r)) / ((c1 - c0).max(1) as f64 * terrain.dx_at(r));
+                let gy = f64::from(z(c, r1) - z(c, r0)) / ((r1 - r0).max(1) as f64 * terrain.dy);
+                gx.hypot(gy).atan().to_degrees()
+            })
+            .collect();
+        let dx_range = (terrain.dx_at(0), terrain.dx_at(dem.height - 1));
         Ok(Self {
             posts,
             relief_posts,
@@ -196,6 +224,8 @@ impl Pilot {
             exact,
             cut,
             cuts: cuts.len(),
+            slope_deg,
+            dx_range,
         })
     }
 

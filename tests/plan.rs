@@ -420,3 +420,53 @@ fn refused_recipe(dir: &Path, tif: &str, text: &str) -> String {
     assert!(!fresh.exists());
     stderr(&out)
 }
+
+#[test]
+fn a_bytes_limit_stores_the_cone_planes_as_u16_and_they_stay_exact() {
+    use terrabake_format::cones::ConeEncoding;
+    let dir = tempfile::tempdir().unwrap();
+    let asset = terrain(dir.path(), SynthKind::Fractal, 6);
+    let tracing = |bytes: Option<u64>| {
+        let request = Request {
+            budget: Budget {
+                horizon: 1.0,
+                bytes,
+                ..Default::default()
+            },
+            needs: Needs::new(vec![Need::FastTracing]),
+            ..Default::default()
+        };
+        plan(&Asset::open(&asset).unwrap(), &request, Progress::hidden()).unwrap()
+    };
+    let roomy = tracing(None);
+    assert_eq!(roomy.cone_encoding, Some(ConeEncoding::F32));
+    let tight = tracing(Some(roomy.bytes - 1));
+    assert_eq!(tight.cone_encoding, Some(ConeEncoding::U16));
+    assert!(tight.bytes < roomy.bytes && tight.chosen.is_none());
+    for stage in tight.stages() {
+        run_stage(&asset, stage.as_ref(), true, Progress::hidden()).unwrap();
+    }
+    let report = check(
+        &Asset::open(&asset).unwrap(),
+        &CheckOptions {
+            samples: 50,
+            seed: 11,
+            directions: 720,
+            cuts: &[],
+        },
+        Some(&tight.budget),
+        &[],
+        Progress::hidden(),
+    )
+    .unwrap();
+    let t = report.tracing.as_ref().expect("tracing checked");
+    assert!(
+        report.within_budget() && t.cone_violations == 0,
+        "{report:?}"
+    );
+    // The asset on disk is what the plan predicted, within the manifest.
+    assert!(
+        report.bytes <= tight.budget.bytes.unwrap() + 8192,
+        "{report:?}"
+    );
+}
