@@ -80,10 +80,14 @@ pub const TIME_RATE: f64 = 1.34e7;
 /// (PER_LINE + PER_CELL * D / cell).
 pub const BOUNDED_PER_LINE: f64 = 4.29e-8;
 pub const BOUNDED_PER_CELL: f64 = 8.04e-9;
-/// Seconds per post of the pyramid and of the cone planes (slices from the
-/// data), measured on the bundled tile (2 cores, 0.13 s and 1.15 s).
+/// Seconds per post of the pyramid and of the cone planes at
+/// CONE_SLICES slices, measured on the bundled tile (2 cores, 0.13 s and
+/// 0.46 s; docs/BENCHMARKS.md, cone planes).
 const PYRAMID_SECONDS_PER_POST: f64 = 9.0e-8;
-const CONES_SECONDS_PER_POST: f64 = 8.0e-7;
+const CONES_SECONDS_PER_POST: f64 = 3.2e-7;
+/// The cone planes' slices: within 6 % of the exact cones' steps per ray on
+/// the bundled tile at 37 % of the bake time of 256 slices (1.3 %).
+const CONE_SLICES: usize = 64;
 /// Peak memory, measured on the bundled tile: a base of 40 MiB, 10.7 bytes
 /// per post and band of a tile row of horizons in flight (97 MiB at 16
 /// directions, 463 MiB at 120), the DEM itself (4 bytes a post) for bounded
@@ -187,10 +191,6 @@ pub struct Plan {
     pub pyramid: bool,
     #[serde(default)]
     pub cones: bool,
-    /// How the cone planes are stored: f32, or u16 where the bytes limit
-    /// needs it (both conservative: the same hits).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub cone_encoding: Option<ConeEncoding>,
     /// Predicted for the whole bake after ingest.
     #[serde(default)]
     pub seconds: f64,
@@ -235,7 +235,8 @@ impl Plan {
         }
         if self.cones {
             let mut cones = crate::cones::ConesStage {
-                encoding: self.cone_encoding.unwrap_or(ConeEncoding::F32),
+                slices: crate::cones::SliceChoice::Count(CONE_SLICES),
+                encoding: ConeEncoding::U16,
                 ..Default::default()
             };
             if let Some(mib) = self.budget.memory {
@@ -545,7 +546,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
         }
     };
     let planes = |size: usize| 2 * layer_bytes(cells.0.max(1), cells.1.max(1), tile, size, 1);
-    let cones_bytes = planes(4);
+    let cones_bytes = planes(2);
     if pyramid {
         choices.push(Choice {
             what: "tracing".into(),
@@ -555,7 +556,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
                 "max/min pyramid".into()
             },
             why: if cones {
-                "fast tracing: parametric steps through the cone planes (slices from the data), the pyramid's exact hits in fewer steps".into()
+                "fast tracing: parametric steps through the cone planes, the pyramid's exact hits in fewer steps".into()
             } else {
                 "exact hierarchical tracing needs only the pyramid".into()
             },
@@ -589,41 +590,20 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
         seconds += posts as f64 * PYRAMID_SECONDS_PER_POST;
         bytes += pyramid_bytes;
     }
-    // The cone planes: f32, or u16 (half the bytes, a few more steps per
-    // ray, the same hits) when only that fits the bytes limit.
-    let mut cone_encoding = None;
     if cones {
-        let f32_fits = budget.bytes.is_none_or(|l| bytes + cones_bytes <= l);
-        let encoding = if f32_fits {
-            ConeEncoding::F32
-        } else {
-            ConeEncoding::U16
-        };
-        let stored = if f32_fits { cones_bytes } else { planes(2) };
         choices.push(Choice {
             what: "cone planes".into(),
-            chosen: format!("{}, slices from the data", encoding.name()),
-            why: if f32_fits {
-                "the apex and slope as computed, rounded conservatively".into()
-            } else {
-                format!(
-                    "f32 planes ({:.1} MiB) would pass the bytes limit; u16 stores {:.1} MiB and stays conservative",
-                    cones_bytes as f64 / 1048576.0,
-                    stored as f64 / 1048576.0
-                )
-            },
-            rejected: Some(if f32_fits {
-                format!(
-                    "u16: {:.1} MiB less, a few more steps per ray (docs/CONES.md)",
-                    (cones_bytes - planes(2)) as f64 / 1048576.0
-                )
-            } else {
-                "f32: over the bytes limit".into()
-            }),
+            chosen: format!("{CONE_SLICES} slices, u16"),
+            why: format!(
+                "{CONE_SLICES} slices step within 6 % of the exact cones on the bundled tile; u16 planes (conservative) step and trace as f32 do, in half the bytes (docs/BENCHMARKS.md, cone planes)"
+            ),
+            rejected: Some(format!(
+                "256 slices: within 1.3 % of exact, 2.7x the bake; f32 planes: {:.1} MiB more for the same steps",
+                (planes(4) - cones_bytes) as f64 / 1048576.0
+            )),
         });
-        cone_encoding = Some(encoding);
         seconds += posts as f64 * CONES_SECONDS_PER_POST;
-        bytes += stored;
+        bytes += cones_bytes;
         let in_core = BASE_MIB + CONES_BYTES_PER_POST * posts as f64 / 1048576.0;
         // Cones bake in windows within a memory limit.
         memory_mib = memory_mib.max(budget.memory.map_or(in_core, |l| in_core.min(l as f64)));
@@ -684,7 +664,6 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
         tile: tile as u32,
         pyramid,
         cones,
-        cone_encoding,
         seconds,
         bytes,
         memory_mib,

@@ -422,39 +422,40 @@ fn refused_recipe(dir: &Path, tif: &str, text: &str) -> String {
 }
 
 #[test]
-fn a_bytes_limit_stores_the_cone_planes_as_u16_and_they_stay_exact() {
+fn fast_tracing_bakes_u16_cone_planes_of_64_slices_that_stay_exact() {
+    use terrabake::cones::{ConesStage, SliceChoice};
     use terrabake_format::cones::ConeEncoding;
     let dir = tempfile::tempdir().unwrap();
     let asset = terrain(dir.path(), SynthKind::Fractal, 6);
-    let tracing = |bytes: Option<u64>| {
-        let request = Request {
-            budget: Budget {
-                horizon: 1.0,
-                bytes,
-                ..Default::default()
-            },
-            needs: Needs::new(vec![Need::FastTracing]),
+    let request = Request {
+        budget: Budget {
+            horizon: 1.0,
             ..Default::default()
-        };
-        plan(&Asset::open(&asset).unwrap(), &request, Progress::hidden()).unwrap()
+        },
+        needs: Needs::new(vec![Need::FastTracing]),
+        ..Default::default()
     };
-    let roomy = tracing(None);
-    assert_eq!(roomy.cone_encoding, Some(ConeEncoding::F32));
-    let tight = tracing(Some(roomy.bytes - 1));
-    assert_eq!(tight.cone_encoding, Some(ConeEncoding::U16));
-    assert!(tight.bytes < roomy.bytes && tight.chosen.is_none());
-    for stage in tight.stages() {
+    let p = plan(&Asset::open(&asset).unwrap(), &request, Progress::hidden()).unwrap();
+    assert!(p.chosen.is_none() && p.pyramid && p.cones, "{p:?}");
+    for stage in p.stages() {
         run_stage(&asset, stage.as_ref(), true, Progress::hidden()).unwrap();
     }
+    let opened = Asset::open(&asset).unwrap();
+    let cones: ConesStage =
+        terrabake::stage::recorded_params(opened.manifest(), "cones").expect("cones recorded");
+    assert_eq!(
+        (cones.slices, cones.encoding),
+        (SliceChoice::Count(64), ConeEncoding::U16)
+    );
     let report = check(
-        &Asset::open(&asset).unwrap(),
+        &opened,
         &CheckOptions {
             samples: 50,
             seed: 11,
             directions: 720,
             cuts: &[],
         },
-        Some(&tight.budget),
+        Some(&p.budget),
         &[],
         Progress::hidden(),
     )
@@ -466,7 +467,9 @@ fn a_bytes_limit_stores_the_cone_planes_as_u16_and_they_stay_exact() {
     );
     // The asset on disk is what the plan predicted, within the manifest.
     assert!(
-        report.bytes <= tight.budget.bytes.unwrap() + 8192,
-        "{report:?}"
+        report.bytes <= p.bytes + 8192,
+        "{} > {}",
+        report.bytes,
+        p.bytes
     );
 }

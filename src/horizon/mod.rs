@@ -394,10 +394,15 @@ pub struct HeldDem {
 }
 
 impl HeldDem {
-    /// The asset's `height` layer, whole.
+    /// The asset's `height` layer, whole; refused before reading when the
+    /// machine lacks the memory (4 bytes a post), naming the asset.
     pub fn read(asset: &Asset<Mmap>) -> Result<Self> {
-        let (z, width, height) = read_heights(asset)?;
         let m = asset.manifest();
+        crate::resources::ensure_memory(
+            4 * u64::from(m.width) * u64::from(m.height),
+            &format!("{}: holding the whole DEM", asset.dir().display()),
+        )?;
+        let (z, width, height) = read_heights(asset)?;
         Ok(Self {
             z,
             width,
