@@ -30,6 +30,12 @@
 //! 8.04e-9 * D / cell)` s; bytes from the layers' tiles; memory from the
 //! tile row the line stage holds per band. The bake takes the faster of the
 //! two line routes that fits the memory limit.
+//!
+//! **Limits beyond the errors.** A memory limit can shrink the tiles (the
+//! line sweeps hold a tile row of every direction), a bytes limit can make
+//! the heights zstd (a sample of tile rows encoded as ingest would); both
+//! mean a second ingest, which `recipe::bake` runs. Fast tracing gets
+//! 64-slice u16 cone planes, chosen from the bundled tile's measurements.
 
 use std::time::Instant;
 
@@ -37,7 +43,7 @@ use anyhow::{bail, Result};
 use serde::{Deserialize, Serialize};
 use terrabake_format::cones::ConeEncoding;
 use terrabake_format::horizons::{bands_around, AngleEncoding};
-use terrabake_format::{Asset, Mmap};
+use terrabake_format::{Asset, Codec, Mmap};
 
 use crate::budget::{Budget, Need, Needs, Request, SunPosition};
 use crate::horizon::sky::{svf_of_horizons, BandIntegrals};
@@ -187,6 +193,10 @@ pub struct Plan {
     /// the memory limit needs it: the bake ingests again).
     #[serde(default)]
     pub tile: u32,
+    /// The heights' codec the plan bakes with: the ingest's, or zstd when
+    /// only that fits the bytes limit (the bake ingests again).
+    #[serde(default = "raw_codec")]
+    pub codec: Codec,
     #[serde(default)]
     pub pyramid: bool,
     #[serde(default)]
@@ -254,6 +264,29 @@ impl Plan {
         }
         stages
     }
+}
+
+fn raw_codec() -> Codec {
+    Codec::Raw
+}
+
+/// Bytes of the heights stored as zstd tiles of `tile` posts: up to eight
+/// tile rows spread over the DEM, encoded as ingest encodes them, scaled to
+/// every row.
+fn zstd_height_bytes(asset: &Asset<Mmap>, tile: usize) -> Result<u64> {
+    let height = asset.height()?;
+    let (w, h) = (height.width() as usize, height.height() as usize);
+    let bands = crate::tiling::row_bands(h, tile);
+    let stride = bands.len().div_ceil(8);
+    let (mut sampled, mut stored) = (0, 0);
+    for band in bands.iter().step_by(stride) {
+        let mut z = vec![0f32; w * band.len()];
+        height.read_rows_f32(0, band.start as u32, &mut z)?;
+        let tiles = crate::tiling::encode_tile_row(&z, w, tile, f32::NAN, Codec::Zstd);
+        sampled += 1;
+        stored += tiles.iter().map(|t| t.bytes.len() as u64).sum::<u64>();
+    }
+    Ok(stored * bands.len() as u64 / sampled.max(1))
 }
 
 /// A sun position as the pilot sees it: the nearest reference direction.
@@ -572,8 +605,12 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
         });
     }
     let mut seconds = 0.0;
-    // The asset on disk: the heights and every planned layer.
-    let mut bytes = layer_bytes(w, h, tile, 4, 1);
+    // The asset on disk: the heights (as stored, when they are zstd) and
+    // every planned layer.
+    let heights = m.layer(terrabake_format::HEIGHT_LAYER, 0);
+    let mut bytes = heights
+        .filter(|l| l.codec == Codec::Zstd && l.tile_size as usize == tile)
+        .map_or(layer_bytes(w, h, tile, 4, 1), |l| l.file_len);
     // The pilot holds the DEM (4 bytes a post) and, per post and reference
     // direction, the exact horizon (8 bytes) and its cuts (4 bytes each).
     let mut memory_mib = BASE_MIB;
@@ -617,14 +654,14 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
     choices.push(if tile == ingested_tile {
         Choice {
             what: "tiles".into(),
-            chosen: format!("{tile} posts, raw"),
-            why: "the ingest's: raw tiles are read in place from the memory mapping, no decode per read (derived layers are always raw)".into(),
-            rejected: Some("zstd heights: fewer bytes on disk, a decode on every tile read (set codec in a recipe's [ingest] when bytes matter more)".into()),
+            chosen: format!("{tile} posts"),
+            why: "the ingest's: the line sweeps' tile rows fit the memory".into(),
+            rejected: None,
         }
     } else {
         Choice {
             what: "tiles".into(),
-            chosen: format!("{tile} posts, raw (ingest again)"),
+            chosen: format!("{tile} posts (ingest again)"),
             why: format!(
                 "the line sweeps hold a tile row of every direction: {:.0} MiB at {tile} posts fits the memory limit",
                 line_row(tile)
@@ -635,6 +672,47 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
             )),
         }
     });
+    // The heights' codec: raw (read in place), or zstd when only that fits
+    // the bytes limit.
+    let ingested_codec = m
+        .layer(terrabake_format::HEIGHT_LAYER, 0)
+        .map_or(Codec::Raw, |l| l.codec);
+    let mut codec = ingested_codec;
+    if let Some(limit) = budget.bytes {
+        let raw_heights = layer_bytes(w, h, tile, 4, 1);
+        if codec == Codec::Raw && bytes > limit && bytes - raw_heights < limit {
+            let zstd = zstd_height_bytes(asset, tile)?;
+            if bytes - raw_heights + zstd <= limit {
+                choices.push(Choice {
+                    what: "codec".into(),
+                    chosen: "zstd heights (ingest again)".into(),
+                    why: format!(
+                        "raw heights ({:.1} MiB) would pass the bytes limit; zstd tiles take {:.1} MiB (encoded on a sample of tile rows)",
+                        raw_heights as f64 / 1048576.0,
+                        zstd as f64 / 1048576.0
+                    ),
+                    rejected: Some("raw: over the bytes limit".into()),
+                });
+                bytes = bytes - raw_heights + zstd;
+                codec = Codec::Zstd;
+            }
+        }
+    }
+    if codec == Codec::Zstd && ingested_codec == Codec::Zstd {
+        choices.push(Choice {
+            what: "codec".into(),
+            chosen: "zstd heights".into(),
+            why: "the ingest's".into(),
+            rejected: None,
+        });
+    } else if codec == Codec::Raw {
+        choices.push(Choice {
+            what: "codec".into(),
+            chosen: "raw".into(),
+            why: "tiles are read in place from the memory mapping, no decode per read (derived layers are always raw)".into(),
+            rejected: Some("zstd heights: fewer bytes, a decode on every tile read (chosen when only it fits the bytes limit)".into()),
+        });
+    }
     let what_to_relax = if chosen.is_some() {
         ", or horizon (fewer directions)"
     } else {
@@ -662,6 +740,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
         safe_distance,
         sky_layers,
         tile: tile as u32,
+        codec,
         pyramid,
         cones,
         seconds,

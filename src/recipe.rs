@@ -230,10 +230,11 @@ pub fn bake(
     Ok(outcomes)
 }
 
-/// Plans the ingested asset for `request`. When the plan needs smaller
-/// tiles than the ingest's (the memory limit), ingests again with them and
-/// plans again, unless the recipe set the tile itself: explicit parameters
-/// win, so that is refused naming both ways out.
+/// Plans the ingested asset for `request`. When the plan needs other
+/// tiles than the ingest's (smaller ones for the memory limit, zstd heights
+/// for the bytes limit), ingests again with them and plans again, unless
+/// the recipe set them itself: explicit parameters win, so that is refused
+/// naming both ways out.
 fn plan_ingested(
     dir: &Path,
     recipe: &Recipe,
@@ -244,24 +245,43 @@ fn plan_ingested(
     progress: Progress,
 ) -> Result<crate::plan::Plan> {
     let plan = crate::plan::plan(&crate::asset::open(dir)?, request, progress)?;
-    if plan.tile == recipe.ingest.tile_size {
+    let given = |key: &str| {
+        toml::from_str::<toml::Table>(&recipe.text)
+            .ok()
+            .and_then(|t| t.get("ingest")?.get(key).cloned())
+            .is_some()
+    };
+    let ingest = &recipe.ingest;
+    for (key, differs, limit, wanted) in [
+        (
+            "tile",
+            plan.tile != ingest.tile_size,
+            "memory",
+            plan.tile.to_string(),
+        ),
+        (
+            "codec",
+            plan.codec != ingest.codec,
+            "bytes",
+            match plan.codec {
+                terrabake_format::Codec::Raw => "\"raw\"".to_string(),
+                terrabake_format::Codec::Zstd => "\"zstd\"".to_string(),
+            },
+        ),
+    ] {
+        if differs && given(key) {
+            bail!(
+                "{}: the [ingest] {key} leaves the plan over its {limit} limit; set {key} = {wanted} or relax {limit}",
+                recipe.path.display(),
+            );
+        }
+    }
+    if plan.tile == ingest.tile_size && plan.codec == ingest.codec {
         return Ok(plan);
     }
-    let explicit = toml::from_str::<toml::Table>(&recipe.text)
-        .ok()
-        .and_then(|t| t.get("ingest")?.get("tile").cloned())
-        .is_some();
-    if explicit {
-        bail!(
-            "{}: [ingest] tile = {} leaves the line sweeps over memory={} MiB; set tile = {} or relax memory",
-            recipe.path.display(),
-            recipe.ingest.tile_size,
-            request.budget.memory.unwrap_or_default(),
-            plan.tile
-        );
-    }
-    let mut ingest = recipe.ingest_stage(src);
-    ingest.options.tile_size = plan.tile;
-    outcomes.push(run_stage_in(writer, &ingest, false, progress)?);
+    let mut again = recipe.ingest_stage(src);
+    again.options.tile_size = plan.tile;
+    again.options.codec = plan.codec;
+    outcomes.push(run_stage_in(writer, &again, false, progress)?);
     crate::plan::plan(&crate::asset::open(dir)?, request, progress)
 }

@@ -473,3 +473,35 @@ fn fast_tracing_bakes_u16_cone_planes_of_64_slices_that_stay_exact() {
         p.bytes
     );
 }
+
+#[test]
+fn a_bytes_limit_picks_zstd_heights_unless_the_recipe_set_the_codec() {
+    let dir = tempfile::tempdir().unwrap();
+    let (tif, out) = source(dir.path(), SynthKind::Fractal);
+    let planned = terrabake(&["plan", &tif, "--budget", "horizon=2", "--json"]);
+    assert!(planned.status.success(), "{}", stderr(&planned));
+    let roomy: serde_json::Value = serde_json::from_slice(&planned.stdout).unwrap();
+    assert_eq!(roomy["codec"], "raw");
+    // Half the raw heights' tile (256 x 256 f32) less than the raw plan.
+    let limit = roomy["bytes"].as_u64().unwrap() - 128 * 1024;
+    let budget = format!("horizon=2,bytes={limit}");
+    let bake = planned_bake(&tif, &out, &[&budget]);
+    assert!(bake.status.success(), "{}", stderr(&bake));
+    let asset = Asset::open(&out).unwrap();
+    assert_eq!(
+        asset.height().unwrap().entry().codec,
+        terrabake_format::Codec::Zstd
+    );
+    let checked = terrabake(&["check", &out, "--samples", "40", "--json"]);
+    assert_eq!(checked.status.code(), Some(0), "{}", stdout(&checked));
+    let report: serde_json::Value = serde_json::from_slice(&checked.stdout).unwrap();
+    assert!(report["bytes"].as_u64().unwrap() <= limit, "{report}");
+    let message = refused_recipe(
+        dir.path(),
+        &tif,
+        &format!(
+            "[ingest]\ncodec = \"raw\"\n\n[plan]\nbudget = {{ horizon = 2.0, bytes = {limit} }}\n"
+        ),
+    );
+    assert!(message.contains("set codec = \"zstd\""), "{message}");
+}
