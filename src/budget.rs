@@ -305,6 +305,17 @@ impl FromStr for SunPositions {
     }
 }
 
+/// A sun position is finite and its elevation lies in 0..90 degrees: on
+/// the command line and in a recipe's `[plan]` alike.
+fn check_sun_position([az, el]: SunPosition) -> Result<(), String> {
+    if !az.is_finite() || !(0.0..=90.0).contains(&el) {
+        return Err(format!(
+            "sun position [{az}, {el}]: give a finite azimuth and an elevation in 0..90 degrees"
+        ));
+    }
+    Ok(())
+}
+
 /// `AZ,EL;AZ,EL;...`: sun positions in degrees.
 fn parse_sun_positions(s: &str) -> Result<Vec<SunPosition>, String> {
     s.split(';')
@@ -321,11 +332,9 @@ fn parse_sun_positions(s: &str) -> Result<Vec<SunPosition>, String> {
                     .filter(|x| x.is_finite())
                     .ok_or_else(|| format!("{p:?}: expected AZ,EL in degrees"))
             };
-            let (az, el) = (number(az)?, number(el)?);
-            if !(0.0..=90.0).contains(&el) {
-                return Err(format!("{p:?}: a sun elevation lies in 0..90 degrees"));
-            }
-            Ok([az.rem_euclid(360.0), el])
+            let position = [number(az)?.rem_euclid(360.0), number(el)?];
+            check_sun_position(position).map_err(|e| format!("{p:?}: {e}"))?;
+            Ok(position)
         })
         .collect()
 }
@@ -363,6 +372,9 @@ impl Request {
                 "budget shade={}: add sun to --needs (and its positions: --sun or --sun-day)",
                 self.budget.shade.unwrap_or_default()
             ));
+        }
+        for &position in &self.sun {
+            check_sun_position(position)?;
         }
         if let Some(day) = self.sun_day {
             if !(1..=366).contains(&day) {
@@ -416,5 +428,21 @@ mod tests {
             let err = text.parse::<Budget>().unwrap_err();
             assert!(err.contains(says), "{text}: {err}");
         }
+    }
+
+    #[test]
+    fn sun_positions_are_checked_on_the_command_line_and_in_recipes_alike() {
+        assert!("250,15;120,95".parse::<SunPositions>().is_err());
+        assert_eq!(
+            "-10,5".parse::<SunPositions>().unwrap(),
+            SunPositions(vec![[350.0, 5.0]])
+        );
+        let request: Request =
+            toml::from_str("needs = [\"sun\"]\nsun = [[250.0, 95.0]]\nbudget = { horizon = 1.0 }")
+                .unwrap();
+        assert!(request
+            .validate()
+            .unwrap_err()
+            .contains("elevation in 0..90"));
     }
 }

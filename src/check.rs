@@ -23,7 +23,6 @@ use serde::Serialize;
 use terrabake_format::cones::ConePlanes;
 use terrabake_format::horizons::HorizonMap;
 use terrabake_format::layers::{HEIGHT, HORIZON, SVF};
-use terrabake_format::surface::Cell;
 use terrabake_format::trace::{Method as TraceMethod, Ray, Tracer};
 use terrabake_format::{Asset, Mmap};
 
@@ -31,6 +30,7 @@ use crate::budget::{Budget, SunPosition};
 use crate::horizon::{HeldDem, HorizonsStage};
 use crate::plan::{Baked, Candidate};
 use crate::progress::Progress;
+use crate::reference::shade_differs;
 pub use crate::reference::{percentile, Pilot, Sampling};
 use crate::synth::SplitMix64;
 
@@ -156,11 +156,13 @@ pub fn check(
     } else {
         sun
     };
+    // The heights, read once for both references.
+    let dem = HeldDem::read(asset)?;
     let horizons = match HorizonMap::open(asset) {
-        Ok(map) => Some(check_horizons(asset, &map, opts, sun, progress)?),
+        Ok(map) => Some(check_horizons(asset, &dem, &map, opts, sun, progress)?),
         Err(_) => None,
     };
-    let tracing = check_tracing(asset, opts)?;
+    let tracing = check_tracing(asset, &dem, opts)?;
     if horizons.is_none() && tracing.is_none() {
         bail!(
             "{}: nothing to check: the asset has no horizon layer, pyramid or cone planes (terrabake horizons {})",
@@ -195,6 +197,7 @@ pub fn check(
 /// The horizons against exact line horizons at sampled posts.
 fn check_horizons(
     asset: &Asset<Mmap>,
+    dem: &HeldDem,
     map: &HorizonMap<'_, Mmap>,
     opts: &CheckOptions,
     sun: &[SunPosition],
@@ -211,6 +214,7 @@ fn check_horizons(
     let area = stage.area(m.width as usize, m.height as usize);
     let pilot = Pilot::measure(
         asset,
+        dem,
         stage.curvature_coefficient(asset),
         area,
         opts,
@@ -219,10 +223,9 @@ fn check_horizons(
     let svf_layer = asset.layer(SVF, 0).ok();
     // Each sun at the nearest reference direction, where both the exact
     // and the served horizon are known.
-    let step = 360.0 / pilot.reference.len() as f64;
     let suns: Vec<(usize, f64)> = sun
         .iter()
-        .map(|&[az, el]| ((az / step).round() as usize % pilot.reference.len(), el))
+        .map(|&[az, el]| (pilot.nearest_direction(az), el))
         .collect();
     // Per post: the signed horizon errors at every reference azimuth, the
     // svf error, and the wrong sun/shade states.
@@ -242,7 +245,7 @@ fn check_horizons(
             }
             let wrong = suns
                 .iter()
-                .filter(|&&(j, el)| served[j].is_some_and(|s| (el > s) != (el > exact[j])))
+                .filter(|&&(j, el)| served[j].is_some_and(|s| shade_differs(el, s, exact[j])))
                 .count();
             let svf_error = match &svf_layer {
                 Some(layer) => {
@@ -295,29 +298,26 @@ const FULL_SCAN_CELLS: usize = 4_000_000;
 /// cells' cones against every cell of the DEM, and `4 * samples` random
 /// rays traced by every method the asset serves and by the brute force.
 /// `None` when the asset has neither a pyramid nor cone planes.
-fn check_tracing(asset: &Asset<Mmap>, opts: &CheckOptions) -> Result<Option<TracingCheck>> {
+fn check_tracing(
+    asset: &Asset<Mmap>,
+    dem: &HeldDem,
+    opts: &CheckOptions,
+) -> Result<Option<TracingCheck>> {
     let tracer = Tracer::new(asset)?;
     if !tracer.has_pyramid() && !tracer.has_cones() {
         return Ok(None);
     }
-    let dem = HeldDem::read(asset)?;
     let (w, h) = (dem.width, dem.height);
     let (cw, ch) = (w - 1, h - 1);
     let mut rng = SplitMix64(opts.seed ^ 0x7472_6163);
-    // Each cell's tallest corner (-inf without surface).
-    let tall: Vec<f32> = (0..cw * ch)
-        .map(|i| {
-            let (c, r) = (i % cw, i / cw);
-            let z = |cc: usize, rr: usize| dem.z[rr * w + cc];
-            Cell {
-                nw: z(c, r),
-                ne: z(c + 1, r),
-                sw: z(c, r + 1),
-                se: z(c + 1, r + 1),
-            }
-            .max()
-        })
-        .collect();
+    // Each cell's tallest corner (-inf without surface), as the pyramid's
+    // level 0 bounds it, from the heights rather than the baked layer.
+    let mut tall = vec![0f32; cw * ch];
+    let mut low = vec![0f32; cw];
+    for (r, max) in tall.chunks_exact_mut(cw).enumerate() {
+        let rows = &dem.z[r * w..(r + 2) * w];
+        crate::pyramid::cell_bounds_row(&rows[..w], &rows[w..], max, &mut low);
+    }
     let (mut cone_cells, mut cone_violations, mut tightness) = (0, 0, None);
     if let Some(planes) = ConePlanes::open(asset)? {
         let cells: Vec<usize> = (0..opts.samples.min(cw * ch))
@@ -378,18 +378,14 @@ fn check_tracing(asset: &Asset<Mmap>, opts: &CheckOptions) -> Result<Option<Trac
         .height_range
         .map_or((0.0, 1.0), |r| (f64::from(r.min), f64::from(r.max)));
     let span = (hi - lo).max(1.0);
-    let unit = |rng: &mut SplitMix64| (rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
     let rays: Vec<Ray> = (0..4 * opts.samples)
         .map(|_| {
             let origin = [
-                unit(&mut rng) * xm,
-                unit(&mut rng) * ym,
-                lo + unit(&mut rng) * 1.5 * span,
+                rng.unit() * xm,
+                rng.unit() * ym,
+                lo + rng.unit() * 1.5 * span,
             ];
-            let (z, phi) = (
-                2.0 * unit(&mut rng) - 1.0,
-                unit(&mut rng) * std::f64::consts::TAU,
-            );
+            let (z, phi) = (2.0 * rng.unit() - 1.0, rng.unit() * std::f64::consts::TAU);
             let s = (1.0 - z * z).sqrt();
             Ray {
                 origin,

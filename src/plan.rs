@@ -7,8 +7,8 @@
 //! **Error model: the scene measures itself.** A pilot ([`Pilot`]) computes
 //! exact line horizons in 720 directions at a few hundred posts (random,
 //! and those of the highest relief), with a seed apart from `check`'s, and
-//! keeps each sight line's records (where its running maximum rose), so
-//! that the horizon cut at any distance is known too. For `S` line
+//! keeps each sight line's horizon cut at every candidate distance too
+//! (from the line's records: where its running maximum rose). For `S` line
 //! directions (a divisor of 720, so that each stored direction is a
 //! reference direction), a distance limit and an encoding, the planner
 //! makes the stored angles the stage would, serves every reference azimuth
@@ -49,7 +49,7 @@ use crate::budget::{Budget, Need, Needs, Request, SunPosition};
 use crate::horizon::sky::{svf_of_horizons, BandIntegrals};
 use crate::horizon::{band_bounds, HorizonsStage, Method};
 use crate::progress::Progress;
-use crate::reference::{quantile_unsorted, Pilot, Sampling};
+use crate::reference::{quantile_unsorted, shade_differs, Pilot, Sampling};
 use crate::sky::{SkyLayer, SkyStage};
 use crate::stage::Stage;
 
@@ -97,9 +97,9 @@ const CONE_SLICES: usize = 64;
 /// Peak memory, measured on the bundled tile: a base of 40 MiB, 10.7 bytes
 /// per post and band of a tile row of horizons in flight (97 MiB at 16
 /// directions, 463 MiB at 120), the DEM itself (4 bytes a post) for bounded
-/// lines, and 32 bytes a post for in-core cone planes.
+/// lines, and 32 bytes a post for in-core cone planes; the pilot's own is
+/// counted exactly (`plan`).
 const BASE_MIB: f64 = 40.0;
-// (The pilot's own memory is counted exactly: see `plan`.)
 const LINE_BYTES_PER_ROW_POST_BAND: f64 = 10.7;
 const CONES_BYTES_PER_POST: f64 = 32.0;
 
@@ -121,6 +121,20 @@ pub struct Candidate {
     pub bytes: u64,
     /// Seconds of the horizons and sky stages.
     pub seconds: f64,
+}
+
+impl Candidate {
+    /// Its predicted errors, for a reason: "horizon p99 .. deg, svf p99
+    /// ..[, shade ..]".
+    fn errors_text(&self) -> String {
+        format!(
+            "horizon p99 {:.3} deg, svf p99 {:.4}{}",
+            self.horizon_p99_deg,
+            self.svf_p99,
+            self.shade_share
+                .map_or(String::new(), |s| format!(", shade {s:.4}"))
+        )
+    }
 }
 
 /// What the planner measured of the scene.
@@ -220,6 +234,11 @@ pub struct Plan {
 }
 
 impl Plan {
+    /// The stages' working-memory limit, bytes: the budget's memory.
+    fn working_memory(&self) -> Option<u64> {
+        self.budget.memory.map(|mib| mib << 20)
+    }
+
     /// The horizons stage that bakes the plan, if the needs take one.
     pub fn horizons_stage(&self) -> Option<HorizonsStage> {
         let chosen = self.chosen.as_ref()?;
@@ -231,8 +250,8 @@ impl Plan {
             encoding: Some(chosen.encoding),
             ..Default::default()
         };
-        if let Some(mib) = self.budget.memory {
-            stage.max_memory = mib << 20;
+        if let Some(bytes) = self.working_memory() {
+            stage.max_memory = bytes;
         }
         Some(stage)
     }
@@ -249,8 +268,8 @@ impl Plan {
                 encoding: ConeEncoding::U16,
                 ..Default::default()
             };
-            if let Some(mib) = self.budget.memory {
-                cones.max_memory = mib << 20;
+            if let Some(bytes) = self.working_memory() {
+                cones.max_memory = bytes;
             }
             stages.push(Box::new(cones));
         }
@@ -353,23 +372,27 @@ fn errors(
         shade_wrong: 0,
         shade_pairs: 0,
     };
+    // Which stored directions serve each reference azimuth: the same at
+    // every post.
+    let around: Vec<(usize, usize, f64)> = pilot
+        .reference
+        .iter()
+        .map(|band| bands_around(&azimuths, band.azimuth))
+        .collect();
     let mut served = vec![0.0; PILOT_DIRECTIONS];
     for (post, exact) in pilot.exact.iter().enumerate() {
         let kept: Vec<f64> = (0..sectors).map(|i| stored(post, i * every)).collect();
-        for ((band, &truth), out) in pilot.reference.iter().zip(exact).zip(&mut served) {
-            let (i, j, f) = bands_around(&azimuths, band.azimuth);
+        for ((&(i, j, f), &truth), out) in around.iter().zip(exact).zip(&mut served) {
             *out = kept[i] + f * (kept[j] - kept[i]);
             if out.is_finite() && truth.is_finite() {
                 e.horizon.push((*out - truth).abs());
             }
         }
-        for sun in suns {
-            let lit = |h: f64| sun.elevation > h;
-            e.shade_pairs += 1;
-            if lit(served[sun.direction]) != lit(exact[sun.direction]) {
-                e.shade_wrong += 1;
-            }
-        }
+        e.shade_pairs += suns.len();
+        e.shade_wrong += suns
+            .iter()
+            .filter(|sun| shade_differs(sun.elevation, served[sun.direction], exact[sun.direction]))
+            .count();
         let s = svf_of_horizons(&integrals, kept.iter().copied());
         let truth = pilot.svf(exact);
         if s.is_finite() && truth.is_finite() {
@@ -462,15 +485,15 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
     let m = asset.manifest();
     let (w, h) = (m.width as usize, m.height as usize);
     let posts = (w * h) as u64;
-    let tile = m
-        .layer(terrabake_format::HEIGHT_LAYER, 0)
-        .map_or(256, |l| l.tile_size as usize);
+    let heights = m.layer(terrabake_format::HEIGHT_LAYER, 0);
+    let tile = heights.map_or(256, |l| l.tile_size as usize);
     let curvature = HorizonsStage::default().curvature_coefficient(asset);
     let (dx, dy) = (m.cell_size.dx, m.cell_size.dy);
     let start = Instant::now();
     let pilot = if needs.horizons() {
         Some(Pilot::measure(
             asset,
+            &crate::horizon::HeldDem::read(asset)?,
             curvature,
             [0, 0, w, h],
             &Sampling {
@@ -540,8 +563,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
         let suns: Vec<PilotSun> = sun
             .iter()
             .map(|&[az, el]| PilotSun {
-                direction: (az / (360.0 / PILOT_DIRECTIONS as f64)).round() as usize
-                    % PILOT_DIRECTIONS,
+                direction: pilot.nearest_direction(az),
                 elevation: el,
             })
             .collect();
@@ -565,20 +587,13 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
     let tile = costs.tile;
     let pyramid = needs.has(Need::Tracing) || needs.has(Need::FastTracing);
     let cones = needs.has(Need::FastTracing);
+    // The pyramid: max and min planes of every stored level.
+    let pyramid_bytes = crate::pyramid::level_dims(w as u32, h as u32, tile as u32)
+        .into_iter()
+        .map(|(lw, lh)| 2 * layer_bytes(lw as usize, lh as usize, tile, 4, 1))
+        .sum::<u64>();
     let cells = (w.saturating_sub(1), h.saturating_sub(1));
-    // The pyramid: max and min planes of cells, halved until one tile
-    // holds a level.
-    let pyramid_bytes = {
-        let (mut lw, mut lh, mut total) = (cells.0.max(1), cells.1.max(1), 0);
-        loop {
-            total += 2 * layer_bytes(lw, lh, tile, 4, 1);
-            if lw <= tile && lh <= tile {
-                break total;
-            }
-            (lw, lh) = (lw.div_ceil(2), lh.div_ceil(2));
-        }
-    };
-    let planes = |size: usize| 2 * layer_bytes(cells.0.max(1), cells.1.max(1), tile, size, 1);
+    let planes = |size: usize| 2 * layer_bytes(cells.0, cells.1, tile, size, 1);
     let cones_bytes = planes(2);
     if pyramid {
         choices.push(Choice {
@@ -607,7 +622,6 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
     let mut seconds = 0.0;
     // The asset on disk: the heights (as stored, when they are zstd) and
     // every planned layer.
-    let heights = m.layer(terrabake_format::HEIGHT_LAYER, 0);
     let mut bytes = heights
         .filter(|l| l.codec == Codec::Zstd && l.tile_size as usize == tile)
         .map_or(layer_bytes(w, h, tile, 4, 1), |l| l.file_len);
@@ -674,9 +688,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
     });
     // The heights' codec: raw (read in place), or zstd when only that fits
     // the bytes limit.
-    let ingested_codec = m
-        .layer(terrabake_format::HEIGHT_LAYER, 0)
-        .map_or(Codec::Raw, |l| l.codec);
+    let ingested_codec = heights.map_or(Codec::Raw, |l| l.codec);
     let mut codec = ingested_codec;
     if let Some(limit) = budget.bytes {
         let raw_heights = layer_bytes(w, h, tile, 4, 1);
@@ -771,7 +783,6 @@ fn plan_horizons(
     scene: &Scene,
     curvature: f64,
 ) -> Result<HorizonPlan> {
-    let relief = scene.relief_m;
     // The encoding: the coarsest whose worst error is within its share of
     // the budget, in degrees and (for the svf, which a change of h radians
     // in every direction moves by at most h) in radians, and whose rounding
@@ -882,6 +893,7 @@ fn plan_horizons(
     // Relief and curvature bound what lies beyond D: no post sees terrain
     // there above atan(relief / D - c D); past sqrt(relief / c) it lies
     // below every post's horizontal plane.
+    let relief = scene.relief_m;
     let bound = |d: f64| (relief / d - curvature * d).atan().to_degrees();
     let below_horizontal = (curvature > 0.0).then(|| (relief / curvature).sqrt());
     let distance_why = match safe_distance {
@@ -927,20 +939,10 @@ fn plan_horizons(
             what: "directions".into(),
             chosen: sectors.to_string(),
             why: format!(
-                "the fewest whose error between directions (horizon p99 {:.3} deg, svf p99 {:.4}{}, f32) is within {SHARE_DIRECTIONS} of the budget",
-                found.horizon_p99_deg,
-                found.svf_p99,
-                found.shade_share.map_or(String::new(), |s| format!(", shade {s:.4}")),
+                "the fewest whose error between directions ({}, f32) is within {SHARE_DIRECTIONS} of the budget",
+                found.errors_text()
             ),
-            rejected: fewer.map(|c| {
-                format!(
-                    "{} directions: horizon p99 {:.3} deg, svf p99 {:.4}{}",
-                    c.sectors,
-                    c.horizon_p99_deg,
-                    c.svf_p99,
-                    c.shade_share.map_or(String::new(), |s| format!(", shade {s:.4}")),
-                )
-            }),
+            rejected: fewer.map(|c| format!("{} directions: {}", c.sectors, c.errors_text())),
         },
         Choice {
             what: "encoding".into(),
@@ -1098,9 +1100,7 @@ pub struct PlanArgs {
 
 impl PlanArgs {
     pub fn run(&self, progress: Progress) -> Result<()> {
-        let Some(request) = self.request.request() else {
-            bail!("terrabake plan needs --budget (horizon=DEG[,svf=X]...)");
-        };
+        let request = self.request.request().expect("clap requires --budget");
         let plan = if self.src.is_dir() {
             plan(&crate::asset::open(&self.src)?, &request, progress)?
         } else {

@@ -46,7 +46,7 @@ pub fn cell_bounds_row(north: &[f32], south: &[f32], max: &mut [f32], min: &mut 
 
 /// The cells of each stored level of a `w x h`-post DEM: level 0 has one per
 /// cell, each level above halves them, up to the first that fits a tile.
-fn level_dims(w: u32, h: u32, ts: u32) -> Vec<(u32, u32)> {
+pub fn level_dims(w: u32, h: u32, ts: u32) -> Vec<(u32, u32)> {
     let mut dims = vec![(w.saturating_sub(1), h.saturating_sub(1))];
     while dims.last().is_some_and(|&(x, y)| x > ts || y > ts) {
         let &(x, y) = dims.last().expect("non-empty");

@@ -245,10 +245,11 @@ fn plan_ingested(
     progress: Progress,
 ) -> Result<crate::plan::Plan> {
     let plan = crate::plan::plan(&crate::asset::open(dir)?, request, progress)?;
+    let written = toml::from_str::<toml::Table>(&recipe.text).ok();
     let given = |key: &str| {
-        toml::from_str::<toml::Table>(&recipe.text)
-            .ok()
-            .and_then(|t| t.get("ingest")?.get(key).cloned())
+        written
+            .as_ref()
+            .and_then(|t| t.get("ingest")?.get(key))
             .is_some()
     };
     let ingest = &recipe.ingest;

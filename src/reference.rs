@@ -124,8 +124,7 @@ pub struct Pilot {
     /// without cuts).
     cut: Vec<Vec<f32>>,
     cuts: usize,
-    /// Per post, the terrain's slope there, degrees (central differences;
-    /// one-sided at edges and beside holes).
+    /// Per post, the terrain's slope there, degrees (`Terrain::normal`).
     pub slope_deg: Vec<f64>,
     /// The east-west post spacing on the first and the last row, metres
     /// (they differ on geographic grids).
@@ -133,10 +132,12 @@ pub struct Pilot {
 }
 
 impl Pilot {
-    /// Samples `asset`'s posts within `area` and computes their exact
-    /// horizons with the curvature coefficient `curvature`.
+    /// Samples the posts of `dem` (`asset`'s heights, read once by the
+    /// caller) within `area` and computes their exact horizons with the
+    /// curvature coefficient `curvature`.
     pub fn measure(
         asset: &Asset<Mmap>,
+        dem: &HeldDem,
         curvature: f64,
         area: [usize; 4],
         opts: &Sampling,
@@ -147,7 +148,6 @@ impl Pilot {
             bail!("a check needs at least one sample and four reference directions");
         }
         let m = asset.manifest();
-        let dem = HeldDem::read(asset)?;
         let terrain = dem.terrain(curvature);
         let (posts, relief_posts) = sample_posts(&dem.z, dem.width, area, opts);
         if posts.is_empty() {
@@ -197,22 +197,9 @@ impl Pilot {
         let slope_deg = posts
             .iter()
             .map(|&(c, r)| {
-                // Half the height change across the post per metre, each
-                // way; a missing neighbour leaves the post itself.
-                let z = |cc: usize, rr: usize| {
-                    let v = terrain.at(cc, rr);
-                    if v.is_nan() {
-                        terrain.at(c, r)
-                    } else {
-                        v
-                    }
-                };
-                let (c0, c1) = (c.saturating_sub(1), (c + 1).min(dem.width - 1));
-                let (r0, r1) = (r.saturating_sub(1), (r + 1).min(dem.height - 1));
-                let gx =
-                    f64::from(z(c1, r) - z(c0, r)) / ((c1 - c0).max(1) as f64 * terrain.dx_at(r));
-                let gy = f64::from(z(c, r1) - z(c, r0)) / ((r1 - r0).max(1) as f64 * terrain.dy);
-                gx.hypot(gy).atan().to_degrees()
+                terrain
+                    .normal(c, r)
+                    .map_or(0.0, |n| n[2].acos().to_degrees())
             })
             .collect();
         let dx_range = (terrain.dx_at(0), terrain.dx_at(dem.height - 1));
@@ -235,10 +222,23 @@ impl Pilot {
         f64::from(self.cut[i][j * self.cuts + k])
     }
 
+    /// The reference direction nearest azimuth `az` (degrees, any turn):
+    /// where a sun at `az` is compared.
+    pub fn nearest_direction(&self, az: f64) -> usize {
+        let n = self.reference.len();
+        (az.rem_euclid(360.0) * n as f64 / 360.0).round() as usize % n
+    }
+
     /// Zakšek's sky-view factor of a post's reference horizons.
     pub fn svf(&self, exact: &[f64]) -> f64 {
         svf_of_horizons(&self.integrals, exact.iter().copied())
     }
+}
+
+/// Whether a sun `elevation` degrees up is lit under one horizon and not
+/// under the other (a wrong sun/shade state; the sun is a point).
+pub fn shade_differs(elevation: f64, served: f64, exact: f64) -> bool {
+    (elevation > served) != (elevation > exact)
 }
 
 /// The value at `p` percent of sorted `v` (0 when empty).

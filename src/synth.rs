@@ -78,12 +78,23 @@ impl SplitMix64 {
     pub fn below(&mut self, n: usize) -> usize {
         (self.next_u64() % n as u64) as usize
     }
+
+    /// A uniform value in [0, 1).
+    pub fn unit(&mut self) -> f64 {
+        unit_interval(self.next_u64())
+    }
+}
+
+/// The top 53 bits of `bits` as a uniform value in [0, 1).
+fn unit_interval(bits: u64) -> f64 {
+    (bits >> 11) as f64 / (1u64 << 53) as f64
 }
 
 /// A uniform value in [0, 1) for lattice point (i, j) of `octave`.
 fn lattice(seed: u64, octave: u32, i: i64, j: i64) -> f64 {
-    let key = mix(seed ^ mix(u64::from(octave) ^ mix(i as u64 ^ mix(j as u64))));
-    (key >> 11) as f64 / (1u64 << 53) as f64
+    unit_interval(mix(
+        seed ^ mix(u64::from(octave) ^ mix(i as u64 ^ mix(j as u64)))
+    ))
 }
 
 fn smooth(t: f64) -> f64 {

@@ -54,11 +54,11 @@ pub fn line_horizon(
 /// farther than `max_distance` metres: the last record within it, degrees
 /// (-90 when none).
 pub fn horizon_within(records: &[HorizonRecord], max_distance: Option<f64>) -> f32 {
-    records
-        .iter()
-        .take_while(|r| max_distance.is_none_or(|m| r.distance <= m))
-        .last()
-        .map_or(-90.0, |r| r.angle)
+    // Records are nearest first: a binary search finds the last within.
+    let within = max_distance.map_or(records.len(), |m| {
+        records.partition_point(|r| r.distance <= m)
+    });
+    within.checked_sub(1).map_or(-90.0, |i| records[i].angle)
 }
 
 /// A new highest elevation angle along a sight line, and how far out it
