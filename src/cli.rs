@@ -9,7 +9,6 @@ use terrabake_format::trace::Method;
 
 use crate::args::{parse_point, parse_size, parse_sun};
 use crate::cones::ConesStage;
-use crate::export::PngStyle;
 use crate::horizon::HorizonsStage;
 use crate::ingest::IngestOptions;
 use crate::render::Sun;
@@ -98,36 +97,19 @@ pub enum Command {
         #[arg(long)]
         json: bool,
     },
-    /// Write a layer as GeoTIFF (.tif, georeferenced, with nodata), OpenEXR (.exr) or a PNG preview (.png).
+    /// Write a layer as a Cloud-Optimized GeoTIFF (.tif), OpenEXR (.exr), a PNG preview (.png),
+    /// or one GeoTIFF per direction for GRASS (--for grass).
     ///
     /// GeoTIFF and EXR carry every band (a horizon layer: one band per azimuth, in degrees, in
-    /// compass order); quantised layers are decoded. A PNG shows one band (--band).
+    /// compass order); quantised layers are decoded. A GeoTIFF is tiled, band-interleaved, with
+    /// internal overviews, and each band's description names what it holds (`horizon azimuth
+    /// 21.80 deg, line`). A PNG shows one band (--band).
     #[command(after_help = "Examples:\n  terrabake export dem.tbake -o dem.tif\n  \
 terrabake export dem.tbake --layer horizon -o horizon.tif\n  \
+terrabake export dem.tbake --layer horizon --for grass -o horizons/\n  \
 terrabake export dem.tbake --layer svf -o svf.png")]
-    Export {
-        /// The asset directory (made by `terrabake ingest` or `terrabake bake`).
-        asset: PathBuf,
-        /// Layer name (see `terrabake info`).
-        #[arg(long, default_value = "height")]
-        layer: String,
-        /// Pyramid level of the layer.
-        #[arg(long, default_value_t = 0)]
-        level: u32,
-        /// PNG style: `relief` (hypsometric tint with hillshade and a legend; the default for
-        /// heights), `ramp` (viridis from the 1st to the 99th percentile with a legend; the
-        /// default for other layers) or `gray` (16-bit, min to max, no legend: a heightmap for
-        /// engines). Nodata is transparent (black in `gray`).
-        #[arg(long, value_enum)]
-        style: Option<PngStyle>,
-        /// The band a PNG shows (GeoTIFF and EXR carry all bands).
-        #[arg(long, default_value_t = 0)]
-        band: u32,
-        /// The file to write: .tif (GeoTIFF), .exr or .png (a preview), by its extension.
-        #[arg(short, long)]
-        output: PathBuf,
-    },
-    /// Write a synthetic terrain as a float32 GeoTIFF (30 m posts), strip by strip, at any size.
+    Export(crate::export::ExportArgs),
+    /// Write a synthetic terrain as a float32 GeoTIFF (30 m posts), a tile row at a time, at any size.
     Synth {
         /// The terrain to write.
         #[arg(value_enum)]

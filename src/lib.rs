@@ -41,6 +41,9 @@
 //!   planes, horizon methods), their one table writer and chart writer.
 //! - [`synth`]: synthetic terrains for tests and benchmarks.
 //! - [`export`]: layers out as GeoTIFF, OpenEXR or a PNG preview.
+//! - [`cog`]: the Cloud-Optimized GeoTIFF writer (tiled, band-interleaved,
+//!   overviews, GDAL metadata), in one streaming pass.
+//! - [`output`]: files written whole or not at all.
 
 pub mod args;
 pub mod asset;
@@ -48,6 +51,7 @@ pub mod bench;
 pub mod budget;
 pub mod check;
 pub mod cli;
+pub mod cog;
 pub mod cones;
 pub mod edt;
 pub mod export;
@@ -57,6 +61,7 @@ pub mod ingest;
 pub mod interrupt;
 pub mod legend;
 pub mod ordered;
+pub mod output;
 pub mod page;
 pub mod partition;
 pub mod plan;

@@ -8,7 +8,6 @@ use anyhow::{bail, Result};
 use clap::Parser;
 use terrabake::asset::{open as open_asset, AssetWriter, Wait};
 use terrabake::cli::{Cli, Command};
-use terrabake::export::export_layer;
 use terrabake::ingest::IngestStage;
 use terrabake::partition::{assemble, bake_part, Part};
 use terrabake::progress::Progress;
@@ -114,19 +113,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 return Ok(ExitCode::from(EXIT_VERIFY_FAILED));
             }
         }
-        Command::Export {
-            asset,
-            layer,
-            level,
-            style,
-            band,
-            output,
-        } => {
-            let opened = open_asset(&asset)?;
-            let l = opened.layer(&layer, level)?;
-            export_layer(&opened, l, &output, style, band, progress)?;
-            say(format!("wrote {}", output.display()));
-        }
+        Command::Export(args) => args.run(progress, &say)?,
         Command::Synth {
             kind,
             size,

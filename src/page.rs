@@ -60,7 +60,7 @@ impl PageArgs {
             &self.picture,
             &self.chart,
         )?;
-        crate::export::write_atomically(&self.output, |file| {
+        crate::output::write_atomically(&self.output, |file| {
             use std::io::Write;
             Ok(file.write_all(html.as_bytes())?)
         })?;

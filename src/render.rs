@@ -465,7 +465,7 @@ pub fn builtin_views(tracer: &Tracer<'_, Mmap>, asset: &Asset<Mmap>) -> Vec<Came
 
 /// Writes an RGB PNG (through a temporary file).
 pub fn write_png(path: &std::path::Path, image: &Image) -> anyhow::Result<()> {
-    crate::export::write_atomically(path, |file| {
+    crate::output::write_atomically(path, |file| {
         let mut enc = png::Encoder::new(file, image.width, image.height);
         enc.set_color(png::ColorType::Rgb);
         enc.set_depth(png::BitDepth::Eight);

@@ -1,6 +1,6 @@
 //! Synthetic terrains for tests and benchmarks, each a pure function of the
 //! post (x, y), the size and a seed, so that any row band can be made
-//! without the rest: `terrabake synth` writes them strip by strip, at any
+//! without the rest: `terrabake synth` writes them a tile row at a time, at any
 //! size, in bounded memory.
 //!
 //! The kinds cover the cases where terrain algorithms fail: a single spike
@@ -183,7 +183,7 @@ pub fn fill_rows(kind: SynthKind, y0: u32, rows: &mut [f32], width: u32, height_
 }
 
 /// Writes a synthetic terrain as a float32 GeoTIFF on a local metric grid of
-/// [`SYNTH_CELL`] posts (no named CRS), strip by strip. Holes are written as
+/// [`SYNTH_CELL`] posts (no named CRS), a tile row at a time. Holes are written as
 /// GDAL nodata -9999.
 pub fn write_geotiff(
     path: &std::path::Path,
@@ -213,12 +213,12 @@ pub fn write_geotiff(
             -SYNTH_CELL,
         ],
     );
-    let tags = crate::export::GeoTags {
+    let tags = crate::cog::GeoTags {
         georef: Some(georef),
         nodata: Some("-9999".into()),
     };
     let bar = progress.bar(u64::from(height_), "synth", "rows");
-    crate::export::write_geotiff_f32(path, (width, height_, 1), &tags, |y0, rows| {
+    crate::cog::write_f32(path, (width, height_), &tags, |y0, rows| {
         fill_rows(kind, y0, rows, width, height_, seed);
         bar.inc((rows.len() / width as usize) as u64);
         Ok(())

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 use common::*;
-use terrabake::export::{write_geotiff_f32, GeoTags};
+use terrabake::cog::{write_f32, GeoTags};
 use terrabake::progress::Progress;
 use terrabake_format::{Asset, MANIFEST_FILE};
 
@@ -32,7 +32,7 @@ fn dem(dir: &Path) -> PathBuf {
         georef,
         nodata: Some("-9999".into()),
     };
-    write_geotiff_f32(&tif, (w, h, 1), &tags, |r0, rows| {
+    write_f32(&tif, (w, h), &tags, |r0, rows| {
         for (i, v) in rows.iter_mut().enumerate() {
             let (x, y) = (i as u32 % w, r0 + i as u32 / w);
             let hole = (40..52).contains(&x) && (150..157).contains(&y);

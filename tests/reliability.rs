@@ -740,7 +740,7 @@ fn a_failed_stage_removes_its_own_files() {
 /// parses). Both are now refused at ingest, naming the file and the fix.
 #[test]
 fn sources_whose_georeferencing_no_reader_accepts_are_refused() {
-    use terrabake::export::{write_geotiff_f32, GeoTags};
+    use terrabake::cog::{write_f32, GeoTags};
     use terrabake_format::manifest::{CrsKind, Georef, RasterType};
     let dir = tempfile::tempdir().unwrap();
     let georef = |scale: f64, doubles: Vec<f64>| Georef {
@@ -761,7 +761,7 @@ fn sources_whose_georeferencing_no_reader_accepts_are_refused() {
             georef: Some(g),
             nodata: None,
         };
-        write_geotiff_f32(&tif, (20, 20, 1), &tags, |_, rows| {
+        write_f32(&tif, (20, 20), &tags, |_, rows| {
             rows.fill(100.0);
             Ok(())
         })

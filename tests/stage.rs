@@ -420,7 +420,7 @@ fn command_line_defaults_are_the_stage_defaults() {
 /// there, bit for bit.
 #[test]
 fn a_region_baked_with_its_declared_reach_equals_the_whole() {
-    use terrabake::export::{write_geotiff_f32, GeoTags};
+    use terrabake::cog::{write_f32, GeoTags};
     use terrabake::horizon::{HorizonsStage, Method};
     use terrabake::pyramid::PyramidStage;
     use terrabake::sky::{SkyLayer, SkyStage};
@@ -435,18 +435,13 @@ fn a_region_baked_with_its_declared_reach_equals_the_whole() {
     // A DEM of posts [x0, x1) x [y0, y1) of the whole, as its own asset.
     let asset_of = |name: &str, (x0, y0, x1, y1): (u32, u32, u32, u32)| {
         let tif = dir.path().join(format!("{name}.tif"));
-        write_geotiff_f32(
-            &tif,
-            (x1 - x0, y1 - y0, 1),
-            &GeoTags::default(),
-            |r0, rows| {
-                for (i, v) in rows.iter_mut().enumerate() {
-                    let (x, y) = (i as u32 % (x1 - x0), r0 + i as u32 / (x1 - x0));
-                    *v = z(x0 + x, y0 + y);
-                }
-                Ok(())
-            },
-        )
+        write_f32(&tif, (x1 - x0, y1 - y0), &GeoTags::default(), |r0, rows| {
+            for (i, v) in rows.iter_mut().enumerate() {
+                let (x, y) = (i as u32 % (x1 - x0), r0 + i as u32 / (x1 - x0));
+                *v = z(x0 + x, y0 + y);
+            }
+            Ok(())
+        })
         .unwrap();
         let out = dir.path().join(format!("{name}.tbake"));
         let opts = IngestOptions {

@@ -153,7 +153,7 @@ pub fn log_log_svg(
             .map_err(|e| err(&e))?;
         root.present().map_err(|e| err(&e))?;
     }
-    crate::export::write_atomically(path, |out| {
+    crate::output::write_atomically(path, |out| {
         use std::io::Write;
         Ok(out.write_all(svg.as_bytes())?)
     })

@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use anyhow::Result;
 
-use crate::export::{write_geotiff_f32, GeoTags};
+use crate::cog::{BandMetadata, Cog, Compression, GeoTags, Metadata, Resampling};
 use crate::horizon::terrain::DEFAULT_REFRACTION;
 use crate::horizon::{curvature_for, HeldDem};
 use crate::viewshed::observer::{observer_viewshed, Observer, OUTSIDE};
@@ -90,22 +90,41 @@ impl ViewshedArgs {
         let v = observer_viewshed(&terrain, &obs);
         let seconds = start.elapsed().as_secs_f64();
         let w = dem.width;
-        let tags = GeoTags::for_level(m.georef.as_ref(), Some("nan".into()), 0);
-        write_geotiff_f32(
+        let band = |description: &str, unit: &str| BandMetadata {
+            description: description.into(),
+            unit: unit.into(),
+            items: vec![],
+        };
+        let cog = Cog {
+            width: w as u32,
+            height: dem.height as u32,
+            bands: 2,
+            tile: crate::cog::DEFAULT_TILE,
+            compression: Compression::Deflate,
+            resampling: Resampling::Nearest,
+            tags: GeoTags::for_level(m.georef.as_ref(), Some("nan".into()), 0),
+            metadata: Metadata {
+                dataset: vec![("TERRABAKE_VERSION".into(), env!("CARGO_PKG_VERSION").into())],
+                bands: vec![
+                    band("seen from the observer (1 seen, 0 hidden)", ""),
+                    band("elevation angle from the observer", "deg"),
+                ],
+            },
+        };
+        cog.write(
             &self.output,
-            (w as u32, dem.height as u32, 2),
-            &tags,
-            |y0, rows| {
-                for (i, px) in rows.chunks_mut(2).enumerate() {
+            |b, y0, rows| {
+                for (i, px) in rows.iter_mut().enumerate() {
                     let at = y0 as usize * w + i;
-                    px[0] = match v.visible[at] {
-                        OUTSIDE => f32::NAN,
-                        seen => f32::from(seen),
+                    *px = match (b, v.visible[at]) {
+                        (0, OUTSIDE) => f32::NAN,
+                        (0, seen) => f32::from(seen),
+                        _ => v.angle[at],
                     };
-                    px[1] = v.angle[at];
                 }
                 Ok(())
             },
+            |_| {},
         )?;
         let reach = v.visible.iter().filter(|&&s| s != OUTSIDE).count() as u64;
         let seen = v.visible.iter().filter(|&&s| s == 1).count() as u64;

@@ -1,179 +1,23 @@
-//! Layers out of an asset: GeoTIFF (georeferencing and nodata kept, so GDAL
-//! and QGIS read back the same geotransform), OpenEXR (float, for engines),
-//! and PNG previews for people.
+//! Layers out of an asset: Cloud-Optimized GeoTIFF ([`crate::cog`]:
+//! georeferencing, nodata and band descriptions kept, so GDAL and QGIS read
+//! back the same geotransform and know each band's azimuth), OpenEXR (float,
+//! for engines), and PNG previews for people.
 //!
-//! Every writer here writes to a fresh, exclusively created temporary file
-//! beside the output and renames it on success, so a failed export never
-//! leaves a half-written file where a good one stood, and a link planted at
-//! a temporary name is never written through.
+//! Every writer here goes through [`write_atomically`]: a failed export
+//! never leaves a half-written file where a good one stood.
 
-use std::fs::{self, File};
-use std::io::{BufWriter, Seek, Write};
-use std::path::Path;
+pub mod grass;
 
-use anyhow::{anyhow, bail, Context, Result};
-use terrabake_format::manifest::Georef;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::{anyhow, bail, Result};
 use terrabake_format::{Asset, Layer, Mmap};
-use tiff::encoder::{colortype, TiffEncoder, TiffKind, TiffKindBig, TiffKindStandard};
-use tiff::tags::Tag;
 
+use crate::cog::{Cog, Compression, GeoTags, Resampling};
 use crate::legend::{Legend, Ramp, Stretch};
+use crate::output::write_atomically;
 use crate::progress::Progress;
-
-/// Writes `path` through a temporary file beside it
-/// ([`terrabake_format::fsio::create_temp`]): `write` fills it, and it is
-/// fsynced and renamed into place (replacing a link at `path`, never
-/// writing through one); on error it is removed.
-pub fn write_atomically(
-    path: &Path,
-    write: impl FnOnce(&mut BufWriter<File>) -> Result<()>,
-) -> Result<()> {
-    // A missing directory is made, as the asset writers make theirs.
-    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
-        fs::create_dir_all(parent)
-            .with_context(|| format!("{}: cannot create the directory", parent.display()))?;
-    }
-    let (file, tmp) = terrabake_format::fsio::create_temp(path).with_context(|| {
-        format!(
-            "{}: cannot create a temporary file beside it",
-            path.display()
-        )
-    })?;
-    let result = (|| -> Result<()> {
-        let mut out = BufWriter::with_capacity(1 << 20, file);
-        write(&mut out)?;
-        let file = out.into_inner().map_err(|e| e.into_error())?;
-        file.sync_all()?;
-        fs::rename(&tmp, path)
-            .with_context(|| format!("{}: cannot rename into place", path.display()))
-    })();
-    if result.is_err() {
-        let _ = fs::remove_file(&tmp);
-    }
-    result
-}
-
-/// The GeoTIFF tags of a grid: georeferencing (scaled to a pyramid level's
-/// coarser posts) and GDAL_NODATA.
-#[derive(Debug, Clone, Default)]
-pub struct GeoTags {
-    pub georef: Option<Georef>,
-    pub nodata: Option<String>,
-}
-
-impl GeoTags {
-    /// Tags for a layer at `level`: each post of level L covers 2^L posts.
-    pub fn for_level(georef: Option<&Georef>, nodata: Option<String>, level: u32) -> Self {
-        let georef = georef.map(|g| {
-            let mut g = g.clone();
-            let f = f64::from(1u32 << level.min(30));
-            for i in [1, 2, 4, 5] {
-                g.geotransform[i] *= f;
-            }
-            g
-        });
-        Self { georef, nodata }
-    }
-}
-
-/// Writes a float32 GeoTIFF of `width x height` and `bands` samples per
-/// pixel (interleaved), strip by strip: `fill` gets the first row and a
-/// buffer of whole rows to fill (NaN = nodata, which is written as
-/// `tags.nodata` when that is set). BigTIFF past 4 GB.
-pub fn write_geotiff_f32(
-    path: &Path,
-    (width, height, bands): (u32, u32, u16),
-    tags: &GeoTags,
-    mut fill: impl FnMut(u32, &mut [f32]) -> Result<()>,
-) -> Result<()> {
-    let nodata_value = tags
-        .nodata
-        .as_deref()
-        .and_then(crate::source::parse_nodata)
-        .map(|v| v as f32);
-    write_atomically(path, |out| {
-        let big = u64::from(width) * u64::from(height) * u64::from(bands) * 4 > 3_900_000_000;
-        let fill = |y0: u32, rows: &mut [f32]| -> Result<()> {
-            fill(y0, rows)?;
-            if let Some(nd) = nodata_value {
-                rows.iter_mut().filter(|z| z.is_nan()).for_each(|z| *z = nd);
-            }
-            Ok(())
-        };
-        if big {
-            write_tiff::<_, TiffKindBig>(out, (width, height, bands), tags, fill)
-        } else {
-            write_tiff::<_, TiffKindStandard>(out, (width, height, bands), tags, fill)
-        }
-    })
-}
-
-fn write_tiff<W: Write + Seek, K: TiffKind>(
-    out: W,
-    (width, height, bands): (u32, u32, u16),
-    tags: &GeoTags,
-    mut fill: impl FnMut(u32, &mut [f32]) -> Result<()>,
-) -> Result<()> {
-    let tiff_err = |e: tiff::TiffError| anyhow!("writing TIFF: {e}");
-    let mut encoder = TiffEncoder::<W, K>::new_generic(out).map_err(tiff_err)?;
-    let mut image = encoder
-        .new_image::<colortype::Gray32Float>(width, height)
-        .map_err(tiff_err)?;
-    // Bands past the first are TIFF extra samples (GDAL reads them as bands).
-    if bands > 1 {
-        let extra = vec![tiff::tags::ExtraSamples::Unspecified; usize::from(bands) - 1];
-        image.extra_samples(&extra).map_err(tiff_err)?;
-    }
-    let row_samples = width * u32::from(bands);
-    // Strips of about 1 MiB: small enough to stream, large enough to be fast.
-    let rows_per_strip = ((1u32 << 18) / row_samples.max(1)).clamp(1, height);
-    image.rows_per_strip(rows_per_strip).map_err(tiff_err)?;
-    if let Some(g) = &tags.georef {
-        let t = g.geotransform;
-        let dir = image.encoder();
-        if t[2] == 0.0 && t[4] == 0.0 {
-            dir.write_tag(Tag::ModelPixelScaleTag, &[t[1], -t[5], 0.0][..])
-                .map_err(tiff_err)?;
-            dir.write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, t[0], t[3], 0.0][..])
-                .map_err(tiff_err)?;
-        } else {
-            let m = [
-                t[1], t[2], 0.0, t[0], t[4], t[5], 0.0, t[3], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
-                1.0,
-            ];
-            dir.write_tag(Tag::ModelTransformationTag, &m[..])
-                .map_err(tiff_err)?;
-        }
-        if !g.geo_key_directory.is_empty() {
-            dir.write_tag(Tag::GeoKeyDirectoryTag, &g.geo_key_directory[..])
-                .map_err(tiff_err)?;
-        }
-        if !g.geo_double_params.is_empty() {
-            dir.write_tag(Tag::GeoDoubleParamsTag, &g.geo_double_params[..])
-                .map_err(tiff_err)?;
-        }
-        if !g.geo_ascii_params.is_empty() {
-            dir.write_tag(Tag::GeoAsciiParamsTag, g.geo_ascii_params.as_str())
-                .map_err(tiff_err)?;
-        }
-    }
-    if let Some(nd) = &tags.nodata {
-        image
-            .encoder()
-            .write_tag(Tag::GdalNodata, nd.as_str())
-            .map_err(tiff_err)?;
-    }
-    let mut strip = vec![0f32; (rows_per_strip * row_samples) as usize];
-    let mut y0 = 0;
-    while y0 < height {
-        let rows = rows_per_strip.min(height - y0);
-        let buf = &mut strip[..(rows * row_samples) as usize];
-        fill(y0, buf)?;
-        image.write_strip(buf).map_err(tiff_err)?;
-        y0 += rows;
-    }
-    image.finish().map_err(tiff_err)
-}
 
 /// Output kinds, by file extension.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -257,6 +101,230 @@ pub fn layer_title(layer: &str, band: u32, bands: u32) -> String {
     }
 }
 
+/// How a layer becomes a GeoTIFF (`export --compress/--tile/--resampling`).
+#[derive(Debug, Clone, clap::Args)]
+pub struct TiffOptions {
+    /// GeoTIFF compression, after the floating-point predictor.
+    #[arg(long, value_enum, default_value = "deflate")]
+    pub compress: Compression,
+    /// GeoTIFF tile edge in pixels (a multiple of 16).
+    #[arg(long, default_value_t = crate::cog::DEFAULT_TILE, value_parser = clap::value_parser!(u32).range(16..=4096))]
+    pub tile: u32,
+    /// How the GeoTIFF's overviews are made: `nearest` (the default for angles, codes and
+    /// counts) or `average` (the default for heights, sky-view factors and areas).
+    #[arg(long, value_enum)]
+    pub resampling: Option<Resampling>,
+}
+
+impl Default for TiffOptions {
+    fn default() -> Self {
+        Self {
+            compress: Compression::default(),
+            tile: crate::cog::DEFAULT_TILE,
+            resampling: None,
+        }
+    }
+}
+
+/// Overviews that suit a layer: averages of continuous quantities, the
+/// nearest post for angles, codes and counts.
+pub fn default_resampling(layer: &str) -> Resampling {
+    use terrabake_format::layers as l;
+    if is_height_like(layer) || [l::SVF, l::SVF_COSINE, l::TOTAL_VIEWSHED].contains(&layer) {
+        Resampling::Average
+    } else {
+        Resampling::Nearest
+    }
+}
+
+/// The COG for a layer: georeferencing at its level, nodata (the source's
+/// value for heights, NaN for the rest: a real horizon or svf could equal
+/// the source's), and GDAL metadata that says what each band is.
+pub fn cog_for_layer(asset: &Asset<Mmap>, layer: &Layer<Mmap>, tiff: &TiffOptions) -> Result<Cog> {
+    let manifest = asset.manifest();
+    let entry = layer.entry();
+    let name = entry.name.as_str();
+    let bands = u16::try_from(layer.bands())
+        .map_err(|_| anyhow!("{} bands is more than TIFF holds", layer.bands()))?;
+    let nodata = Some(
+        match (&manifest.nodata.source_value, is_height_like(name)) {
+            (Some(v), true) => v.clone(),
+            _ => "nan".into(),
+        },
+    );
+    let stage = manifest
+        .provenance
+        .stages
+        .iter()
+        .rev()
+        .find(|s| s.outputs.contains(&entry.key()));
+    let param = |key: &str| {
+        stage
+            .and_then(|s| s.params.get(key))
+            .filter(|v| !v.is_null())
+    };
+    let mut dataset = vec![
+        (
+            "TERRABAKE_VERSION".to_string(),
+            env!("CARGO_PKG_VERSION").to_string(),
+        ),
+        (
+            "TERRABAKE_SOURCE".into(),
+            manifest.provenance.source.clone(),
+        ),
+        ("TERRABAKE_LAYER".into(), entry.key()),
+        ("TERRABAKE_DESCRIPTION".into(), entry.description.clone()),
+    ];
+    if let Some(s) = stage {
+        dataset.push(("TERRABAKE_STAGE".into(), s.stage.clone()));
+        dataset.push(("TERRABAKE_PARAMS".into(), s.params.to_string()));
+    }
+    let method = param("method").and_then(|m| m.as_str()).unwrap_or("");
+    let unit = layer_unit(name);
+    let band_metadata = (0..layer.bands())
+        .map(|b| {
+            let mut items = Vec::new();
+            let description = match entry.band_azimuths.get(b as usize) {
+                Some(az) => {
+                    items.push(("AZIMUTH".to_string(), format!("{az:.4}")));
+                    let what = name.replace('_', " ");
+                    if method.is_empty() {
+                        format!("{what} azimuth {az:.2} deg")
+                    } else {
+                        format!("{what} azimuth {az:.2} deg, {method}")
+                    }
+                }
+                None => layer_title(name, b, layer.bands()),
+            };
+            crate::cog::BandMetadata {
+                description,
+                unit: unit.to_string(),
+                items,
+            }
+        })
+        .collect();
+    if !entry.band_azimuths.is_empty() {
+        dataset.push((
+            "AZIMUTH_CONVENTION".into(),
+            "compass: degrees clockwise from north; band AZIMUTH items give each band's".into(),
+        ));
+        if !method.is_empty() {
+            dataset.push(("METHOD".into(), method.to_string()));
+        }
+        dataset.push(("SECTORS".into(), entry.band_azimuths.len().to_string()));
+    }
+    if name == terrabake_format::layers::SVF || name == terrabake_format::layers::SVF_COSINE {
+        dataset.push(("SVF_DEFINITION".into(), entry.description.clone()));
+    }
+    Ok(Cog {
+        width: layer.width(),
+        height: layer.height(),
+        bands,
+        tile: tiff.tile,
+        compression: tiff.compress,
+        resampling: tiff.resampling.unwrap_or_else(|| default_resampling(name)),
+        tags: GeoTags::for_level(manifest.georef.as_ref(), nodata, entry.level),
+        metadata: crate::cog::Metadata {
+            dataset,
+            bands: band_metadata,
+        },
+    })
+}
+
+/// The unit of a layer's values, as GDAL's unit type says it.
+fn layer_unit(layer: &str) -> &'static str {
+    use terrabake_format::layers as l;
+    match layer {
+        _ if is_height_like(layer) => "m",
+        l::CONE_APEX => "m",
+        l::HORIZON | l::OPENNESS | l::VIEWSHED_ANGLE => "deg",
+        l::TOTAL_VIEWSHED => "m2",
+        _ => "",
+    }
+}
+
+/// `terrabake export`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct ExportArgs {
+    /// The asset directory (made by `terrabake ingest` or `terrabake bake`).
+    pub asset: PathBuf,
+    /// Layer name (see `terrabake info`).
+    #[arg(long, default_value = "height")]
+    pub layer: String,
+    /// Pyramid level of the layer.
+    #[arg(long, default_value_t = 0)]
+    pub level: u32,
+    /// PNG style: `relief` (hypsometric tint with hillshade and a legend; the default for
+    /// heights), `ramp` (viridis from the 1st to the 99th percentile with a legend; the
+    /// default for other layers) or `gray` (16-bit, min to max, no legend: a heightmap for
+    /// engines). Nodata is transparent (black in `gray`).
+    #[arg(long, value_enum)]
+    pub style: Option<PngStyle>,
+    /// The band a PNG shows (GeoTIFF and EXR carry all bands).
+    #[arg(long, default_value_t = 0)]
+    pub band: u32,
+    #[command(flatten)]
+    pub tiff: TiffOptions,
+    /// Write for another program instead: `grass` writes the horizon layer as `r.horizon` does
+    /// (one GeoTIFF per direction into the directory -o names, radians, counter-clockwise from
+    /// east, named for `r.sun horizon_basename=horizon horizon_step=STEP`).
+    #[arg(long = "for", value_enum, value_name = "PROGRAM")]
+    pub for_program: Option<ExportFor>,
+    /// With --for grass: degrees between directions (360 / the layer's bands by default);
+    /// give `r.sun` the same `horizon_step`.
+    #[arg(long, requires = "for_program")]
+    pub step: Option<f64>,
+    /// The file to write: .tif (GeoTIFF), .exr or .png (a preview), by its extension; a
+    /// directory with --for grass.
+    #[arg(short, long)]
+    pub output: PathBuf,
+}
+
+/// The programs `export --for` writes for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ExportFor {
+    /// GRASS GIS: `r.horizon`'s files, for `r.sun`.
+    Grass,
+}
+
+impl ExportArgs {
+    pub fn run(&self, progress: Progress, say: &dyn Fn(String)) -> Result<()> {
+        let asset = crate::asset::open(&self.asset)?;
+        if self.for_program == Some(ExportFor::Grass) {
+            if self.layer != terrabake_format::layers::HORIZON || self.level != 0 {
+                bail!("--for grass exports the horizon layer: add --layer horizon");
+            }
+            let (files, step) =
+                grass::export_horizons(&asset, &self.output, self.step, &self.tiff, progress)?;
+            say(format!(
+                "wrote {} horizon files to {} (r.sun horizon_basename={} horizon_step={})",
+                files.len(),
+                self.output.display(),
+                grass::BASENAME,
+                format_step(step)
+            ));
+            return Ok(());
+        }
+        let layer = asset.layer(&self.layer, self.level)?;
+        export_layer(
+            &asset,
+            layer,
+            &self.output,
+            self.style,
+            self.band,
+            &self.tiff,
+            progress,
+        )?;
+        say(format!("wrote {}", self.output.display()));
+        Ok(())
+    }
+}
+
+/// A step as GRASS should be given it: the fewest decimals that say it.
+pub fn format_step(step: f64) -> String {
+    format!("{step:.*}", grass::step_decimals(step))
+}
+
 /// Exports `layer` to `out`: every band to GeoTIFF (one TIFF band each) and
 /// OpenEXR (one channel each, `B0`, `B1`, ...), band `band` to a PNG.
 pub fn export_layer(
@@ -265,6 +333,7 @@ pub fn export_layer(
     out: &Path,
     style: Option<PngStyle>,
     band: u32,
+    tiff: &TiffOptions,
     progress: Progress,
 ) -> Result<()> {
     let style = style.unwrap_or_else(|| PngStyle::default_for(&layer.entry().name));
@@ -275,40 +344,17 @@ pub fn export_layer(
             layer.entry().key()
         );
     }
-    let bands16 =
-        u16::try_from(bands).map_err(|_| anyhow!("{bands} bands is more than TIFF holds"))?;
     let manifest = asset.manifest();
-    // All bands of rows y0.., pixel-interleaved.
-    let read = |y0: u32, rows: &mut [f32]| -> Result<()> {
-        if bands == 1 {
-            return Ok(layer.read_rows_f32(0, y0, rows)?);
-        }
-        let n = rows.len() / bands as usize;
-        let mut one = vec![0f32; n];
-        for b in 0..bands as usize {
-            layer.read_rows_f32(b as u32, y0, &mut one)?;
-            for (i, v) in one.iter().enumerate() {
-                rows[i * bands as usize + b] = *v;
-            }
-        }
-        Ok(())
-    };
-    // The source's nodata value only for heights (a real horizon or svf
-    // could equal it); NaN for the rest.
     let height_like = is_height_like(&layer.entry().name);
     match ExportKind::from_path(out)? {
         ExportKind::GeoTiff => {
-            let nodata = Some(match (&manifest.nodata.source_value, height_like) {
-                (Some(v), true) => v.clone(),
-                _ => "nan".into(),
-            });
-            let tags = GeoTags::for_level(manifest.georef.as_ref(), nodata, layer.entry().level);
-            let bar = progress.bar(u64::from(h), "export", "rows");
-            write_geotiff_f32(out, (w, h, bands16), &tags, |y0, rows| {
-                read(y0, rows)?;
-                bar.set_position(u64::from(y0));
-                Ok(())
-            })?;
+            let cog = cog_for_layer(asset, layer, tiff)?;
+            let bar = progress.bar(u64::from(h) * u64::from(bands), "export", "rows");
+            cog.write(
+                out,
+                |band, y0, rows| Ok(layer.read_rows_f32(band, y0, rows)?),
+                |n| bar.inc(n),
+            )?;
             bar.finish_and_clear();
             Ok(())
         }
