@@ -58,6 +58,8 @@ demo: build
 ## already built: the dependencies are compiled once for both.
 test:
 	$(CARGO) test --release --locked
+	bash pipelines/python/test.sh
+	bash pipelines/gis/check_grass.sh target/release/terrabake
 
 ## Every test again with debug assertions and overflow checks
 ## ([profile.test]: optimised, but checked), and the tracers' full matrices

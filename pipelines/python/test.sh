@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# The Python package as a user installs it: a fresh virtual environment,
+# `pip install ./python` (a PEP 517 build through maturin: the abi3 wheel),
+# then its tests (python/tests, pytest). The environment sees the system's
+# packages, so that Debian's GDAL bindings (python3-gdal), when present,
+# check the COG exports with GDAL's own validator; as root, the script
+# installs python3-venv and python3-gdal when they are missing.
+#
+#   bash pipelines/python/test.sh            # what `make test` runs
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+py=/usr/bin/python3
+[ -x "$py" ] || py=$(command -v python3)
+apt_install() {
+  [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null || return 1
+  export DEBIAN_FRONTEND=noninteractive
+  apt-get install -y -qq "$@" >/dev/null 2>&1 ||
+    { apt-get update -qq >/dev/null && apt-get install -y -qq "$@" >/dev/null; }
+}
+if ! "$py" -c "import ensurepip, venv" 2>/dev/null; then
+  echo "python/test.sh: installing Debian's python3-venv (once)" >&2
+  apt_install python3-venv
+fi
+if ! "$py" -c "import osgeo.gdal" 2>/dev/null; then
+  echo "python/test.sh: installing Debian's python3-gdal (once), for GDAL's COG validator" >&2
+  apt_install python3-gdal gdal-bin || echo "python/test.sh: no GDAL bindings: the GDAL checks will be skipped" >&2
+fi
+if ! "$py" -c "import xarray" 2>/dev/null; then
+  echo "python/test.sh: installing Debian's python3-xarray (once), for to_xarray" >&2
+  apt_install python3-xarray || echo "python/test.sh: no xarray: to_xarray's test will be skipped" >&2
+fi
+venv=target/python-venv
+rm -rf "$venv"
+"$py" -m venv --system-site-packages "$venv"
+"$venv/bin/pip" install -q --disable-pip-version-check pytest
+"$venv/bin/python" -c "import numpy" 2>/dev/null || "$venv/bin/pip" install -q --disable-pip-version-check numpy
+start=$(date +%s.%N)
+"$venv/bin/pip" install -q --disable-pip-version-check ./python
+echo "python/test.sh: pip install ./python took $(awk -v a="$start" -v b="$(date +%s.%N)" 'BEGIN { printf "%.1f", b - a }') s"
+TERRABAKE_BIN="$(pwd)/target/release/terrabake" "$venv/bin/python" -m pytest -q python/tests "$@"

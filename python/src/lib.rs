@@ -1,0 +1,582 @@
+//! `terrabake._native`: the Rust half of the Python package (`python/`).
+//!
+//! Thin by design: every value comes from the same functions the command
+//! line calls (the format crate's reader and decoder, the horizon methods,
+//! the sky sums, `recipe::bake`), so Python gets exactly the CLI's numbers.
+//! What this file adds is the boundary: numpy arrays checked before any
+//! work (dtype, shape, contiguity, size, all-NaN: `ValueError` naming the
+//! problem), the GIL released while Rust works, a progress callback called
+//! between bands, and errors raised as `terrabake.TerrabakeError` with the
+//! CLI's message. The Python side (`terrabake/__init__.py`) adds xarray.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use numpy::ndarray::{Array2, Array3, ArrayView2};
+use numpy::{
+    IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods, PyUntypedArray,
+    PyUntypedArrayMethods,
+};
+use pyo3::exceptions::{PyException, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList};
+use terrabake::horizon::sky::{BandIntegrals, SkySums};
+use terrabake::horizon::terrain::{curvature_coefficient, Terrain, DEFAULT_REFRACTION};
+use terrabake::horizon::{band_bounds, band_horizons, plan_bands, BandOptions, Method};
+use terrabake_format::{ElemType, Mmap, Tile};
+
+pyo3::create_exception!(
+    _native,
+    TerrabakeError,
+    PyException,
+    "A terrabake operation failed; the message is the command line's."
+);
+
+fn raise(e: anyhow::Error) -> PyErr {
+    TerrabakeError::new_err(terrabake::report::error_chain(&e))
+}
+
+fn raise_format(e: terrabake_format::Error) -> PyErr {
+    raise(anyhow::Error::new(e))
+}
+
+/// An asset open for reading: its layers as numpy arrays.
+#[pyclass(frozen, module = "terrabake")]
+struct Asset {
+    inner: Arc<terrabake_format::Asset<Mmap>>,
+}
+
+/// Keeps a cached (decompressed) tile alive under a numpy view of it.
+#[pyclass(frozen, module = "terrabake")]
+struct TileOwner {
+    _tile: Tile<'static, u8>,
+}
+
+#[pymethods]
+impl Asset {
+    /// The asset directory.
+    #[getter]
+    fn path(&self) -> PathBuf {
+        self.inner.dir().to_path_buf()
+    }
+
+    /// Width and height of the DEM in posts.
+    #[getter]
+    fn shape(&self) -> (u32, u32) {
+        let m = self.inner.manifest();
+        (m.height, m.width)
+    }
+
+    /// Every layer: a dict of name, level, elem, bands, width, height,
+    /// tile_size, codec, description and band_azimuths.
+    #[getter]
+    fn layers<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+        let list = PyList::empty(py);
+        for l in &self.inner.manifest().layers {
+            let d = PyDict::new(py);
+            d.set_item("name", &l.name)?;
+            d.set_item("level", l.level)?;
+            d.set_item("elem", l.elem.name())?;
+            d.set_item("bands", l.bands)?;
+            d.set_item("width", l.width)?;
+            d.set_item("height", l.height)?;
+            d.set_item("tile_size", l.tile_size)?;
+            d.set_item("codec", format!("{:?}", l.codec).to_lowercase())?;
+            d.set_item("description", &l.description)?;
+            d.set_item("band_azimuths", l.band_azimuths.clone())?;
+            list.append(d)?;
+        }
+        Ok(list)
+    }
+
+    /// The manifest as JSON text.
+    fn manifest_json(&self) -> PyResult<String> {
+        serde_json::to_string(self.inner.manifest()).map_err(|e| raise(e.into()))
+    }
+
+    /// Layer `name` at `level`, every band, decoded to float32 (quantised
+    /// codes to degrees, nodata to NaN): shape (bands, height, width).
+    #[pyo3(signature = (name, level = 0))]
+    fn read<'py>(
+        &self,
+        py: Python<'py>,
+        name: &str,
+        level: u32,
+    ) -> PyResult<Bound<'py, PyArray3<f32>>> {
+        let inner = self.inner.clone();
+        let name = name.to_string();
+        let values = py
+            .detach(move || -> anyhow::Result<Array3<f32>> {
+                let layer = inner.layer(&name, level)?;
+                let (w, h, b) = (
+                    layer.width() as usize,
+                    layer.height() as usize,
+                    layer.bands(),
+                );
+                let mut all = Array3::<f32>::zeros((b as usize, h, w));
+                for (band, mut plane) in all.outer_iter_mut().enumerate() {
+                    let out = plane.as_slice_mut().expect("a fresh array is contiguous");
+                    layer.read_rows_f32(band as u32, 0, out)?;
+                }
+                Ok(all)
+            })
+            .map_err(raise)?;
+        Ok(values.into_pyarray(py))
+    }
+
+    /// Tile `(tx, ty)` of band `band` of layer `name` at `level`, as stored
+    /// (raw codes, not decoded; f16 as uint16 bits), read-only, without a
+    /// copy: a view of the file's mapping (or of the decompressed tile in
+    /// the reader's cache), which the array keeps alive.
+    #[pyo3(signature = (name, level, tx, ty, band = 0))]
+    fn tile<'py>(
+        slf: &Bound<'py, Self>,
+        name: &str,
+        level: u32,
+        tx: u32,
+        ty: u32,
+        band: u32,
+    ) -> PyResult<Bound<'py, PyUntypedArray>> {
+        let py = slf.py();
+        let this = slf.get();
+        let layer = this.inner.layer(name, level).map_err(raise_format)?;
+        let t = layer.tile_size() as usize;
+        if tx >= layer.tiles_x() || ty >= layer.tiles_y() || band >= layer.bands() {
+            return Err(PyValueError::new_err(format!(
+                "tile ({tx}, {ty}) band {band} is outside layer {} ({} x {} tiles, {} bands)",
+                layer.entry().key(),
+                layer.tiles_x(),
+                layer.tiles_y(),
+                layer.bands()
+            )));
+        }
+        macro_rules! view {
+            ($t:ty) => {{
+                let tile = layer.tile::<$t>(band, tx, ty).map_err(raise_format)?;
+                // SAFETY: the slice lives in the mapping owned by `this.inner`
+                // (Borrowed) or in the cached buffer moved into `owner`
+                // (Cached); `container` keeps that owner alive as long as the
+                // array, and neither is ever written.
+                let (slice, owner): (&[$t], Bound<'py, PyAny>) = match tile {
+                    Tile::Borrowed(s) => {
+                        let s: &'static [$t] = unsafe { std::mem::transmute(s) };
+                        (s, slf.clone().into_any())
+                    }
+                    Tile::Cached(buf, _) => {
+                        let cached: Tile<'static, u8> = Tile::Cached(buf, std::marker::PhantomData);
+                        let bytes: &[u8] = &cached;
+                        let s: &'static [$t] = unsafe {
+                            std::slice::from_raw_parts(
+                                bytes.as_ptr().cast::<$t>(),
+                                bytes.len() / std::mem::size_of::<$t>(),
+                            )
+                        };
+                        (s, Bound::new(py, TileOwner { _tile: cached })?.into_any())
+                    }
+                };
+                let view = ArrayView2::from_shape((t, t), slice)
+                    .map_err(|e| PyValueError::new_err(e.to_string()))?;
+                let array = unsafe { PyArray2::<$t>::borrow_from_array(&view, owner) };
+                array.getattr("flags")?.setattr("writeable", false)?;
+                array.into_any().cast_into::<PyUntypedArray>()?
+            }};
+        }
+        Ok(match layer.entry().elem {
+            ElemType::F32 => view!(f32),
+            ElemType::U16 | ElemType::F16 => view!(u16),
+            ElemType::U8 => view!(u8),
+            ElemType::I16 => view!(i16),
+            ElemType::U32 => view!(u32),
+        })
+    }
+
+    /// GDAL's six numbers (origin x, pixel width, row rotation, origin y,
+    /// column rotation, pixel height) of the posts' pixels, or None: the
+    /// pixel's corner, as GDAL reports it, also for point rasters (SRTM),
+    /// whose posts sit at the pixels' centres.
+    #[getter]
+    fn transform(&self) -> Option<[f64; 6]> {
+        let g = self.inner.manifest().georef.as_ref()?;
+        let mut t = g.geotransform;
+        if g.raster_type == terrabake_format::manifest::RasterType::Point {
+            t[0] -= 0.5 * (t[1] + t[2]);
+            t[3] -= 0.5 * (t[4] + t[5]);
+        }
+        Some(t)
+    }
+
+    /// The CRS as WKT (WGS 84 and its UTM zones), `EPSG:n` for other EPSG
+    /// codes, or None.
+    #[getter]
+    fn crs(&self) -> Option<String> {
+        let g = self.inner.manifest().georef.as_ref()?;
+        let epsg = g.epsg?;
+        Some(terrabake::geo::wkt(epsg).unwrap_or_else(|| format!("EPSG:{epsg}")))
+    }
+
+    /// The compass azimuth (degrees clockwise from north) of each band of
+    /// layer `name` at level 0; empty for layers without directions.
+    fn band_azimuths(&self, name: &str) -> PyResult<Vec<f64>> {
+        let layer = self.inner.layer(name, 0).map_err(raise_format)?;
+        Ok(layer.entry().band_azimuths.clone())
+    }
+
+    /// What the GeoTIFF export says of layer `name` at `level`: its units,
+    /// method, description, version and source, and each band's
+    /// description (the attributes `to_xarray` gives).
+    #[pyo3(signature = (name, level = 0))]
+    fn attributes<'py>(
+        &self,
+        py: Python<'py>,
+        name: &str,
+        level: u32,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let layer = self.inner.layer(name, level).map_err(raise_format)?;
+        let cog = terrabake::export::cog_for_layer(&self.inner, layer, &Default::default())
+            .map_err(raise)?;
+        let d = PyDict::new(py);
+        for (k, v) in &cog.metadata.dataset {
+            d.set_item(k.to_lowercase(), v)?;
+        }
+        let first = cog.metadata.bands.first();
+        d.set_item("units", first.map(|b| b.unit.clone()).unwrap_or_default())?;
+        let descriptions: Vec<String> = cog
+            .metadata
+            .bands
+            .iter()
+            .map(|b| b.description.clone())
+            .collect();
+        d.set_item("band_descriptions", descriptions)?;
+        Ok(d)
+    }
+
+    /// The layer as an `xarray.DataArray` (dims band, y, x; coordinates
+    /// from the transform at pixel centres, azimuths for directional
+    /// layers; attributes from `attributes`). Needs xarray.
+    #[pyo3(signature = (name, level = 0))]
+    fn to_xarray<'py>(
+        slf: &Bound<'py, Self>,
+        name: &str,
+        level: u32,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let py = slf.py();
+        py.import("terrabake")?
+            .getattr("to_xarray")?
+            .call1((slf, name, level))
+    }
+
+    fn __repr__(&self) -> String {
+        let m = self.inner.manifest();
+        format!(
+            "terrabake.Asset({:?}, {} x {} posts, {} layers)",
+            self.inner.dir(),
+            m.width,
+            m.height,
+            m.layers.len()
+        )
+    }
+}
+
+/// Opens an asset directory (validated, memory-mapped).
+#[pyfunction]
+fn open(path: PathBuf) -> PyResult<Asset> {
+    let inner = terrabake::asset::open(&path).map_err(raise)?;
+    Ok(Asset {
+        inner: Arc::new(inner),
+    })
+}
+
+/// The heights of a numpy DEM, checked: float32 or float64, 2-D,
+/// C-contiguous, not empty, not all NaN.
+fn dem_of(dem: &Bound<'_, PyAny>) -> PyResult<(Vec<f32>, usize, usize)> {
+    let array = dem.cast::<PyUntypedArray>().map_err(|_| {
+        PyValueError::new_err(format!(
+            "dem: expected a numpy array, got {}",
+            dem.get_type()
+                .name()
+                .map(|n| n.to_string())
+                .unwrap_or_default()
+        ))
+    })?;
+    if array.ndim() != 2 {
+        return Err(PyValueError::new_err(format!(
+            "dem: expected a 2-D array (rows, columns), got {} dimensions",
+            array.ndim()
+        )));
+    }
+    if !array.is_c_contiguous() {
+        return Err(PyValueError::new_err(
+            "dem: the array is not C-contiguous; pass numpy.ascontiguousarray(dem)",
+        ));
+    }
+    let (h, w) = (array.shape()[0], array.shape()[1]);
+    if h < 2 || w < 2 {
+        return Err(PyValueError::new_err(format!(
+            "dem: {h} x {w} posts; a DEM needs at least 2 x 2"
+        )));
+    }
+    let z: Vec<f32> = if let Ok(a) = dem.cast::<PyArray2<f32>>() {
+        a.readonly().as_slice()?.to_vec()
+    } else if let Ok(a) = dem.cast::<PyArray2<f64>>() {
+        a.readonly().as_slice()?.iter().map(|&v| v as f32).collect()
+    } else {
+        return Err(PyValueError::new_err(format!(
+            "dem: expected float32 or float64 heights, got dtype {}",
+            array.dtype()
+        )));
+    };
+    if z.iter().all(|v| v.is_nan()) {
+        return Err(PyValueError::new_err("dem: every post is NaN (nodata)"));
+    }
+    Ok((z, w, h))
+}
+
+fn method_of(method: &str) -> PyResult<Method> {
+    method
+        .parse::<Method>()
+        .map_err(|e| PyValueError::new_err(format!("method: {e}")))
+}
+
+fn cell_size_of((dx, dy): (f64, f64)) -> PyResult<(f64, f64)> {
+    if !(dx.is_finite() && dy.is_finite() && dx > 0.0 && dy > 0.0) {
+        return Err(PyValueError::new_err(format!(
+            "cell_size: ({dx}, {dy}) must be two positive metres"
+        )));
+    }
+    Ok((dx, dy))
+}
+
+/// What both compute functions share: the DEM, its bands, their horizons.
+struct Horizons {
+    z: Vec<f32>,
+    w: usize,
+    h: usize,
+    dx: f64,
+    dy: f64,
+    curvature: f64,
+    azimuths: Vec<f64>,
+    angles: Vec<Vec<f32>>,
+}
+
+#[allow(clippy::too_many_arguments)]
+fn compute_horizons(
+    py: Python<'_>,
+    dem: &Bound<'_, PyAny>,
+    cell_size: (f64, f64),
+    sectors: usize,
+    method: &str,
+    max_distance: Option<f64>,
+    curvature: bool,
+    refraction: f64,
+    progress: Option<&Bound<'_, PyAny>>,
+) -> PyResult<Horizons> {
+    let (z, w, h) = dem_of(dem)?;
+    let (dx, dy) = cell_size_of(cell_size)?;
+    terrabake::args::parse_sectors(&sectors.to_string())
+        .map_err(|e| PyValueError::new_err(format!("sectors: {e}")))?;
+    if let Some(d) = max_distance {
+        if !(d.is_finite() && d > 0.0) {
+            return Err(PyValueError::new_err(format!(
+                "max_distance: {d} must be positive metres"
+            )));
+        }
+    }
+    if let Some(p) = progress {
+        if !p.is_callable() {
+            return Err(PyValueError::new_err(
+                "progress: expected a callable(done, total)",
+            ));
+        }
+    }
+    let method = method_of(method)?;
+    let curvature = if curvature {
+        curvature_coefficient(refraction)
+    } else {
+        0.0
+    };
+    let bands = plan_bands(method, sectors, dx, dy, None);
+    let opts = BandOptions {
+        max_distance,
+        narrow_check: true,
+    };
+    let mut angles = Vec::with_capacity(bands.len());
+    for (i, band) in bands.iter().enumerate() {
+        let out = py.detach(|| {
+            let mut terrain = Terrain::new(&z, w, h, dx, dy);
+            terrain.curvature = curvature;
+            band_horizons(&terrain, band, opts).0
+        });
+        angles.push(out);
+        py.check_signals()?;
+        if let Some(p) = progress {
+            p.call1((i + 1, bands.len()))?;
+        }
+    }
+    Ok(Horizons {
+        z,
+        w,
+        h,
+        dx,
+        dy,
+        curvature,
+        azimuths: bands.iter().map(|b| b.azimuth).collect(),
+        angles,
+    })
+}
+
+/// `horizons`' result: angles (S, H, W) and the bands' azimuths.
+type AnglesAndAzimuths<'py> = (Bound<'py, PyArray3<f32>>, Bound<'py, PyArray1<f64>>);
+
+/// Horizon angles of a numpy DEM: (angles, band_azimuths), angles float32
+/// degrees of shape (sectors, rows, columns), NaN where the DEM is.
+#[pyfunction]
+#[pyo3(signature = (dem, cell_size, sectors = 16, method = "line", max_distance = None, curvature = false, refraction = DEFAULT_REFRACTION, progress = None))]
+#[allow(clippy::too_many_arguments)]
+fn horizons<'py>(
+    py: Python<'py>,
+    dem: &Bound<'py, PyAny>,
+    cell_size: (f64, f64),
+    sectors: usize,
+    method: &str,
+    max_distance: Option<f64>,
+    curvature: bool,
+    refraction: f64,
+    progress: Option<&Bound<'py, PyAny>>,
+) -> PyResult<AnglesAndAzimuths<'py>> {
+    let hz = compute_horizons(
+        py,
+        dem,
+        cell_size,
+        sectors,
+        method,
+        max_distance,
+        curvature,
+        refraction,
+        progress,
+    )?;
+    let (s, h, w) = (hz.angles.len(), hz.h, hz.w);
+    let flat: Vec<f32> = hz.angles.into_iter().flatten().collect();
+    let angles = Array3::from_shape_vec((s, h, w), flat).expect("S x H x W values");
+    Ok((angles.into_pyarray(py), hz.azimuths.into_pyarray(py)))
+}
+
+/// The sky-view factor (over the horizontal, Zakšek's) of a numpy DEM from
+/// its horizons, as the `sky` stage computes it: float32 (rows, columns).
+#[pyfunction]
+#[pyo3(signature = (dem, cell_size, sectors = 16, method = "line", max_distance = None, curvature = false, refraction = DEFAULT_REFRACTION, progress = None))]
+#[allow(clippy::too_many_arguments)]
+fn sky_view_factor<'py>(
+    py: Python<'py>,
+    dem: &Bound<'py, PyAny>,
+    cell_size: (f64, f64),
+    sectors: usize,
+    method: &str,
+    max_distance: Option<f64>,
+    curvature: bool,
+    refraction: f64,
+    progress: Option<&Bound<'py, PyAny>>,
+) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    let hz = compute_horizons(
+        py,
+        dem,
+        cell_size,
+        sectors,
+        method,
+        max_distance,
+        curvature,
+        refraction,
+        progress,
+    )?;
+    let svf = py.detach(|| {
+        let mut terrain = Terrain::new(&hz.z, hz.w, hz.h, hz.dx, hz.dy);
+        terrain.curvature = hz.curvature;
+        let integrals: Vec<BandIntegrals> = band_bounds(&hz.azimuths)
+            .into_iter()
+            .map(|(lo, hi)| BandIntegrals::new(lo, hi))
+            .collect();
+        let values: Vec<f32> = (0..hz.w * hz.h)
+            .map(|i| {
+                let (x, y) = (i % hz.w, i / hz.w);
+                let Some(normal) = terrain.normal(x, y) else {
+                    return f32::NAN;
+                };
+                let mut sums = SkySums::default();
+                for (b, band) in hz.angles.iter().enumerate() {
+                    let a = f64::from(band[i]);
+                    if !a.is_nan() {
+                        sums.add(a, a.to_radians().sin_cos(), &integrals[b], normal);
+                    }
+                }
+                sums.svf() as f32
+            })
+            .collect();
+        Array2::from_shape_vec((hz.h, hz.w), values).expect("H x W values")
+    });
+    Ok(svf.into_pyarray(py))
+}
+
+/// Bakes `src` (a DEM file) into the asset `out`, as `terrabake bake`
+/// does: with a recipe file, or planned from a budget (`"horizon=0.5"`,
+/// the CLI's --budget syntax) and needs (`"horizons,svf"`).
+#[pyfunction]
+#[pyo3(signature = (src, out, recipe = None, budget = None, needs = None))]
+fn bake(
+    py: Python<'_>,
+    src: PathBuf,
+    out: PathBuf,
+    recipe: Option<PathBuf>,
+    budget: Option<String>,
+    needs: Option<String>,
+) -> PyResult<String> {
+    let recipe = match (recipe, budget) {
+        (Some(_), Some(_)) => {
+            return Err(PyValueError::new_err("give a recipe or a budget, not both"))
+        }
+        (Some(r), None) => terrabake::recipe::Recipe::load(&r).map_err(raise)?,
+        (None, budget) => {
+            let plan = match budget {
+                None => None,
+                Some(b) => Some(terrabake::budget::Request {
+                    budget: b
+                        .parse()
+                        .map_err(|e| PyValueError::new_err(format!("budget: {e}")))?,
+                    needs: match needs {
+                        Some(n) => n
+                            .parse()
+                            .map_err(|e| PyValueError::new_err(format!("needs: {e}")))?,
+                        None => Default::default(),
+                    },
+                    ..Default::default()
+                }),
+            };
+            terrabake::recipe::Recipe {
+                plan,
+                ..Default::default()
+            }
+        }
+    };
+    let outcomes = py
+        .detach(|| {
+            terrabake::recipe::bake(
+                &src,
+                &out,
+                &recipe,
+                terrabake::asset::Wait::unless(false),
+                terrabake::progress::Progress::new(true),
+            )
+        })
+        .map_err(raise)?;
+    serde_json::to_string(&outcomes).map_err(|e| raise(e.into()))
+}
+
+#[pymodule]
+fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<Asset>()?;
+    m.add_function(wrap_pyfunction!(open, m)?)?;
+    m.add_function(wrap_pyfunction!(horizons, m)?)?;
+    m.add_function(wrap_pyfunction!(sky_view_factor, m)?)?;
+    m.add_function(wrap_pyfunction!(bake, m)?)?;
+    m.add("TerrabakeError", m.py().get_type::<TerrabakeError>())?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    Ok(())
+}

@@ -1,0 +1,79 @@
+from os import PathLike
+from typing import Any, Callable, Optional, Union
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+
+Path = Union[str, PathLike[str]]
+Progress = Callable[[int, int], Any]
+
+class TerrabakeError(Exception):
+    """A terrabake operation failed; the message is the command line's."""
+
+class Asset:
+    """An asset open for reading (validated, memory-mapped)."""
+
+    @property
+    def path(self) -> str: ...
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(rows, columns) of the DEM."""
+    @property
+    def layers(self) -> list[dict[str, Any]]:
+        """name, level, elem, bands, width, height, tile_size, codec, description, band_azimuths."""
+    @property
+    def transform(self) -> Optional[tuple[float, float, float, float, float, float]]:
+        """GDAL's geotransform of the posts' pixels, or None."""
+    @property
+    def crs(self) -> Optional[str]:
+        """WKT (WGS 84 and its UTM zones), EPSG:n, or None."""
+    def read(self, name: str, level: int = 0) -> npt.NDArray[np.float32]:
+        """Every band decoded to float32, NaN for nodata: (bands, rows, columns)."""
+    def tile(self, name: str, level: int, tx: int, ty: int, band: int = 0) -> npt.NDArray[Any]:
+        """A read-only view of a stored tile (raw codes), without a copy."""
+    def band_azimuths(self, name: str) -> list[float]:
+        """Compass azimuth of each band (degrees clockwise from north)."""
+    def attributes(self, name: str, level: int = 0) -> dict[str, Any]:
+        """Units, method, description, version and source of a layer."""
+    def to_xarray(self, name: str, level: int = 0) -> Any:
+        """The layer as an xarray.DataArray (needs xarray)."""
+    def manifest_json(self) -> str: ...
+
+def open(path: Path) -> Asset:
+    """Opens an asset directory."""
+
+def horizons(
+    dem: npt.NDArray[np.floating[Any]],
+    cell_size: tuple[float, float],
+    sectors: int = 16,
+    method: str = "line",
+    max_distance: Optional[float] = None,
+    curvature: bool = False,
+    refraction: float = 0.13,
+    progress: Optional[Progress] = None,
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float64]]:
+    """(angles, band_azimuths): angles in degrees, (sectors, rows, columns)."""
+
+def sky_view_factor(
+    dem: npt.NDArray[np.floating[Any]],
+    cell_size: tuple[float, float],
+    sectors: int = 16,
+    method: str = "line",
+    max_distance: Optional[float] = None,
+    curvature: bool = False,
+    refraction: float = 0.13,
+    progress: Optional[Progress] = None,
+) -> npt.NDArray[np.float32]:
+    """Sky-view factor over the horizontal (0-1), (rows, columns)."""
+
+def bake(
+    src: Path,
+    out: Path,
+    recipe: Optional[Path] = None,
+    budget: Optional[str] = None,
+    needs: Optional[str] = None,
+) -> str:
+    """Bakes a DEM into an asset, as `terrabake bake`; returns the stages' outcomes as JSON."""
+

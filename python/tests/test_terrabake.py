@@ -1,0 +1,282 @@
+"""The Python package against the command line: the same numbers, or a
+clear error. Assets are baked by the CLI (TERRABAKE_BIN, the release
+binary `make test` built); the package must read and recompute them
+exactly."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import terrabake
+
+BIN = os.environ.get("TERRABAKE_BIN", "target/release/terrabake")
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def cli(*args: str) -> str:
+    return subprocess.run(
+        [BIN, "--quiet", *map(str, args)], check=True, capture_output=True, text=True
+    ).stdout
+
+
+RECIPE = """
+description = "python tests"
+[ingest]
+tile = 32
+[[stage]]
+name = "horizons"
+sectors = {sectors}
+method = "{method}"
+encoding = "f32"
+curvature = {curvature}
+[[stage]]
+name = "sky"
+"""
+
+
+def baked(tmp: Path, method: str, curvature: bool = False, sectors: int = 16) -> Path:
+    dem = tmp / "dem.tif"
+    if not dem.exists():
+        cli("synth", "fractal", "--size", "72x56", "--seed", "5", "-o", dem)
+    recipe = tmp / f"{method}.toml"
+    recipe.write_text(
+        RECIPE.format(method=method, curvature=str(curvature).lower(), sectors=sectors)
+    )
+    out = tmp / f"{method}-{curvature}.tbake"
+    cli("bake", dem, "-o", out, "--recipe", recipe)
+    return out
+
+
+@pytest.fixture(scope="module")
+def tmp(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return tmp_path_factory.mktemp("tb")
+
+
+@pytest.fixture(scope="module")
+def line_asset(tmp: Path) -> terrabake.Asset:
+    return terrabake.open(baked(tmp, "line"))
+
+
+def cell_size(asset: terrabake.Asset) -> tuple[float, float]:
+    m = json.loads(asset.manifest_json())
+    return (m["cell_size"]["dx"], m["cell_size"]["dy"])
+
+
+def test_read_gives_bands_first_float32_and_the_layers(line_asset: terrabake.Asset) -> None:
+    z = line_asset.read("height")
+    assert z.dtype == np.float32 and z.shape == (1, 56, 72)
+    hz = line_asset.read("horizon")
+    assert hz.shape == (16, 56, 72)
+    names = {(layer["name"], layer["level"]) for layer in line_asset.layers}
+    assert {("height", 0), ("horizon", 0), ("svf", 0)} <= names
+    az = line_asset.band_azimuths("horizon")
+    assert len(az) == 16 and az == sorted(az) and az[0] == 0.0
+    # Line bands sit on grid directions: not every one on a multiple of 22.5.
+    assert any(abs(a - 22.5 * i) > 1e-9 for i, a in enumerate(az))
+    assert line_asset.shape == (56, 72)
+    assert len(line_asset.transform) == 6
+
+
+def test_tiles_are_read_only_views_of_the_mapping(line_asset: terrabake.Asset) -> None:
+    t = line_asset.tile("height", 0, 1, 1)
+    assert t.shape == (32, 32) and t.dtype == np.float32
+    assert not t.flags.writeable and not t.flags.owndata
+    with pytest.raises(ValueError):
+        t[0, 0] = 1.0
+    # The same memory twice: no copy was made.
+    again = line_asset.tile("height", 0, 1, 1)
+    assert t.__array_interface__["data"][0] == again.__array_interface__["data"][0]
+    z = line_asset.read("height")[0]
+    np.testing.assert_array_equal(t[:24, :32], z[32:56, 32:64])
+    with pytest.raises(ValueError, match="outside layer"):
+        line_asset.tile("height", 0, 9, 0)
+
+
+def test_a_tile_keeps_the_asset_alive(tmp: Path) -> None:
+    asset = terrabake.open(baked(tmp, "line"))
+    t = asset.tile("height", 0, 0, 0)
+    expected = t.copy()
+    del asset
+    import gc
+
+    gc.collect()
+    np.testing.assert_array_equal(t, expected)
+
+
+@pytest.mark.parametrize("method", ["line", "sector"])
+@pytest.mark.parametrize("curvature", [False, True])
+def test_horizons_equal_the_cli_exactly(tmp: Path, method: str, curvature: bool) -> None:
+    asset = terrabake.open(baked(tmp, method, curvature))
+    z = asset.read("height")[0]
+    angles, az = terrabake.horizons(
+        z, cell_size(asset), sectors=16, method=method, curvature=curvature
+    )
+    assert angles.dtype == np.float32 and angles.shape == (16, 56, 72)
+    np.testing.assert_array_equal(az, asset.band_azimuths("horizon"))
+    np.testing.assert_array_equal(angles, asset.read("horizon"))
+    svf = terrabake.sky_view_factor(
+        z, cell_size(asset), sectors=16, method=method, curvature=curvature
+    )
+    np.testing.assert_array_equal(svf, asset.read("svf")[0])
+
+
+def test_float64_dems_and_progress(line_asset: terrabake.Asset) -> None:
+    z = line_asset.read("height")[0]
+    calls: list[tuple[int, int]] = []
+    angles, _ = terrabake.horizons(
+        z.astype(np.float64), cell_size(line_asset), progress=lambda d, n: calls.append((d, n))
+    )
+    assert calls == [(i, 16) for i in range(1, 17)]
+    np.testing.assert_array_equal(angles, line_asset.read("horizon"))
+
+    def stop(done: int, total: int) -> None:
+        if done == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        terrabake.horizons(z, (30.0, 30.0), progress=stop)
+
+
+def test_the_gil_is_released_while_rust_works() -> None:
+    z = np.random.default_rng(1).random((400, 400), dtype=np.float32) * 100
+    ticks = 0
+    done = threading.Event()
+
+    def work() -> None:
+        terrabake.horizons(z, (10.0, 10.0), sectors=32)
+        done.set()
+
+    thread = threading.Thread(target=work)
+    thread.start()
+    while not done.is_set():
+        ticks += 1
+        done.wait(0.001)
+    thread.join()
+    assert ticks > 5, "the main thread never ran while horizons worked"
+
+
+@pytest.mark.parametrize(
+    "dem, message",
+    [
+        (np.zeros((8, 8), dtype=np.int32), "float32 or float64"),
+        (np.zeros((2, 8, 8), dtype=np.float32), "2-D"),
+        (np.zeros((8, 16), dtype=np.float32)[:, ::2], "not C-contiguous"),
+        (np.zeros((0, 8), dtype=np.float32), "at least 2 x 2"),
+        (np.full((8, 8), np.nan, dtype=np.float32), "every post is NaN"),
+        ([[1.0, 2.0], [3.0, 4.0]], "numpy array"),
+    ],
+)
+def test_bad_arrays_are_value_errors(dem: object, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        terrabake.horizons(dem, (30.0, 30.0))  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match=message):
+        terrabake.sky_view_factor(dem, (30.0, 30.0))  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"cell_size": (0.0, 30.0)}, "cell_size"),
+        ({"cell_size": (30.0, float("nan"))}, "cell_size"),
+        ({"sectors": 2}, "sectors"),
+        ({"method": "ray"}, "method"),
+        ({"max_distance": -5.0}, "max_distance"),
+        ({"progress": 3}, "progress"),
+    ],
+)
+def test_bad_options_are_value_errors(kwargs: dict, message: str) -> None:
+    args = {"cell_size": (30.0, 30.0), **kwargs}
+    with pytest.raises(ValueError, match=message):
+        terrabake.horizons(np.ones((8, 8), dtype=np.float32), **args)
+
+
+def test_errors_carry_the_cli_message(tmp: Path) -> None:
+    with pytest.raises(terrabake.TerrabakeError, match="no-such.tbake"):
+        terrabake.open(tmp / "no-such.tbake")
+    bad = tmp / "bad.tif"
+    bad.write_bytes(b"II*\x00garbage")
+    with pytest.raises(terrabake.TerrabakeError, match="bad.tif"):
+        terrabake.bake(bad, tmp / "bad.tbake")
+    assert not (tmp / "bad.tbake" / "manifest.tba").exists()
+
+
+def test_bake_from_python_equals_the_cli(tmp: Path, line_asset: terrabake.Asset) -> None:
+    recipe = tmp / "from-python.toml"
+    recipe.write_text(RECIPE.format(method="line", curvature="false", sectors=16))
+    out = tmp / "from-python.tbake"
+    outcomes = json.loads(terrabake.bake(tmp / "dem.tif", out, recipe=recipe))
+    assert [o["stage"] for o in outcomes][:1] == ["ingest"]
+    ours = terrabake.open(out)
+    np.testing.assert_array_equal(ours.read("horizon"), line_asset.read("horizon"))
+    terrabake.bake(tmp / "dem.tif", tmp / "planned.tbake", budget="horizon=1.0")
+    planned = terrabake.open(tmp / "planned.tbake")
+    assert any(layer["name"] == "svf" for layer in planned.layers)
+    with pytest.raises(ValueError, match="budget"):
+        terrabake.bake(tmp / "dem.tif", tmp / "x.tbake", budget="horizon")
+
+
+def test_to_xarray_names_azimuths_and_units(line_asset: terrabake.Asset) -> None:
+    xr = pytest.importorskip("xarray")
+    da = line_asset.to_xarray("horizon")
+    assert isinstance(da, xr.DataArray)
+    assert da.dims == ("band", "y", "x")
+    np.testing.assert_array_equal(da["band"].values, line_asset.band_azimuths("horizon"))
+    assert da.attrs["units"] == "deg" and da.attrs["method"] == "line"
+    t = line_asset.transform
+    assert da["x"].values[0] == pytest.approx(t[0] + 0.5 * t[1])
+
+
+# GDAL: the exported COGs pass its validator and read back the asset's values.
+gdal = pytest.importorskip("osgeo.gdal", reason="GDAL's Python bindings (python3-gdal)")
+
+
+@pytest.mark.parametrize("layer", ["horizon", "svf", "height"])
+@pytest.mark.parametrize("compress", ["deflate", "zstd"])
+def test_cog_exports_pass_gdal_validator_and_read_back(
+    tmp: Path, line_asset: terrabake.Asset, layer: str, compress: str
+) -> None:
+    from osgeo_utils.samples.validate_cloud_optimized_geotiff import validate
+
+    out = tmp / f"{layer}-{compress}.tif"
+    cli("export", line_asset.path, "--layer", layer, "--tile", "32", "--compress", compress, "-o", out)
+    warnings, errors, _ = validate(str(out), full_check=True)
+    assert errors == [], errors
+    ds = gdal.Open(str(out))
+    try:
+        assert ds.RasterCount == line_asset.read(layer).shape[0]
+        assert ds.GetGeoTransform() == pytest.approx(line_asset.transform, abs=0)
+        assert ds.GetRasterBand(1).GetOverviewCount() >= 1
+        np.testing.assert_array_equal(ds.ReadAsArray().reshape(-1, 56, 72), line_asset.read(layer))
+        if layer == "horizon":
+            az = line_asset.band_azimuths("horizon")
+            for b in range(ds.RasterCount):
+                band = ds.GetRasterBand(b + 1)
+                assert band.GetDescription() == f"horizon azimuth {az[b]:.2f} deg, line"
+                assert band.GetUnitType() == "deg"
+            assert ds.GetMetadataItem("METHOD") == "line"
+            assert ds.GetMetadata("IMAGE_STRUCTURE")["INTERLEAVE"] == "BAND"
+    finally:
+        ds = None
+
+
+def test_geographic_cog_keeps_the_crs(tmp: Path) -> None:
+    out = tmp / "srtm.tbake"
+    cli("ingest", ROOT / "data/srtm3_n07w006_geographic_int16.tif", "-o", out)
+    tif = tmp / "srtm.tif"
+    cli("export", out, "-o", tif)
+    ds = gdal.Open(str(tif))
+    try:
+        assert "4326" in ds.GetSpatialRef().ExportToWkt()
+        asset = terrabake.open(out)
+        assert ds.GetGeoTransform() == pytest.approx(asset.transform, abs=0)
+        assert [o.XSize for o in map(ds.GetRasterBand(1).GetOverview, range(2))] == [601, 301]
+        np.testing.assert_array_equal(ds.ReadAsArray(), asset.read("height")[0])
+    finally:
+        ds = None
