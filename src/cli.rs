@@ -304,6 +304,9 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
     Page(crate::page::PageArgs),
     /// One observer's viewshed as a GeoTIFF: which posts it sees, and at what elevation angle.
     Viewshed(crate::viewshed::command::ViewshedArgs),
+    /// The horizon around one point at every azimuth step, from the exact sight line at each
+    /// azimuth, with the distance to what sets it: CSV, JSON, or PVGIS's horizon columns.
+    Profile(crate::profile::ProfileArgs),
     /// Add the total viewshed: at every post, the area an eye above it sees (square metres),
     /// by Timonen's azimuthal sweeps with the convex hull tree.
     TotalViewshed(StageCommand<crate::viewshed::stage::TotalViewshedStage>),

@@ -40,6 +40,7 @@
 //! - [`bench`](mod@bench): the benchmark harnesses (tracing views, cone
 //!   planes, horizon methods), their one table writer and chart writer.
 //! - [`synth`]: synthetic terrains for tests and benchmarks.
+//! - [`profile`]: the exact horizon around one point (`terrabake profile`).
 //! - [`export`]: layers out as GeoTIFF, OpenEXR or a PNG preview.
 //! - [`cog`]: the Cloud-Optimized GeoTIFF writer (tiled, band-interleaved,
 //!   overviews, GDAL metadata), in one streaming pass.
@@ -65,6 +66,7 @@ pub mod output;
 pub mod page;
 pub mod partition;
 pub mod plan;
+pub mod profile;
 pub mod progress;
 pub mod pyramid;
 pub mod recipe;

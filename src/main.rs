@@ -71,6 +71,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
         Command::BenchViews(args) => args.run(&say)?,
         Command::Page(args) => args.run(&say)?,
         Command::Viewshed(args) => args.run(&say)?,
+        Command::Profile(args) => args.run()?,
         Command::TotalViewshed(c) => report(&run_stage(&c.asset, &c.stage, c.force)?, c.json)?,
         Command::Check(args) => return args.run(progress),
         Command::Plan(args) => args.run(progress)?,

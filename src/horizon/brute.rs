@@ -77,14 +77,50 @@ pub struct HorizonRecord {
 /// surface lies ahead). The last one is the exact, unbounded line horizon.
 pub fn line_horizon_records(
     t: &Terrain,
-    (col, row): (usize, usize),
+    post: (usize, usize),
     (a, b): (i64, i64),
+) -> Vec<HorizonRecord> {
+    sight_line_records(t, post, (a as f64, b as f64))
+}
+
+/// [`line_horizon_records`] of the sight line from post `(col, row)` at
+/// compass `azimuth` (degrees), any azimuth: the line straight on the grid
+/// whose direction on the ground is `azimuth` at the post (on a geographic
+/// grid, with the east-west spacing of the post's row). `terrabake profile`.
+pub fn ray_horizon_records(
+    t: &Terrain,
+    (col, row): (usize, usize),
+    azimuth: f64,
+) -> Vec<HorizonRecord> {
+    let (sin, cos) = azimuth.to_radians().sin_cos();
+    let (a, b) = (
+        sin / (t.dx * t.row_scale.at_half(2 * row as i64)),
+        -cos / t.dy,
+    );
+    let major = a.abs().max(b.abs());
+    // Exact zeros, so that a line along a grid axis meets no diagonal
+    // crossing that rounding made.
+    let clean = |v: f64| {
+        if (v / major).abs() < 1e-12 {
+            0.0
+        } else {
+            v / major
+        }
+    };
+    sight_line_records(t, (col, row), (clean(a), clean(b)))
+}
+
+/// The records of the line `(col, row) + s (a, b)`, `s > 0` (grid units).
+fn sight_line_records(
+    t: &Terrain,
+    (col, row): (usize, usize),
+    (a, b): (f64, f64),
 ) -> Vec<HorizonRecord> {
     let zp = t.at(col, row);
     if zp.is_nan() {
         return Vec::new();
     }
-    let (pc, pr, a, b) = (col as f64, row as f64, a as f64, b as f64);
+    let (pc, pr) = (col as f64, row as f64);
     // Largest s that keeps col + a s in [0, W-1] and row + b s in [0, H-1].
     let exit = |p: f64, d: f64, last: f64| {
         if d > 0.0 {
@@ -124,7 +160,10 @@ pub fn line_horizon_records(
     // Metres from the post to parameter s: whole steps, each with the
     // east-west spacing at its middle row, then the fraction of the next.
     let step_len = |k: f64| {
-        (a * t.dx * t.row_scale.at_half((2.0 * pr + (2.0 * k + 1.0) * b) as i64)).hypot(b * t.dy)
+        (a * t.dx
+            * t.row_scale
+                .at_half((2.0 * pr + (2.0 * k + 1.0) * b).round() as i64))
+        .hypot(b * t.dy)
     };
     // Crossings in order, so that the whole steps' metres are summed once
     // along the line rather than again for every crossing.

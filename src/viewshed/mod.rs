@@ -63,7 +63,19 @@ pub fn observer_post(
     (x, y): (f64, f64),
     crs: Crs,
 ) -> Result<(usize, usize)> {
-    let said = format!("--observer {x},{y} (--crs {})", crs.name());
+    post_at(m, dem, "--observer", (x, y), crs)
+}
+
+/// The post nearest to `(x, y)` given in `crs` (as the flag `flag` gave
+/// it, for the messages); refused off the DEM or on nodata.
+pub fn post_at(
+    m: &Manifest,
+    dem: &HeldDem,
+    flag: &str,
+    (x, y): (f64, f64),
+    crs: Crs,
+) -> Result<(usize, usize)> {
+    let said = format!("{flag} {x},{y} (--crs {})", crs.name());
     let georef = m.georef.as_ref();
     let (col, row) = match (crs, georef) {
         (Crs::Grid, _) | (Crs::Native, None) => (x, y),

@@ -1,0 +1,260 @@
+//! What GIS users get out: `terrabake profile` (the exact horizon at any
+//! azimuth of one point) against the line sweep and a dense sampling of
+//! the sight line; `export --for grass` named and valued as `r.horizon`'s
+//! files; the COG writer's layout read back by an independent TIFF reader.
+//! GDAL's own validator runs in python/tests (pipelines/python/test.sh) and
+//! `r.sun` on the GRASS export in pipelines/gis/check_grass.sh.
+
+mod common;
+
+use common::{stderr, stdout, terrabake};
+use terrabake::horizon::terrain::Terrain;
+use terrabake::horizon::{brute, line, plan_bands, BandKind, Method};
+use terrabake::synth::{self, SynthKind};
+
+fn grid(kind: SynthKind, w: usize, h: usize, seed: u64) -> Vec<f32> {
+    (0..w * h)
+        .map(|i| {
+            synth::height(
+                kind,
+                (i % w) as u32,
+                (i / w) as u32,
+                w as u32,
+                h as u32,
+                seed,
+            )
+        })
+        .collect()
+}
+
+/// At a line band's own azimuth, the profile's sight line is the band's
+/// line: the same horizon as the sweep, at every post.
+#[test]
+fn profile_at_a_band_azimuth_is_the_line_method() {
+    let (w, h) = (41, 37);
+    for (kind, dx, dy) in [
+        (SynthKind::Fractal, 30.0, 30.0),
+        (SynthKind::Blocks, 20.0, 35.0),
+    ] {
+        let z = grid(kind, w, h, 3);
+        let mut t = Terrain::new(&z, w, h, dx, dy);
+        t.curvature = 1e-6;
+        for band in plan_bands(Method::Line, 16, dx, dy, None) {
+            let BandKind::Line(dir) = &band.kind else {
+                unreachable!()
+            };
+            let mut sweep = vec![0f32; w * h];
+            line::line_horizons(&t, dir, &mut sweep);
+            for row in 0..h {
+                for col in 0..w {
+                    let records = brute::ray_horizon_records(&t, (col, row), band.azimuth);
+                    let got = records.last().map_or(-90.0, |r| r.angle);
+                    let want = sweep[row * w + col];
+                    assert!(
+                        (got - want).abs() < 2e-4,
+                        "{kind:?} azimuth {} at ({col}, {row}): profile {got}, sweep {want}",
+                        band.azimuth
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// At any azimuth, the exact horizon is the highest of the sight line's
+/// points: no sample of the surface along the line rises above it, and
+/// dense samples come within a hair of it; the distance is where it is met.
+#[test]
+fn profile_at_any_azimuth_bounds_a_dense_sampling() {
+    let (w, h, dx, dy) = (48, 40, 25.0, 25.0);
+    let z = grid(SynthKind::Fractal, w, h, 11);
+    let t = Terrain::new(&z, w, h, dx, dy);
+    let height = |x: f64, y: f64| -> f64 {
+        // Two triangles per cell, split south-west to north-east.
+        let (c, r) = (x.floor().min((w - 2) as f64), y.floor().min((h - 2) as f64));
+        let (fx, fy) = (x - c, y - r);
+        let at = |i: f64, j: f64| f64::from(z[(r + j) as usize * w + (c + i) as usize]);
+        let (nw, ne, sw, se) = (at(0.0, 0.0), at(1.0, 0.0), at(0.0, 1.0), at(1.0, 1.0));
+        // u east, v north from the south-west corner.
+        let (u, v) = (fx, 1.0 - fy);
+        if v >= u {
+            sw + u * (ne - nw) + v * (nw - sw)
+        } else {
+            sw + u * (se - sw) + v * (ne - se)
+        }
+    };
+    for (col, row) in [(24, 20), (5, 33), (40, 4)] {
+        let zp = f64::from(z[row * w + col]);
+        for i in 0..72 {
+            let az = i as f64 * 5.0 + 1.7;
+            let records = brute::ray_horizon_records(&t, (col, row), az);
+            let Some(last) = records.last() else { continue };
+            let (east, south) = (az.to_radians().sin(), -az.to_radians().cos());
+            let mut best = f64::NEG_INFINITY;
+            let mut s = 0.05;
+            loop {
+                let (x, y) = (col as f64 + east * s / dx, row as f64 + south * s / dy);
+                if !(0.0..=(w - 1) as f64).contains(&x) || !(0.0..=(h - 1) as f64).contains(&y) {
+                    break;
+                }
+                best = best.max(((height(x, y) - zp) / s).atan().to_degrees());
+                s += 0.1;
+            }
+            let exact = f64::from(last.angle);
+            assert!(
+                best <= exact + 1e-4,
+                "azimuth {az} at ({col}, {row}): a sample at {best} above the exact {exact}"
+            );
+            assert!(
+                exact - best < 0.05,
+                "azimuth {az} at ({col}, {row}): exact {exact}, samples reach {best}"
+            );
+            let (x, y) = (
+                col as f64 + east * last.distance / dx,
+                row as f64 + south * last.distance / dy,
+            );
+            let at_distance = ((height(x, y) - zp) / last.distance).atan().to_degrees();
+            assert!(
+                (at_distance - exact).abs() < 1e-3,
+                "the horizon is met at its distance"
+            );
+        }
+    }
+}
+
+fn synth_asset(dir: &std::path::Path) -> std::path::PathBuf {
+    let tif = dir.join("dem.tif");
+    let asset = dir.join("dem.tbake");
+    let s = |p: &std::path::Path| p.to_str().unwrap().to_string();
+    let o = terrabake(&["synth", "fractal", "--size", "60x44", "-o", &s(&tif), "-q"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let recipe = dir.join("r.toml");
+    std::fs::write(
+        &recipe,
+        "description = \"gis\"\n[[stage]]\nname = \"horizons\"\nsectors = 8\nmethod = \"sector\"\nencoding = \"f32\"\n",
+    )
+    .unwrap();
+    let o = terrabake(&[
+        "bake",
+        &s(&tif),
+        "-o",
+        &s(&asset),
+        "--recipe",
+        &s(&recipe),
+        "-q",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    asset
+}
+
+#[test]
+fn profile_formats_and_refusals() {
+    let dir = tempfile::tempdir().unwrap();
+    let asset = synth_asset(dir.path());
+    let a = asset.to_str().unwrap();
+    let run = |extra: &[&str]| {
+        let mut args = vec!["profile", a, "--crs", "grid"];
+        args.extend_from_slice(extra);
+        terrabake(&args)
+    };
+    let o = run(&["--at", "30,20", "--step", "90"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let csv = stdout(&o);
+    let lines: Vec<&str> = csv.lines().collect();
+    assert_eq!(lines[0], "azimuth_deg,horizon_deg,distance_m");
+    assert_eq!(lines.len(), 5);
+    assert!(lines[2].starts_with("90,"));
+    let o = run(&["--at", "30,20", "--step", "45", "--format", "json"]);
+    let json: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    assert_eq!(json["post"], serde_json::json!([30, 20]));
+    assert_eq!(json["points"].as_array().unwrap().len(), 8);
+    // PVGIS: from south, west positive; north (-180) first.
+    let o = run(&["--at", "30,20", "--step", "90", "--format", "pvgis"]);
+    let pv: Vec<String> = stdout(&o).lines().skip(1).map(String::from).collect();
+    let azimuths: Vec<&str> = pv.iter().map(|l| l.split(' ').next().unwrap()).collect();
+    assert_eq!(azimuths, ["-180", "-90", "0", "90"]);
+    // The compass azimuth 90 (east) is PVGIS's -90.
+    let east_csv = lines[2].split(',').nth(1).unwrap().parse::<f64>().unwrap();
+    let east_pv = pv[1].split(' ').nth(1).unwrap().parse::<f64>().unwrap();
+    assert!((east_csv - east_pv).abs() < 0.01);
+    for (args, says) in [
+        (
+            &["--at", "300,20"][..],
+            "--at 300,20 (--crs grid) is at post (300, 20), outside",
+        ),
+        (&["--at", "1,1", "--step", "0"][..], "--step"),
+        (&["--at", "x,1"][..], "--at"),
+    ] {
+        let o = run(args);
+        assert!(!o.status.success(), "{args:?}");
+        assert!(stderr(&o).contains(says), "{args:?}: {}", stderr(&o));
+    }
+}
+
+/// r.horizon's files: one per direction, counter-clockwise from east,
+/// radians; a direction on a stored (sector) band carries it exactly.
+#[test]
+fn grass_export_names_directions_as_r_horizon_does() {
+    let dir = tempfile::tempdir().unwrap();
+    let asset = synth_asset(dir.path());
+    let out = dir.path().join("grass");
+    let s = |p: &std::path::Path| p.to_str().unwrap().to_string();
+    let o = terrabake(&[
+        "export",
+        &s(&asset),
+        "--layer",
+        "horizon",
+        "--for",
+        "grass",
+        "-o",
+        &s(&out),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("horizon_step=45"), "{}", stderr(&o));
+    let mut names: Vec<String> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
+    names.sort();
+    assert_eq!(
+        names,
+        [
+            "horizon_000.tif",
+            "horizon_045.tif",
+            "horizon_090.tif",
+            "horizon_135.tif",
+            "horizon_180.tif",
+            "horizon_225.tif",
+            "horizon_270.tif",
+            "horizon_315.tif"
+        ]
+    );
+    let opened = terrabake_format::Asset::open(&asset).unwrap();
+    let layer = opened.layer("horizon", 0).unwrap();
+    // GRASS 90 (north) is compass 0, band 0; GRASS 0 (east) is compass 90, band 2.
+    for (file, band) in [
+        ("horizon_090.tif", 0),
+        ("horizon_000.tif", 2),
+        ("horizon_135.tif", 7),
+    ] {
+        let mut d =
+            tiff::decoder::Decoder::new(std::fs::File::open(out.join(file)).unwrap()).unwrap();
+        assert_eq!(d.dimensions().unwrap(), (60, 44));
+        let (cw, _) = d.chunk_data_dimensions(0);
+        let tiff::decoder::DecodingResult::F32(v) = d.read_chunk(0).unwrap() else {
+            panic!()
+        };
+        let mut want = vec![0f32; 60 * 44];
+        layer.read_rows_f32(band, 0, &mut want).unwrap();
+        for (i, w) in want.iter().enumerate() {
+            let got = v[(i / 60) * cw as usize + i % 60];
+            assert!(
+                (got.is_nan() && w.is_nan()) || got == w.to_radians(),
+                "{file} post {i}: {got} vs {w}"
+            );
+        }
+    }
+    let o = terrabake(&["export", &s(&asset), "--for", "grass", "-o", &s(&out)]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("--layer horizon"));
+}
