@@ -122,6 +122,57 @@ fn profile_at_any_azimuth_bounds_a_dense_sampling() {
     }
 }
 
+/// The distance to the horizon is where the brute force meets it: the
+/// last record of the post's sight line, on a fractal terrain with a hole
+/// of nodata and the earth's curvature. (Where two points of a line were
+/// exactly as steep, the sweep would keep the farther and the brute force
+/// the nearer; this terrain has no such tie, so every post must agree.)
+#[test]
+fn horizon_distances_are_the_brute_forces() {
+    let (w, h) = (45, 39);
+    let mut z = grid(SynthKind::Fractal, w, h, 8);
+    // A hole of nodata: lines cross it and posts beside it look over it.
+    for r in 15..19 {
+        for c in 20..23 {
+            z[r * w + c] = f32::NAN;
+        }
+    }
+    let mut t = Terrain::new(&z, w, h, 30.0, 25.0);
+    t.curvature = 6.8e-8;
+    let mut compared = 0;
+    for band in plan_bands(Method::Line, 16, 30.0, 25.0, None) {
+        let BandKind::Line(dir) = &band.kind else {
+            unreachable!()
+        };
+        let mut sweep = line::BandedSweep::new(dir, (w, h), (30.0, 25.0), t.row_scale, true);
+        let (mut angles, mut metres) = (vec![0f32; w * h], vec![0f32; w * h]);
+        sweep.sweep_with_distances(&t, 0..h, &mut angles, Some(&mut metres));
+        for row in 0..h {
+            for col in 0..w {
+                let d = f64::from(metres[row * w + col]);
+                let records = brute::line_horizon_records(&t, (col, row), dir.step);
+                match records.last() {
+                    None => assert!(
+                        d.is_nan(),
+                        "({col}, {row}) {:?}: {d} m with no terrain ahead",
+                        dir.step
+                    ),
+                    Some(last) => {
+                        assert!(
+                            (d - last.distance).abs() <= 1e-5 * last.distance,
+                            "({col}, {row}) {:?}: sweep {d} m, brute force {} m",
+                            dir.step,
+                            last.distance
+                        );
+                        compared += 1;
+                    }
+                }
+            }
+        }
+    }
+    assert!(compared > 16 * (w * h - 12) * 9 / 10, "{compared} compared");
+}
+
 fn synth_asset(dir: &std::path::Path) -> std::path::PathBuf {
     let tif = dir.join("dem.tif");
     let asset = dir.join("dem.tbake");
@@ -257,4 +308,17 @@ fn grass_export_names_directions_as_r_horizon_does() {
     let o = terrabake(&["export", &s(&asset), "--for", "grass", "-o", &s(&out)]);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("--layer horizon"));
+}
+
+#[test]
+fn distances_are_refused_where_no_method_records_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let asset = synth_asset(dir.path());
+    for extra in [&["--method", "sector"][..], &["--max-distance", "500"][..]] {
+        let mut args = vec!["horizons", asset.to_str().unwrap(), "--distance", "-q"];
+        args.extend_from_slice(extra);
+        let o = terrabake(&args);
+        assert_eq!(o.status.code(), Some(1), "{extra:?}");
+        assert!(stderr(&o).contains("--distance"), "{}", stderr(&o));
+    }
 }

@@ -75,6 +75,7 @@ tile = 16
 name = "horizons"
 sectors = 16
 method = "line"
+distance = true
 [[stage]]
 name = "sky"
 "#,

@@ -16,6 +16,10 @@ pub const CONE_APEX: &str = "cone_apex";
 pub const CONE_SLOPE: &str = "cone_slope";
 /// Horizon elevation angle per post, one band per azimuth (horizons stage).
 pub const HORIZON: &str = "horizon";
+/// Per post (f32), one band per azimuth as [`HORIZON`]: the horizontal
+/// distance in metres to the point that sets the horizon (horizons stage
+/// with `distance`); NaN for nodata and where no terrain lies ahead.
+pub const HORIZON_DISTANCE: &str = "horizon_distance";
 /// Sky-view factor as the solid angle of visible sky over the hemisphere
 /// above the horizontal: `1 - mean(sin(max(h, 0)))` (Zakšek et al. 2011).
 pub const SVF: &str = "svf";
@@ -43,13 +47,14 @@ pub const VIEWSHED_ANGLE: &str = "viewshed_angle";
 pub const TOTAL_VIEWSHED: &str = "total_viewshed";
 
 /// Every name above, in the order stages write them.
-pub const ALL: [&str; 13] = [
+pub const ALL: [&str; 14] = [
     HEIGHT,
     PYRAMID_MAX,
     PYRAMID_MIN,
     CONE_APEX,
     CONE_SLOPE,
     HORIZON,
+    HORIZON_DISTANCE,
     SVF,
     SVF_COSINE,
     OPENNESS,

@@ -90,6 +90,7 @@ pub fn layer_title(layer: &str, band: u32, bands: u32) -> String {
         l::CONE_APEX => "cone apex height (m)".into(),
         l::CONE_SLOPE => "cone slope (m across per m up)".into(),
         l::HORIZON => format!("horizon angle (degrees){band}"),
+        l::HORIZON_DISTANCE => format!("distance to the horizon (m){band}"),
         l::SVF => "sky-view factor (0-1)".into(),
         l::SVF_COSINE => "cosine sky-view factor (0-1)".into(),
         l::OPENNESS => "positive openness (degrees)".into(),
@@ -238,6 +239,7 @@ fn layer_unit(layer: &str) -> &'static str {
         _ if is_height_like(layer) => "m",
         l::CONE_APEX => "m",
         l::HORIZON | l::OPENNESS | l::VIEWSHED_ANGLE => "deg",
+        l::HORIZON_DISTANCE => "m",
         l::TOTAL_VIEWSHED => "m2",
         _ => "",
     }

@@ -395,6 +395,14 @@ struct Lane {
     t: f64,
 }
 
+/// Where a sweep writes: rows from `row0` on, of angles and, when asked,
+/// of distances to the horizon.
+struct Out<'a> {
+    angles: &'a mut [f32],
+    distances: Option<&'a mut [f32]>,
+    row0: usize,
+}
+
 /// A sweep of one direction's lines over a band of rows.
 struct Sweep<'t> {
     placed: Placed<'t>,
@@ -437,15 +445,17 @@ impl Sweep<'_> {
         }
     }
 
-    /// The lane's post takes its horizon from the hull and joins it;
-    /// `out` holds the rows from `row0` on.
+    /// The lane's post takes its horizon from the hull and joins it.
     #[inline]
-    fn receive(&self, lane: &mut Lane, (out, row0): (&mut [f32], usize), stats: &mut SweepStats) {
+    fn receive(&self, lane: &mut Lane, out: &mut Out, stats: &mut SweepStats) {
         let t = self.placed.t;
         let zp = t.at(lane.col as usize, lane.row as usize);
-        let idx = (lane.row as usize - row0) * t.width + lane.col as usize;
+        let idx = (lane.row as usize - out.row0) * t.width + lane.col as usize;
         if zp.is_nan() {
-            out[idx] = f32::NAN;
+            out.angles[idx] = f32::NAN;
+            if let Some(d) = out.distances.as_deref_mut() {
+                d[idx] = f32::NAN;
+            }
             return;
         }
         stats.posts += 1;
@@ -456,17 +466,17 @@ impl Sweep<'_> {
         } else {
             tangent(&lane.hull, lane.t, wp)
         };
-        out[idx] = angle_deg(q, lane.t, wp, t.curvature);
+        out.angles[idx] = angle_deg(q, lane.t, wp, t.curvature);
+        if let Some(d) = out.distances.as_deref_mut() {
+            // The hull vertex that sets the horizon, `tq - t` metres out
+            // along the line (`t` falls towards the near end).
+            d[idx] = q.map_or(f32::NAN, |[tq, _]| (tq - lane.t) as f32);
+        }
     }
 
     /// Starts the line whose far post is `(col, row)`: the crossings beyond
     /// it that are still on the DEM, then the post.
-    fn start(
-        &self,
-        (col, row): (i64, i64),
-        out: (&mut [f32], usize),
-        stats: &mut SweepStats,
-    ) -> Lane {
+    fn start(&self, (col, row): (i64, i64), out: &mut Out, stats: &mut SweepStats) -> Lane {
         let mut lane = Lane {
             hull: Vec::new(),
             col,
@@ -484,7 +494,7 @@ impl Sweep<'_> {
         &self,
         lane: &mut Lane,
         rows: &std::ops::Range<usize>,
-        out: (&mut [f32], usize),
+        out: &mut Out,
         stats: &mut SweepStats,
     ) -> bool {
         let (a, b) = self.placed.stencil.step;
@@ -499,7 +509,7 @@ impl Sweep<'_> {
             }
             (lane.col, lane.row, lane.t) = (nc, nr, lane.t - self.lengths[nr as usize]);
             self.push_crossings(lane, false, stats);
-            self.receive(lane, (&mut *out.0, out.1), stats);
+            self.receive(lane, out, stats);
         }
     }
 }
@@ -578,7 +588,26 @@ impl BandedSweep {
     /// `window` the terrain of rows [`Self::window`] (and the DEM's full
     /// size), into `out` (`band.len()` rows of angles in degrees).
     pub fn sweep(&mut self, window: &Terrain, band: std::ops::Range<usize>, out: &mut [f32]) {
+        self.sweep_with_distances(window, band, out, None);
+    }
+
+    /// [`Self::sweep`], also writing each post's distance to the point
+    /// that sets its horizon (horizontal metres; NaN for nodata and where
+    /// no terrain lies ahead) into `distances` (the shape of `out`).
+    pub fn sweep_with_distances(
+        &mut self,
+        window: &Terrain,
+        band: std::ops::Range<usize>,
+        out: &mut [f32],
+        distances: Option<&mut [f32]>,
+    ) {
         assert_eq!(out.len(), band.len() * self.width);
+        assert!(distances.as_ref().is_none_or(|d| d.len() == out.len()));
+        let mut out = Out {
+            angles: out,
+            distances,
+            row0: band.start,
+        };
         let sweep = Sweep {
             placed: Placed {
                 t: window,
@@ -592,7 +621,7 @@ impl BandedSweep {
         // are in this band; each in its own order of steps, as in one band.
         let mut going_on = Vec::with_capacity(self.lanes.len());
         for mut lane in self.lanes.drain(..) {
-            if sweep.run(&mut lane, &band, (&mut *out, band.start), stats) {
+            if sweep.run(&mut lane, &band, &mut out, stats) {
                 going_on.push(lane);
             }
         }
@@ -602,8 +631,8 @@ impl BandedSweep {
                 if window.contains(col + a, row as i64 + b) {
                     continue;
                 }
-                let mut lane = sweep.start((col, row as i64), (&mut *out, band.start), stats);
-                if sweep.run(&mut lane, &band, (&mut *out, band.start), stats) {
+                let mut lane = sweep.start((col, row as i64), &mut out, stats);
+                if sweep.run(&mut lane, &band, &mut out, stats) {
                     going_on.push(lane);
                 }
             }

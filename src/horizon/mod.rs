@@ -46,6 +46,7 @@ use std::sync::Mutex;
 use anyhow::{bail, Context, Result};
 use rayon::prelude::*;
 use terrabake_format::horizons::{AngleEncoding, HORIZON};
+use terrabake_format::layers::HORIZON_DISTANCE;
 use terrabake_format::manifest::CrsKind;
 use terrabake_format::{Asset, Codec, LayerEntry, LayerSpec, LayerWriter, Mmap};
 
@@ -320,6 +321,11 @@ pub struct HorizonsStage {
     /// How far a line direction may sit from i * 360 / S, degrees (default: spacing / 8).
     #[arg(long, allow_hyphen_values = true, value_parser = crate::args::parse_positive)]
     pub direction_tolerance: Option<f64>,
+    /// Also write `horizon_distance`: per post and band, the horizontal distance in metres to
+    /// the point that sets the horizon (exact; --method line without --max-distance).
+    #[arg(long)]
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub distance: bool,
     /// Working memory in MiB for the methods that hold the DEM in memory (sector
     /// without --max-distance, sampled, line with --max-distance); a DEM that needs more
     /// is refused with the out-of-core routes named. Results do not depend on
@@ -360,6 +366,7 @@ impl Default for HorizonsStage {
             encoding: None,
             narrow_check: true,
             direction_tolerance: None,
+            distance: false,
             max_memory: 8 << 30,
         }
     }
@@ -566,11 +573,22 @@ impl Stage for HorizonsStage {
             self.direction_tolerance,
         )?;
         positive(("max_error_deg", "max-error"), Some(self.max_error))?;
+        if self.distance && !(self.method == Method::Line && self.max_distance.is_none()) {
+            bail!(
+                "distance = true (--distance) is written by the unbounded line method only \
+                 (--method line without --max-distance); the sector method's arg-max and bounded \
+                 lines do not record it yet"
+            );
+        }
         Ok(())
     }
 
     fn outputs(&self, _: &terrabake_format::Manifest) -> Vec<String> {
-        vec![format!("{HORIZON}@0")]
+        let mut outputs = vec![format!("{HORIZON}@0")];
+        if self.distance {
+            outputs.push(format!("{HORIZON_DISTANCE}@0"));
+        }
+        outputs
     }
 
     /// Within `max_distance`, every post reads the terrain up to that far
@@ -669,6 +687,28 @@ impl Stage for HorizonsStage {
             tiles: (w.div_ceil(ts), h.div_ceil(ts)),
             aoi,
         };
+        // Distances: f32 metres, written beside the angles (check() allows
+        // them only on the out-of-core line sweeps).
+        let distances = self
+            .distance
+            .then(|| -> Result<BandWriter> {
+                let spec = post_layer(
+                    (HORIZON_DISTANCE, "horizons"),
+                    terrabake_format::ElemType::F32,
+                    bands.len() as u32,
+                    (w, h, ts),
+                    format!("horizontal distance to the point that sets the horizon, metres, band per azimuth (band_azimuths) as {HORIZON}; NaN for nodata and where no terrain lies ahead; {method_text}"),
+                );
+                Ok(BandWriter {
+                    writer: Mutex::new(LayerWriter::create(dir, spec)?),
+                    enc: AngleEncoding::F32,
+                    width: out.width,
+                    tile_size: out.tile_size,
+                    tiles: out.tiles,
+                    aoi: out.aoi,
+                })
+            })
+            .transpose()?;
         let mine = share.bands(bands.len());
         // Tile rows outside the share's rows (all of them for bands outside
         // its bands) hold the fill value.
@@ -676,6 +716,9 @@ impl Stage for HorizonsStage {
         for b in (0..bands.len()).filter(|b| !mine.contains(b)) {
             for y0 in (0..h).step_by(ts) {
                 out.push(b, y0, None)?;
+                if let Some(d) = &distances {
+                    d.push(b, y0, None)?;
+                }
             }
         }
         let bar = progress.bar(mine.len() as u64, "horizons", "bands");
@@ -709,7 +752,7 @@ impl Stage for HorizonsStage {
                     |(sweep, bands), k| {
                         let rows = bands[k].clone();
                         if sweep.independent() && !wanted(rows.start) {
-                            return Ok((rows.start, None));
+                            return Ok((rows.start, None, None));
                         }
                         let window = sweep.window(&rows);
                         let rows_buf = read_rows(height, window.clone())?;
@@ -717,11 +760,24 @@ impl Stage for HorizonsStage {
                             .with_row_scale(row_scale)
                             .with_curvature(curvature);
                         let mut angles = vec![0f32; rows.len() * w];
-                        sweep.sweep(&terrain, rows.clone(), &mut angles);
-                        Ok((rows.start, Some(out.encode(rows.start, &mut angles))))
+                        let mut metres = distances.as_ref().map(|_| vec![0f32; rows.len() * w]);
+                        sweep.sweep(&terrain, rows.clone(), &mut angles, metres.as_deref_mut());
+                        let metres = distances
+                            .as_ref()
+                            .zip(metres.as_mut())
+                            .map(|(d, m)| d.encode(rows.start, m));
+                        Ok((
+                            rows.start,
+                            Some(out.encode(rows.start, &mut angles)),
+                            metres,
+                        ))
                     },
-                    |j, k, (y0, tiles)| {
-                        out.push(first + b * OUT_OF_CORE_BATCH + j, y0, tiles)?;
+                    |j, k, (y0, tiles, metres)| {
+                        let band = first + b * OUT_OF_CORE_BATCH + j;
+                        if let Some(d) = &distances {
+                            d.push(band, y0, metres)?;
+                        }
+                        out.push(band, y0, tiles)?;
                         if k + 1 == steps {
                             bar.inc(1);
                         }
@@ -776,7 +832,17 @@ impl Stage for HorizonsStage {
             .finish()?;
         horizon.quantization = enc.quantization();
         horizon.band_azimuths = bands.iter().map(|b| b.azimuth).collect();
-        Ok(vec![horizon])
+        let mut layers = vec![horizon];
+        if let Some(d) = distances {
+            let mut entry = d
+                .writer
+                .into_inner()
+                .expect("no panic while writing")
+                .finish()?;
+            entry.band_azimuths = layers[0].band_azimuths.clone();
+            layers.push(entry);
+        }
+        Ok(layers)
     }
 }
 
@@ -792,8 +858,15 @@ trait RowBands {
     fn bands(&self, rows: usize) -> Vec<std::ops::Range<usize>>;
     /// The DEM rows that output rows `band` need.
     fn window(&self, band: &std::ops::Range<usize>) -> std::ops::Range<usize>;
-    /// Angles of output rows `band` from `window`, the rows [`Self::window`] named.
-    fn sweep(&mut self, window: &Terrain, band: std::ops::Range<usize>, out: &mut [f32]);
+    /// Angles of output rows `band` from `window`, the rows [`Self::window`]
+    /// named, and their distances to the horizon where asked (line only).
+    fn sweep(
+        &mut self,
+        window: &Terrain,
+        band: std::ops::Range<usize>,
+        out: &mut [f32],
+        distances: Option<&mut [f32]>,
+    );
     /// Whether a band of rows can be computed without the bands before it
     /// (a partitioned bake skips the rows another part computes).
     fn independent(&self) -> bool;
@@ -808,8 +881,14 @@ impl RowBands for line::BandedSweep {
         line::BandedSweep::window(self, band)
     }
 
-    fn sweep(&mut self, window: &Terrain, band: std::ops::Range<usize>, out: &mut [f32]) {
-        line::BandedSweep::sweep(self, window, band, out)
+    fn sweep(
+        &mut self,
+        window: &Terrain,
+        band: std::ops::Range<usize>,
+        out: &mut [f32],
+        distances: Option<&mut [f32]>,
+    ) {
+        line::BandedSweep::sweep_with_distances(self, window, band, out, distances)
     }
 
     /// Every line's hull is carried from band to band.
@@ -840,7 +919,17 @@ impl RowBands for BoundedSector {
         band.start.saturating_sub(self.halo)..(band.end + self.halo).min(self.height)
     }
 
-    fn sweep(&mut self, window: &Terrain, band: std::ops::Range<usize>, out: &mut [f32]) {
+    fn sweep(
+        &mut self,
+        window: &Terrain,
+        band: std::ops::Range<usize>,
+        out: &mut [f32],
+        distances: Option<&mut [f32]>,
+    ) {
+        assert!(
+            distances.is_none(),
+            "HorizonsStage::check allows distances on lines only"
+        );
         sector::sector_horizons_within(
             window,
             self.sector,
