@@ -5,7 +5,7 @@ BIN := target/release/terrabake
 DEMO_DEM := data/srtm3_n07w006_geographic_int16.tif
 OUT ?= out
 
-.PHONY: all build demo test test-full test-page bake-parts bake-slurm test-slurm fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-visibility bench-plan bench-reader fixtures fmt lint clean
+.PHONY: all build demo test test-full test-page bake-parts bake-slurm test-slurm fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-visibility bench-plan bench-cog bench-reader fixtures fmt lint clean
 
 all: build
 
@@ -145,6 +145,11 @@ bench-cones: build
 bench-plan: build
 	BIN=$(BIN) bash pipelines/bench_plan.sh
 	BIN=$(BIN) bash pipelines/fit_plan_models.sh
+
+## COG export: a 1 GiB height layer inside a 256 MiB memory cgroup,
+## deflate/zstd/none, beside GDAL's COG driver (and OLD=binary alternating).
+bench-cog: build
+	BIN=$(BIN) bash pipelines/bench_cog.sh
 
 ## Reader micro-benchmarks (criterion).
 bench-reader:

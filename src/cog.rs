@@ -689,7 +689,7 @@ pub fn encode_tile(samples: &[f32], t: usize, compression: Compression) -> Resul
         Compression::Deflate => {
             let mut z = flate2::write::ZlibEncoder::new(
                 Vec::with_capacity(planes.len() / 2),
-                flate2::Compression::new(3),
+                flate2::Compression::new(6),
             );
             z.write_all(&planes)?;
             z.finish()?
@@ -787,14 +787,11 @@ fn downsample(a: &[f32], b: Option<&[f32]>, width: u32, how: Resampling) -> Vec<
             match how {
                 Resampling::Nearest => a[x0],
                 Resampling::Average => {
-                    let mut four = vec![a[x0], a[x1]];
-                    if let Some(b) = b {
-                        four.extend([b[x0], b[x1]]);
-                    }
-                    let (sum, n) = four
-                        .iter()
+                    let below = b.map_or([f32::NAN; 2], |b| [b[x0], b[x1]]);
+                    let (sum, n) = [a[x0], a[x1], below[0], below[1]]
+                        .into_iter()
                         .filter(|v| !v.is_nan())
-                        .fold((0f64, 0u32), |(s, n), &v| (s + f64::from(v), n + 1));
+                        .fold((0f64, 0u32), |(s, n), v| (s + f64::from(v), n + 1));
                     if n == 0 {
                         f32::NAN
                     } else {
