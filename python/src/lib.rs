@@ -20,6 +20,7 @@ use numpy::{
 use pyo3::exceptions::{PyException, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
+use rayon::prelude::*;
 use terrabake::horizon::sky::{BandIntegrals, SkySums};
 use terrabake::horizon::terrain::{curvature_coefficient, Terrain, DEFAULT_REFRACTION};
 use terrabake::horizon::{band_bounds, band_horizons, plan_bands, BandOptions, Method};
@@ -399,17 +400,27 @@ fn compute_horizons(
         max_distance,
         narrow_check: true,
     };
+    // Bands in batches of four per core, so that cheap bands (the axes,
+    // one vertex a step) and dear ones (oblique lines, several crossings a
+    // step) share the cores evenly; the callback and Ctrl-C are looked at
+    // between batches.
     let mut angles = Vec::with_capacity(bands.len());
-    for (i, band) in bands.iter().enumerate() {
-        let out = py.detach(|| {
+    let threads = rayon::current_num_threads().max(1);
+    for batch in bands.chunks(threads * 4) {
+        let done = py.detach(|| {
             let mut terrain = Terrain::new(&z, w, h, dx, dy);
             terrain.curvature = curvature;
-            band_horizons(&terrain, band, opts).0
+            batch
+                .par_iter()
+                .map(|band| band_horizons(&terrain, band, opts).0)
+                .collect::<Vec<_>>()
         });
-        angles.push(out);
+        angles.extend(done);
         py.check_signals()?;
         if let Some(p) = progress {
-            p.call1((i + 1, bands.len()))?;
+            for i in angles.len() + 1 - batch.len()..=angles.len() {
+                p.call1((i, bands.len()))?;
+            }
         }
     }
     Ok(Horizons {
@@ -495,6 +506,7 @@ fn sky_view_factor<'py>(
             .map(|(lo, hi)| BandIntegrals::new(lo, hi))
             .collect();
         let values: Vec<f32> = (0..hz.w * hz.h)
+            .into_par_iter()
             .map(|i| {
                 let (x, y) = (i % hz.w, i / hz.w);
                 let Some(normal) = terrain.normal(x, y) else {
