@@ -50,7 +50,7 @@ pub struct ProfileArgs {
     /// The coordinates of --at: native (the DEM's CRS), lonlat, grid (column,row).
     #[arg(long, value_enum, default_value = "native")]
     pub crs: Crs,
-    /// Degrees between azimuths, from north (0) clockwise.
+    /// Degrees between azimuths (0.01 to 360), from north (0) clockwise.
     #[arg(long, default_value_t = 1.0, value_parser = crate::args::parse_positive)]
     pub step: f64,
     /// csv, json or pvgis.
@@ -96,8 +96,8 @@ pub fn profile(
     post: (usize, usize),
     step: f64,
 ) -> Result<Vec<ProfilePoint>> {
-    if !(step > 0.0 && step <= 360.0) {
-        bail!("--step {step}: a step is above 0 and at most 360 degrees");
+    if !(0.01..=360.0).contains(&step) {
+        bail!("--step {step}: give 0.01 to 360 degrees (at most 36000 azimuths)");
     }
     let terrain = dem.terrain(curvature);
     let n = (360.0 / step - 1e-9).ceil() as usize;

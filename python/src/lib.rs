@@ -288,8 +288,10 @@ fn open(path: PathBuf) -> PyResult<Asset> {
 }
 
 /// The heights of a numpy DEM, checked: float32 or float64, 2-D,
-/// C-contiguous, not empty, not all NaN.
-fn dem_of(dem: &Bound<'_, PyAny>) -> PyResult<(Vec<f32>, usize, usize)> {
+/// C-contiguous, not empty, not all NaN, and small enough that `bands`
+/// bands of angles fit the memory available (refused before the heights
+/// are copied, as the CLI refuses, rather than killed half way).
+fn dem_of(dem: &Bound<'_, PyAny>, bands: usize) -> PyResult<(Vec<f32>, usize, usize)> {
     let array = dem.cast::<PyUntypedArray>().map_err(|_| {
         PyValueError::new_err(format!(
             "dem: expected a numpy array, got {}",
@@ -316,6 +318,13 @@ fn dem_of(dem: &Bound<'_, PyAny>) -> PyResult<(Vec<f32>, usize, usize)> {
             "dem: {h} x {w} posts; a DEM needs at least 2 x 2"
         )));
     }
+    // The heights, the angles of every band, and a band in flight per core.
+    let held = 1 + bands as u64 + rayon::current_num_threads() as u64;
+    terrabake::resources::ensure_memory(
+        (w * h) as u64 * 4 * held,
+        &format!("horizons of a {w} x {h} DEM in {bands} directions"),
+    )
+    .map_err(raise)?;
     let z: Vec<f32> = if let Ok(a) = dem.cast::<PyArray2<f32>>() {
         a.readonly().as_slice()?.to_vec()
     } else if let Ok(a) = dem.cast::<PyArray2<f64>>() {
@@ -371,10 +380,10 @@ fn compute_horizons(
     refraction: f64,
     progress: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<Horizons> {
-    let (z, w, h) = dem_of(dem)?;
-    let (dx, dy) = cell_size_of(cell_size)?;
     terrabake::args::parse_sectors(&sectors.to_string())
         .map_err(|e| PyValueError::new_err(format!("sectors: {e}")))?;
+    let (z, w, h) = dem_of(dem, sectors)?;
+    let (dx, dy) = cell_size_of(cell_size)?;
     if let Some(d) = max_distance {
         if !(d.is_finite() && d > 0.0) {
             return Err(PyValueError::new_err(format!(

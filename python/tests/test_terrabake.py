@@ -197,6 +197,17 @@ def test_bad_options_are_value_errors(kwargs: dict, message: str) -> None:
         terrabake.horizons(np.ones((8, 8), dtype=np.float32), **args)
 
 
+def test_a_dem_past_memory_is_refused_before_any_work() -> None:
+    # 4096 bands of 20000^2 angles (6.5 TB) fit no machine; np.empty does
+    # not touch its 1.6 GB, and the refusal comes before the copy.
+    try:
+        dem = np.empty((20_000, 20_000), dtype=np.float32)
+    except MemoryError:
+        pytest.skip("this machine will not even reserve 1.6 GB of address space")
+    with pytest.raises(terrabake.TerrabakeError, match="needs about .* of memory"):
+        terrabake.horizons(dem, (30.0, 30.0), sectors=4096)
+
+
 def test_errors_carry_the_cli_message(tmp: Path) -> None:
     with pytest.raises(terrabake.TerrabakeError, match="no-such.tbake"):
         terrabake.open(tmp / "no-such.tbake")

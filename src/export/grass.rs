@@ -64,8 +64,8 @@ pub fn map_name(angle: f64, decimals: usize) -> String {
 /// The directions for `step` degrees (360 / bands by default): 0, step, ...
 /// below 360, counter-clockwise from east.
 pub fn directions(dir: &Path, step: f64) -> Result<Vec<GrassHorizon>> {
-    if !(step > 0.0 && step <= 360.0) {
-        bail!("--step {step}: a step is above 0 and at most 360 degrees");
+    if !(0.1..=360.0).contains(&step) {
+        bail!("--step {step}: give 0.1 to 360 degrees (at most 3600 files)");
     }
     let decimals = step_decimals(step);
     let n = (360.0 / step - 1e-9).ceil() as usize;

@@ -272,7 +272,7 @@ pub struct ExportArgs {
     /// east, named for `r.sun horizon_basename=horizon horizon_step=STEP`).
     #[arg(long = "for", value_enum, value_name = "PROGRAM")]
     pub for_program: Option<ExportFor>,
-    /// With --for grass: degrees between directions (360 / the layer's bands by default);
+    /// With --for grass: degrees between directions, 0.1 to 360 (360 / the layer's bands by default);
     /// give `r.sun` the same `horizon_step`.
     #[arg(long, requires = "for_program")]
     pub step: Option<f64>,
