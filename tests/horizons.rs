@@ -698,3 +698,55 @@ fn line_sweeps_by_bands_equal_one_band() {
         }
     }
 }
+
+/// Stewart's tree above its 128-rank buckets: on DEMs of more than 10^5
+/// posts every level of the tree is built and walked, where the whole-DEM
+/// tests above (at most 480 posts) barely leave the buckets. Sampled posts
+/// (the brute force is O(n) a post), every sector, with and without the
+/// narrow check, on a fractal and on non-square cells of rolling terrain.
+#[test]
+fn the_sector_tree_equals_brute_force_above_its_buckets() {
+    let mut seed = 0x7ee_u64;
+    let mut next = |n: usize| {
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (seed >> 33) as usize % n
+    };
+    for (kind, (w, h), (dx, dy), counts) in [
+        (SynthKind::Fractal, (360, 300), (30.0, 30.0), [16, 5]),
+        (SynthKind::Sine, (420, 250), (25.0, 40.0), [12, 7]),
+    ] {
+        assert!(w * h > 100_000);
+        let z = synth_grid(kind, w, h, 17);
+        let t = Terrain::new(&z, w, h, dx, dy);
+        // Corners and edges, then posts anywhere.
+        let mut posts = vec![
+            (0, 0),
+            (w - 1, 0),
+            (0, h - 1),
+            (w - 1, h - 1),
+            (w / 2, 0),
+            (0, h / 2),
+        ];
+        posts.extend((0..60).map(|_| (next(w), next(h))));
+        for (c, count) in counts.into_iter().enumerate() {
+            let narrow = c == 0;
+            for index in 0..count {
+                let mut out = vec![0f32; w * h];
+                sector_horizons(&t, index, count, narrow, &mut out);
+                let frame = SectorFrame::new(index, count, dx, dy);
+                let stencil = narrow.then(|| NarrowStencil::new(&frame, count, dx, dy));
+                for &(col, row) in &posts {
+                    let got = out[row * w + col];
+                    let want =
+                        brute::sector_horizon(&t, (col, row), &frame, stencil.as_ref(), None);
+                    assert!(
+                        same(got, want, 1e-4),
+                        "{kind:?} {w} x {h}: sector {index}/{count} (narrow {narrow}) at ({col}, {row}): tree {got}, brute force {want}"
+                    );
+                }
+            }
+        }
+    }
+}
