@@ -322,3 +322,68 @@ fn the_generic_decoder_reads_every_cone_encoding() {
         }
     }
 }
+
+/// Sliced cones are as wide as Paglieroni and Petersen's definition allows
+/// (sec. 2.2), not merely safe: per cell, the apex at the first slice the
+/// cell is not part of, and the slope the least over the slices at or
+/// above it of `D_k / (z_k+1 - apex)`, `D_k` the distance to the nearest
+/// cell of slice `k`'s bit plane (`nmax >= z_k`) and `z_K` the DEM's top.
+/// Computed here by brute force over every pair of cells; a cone narrower
+/// than that (a slice skipped that bounds, a far parabola left out that
+/// mattered) fails, as a wider one would.
+#[test]
+fn sliced_cones_are_as_wide_as_the_definition_allows() {
+    use terrabake::cones::planes::{sliced_planes, Slices};
+    for kind in [SynthKind::Fractal, SynthKind::Blocks, SynthKind::Holes] {
+        let (w, h) = (31, 23);
+        let (dx, dy) = (30.0, 20.0);
+        let posts: Vec<f32> = (0..w * h)
+            .map(|i| {
+                terrabake::synth::height(
+                    kind,
+                    (i % w) as u32,
+                    (i / w) as u32,
+                    w as u32,
+                    h as u32,
+                    4,
+                )
+            })
+            .map(|z| if z == -9999.0 { f32::NAN } else { z })
+            .collect();
+        let (cw, ch) = (w - 1, h - 1);
+        let nmax = neighbourhood_max(&posts, w, h);
+        let finite = nmax.iter().filter(|v| v.is_finite()).map(|&v| f64::from(v));
+        let (lo, hi) = finite.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+            (a.min(v), b.max(v))
+        });
+        for k in [1, 2, 5, 16, 200] {
+            let slices = Slices::uniform(lo, hi, k);
+            let planes = sliced_planes(&nmax, (cw, ch), (dx, dy), &slices, None, &|| {});
+            let z_at = |s: usize| slices.z.get(s).copied().unwrap_or(slices.top);
+            for i in 0..cw * ch {
+                let a = slices.member_of(nmax[i]);
+                let apex = z_at(a);
+                // The apex is stored rounded up to f32 (a safe cone).
+                let stored = f64::from(planes.apex[i]);
+                assert!(
+                    stored >= apex && stored - apex <= apex.abs() * 1e-6,
+                    "{kind:?} K={k} cell {i}: apex {stored}, slice {apex}"
+                );
+                let (x, y) = ((i % cw) as f64, (i / cw) as f64);
+                let mut widest = f64::INFINITY;
+                for s in a..k {
+                    let d = (0..cw * ch)
+                        .filter(|&j| slices.member_of(nmax[j]) > s)
+                        .map(|j| ((x - (j % cw) as f64) * dx).hypot((y - (j / cw) as f64) * dy))
+                        .fold(f64::INFINITY, f64::min);
+                    widest = widest.min(d / (z_at(s + 1) - apex));
+                }
+                let got = f64::from(planes.slope[i]);
+                assert!(
+                    got <= widest && (got >= widest * (1.0 - 1e-6) || got == widest),
+                    "{kind:?} K={k} cell {i}: slope {got}, the definition allows {widest}"
+                );
+            }
+        }
+    }
+}
