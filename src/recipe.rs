@@ -163,6 +163,21 @@ pub fn bake(
     wait: Wait,
     progress: Progress,
 ) -> Result<Vec<StageOutcome>> {
+    bake_with(src, dir, recipe, wait, progress, &mut |_, _, _| Ok(()))
+}
+
+/// [`bake`], telling `on_stage(outcome, done, total)` as each stage is
+/// committed (ingest is stage 1; `total` counts the planned stages once the
+/// plan is known). An error from it stops the bake there: the stages done
+/// stay committed, and the bake resumes from them when run again.
+pub fn bake_with(
+    src: &Path,
+    dir: &Path,
+    recipe: &Recipe,
+    wait: Wait,
+    progress: Progress,
+    on_stage: &mut dyn FnMut(&StageOutcome, usize, usize) -> Result<()>,
+) -> Result<Vec<StageOutcome>> {
     let ingest = recipe.ingest_stage(src);
     ingest.check()?;
     let mut explicit: Vec<Option<Box<dyn Stage>>> =
@@ -211,8 +226,13 @@ pub fn bake(
     }
     stages.extend(explicit.into_iter().flatten());
     let start = std::time::Instant::now();
+    let total = outcomes.len() + stages.len();
+    for (i, outcome) in outcomes.iter().enumerate() {
+        on_stage(outcome, i + 1, total)?;
+    }
     for stage in &stages {
         outcomes.push(run_stage_in(&writer, stage.as_ref(), false, progress)?);
+        on_stage(outcomes.last().expect("just pushed"), outcomes.len(), total)?;
     }
     drop(writer);
     if let Some(mut plan) = plan {

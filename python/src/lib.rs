@@ -539,8 +539,11 @@ fn sky_view_factor<'py>(
 /// Bakes `src` (a DEM file) into the asset `out`, as `terrabake bake`
 /// does: with a recipe file, or planned from a budget (`"horizon=0.5"`,
 /// the CLI's --budget syntax) and needs (`"horizons,svf"`).
+/// `progress(stage, done, total)` is called as each stage is committed; an
+/// exception it raises stops the bake there (what is committed stays, and
+/// the same call resumes from it).
 #[pyfunction]
-#[pyo3(signature = (src, out, recipe = None, budget = None, needs = None))]
+#[pyo3(signature = (src, out, recipe = None, budget = None, needs = None, progress = None))]
 fn bake(
     py: Python<'_>,
     src: PathBuf,
@@ -548,7 +551,14 @@ fn bake(
     recipe: Option<PathBuf>,
     budget: Option<String>,
     needs: Option<String>,
+    progress: Option<Bound<'_, PyAny>>,
 ) -> PyResult<String> {
+    if progress.as_ref().is_some_and(|p| !p.is_callable()) {
+        return Err(PyValueError::new_err(
+            "progress: expected a callable(stage, done, total)",
+        ));
+    }
+    let progress = progress.map(Bound::unbind);
     let recipe = match (recipe, budget) {
         (Some(_), Some(_)) => {
             return Err(PyValueError::new_err("give a recipe or a budget, not both"))
@@ -576,17 +586,36 @@ fn bake(
             }
         }
     };
-    let outcomes = py
-        .detach(|| {
-            terrabake::recipe::bake(
-                &src,
-                &out,
-                &recipe,
-                terrabake::asset::Wait::unless(false),
-                terrabake::progress::Progress::new(true),
-            )
-        })
-        .map_err(raise)?;
+    // The callback's exception, kept to be raised as itself.
+    let mut raised: Option<PyErr> = None;
+    let result = py.detach(|| {
+        terrabake::recipe::bake_with(
+            &src,
+            &out,
+            &recipe,
+            terrabake::asset::Wait::unless(false),
+            terrabake::progress::Progress::new(true),
+            &mut |outcome, done, total| {
+                let Some(cb) = &progress else { return Ok(()) };
+                Python::attach(|py| {
+                    let called = py
+                        .check_signals()
+                        .and_then(|()| cb.call1(py, (outcome.stage.as_str(), done, total)));
+                    match called {
+                        Ok(_) => Ok(()),
+                        Err(e) => {
+                            raised = Some(e);
+                            anyhow::bail!("stopped by the progress callback")
+                        }
+                    }
+                })
+            },
+        )
+    });
+    if let Some(e) = raised {
+        return Err(e);
+    }
+    let outcomes = result.map_err(raise)?;
     serde_json::to_string(&outcomes).map_err(|e| raise(e.into()))
 }
 

@@ -74,6 +74,10 @@ def bake(
     recipe: Optional[Path] = None,
     budget: Optional[str] = None,
     needs: Optional[str] = None,
+    progress: Optional[Callable[[str, int, int], Any]] = None,
 ) -> str:
-    """Bakes a DEM into an asset, as `terrabake bake`; returns the stages' outcomes as JSON."""
+    """Bakes a DEM into an asset, as `terrabake bake`; returns the stages' outcomes as JSON.
+
+    progress(stage, done, total) is called as each stage is committed; an
+    exception it raises stops the bake there (committed stages stay)."""
 

@@ -233,6 +233,34 @@ def test_bake_from_python_equals_the_cli(tmp: Path, line_asset: terrabake.Asset)
         terrabake.bake(tmp / "dem.tif", tmp / "x.tbake", budget="horizon")
 
 
+def test_bake_reports_each_stage_and_stops_when_told(tmp: Path) -> None:
+    recipe = tmp / "stages.toml"
+    recipe.write_text(RECIPE.format(method="line", curvature="false", sectors=8))
+    seen: list[tuple[str, int, int]] = []
+    terrabake.bake(tmp / "dem.tif", tmp / "staged.tbake", recipe=recipe,
+                   progress=lambda stage, done, total: seen.append((stage, done, total)))
+    assert seen == [("ingest", 1, 3), ("horizons", 2, 3), ("sky", 3, 3)]
+
+    class Stop(Exception):
+        pass
+
+    def stop(stage: str, done: int, total: int) -> None:
+        if stage == "horizons":
+            raise Stop(stage)
+
+    out = tmp / "stopped.tbake"
+    with pytest.raises(Stop):
+        terrabake.bake(tmp / "dem.tif", out, recipe=recipe, progress=stop)
+    # What was committed stays: the heights and the horizons, not the sky.
+    names = {layer["name"] for layer in terrabake.open(out).layers}
+    assert "horizon" in names and "svf" not in names
+    # The same call resumes and finishes.
+    terrabake.bake(tmp / "dem.tif", out, recipe=recipe)
+    assert "svf" in {layer["name"] for layer in terrabake.open(out).layers}
+    with pytest.raises(ValueError, match="progress"):
+        terrabake.bake(tmp / "dem.tif", out, recipe=recipe, progress=3)
+
+
 def test_to_xarray_names_azimuths_and_units(line_asset: terrabake.Asset) -> None:
     xr = pytest.importorskip("xarray")
     da = line_asset.to_xarray("horizon")
