@@ -6,7 +6,7 @@
 //! What this file adds is the boundary: numpy arrays checked before any
 //! work (dtype, shape, contiguity, size, all-NaN: `ValueError` naming the
 //! problem), the GIL released while Rust works, a progress callback called
-//! between bands, and errors raised as `terrabake.TerrabakeError` with the
+//! between batches of bands, and errors raised as `terrabake.TerrabakeError` with the
 //! CLI's message. The Python side (`terrabake/__init__.py`) adds xarray.
 
 use std::path::PathBuf;
