@@ -7,13 +7,14 @@
 # posts, peak RSS (which counts the mapped input's pages, reclaimable) and
 # the peak anonymous memory of the cgroup (memory.stat total_rss, sampled
 # every 0.1 s): what the process itself holds. With OLD=path/to/older/terrabake,
-# that binary's export runs too, alternating with ours. Then the bundled
+# that binary's export runs too, alternating with ours (OLD_LABEL names it). Then the bundled
 # tile's 32-band horizon layer, alternating likewise. Root is needed for
 # the cgroup (v1 memory controller); without it the limit is skipped, said.
 #   make bench-cog [SIZE=16384] [LIMIT_MIB=256] [OLD=/tmp/old/terrabake]
 set -euo pipefail
 BIN=${BIN:-target/release/terrabake}
 OLD=${OLD:-}
+OLD_LABEL=${OLD_LABEL:-previous strip writer}
 WORK=${WORK:-/tmp/terrabake-cog}
 SIZE=${SIZE:-16384}
 LIMIT_MIB=${LIMIT_MIB:-256}
@@ -55,7 +56,7 @@ echo "| export | wall | posts (float32) per second | peak RSS | peak anonymous m
 echo "| --- | --- | --- | --- | --- | --- |"
 POSTS_MIB=$(( SIZE * SIZE * 4 >> 20 ))
 for round in 1 2; do
-  [ -n "$OLD" ] && run "height ${SIZE}^2, previous strip writer (round $round)" "$OLD" "$WORK/fractal.tbake" height "$WORK/old.tif"
+  [ -n "$OLD" ] && run "height ${SIZE}^2, $OLD_LABEL (round $round)" "$OLD" "$WORK/fractal.tbake" height "$WORK/old.tif"
   run "height ${SIZE}^2, COG deflate (round $round)" "$BIN" "$WORK/fractal.tbake" height "$WORK/cog.tif"
 done
 run "height ${SIZE}^2, COG zstd" "$BIN" "$WORK/fractal.tbake" height "$WORK/cog_zstd.tif" --compress zstd
@@ -78,7 +79,7 @@ DEMO="$WORK/srtm.tbake"
 [ -d "$DEMO" ] || "$BIN" bake data/srtm3_n07w006_geographic_int16.tif -o "$DEMO" --recipe pipelines/demo.toml --quiet
 POSTS_MIB=$(( 1201 * 1201 * 32 * 4 >> 20 ))
 for round in 1 2; do
-  [ -n "$OLD" ] && run "SRTM horizon, 32 bands, previous strip writer (round $round)" "$OLD" "$DEMO" horizon "$WORK/old_h.tif"
+  [ -n "$OLD" ] && run "SRTM horizon, 32 bands, $OLD_LABEL (round $round)" "$OLD" "$DEMO" horizon "$WORK/old_h.tif"
   run "SRTM horizon, 32 bands, COG deflate (round $round)" "$BIN" "$DEMO" horizon "$WORK/cog_h.tif"
 done
 if [ $limited = 1 ]; then rmdir "$cg" 2>/dev/null || true; fi

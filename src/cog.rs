@@ -138,15 +138,9 @@ pub struct Cog {
     pub resampling: Resampling,
     pub tags: GeoTags,
     pub metadata: Metadata,
-}
-
-/// What was written.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Written {
-    pub bytes: u64,
-    /// Internal overviews, each half the size of the one above.
-    pub overviews: u32,
-    pub bigtiff: bool,
+    /// Internal overviews (a COG's); `false` for DEMs written as inputs,
+    /// which only their full resolution is read of.
+    pub overviews: bool,
 }
 
 impl Cog {
@@ -155,7 +149,7 @@ impl Cog {
     pub fn levels(&self) -> Vec<(u32, u32)> {
         let mut levels = vec![(self.width, self.height)];
         let (mut w, mut h) = (self.width, self.height);
-        while w > self.tile || h > self.tile {
+        while self.overviews && (w > self.tile || h > self.tile) {
             (w, h) = (w.div_ceil(2), h.div_ceil(2));
             levels.push((w, h));
         }
@@ -171,7 +165,7 @@ impl Cog {
         path: &Path,
         mut read: impl FnMut(u32, u32, &mut [f32]) -> Result<()>,
         mut advance: impl FnMut(u64),
-    ) -> Result<Written> {
+    ) -> Result<()> {
         if self.width == 0 || self.height == 0 || self.bands == 0 {
             bail!("{}: cannot write an empty image", path.display());
         }
@@ -205,19 +199,16 @@ impl Cog {
             tile: self.tile,
             compression: self.compression,
             nodata,
-            bands: self.bands,
         };
+        let mut pyramid = Pyramid::new(self);
         for band in 0..u32::from(self.bands) {
-            let mut pyramid = Pyramid::new(self, band);
-            let mut rows = vec![0f32; self.tile as usize * self.width as usize];
+            pyramid.start(band);
             let mut y0 = 0;
             while y0 < self.height {
                 let n = self.tile.min(self.height - y0);
-                let rows = &mut rows[..n as usize * self.width as usize];
-                read(band, y0, rows)?;
-                for row in rows.chunks_exact(self.width as usize) {
-                    pyramid.push(0, row, &mut tiles)?;
-                }
+                // Read straight into the full resolution's tile row.
+                read(band, y0, pyramid.top_rows(n))?;
+                pyramid.flush(0, &mut tiles)?;
                 advance(u64::from(n));
                 y0 += n;
             }
@@ -228,11 +219,9 @@ impl Cog {
             .into_inner()
             .map_err(|e| e.into_error())
             .context("writing the scratch file")?;
-        let mut bigtiff = false;
-        let mut layout = self.layout(&chunks, bigtiff);
+        let mut layout = self.layout(&chunks, false);
         if layout.total > u64::from(u32::MAX) - (1 << 20) {
-            bigtiff = true;
-            layout = self.layout(&chunks, bigtiff);
+            layout = self.layout(&chunks, true);
         }
         write_atomically(path, |out| {
             out.write_all(&layout.head)?;
@@ -247,11 +236,6 @@ impl Cog {
                 }
             }
             Ok(())
-        })?;
-        Ok(Written {
-            bytes: layout.total,
-            overviews: chunks.len() as u32 - 1,
-            bigtiff,
         })
     }
 
@@ -426,15 +410,15 @@ impl Cog {
     }
 }
 
-/// A single-band float32 GeoTIFF, uncompressed, written a tile row at a
-/// time: `fill(y0, rows)` fills whole rows from `y0`, NaN for nodata (written
+/// A single-band float32 GeoTIFF, uncompressed and without overviews,
+/// written a tile row at a time: `fill(y0, rows)` fills whole rows from `y0`, NaN for nodata (written
 /// as `tags.nodata` when that is set). DEMs for tests and benchmarks.
 pub fn write_f32(
     path: &Path,
     (width, height): (u32, u32),
     tags: &GeoTags,
     mut fill: impl FnMut(u32, &mut [f32]) -> Result<()>,
-) -> Result<Written> {
+) -> Result<()> {
     let cog = Cog {
         width,
         height,
@@ -444,6 +428,7 @@ pub fn write_f32(
         resampling: Resampling::Average,
         tags: tags.clone(),
         metadata: Metadata::default(),
+        overviews: false,
     };
     cog.write(path, |_, y0, rows| fill(y0, rows), |_| {})
 }
@@ -615,7 +600,6 @@ struct TileSink {
     tile: u32,
     compression: Compression,
     nodata: Option<f32>,
-    bands: u16,
 }
 
 impl TileSink {
@@ -661,7 +645,6 @@ impl TileSink {
             self.file.write_all(&bytes)?;
             self.at += bytes.len() as u64;
         }
-        debug_assert!(usize::from(self.bands) * down * across == self.chunks[k].len());
         Ok(())
     }
 }
@@ -699,7 +682,11 @@ pub fn encode_tile(samples: &[f32], t: usize, compression: Compression) -> Resul
     })
 }
 
-/// The tile row each level is filling, for one band.
+/// The tile row each level is filling, for one band at a time. A level
+/// hands its tile row down when it is written: each pair of its rows (the
+/// last alone, where the level's height is odd) becomes one row of the
+/// next level. A tile row holds an even number of rows, so pairs never
+/// straddle two, and half a tile row of the next level comes of each.
 struct Pyramid {
     band: u32,
     resampling: Resampling,
@@ -714,12 +701,10 @@ struct Level {
     rows: Vec<f32>,
     row0: u32,
     filled: u32,
-    /// A row from the level above waiting for its partner.
-    half: Option<Vec<f32>>,
 }
 
 impl Pyramid {
-    fn new(cog: &Cog, band: u32) -> Self {
+    fn new(cog: &Cog) -> Self {
         let levels = cog
             .levels()
             .into_iter()
@@ -729,78 +714,83 @@ impl Pyramid {
                 rows: vec![0.0; cog.tile as usize * width as usize],
                 row0: 0,
                 filled: 0,
-                half: None,
             })
             .collect();
         Self {
-            band,
+            band: 0,
             resampling: cog.resampling,
             tile: cog.tile,
             levels,
         }
     }
 
-    /// Adds the next row of level `k`: written with its tile row when that
-    /// is full, and passed down in pairs to the next level.
-    fn push(&mut self, k: usize, row: &[f32], sink: &mut TileSink) -> Result<()> {
-        let level = &mut self.levels[k];
-        let w = level.width as usize;
-        let y = level.row0 + level.filled;
-        level.rows[level.filled as usize * w..][..w].copy_from_slice(row);
-        level.filled += 1;
-        if level.filled == self.tile || y + 1 == level.height {
-            let n = level.filled as usize * w;
-            sink.tile_row(
-                (k, self.band),
-                (level.width, level.height),
-                level.row0,
-                &level.rows[..n],
-            )?;
-            level.row0 += level.filled;
-            level.filled = 0;
+    /// Starts band `band` at the first row of every level.
+    fn start(&mut self, band: u32) {
+        self.band = band;
+        for level in &mut self.levels {
+            (level.row0, level.filled) = (0, 0);
         }
-        let last = y + 1 == level.height;
-        let Some(next) = self.levels.get_mut(k + 1) else {
+    }
+
+    /// The full resolution's next tile row, `n` rows, for the caller to fill.
+    fn top_rows(&mut self, n: u32) -> &mut [f32] {
+        let top = &mut self.levels[0];
+        top.filled = n;
+        &mut top.rows[..n as usize * top.width as usize]
+    }
+
+    /// Writes level `k`'s tile row and hands its pairs of rows down,
+    /// writing the next level's tile row in turn when that is complete.
+    fn flush(&mut self, k: usize, sink: &mut TileSink) -> Result<()> {
+        let (above, below) = self.levels.split_at_mut(k + 1);
+        let level = &mut above[k];
+        let w = level.width as usize;
+        let rows = &level.rows[..level.filled as usize * w];
+        sink.tile_row(
+            (k, self.band),
+            (level.width, level.height),
+            level.row0,
+            rows,
+        )?;
+        level.row0 += level.filled;
+        level.filled = 0;
+        let Some(next) = below.first_mut() else {
             return Ok(());
         };
-        let pair = match next.half.take() {
-            Some(above) => Some(downsample(&above, Some(row), next.width, self.resampling)),
-            // An odd level's last row has no partner.
-            None if last => Some(downsample(row, None, next.width, self.resampling)),
-            None => {
-                next.half = Some(row.to_vec());
-                None
-            }
-        };
-        match pair {
-            Some(down) => self.push(k + 1, &down, sink),
-            None => Ok(()),
+        let nw = next.width as usize;
+        for pair in rows.chunks(2 * w) {
+            let (a, b) = pair.split_at(w);
+            let out = &mut next.rows[next.filled as usize * nw..][..nw];
+            downsample(a, (!b.is_empty()).then_some(b), out, self.resampling);
+            next.filled += 1;
         }
+        if next.filled == self.tile || next.row0 + next.filled == next.height {
+            self.flush(k + 1, sink)?;
+        }
+        Ok(())
     }
 }
 
-/// One row of the next level from two rows (or the last, alone).
-fn downsample(a: &[f32], b: Option<&[f32]>, width: u32, how: Resampling) -> Vec<f32> {
-    (0..width as usize)
-        .map(|x| {
-            let (x0, x1) = (2 * x, (2 * x + 1).min(a.len() - 1));
-            match how {
-                Resampling::Nearest => a[x0],
-                Resampling::Average => {
-                    let below = b.map_or([f32::NAN; 2], |b| [b[x0], b[x1]]);
-                    let (sum, n) = [a[x0], a[x1], below[0], below[1]]
-                        .into_iter()
-                        .filter(|v| !v.is_nan())
-                        .fold((0f64, 0u32), |(s, n), v| (s + f64::from(v), n + 1));
-                    if n == 0 {
-                        f32::NAN
-                    } else {
-                        (sum / f64::from(n)) as f32
-                    }
+/// One row of the next level (`out`) from two rows (or the last, alone).
+fn downsample(a: &[f32], b: Option<&[f32]>, out: &mut [f32], how: Resampling) {
+    for (x, v) in out.iter_mut().enumerate() {
+        let (x0, x1) = (2 * x, (2 * x + 1).min(a.len() - 1));
+        *v = match how {
+            Resampling::Nearest => a[x0],
+            Resampling::Average => {
+                let below = b.map_or([f32::NAN; 2], |b| [b[x0], b[x1]]);
+                let (sum, n) = [a[x0], a[x1], below[0], below[1]]
+                    .into_iter()
+                    .filter(|v| !v.is_nan())
+                    .fold((0f64, 0u32), |(s, n), v| (s + f64::from(v), n + 1));
+                if n == 0 {
+                    f32::NAN
+                } else {
+                    (sum / f64::from(n)) as f32
                 }
             }
-        })
-        .collect()
+        };
+    }
 }
 
 #[cfg(test)]
@@ -818,6 +808,7 @@ mod tests {
             resampling: Resampling::Nearest,
             tags: GeoTags::default(),
             metadata: Metadata::default(),
+            overviews: true,
         };
         assert_eq!(cog(256, 10).levels(), vec![(256, 10)]);
         assert_eq!(
@@ -830,9 +821,14 @@ mod tests {
     fn average_skips_nodata_and_nearest_takes_the_north_west_post() {
         let a = [1.0, 3.0, f32::NAN];
         let b = [5.0, f32::NAN, f32::NAN];
-        assert_eq!(downsample(&a, Some(&b), 2, Resampling::Average)[0], 3.0);
-        assert!(downsample(&a, Some(&b), 2, Resampling::Average)[1].is_nan());
-        let nearest = downsample(&a, Some(&b), 2, Resampling::Nearest);
+        let down = |how| {
+            let mut out = [0f32; 2];
+            downsample(&a, Some(&b), &mut out, how);
+            out
+        };
+        assert_eq!(down(Resampling::Average)[0], 3.0);
+        assert!(down(Resampling::Average)[1].is_nan());
+        let nearest = down(Resampling::Nearest);
         assert_eq!(nearest[0], 1.0);
         assert!(nearest[1].is_nan());
     }

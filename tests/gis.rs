@@ -13,18 +13,9 @@ use terrabake::horizon::{brute, line, plan_bands, BandKind, Method};
 use terrabake::synth::{self, SynthKind};
 
 fn grid(kind: SynthKind, w: usize, h: usize, seed: u64) -> Vec<f32> {
-    (0..w * h)
-        .map(|i| {
-            synth::height(
-                kind,
-                (i % w) as u32,
-                (i / w) as u32,
-                w as u32,
-                h as u32,
-                seed,
-            )
-        })
-        .collect()
+    let mut z = vec![0f32; w * h];
+    synth::fill_rows(kind, 0, &mut z, w as u32, h as u32, seed);
+    z
 }
 
 /// At a line band's own azimuth, the profile's sight line is the band's

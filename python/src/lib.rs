@@ -21,7 +21,7 @@ use pyo3::exceptions::{PyException, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use rayon::prelude::*;
-use terrabake::horizon::sky::{BandIntegrals, SkySums};
+use terrabake::horizon::sky::{svf_of_horizons, BandIntegrals};
 use terrabake::horizon::terrain::{curvature_coefficient, Terrain, DEFAULT_REFRACTION};
 use terrabake::horizon::{band_bounds, band_horizons, plan_bands, BandOptions, Method};
 use terrabake_format::{ElemType, Mmap, Tile};
@@ -325,6 +325,8 @@ fn dem_of(dem: &Bound<'_, PyAny>, bands: usize) -> PyResult<(Vec<f32>, usize, us
         &format!("horizons of a {w} x {h} DEM in {bands} directions"),
     )
     .map_err(raise)?;
+    // A copy: the GIL is released while Rust reads the heights, and Python
+    // code on another thread could write the array meanwhile.
     let z: Vec<f32> = if let Ok(a) = dem.cast::<PyArray2<f32>>() {
         a.readonly().as_slice()?.to_vec()
     } else if let Ok(a) = dem.cast::<PyArray2<f64>>() {
@@ -361,9 +363,6 @@ struct Horizons {
     z: Vec<f32>,
     w: usize,
     h: usize,
-    dx: f64,
-    dy: f64,
-    curvature: f64,
     azimuths: Vec<f64>,
     angles: Vec<Vec<f32>>,
 }
@@ -380,17 +379,18 @@ fn compute_horizons(
     refraction: f64,
     progress: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<Horizons> {
-    terrabake::args::parse_sectors(&sectors.to_string())
-        .map_err(|e| PyValueError::new_err(format!("sectors: {e}")))?;
+    let method = method_of(method)?;
+    // The stage's own checks of what it shares with this call (the sector
+    // count, the distance), with the CLI's messages.
+    let stage = terrabake::horizon::HorizonsStage {
+        sectors,
+        method,
+        max_distance,
+        ..Default::default()
+    };
+    terrabake::stage::Stage::check(&stage).map_err(|e| PyValueError::new_err(format!("{e:#}")))?;
     let (z, w, h) = dem_of(dem, sectors)?;
     let (dx, dy) = cell_size_of(cell_size)?;
-    if let Some(d) = max_distance {
-        if !(d.is_finite() && d > 0.0) {
-            return Err(PyValueError::new_err(format!(
-                "max_distance: {d} must be positive metres"
-            )));
-        }
-    }
     if let Some(p) = progress {
         if !p.is_callable() {
             return Err(PyValueError::new_err(
@@ -398,7 +398,6 @@ fn compute_horizons(
             ));
         }
     }
-    let method = method_of(method)?;
     let curvature = if curvature {
         curvature_coefficient(refraction)
     } else {
@@ -436,9 +435,6 @@ fn compute_horizons(
         z,
         w,
         h,
-        dx,
-        dy,
-        curvature,
         azimuths: bands.iter().map(|b| b.azimuth).collect(),
         angles,
     })
@@ -508,27 +504,19 @@ fn sky_view_factor<'py>(
         progress,
     )?;
     let svf = py.detach(|| {
-        let mut terrain = Terrain::new(&hz.z, hz.w, hz.h, hz.dx, hz.dy);
-        terrain.curvature = hz.curvature;
         let integrals: Vec<BandIntegrals> = band_bounds(&hz.azimuths)
             .into_iter()
             .map(|(lo, hi)| BandIntegrals::new(lo, hi))
             .collect();
+        // The svf of a post is its horizons' alone (the sky stage's
+        // normals enter only svf_cosine); nodata posts stay NaN.
         let values: Vec<f32> = (0..hz.w * hz.h)
             .into_par_iter()
             .map(|i| {
-                let (x, y) = (i % hz.w, i / hz.w);
-                let Some(normal) = terrain.normal(x, y) else {
+                if hz.z[i].is_nan() {
                     return f32::NAN;
-                };
-                let mut sums = SkySums::default();
-                for (b, band) in hz.angles.iter().enumerate() {
-                    let a = f64::from(band[i]);
-                    if !a.is_nan() {
-                        sums.add(a, a.to_radians().sin_cos(), &integrals[b], normal);
-                    }
                 }
-                sums.svf() as f32
+                svf_of_horizons(&integrals, hz.angles.iter().map(|band| f64::from(band[i]))) as f32
             })
             .collect();
         Array2::from_shape_vec((hz.h, hz.w), values).expect("H x W values")

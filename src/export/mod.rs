@@ -229,6 +229,7 @@ pub fn cog_for_layer(asset: &Asset<Mmap>, layer: &Layer<Mmap>, tiff: &TiffOption
             dataset,
             bands: band_metadata,
         },
+        overviews: true,
     })
 }
 

@@ -672,42 +672,36 @@ impl Stage for HorizonsStage {
             enc.name(),
             if curvature > 0.0 { format!("on, refraction {}", self.refraction) } else { "off".into() }
         );
-        let spec = post_layer(
-            (HORIZON, "horizons"),
-            enc.elem(),
-            bands.len() as u32,
-            (w, h, ts),
-            description,
-        );
-        let out = BandWriter {
-            writer: Mutex::new(LayerWriter::create(dir, spec)?),
-            enc,
-            width: w,
-            tile_size: ts,
-            tiles: (w.div_ceil(ts), h.div_ceil(ts)),
-            aoi,
-        };
+        // A writer of one of the stage's layers (band per azimuth), masked
+        // to the area of interest.
+        let band_writer =
+            |name: &str, enc: AngleEncoding, description: String| -> Result<BandWriter> {
+                let spec = post_layer(
+                    (name, "horizons"),
+                    enc.elem(),
+                    bands.len() as u32,
+                    (w, h, ts),
+                    description,
+                );
+                Ok(BandWriter {
+                    writer: Mutex::new(LayerWriter::create(dir, spec)?),
+                    enc,
+                    width: w,
+                    tile_size: ts,
+                    tiles: (w.div_ceil(ts), h.div_ceil(ts)),
+                    aoi,
+                })
+            };
+        let out = band_writer(HORIZON, enc, description)?;
         // Distances: f32 metres, written beside the angles (check() allows
         // them only on the out-of-core line sweeps).
         let distances = self
             .distance
-            .then(|| -> Result<BandWriter> {
-                let spec = post_layer(
-                    (HORIZON_DISTANCE, "horizons"),
-                    terrabake_format::ElemType::F32,
-                    bands.len() as u32,
-                    (w, h, ts),
-                    format!("horizontal distance to the point that sets the horizon, metres, band per azimuth (band_azimuths) as {HORIZON}; NaN for nodata and where no terrain lies ahead; {method_text}"),
-                );
-                Ok(BandWriter {
-                    writer: Mutex::new(LayerWriter::create(dir, spec)?),
-                    enc: AngleEncoding::F32,
-                    width: out.width,
-                    tile_size: out.tile_size,
-                    tiles: out.tiles,
-                    aoi: out.aoi,
-                })
-            })
+            .then(|| band_writer(
+                HORIZON_DISTANCE,
+                AngleEncoding::F32,
+                format!("horizontal distance to the point that sets the horizon, metres, band per azimuth (band_azimuths) as {HORIZON}; NaN for nodata and where no terrain lies ahead; {method_text}"),
+            ))
             .transpose()?;
         let mine = share.bands(bands.len());
         // Tile rows outside the share's rows (all of them for bands outside
@@ -825,22 +819,10 @@ impl Stage for HorizonsStage {
             }
         }
         bar.finish_and_clear();
-        let mut horizon = out
-            .writer
-            .into_inner()
-            .expect("no panic while writing")
-            .finish()?;
-        horizon.quantization = enc.quantization();
-        horizon.band_azimuths = bands.iter().map(|b| b.azimuth).collect();
-        let mut layers = vec![horizon];
+        let azimuths: Vec<f64> = bands.iter().map(|b| b.azimuth).collect();
+        let mut layers = vec![out.finish(&azimuths)?];
         if let Some(d) = distances {
-            let mut entry = d
-                .writer
-                .into_inner()
-                .expect("no panic while writing")
-                .finish()?;
-            entry.band_azimuths = layers[0].band_azimuths.clone();
-            layers.push(entry);
+            layers.push(d.finish(&azimuths)?);
         }
         Ok(layers)
     }
@@ -986,6 +968,18 @@ struct BandWriter {
 }
 
 impl BandWriter {
+    /// The layer's entry, with its quantisation and band azimuths.
+    fn finish(self, azimuths: &[f64]) -> Result<LayerEntry> {
+        let mut entry = self
+            .writer
+            .into_inner()
+            .expect("no panic while writing")
+            .finish()?;
+        entry.quantization = self.enc.quantization();
+        entry.band_azimuths = azimuths.to_vec();
+        Ok(entry)
+    }
+
     /// Rows `y0..` of band `band` (whole tile rows, `y0` on a tile edge).
     fn write(&self, band: usize, y0: usize, angles: &mut [f32]) -> Result<()> {
         let tiles = self.encode(y0, angles);

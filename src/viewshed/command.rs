@@ -110,6 +110,7 @@ impl ViewshedArgs {
                     band("elevation angle from the observer", "deg"),
                 ],
             },
+            overviews: true,
         };
         cog.write(
             &self.output,
