@@ -164,6 +164,181 @@ fn horizon_distances_are_the_brute_forces() {
     assert!(compared > 16 * (w * h - 12) * 9 / 10, "{compared} compared");
 }
 
+/// A fractal terrain with a hole of nodata, posts 30 x 25 m apart, with
+/// the earth's curvature: what the distance tests run on.
+fn holed_fractal(w: usize, h: usize) -> Vec<f32> {
+    let mut z = grid(SynthKind::Fractal, w, h, 8);
+    for r in h * 2 / 5..h / 2 {
+        for c in w / 2..w / 2 + 3 {
+            z[r * w + c] = f32::NAN;
+        }
+    }
+    z
+}
+
+/// Whether a distance is the brute force's: both NaN where it found no
+/// point, else within f32 rounding.
+fn same_distance(got: f32, want: Option<f64>) -> bool {
+    match want {
+        None => got.is_nan(),
+        Some(d) => (f64::from(got) - d).abs() <= 1e-5 * d.max(1.0),
+    }
+}
+
+/// Stewart's tree with its points tagged by post, and the bounded scan,
+/// name the post the brute force finds steepest in the wedge, at every
+/// post, for every sector of 8 and a spread of 64 (with the IV-E check);
+/// the tags leave the angles bit for bit as they are.
+#[test]
+fn sector_distances_are_the_brute_forces() {
+    use terrabake::horizon::sector::{self, NarrowStencil, SectorFrame};
+    let (w, h) = (37, 33);
+    let z = holed_fractal(w, h);
+    let t = Terrain::new(&z, w, h, 30.0, 25.0).with_curvature(6.8e-8);
+    for (count, step) in [(8, 1), (64, 9)] {
+        let narrow = count == 64;
+        for index in (0..count).step_by(step) {
+            let frame = SectorFrame::new(index, count, t.dx, t.dy);
+            let stencil = narrow.then(|| NarrowStencil::new(&frame, count, t.dx, t.dy));
+            let mut plain = vec![0f32; w * h];
+            sector::sector_horizons(&t, index, count, narrow, &mut plain);
+            let (mut angles, mut metres) = (vec![0f32; w * h], vec![0f32; w * h]);
+            sector::sector_horizons_with_distances(
+                &t,
+                (index, count),
+                narrow,
+                &mut angles,
+                &mut metres,
+            );
+            assert!(
+                angles
+                    .iter()
+                    .zip(&plain)
+                    .all(|(a, b)| a.to_bits() == b.to_bits()),
+                "sector {index}/{count}: the tags changed an angle"
+            );
+            let max = 260.0;
+            let (mut near, mut near_metres) = (vec![0f32; w * h], vec![0f32; w * h]);
+            sector::sector_horizons_within(
+                &t,
+                (index, count),
+                narrow,
+                max,
+                [0..h, 0..w],
+                &mut near,
+                Some(&mut near_metres),
+            );
+            for i in 0..w * h {
+                let post = (i % w, i / w);
+                for (got, within) in [(metres[i], None), (near_metres[i], Some(max))] {
+                    let want =
+                        brute::sector_horizon_record(&t, post, &frame, stencil.as_ref(), within)
+                            .map(|r| r.distance);
+                    assert!(
+                        same_distance(got, want),
+                        "sector {index}/{count} within {within:?} at {post:?}: {got} m, brute force {want:?}"
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// The bounded line walk names the last point of the sight line's records
+/// within the distance (the brute force's), and past the DEM the sweep's.
+#[test]
+fn bounded_line_distances_are_the_brute_forces() {
+    let (w, h) = (37, 33);
+    let z = holed_fractal(w, h);
+    let t = Terrain::new(&z, w, h, 30.0, 25.0).with_curvature(6.8e-8);
+    for band in plan_bands(Method::Line, 16, t.dx, t.dy, None) {
+        let BandKind::Line(dir) = &band.kind else {
+            unreachable!()
+        };
+        let stencil = line::Stencil::new(dir.step);
+        let lengths = line::step_lengths(dir.step, h, (t.dx, t.dy), t.row_scale);
+        let (mut swept, mut swept_metres) = (vec![0f32; w * h], vec![0f32; w * h]);
+        line::line_horizons_with_distances(&t, dir, &mut swept, Some(&mut swept_metres));
+        for (i, (&swept_angle, &swept_d)) in swept.iter().zip(&swept_metres).enumerate() {
+            let post = (i % w, i / w);
+            let records = brute::line_horizon_records(&t, post, dir.step);
+            for max in [170.0, 1e9] {
+                let (angle, got) = line::line_horizon_within::<Option<f64>>(
+                    &t,
+                    &stencil,
+                    &lengths,
+                    (post.0 as i64, post.1 as i64),
+                    max,
+                );
+                let got = got.map_or(f32::NAN, |d| d as f32);
+                let last = records.iter().take_while(|r| r.distance <= max).last();
+                assert!(
+                    same_distance(got, last.map(|r| r.distance)),
+                    "{:?} within {max} m at {post:?}: {got} m, brute force {last:?}",
+                    dir.step
+                );
+                if max == 1e9 && !angle.is_nan() {
+                    assert!(
+                        (got - swept_d).abs() <= 1e-4 * got.abs().max(1.0)
+                            || (got.is_nan() && swept_d.is_nan()),
+                        "{:?} at {post:?}: walk {got} m, sweep {swept_d} m",
+                        dir.step,
+                    );
+                    assert!(
+                        (angle - swept_angle).abs() < 1e-4,
+                        "{:?} at {post:?}: walk {angle}, sweep {swept_angle}",
+                        dir.step
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// On a plane with one spike, every method names the spike from the posts
+/// that look at it along a grid axis: the spike's distance exactly.
+#[test]
+fn every_method_names_a_lone_spike() {
+    use terrabake::horizon::{band_horizons_into, BandOptions};
+    let (w, h) = (30, 9);
+    let mut z = vec![100f32; w * h];
+    let spike = (25, 4);
+    z[spike.1 * w + spike.0] = 400.0;
+    let t = Terrain::new(&z, w, h, 20.0, 30.0);
+    for method in [Method::Line, Method::Sector, Method::Sampled] {
+        let east = plan_bands(method, 8, t.dx, t.dy, None)
+            .into_iter()
+            .find(|b| b.azimuth == 90.0)
+            .unwrap();
+        for max_distance in [None, Some(450.0)] {
+            let opts = BandOptions {
+                max_distance,
+                ..BandOptions::default()
+            };
+            let (mut angles, mut metres) = (vec![0f32; w * h], vec![0f32; w * h]);
+            band_horizons_into(
+                &t,
+                &east,
+                opts,
+                [0..h, 0..w],
+                &mut angles,
+                Some(&mut metres),
+            );
+            for col in 0..spike.0 {
+                let want = (spike.0 - col) as f32 * 20.0;
+                let got = metres[spike.1 * w + col];
+                if max_distance.is_some_and(|m| f64::from(want) > m) {
+                    assert!(got.is_nan() || got < want, "{method:?} at {col}: {got} m");
+                } else {
+                    assert_eq!(got, want, "{method:?} within {max_distance:?} at {col}");
+                }
+            }
+            // Nothing lies east of the east edge.
+            assert!(metres[spike.1 * w + w - 1].is_nan(), "{method:?}");
+        }
+    }
+}
+
 fn synth_asset(dir: &std::path::Path) -> std::path::PathBuf {
     let tif = dir.join("dem.tif");
     let asset = dir.join("dem.tbake");
@@ -301,15 +476,35 @@ fn grass_export_names_directions_as_r_horizon_does() {
     assert!(stderr(&o).contains("--layer horizon"));
 }
 
+/// `--distance` writes `horizon_distance` for every method, bounded or
+/// not, one band per azimuth beside the angles.
 #[test]
-fn distances_are_refused_where_no_method_records_them() {
+fn every_method_writes_distances() {
     let dir = tempfile::tempdir().unwrap();
     let asset = synth_asset(dir.path());
-    for extra in [&["--method", "sector"][..], &["--max-distance", "500"][..]] {
+    for extra in [
+        &["--method", "sector"][..],
+        &["--method", "sector", "--max-distance", "500"][..],
+        &["--max-distance", "500"][..],
+        &["--method", "sampled"][..],
+    ] {
         let mut args = vec!["horizons", asset.to_str().unwrap(), "--distance", "-q"];
         args.extend_from_slice(extra);
         let o = terrabake(&args);
-        assert_eq!(o.status.code(), Some(1), "{extra:?}");
-        assert!(stderr(&o).contains("--distance"), "{}", stderr(&o));
+        assert!(o.status.success(), "{extra:?}: {}", stderr(&o));
+        let a = terrabake_format::Asset::open(&asset).unwrap();
+        let (angles, metres) = (
+            a.layer("horizon", 0).unwrap(),
+            a.layer("horizon_distance", 0).unwrap(),
+        );
+        assert_eq!(metres.bands(), angles.bands(), "{extra:?}");
+        let mut v = vec![0f32; metres.width() as usize * metres.height() as usize];
+        metres.read_rows_f32(1, 0, &mut v).unwrap();
+        let measured = v.iter().filter(|d| d.is_finite()).count();
+        assert!(
+            measured > v.len() / 2 && v.iter().all(|d| d.is_nan() || *d > 0.0),
+            "{extra:?}: {measured} of {} measured",
+            v.len()
+        );
     }
 }

@@ -559,7 +559,15 @@ fn sector_within_a_distance_equals_brute_force_band_by_band() {
                 sector_horizons(&t, index, count, narrow, &mut tree);
                 for max in [45.0, 200.0, 1e9] {
                     let mut got = vec![0f32; w * h];
-                    sector_horizons_within(&t, (index, count), narrow, max, [0..h, 0..w], &mut got);
+                    sector_horizons_within(
+                        &t,
+                        (index, count),
+                        narrow,
+                        max,
+                        [0..h, 0..w],
+                        &mut got,
+                        None,
+                    );
                     for (i, &scan) in got.iter().enumerate() {
                         let (col, row) = (i % w, i / w);
                         let want = brute::sector_horizon(
@@ -603,6 +611,7 @@ fn sector_within_a_distance_equals_brute_force_band_by_band() {
                             max,
                             [band, 0..w],
                             out,
+                            None,
                         );
                     }
                     assert!(

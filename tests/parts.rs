@@ -65,6 +65,7 @@ slices = "auto"
 name = "horizons"
 sectors = 8
 max_distance = 1500.0
+distance = true
 [[stage]]
 name = "sky"
 layers = ["svf", "svf_cosine", "openness"]
@@ -86,6 +87,7 @@ name = "horizons"
 sectors = 6
 method = "sector"
 max_distance = 700.0
+distance = true
 [[stage]]
 name = "sky"
 layers = ["svf"]
@@ -97,6 +99,7 @@ name = "horizons"
 sectors = 8
 method = "sector"
 encoding = "f32"
+distance = true
 "#,
 ];
 

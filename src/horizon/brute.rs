@@ -205,30 +205,52 @@ pub fn sector_horizon(
     narrow: Option<&NarrowStencil>,
     max_distance: Option<f64>,
 ) -> f32 {
+    if t.at(col, row).is_nan() {
+        return f32::NAN;
+    }
+    sector_horizon_record(t, (col, row), frame, narrow, max_distance).map_or(-90.0, |r| r.angle)
+}
+
+/// [`sector_horizon`] and the horizontal distance to the post that sets
+/// it (the first of equally steep posts, row by row); `None` for nodata
+/// and where no post lies in the wedge.
+pub fn sector_horizon_record(
+    t: &Terrain,
+    (col, row): (usize, usize),
+    frame: &SectorFrame,
+    narrow: Option<&NarrowStencil>,
+    max_distance: Option<f64>,
+) -> Option<HorizonRecord> {
     let zp = t.at(col, row);
     if zp.is_nan() {
-        return f32::NAN;
+        return None;
     }
     let pp = t.key_position(col, row);
     let kp = frame.keys(pp);
     let tp = frame.along(pp);
     let c = t.curvature;
-    let near = |qc: usize, qr: usize| {
-        max_distance.is_none_or(|m| t.key_distance(pp, t.key_position(qc, qr)) <= m)
-    };
+    let distance = |qc: usize, qr: usize| t.key_distance(pp, t.key_position(qc, qr));
+    let near = |qc: usize, qr: usize| max_distance.is_none_or(|m| distance(qc, qr) <= m);
     let slope = |qc: usize, qr: usize| {
         let tq = frame.along(t.key_position(qc, qr));
         let dz = f64::from(t.at(qc, qr)) - c * (tq - tp) * (tq - tp) - f64::from(zp);
         dz / (tq - tp)
     };
-    let mut best = f64::NEG_INFINITY;
+    // The steepest slope and the post it goes to.
+    let mut best: Option<(f64, (usize, usize))> = None;
+    let mut consider = |qc: usize, qr: usize| {
+        let s = slope(qc, qr);
+        if best.is_none_or(|(b, _)| s > b) {
+            best = Some((s, (qc, qr)));
+        }
+    };
     for qr in 0..t.height {
         for qc in 0..t.width {
             if !t.at(qc, qr).is_nan()
                 && SectorFrame::contains(&kp, &frame.keys(t.key_position(qc, qr)))
                 && near(qc, qr)
             {
-                best = best.max(slope(qc, qr));
+                consider(qc, qr);
             }
         }
     }
@@ -239,12 +261,11 @@ pub fn sector_horizon(
             && frame.along(t.key_position(qc as usize, qr as usize)) > tp
             && near(qc as usize, qr as usize)
         {
-            best = best.max(slope(qc as usize, qr as usize));
+            consider(qc as usize, qr as usize);
         }
     }
-    if best == f64::NEG_INFINITY {
-        -90.0
-    } else {
-        best.atan().to_degrees() as f32
-    }
+    best.map(|(s, (qc, qr))| HorizonRecord {
+        distance: distance(qc, qr),
+        angle: s.atan().to_degrees() as f32,
+    })
 }

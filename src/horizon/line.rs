@@ -54,6 +54,7 @@
 //! (far vertices must leave it), so [`line_horizon_within`] walks each post's
 //! line up to the distance instead: `O(distance)` per post.
 
+use super::steepest::{Steepest, Tag};
 use super::terrain::{angle_between, RowScale, Terrain};
 
 /// Largest `|a|`, `|b|` of a grid step considered.
@@ -723,6 +724,18 @@ pub fn line_profile(
 /// Line horizons in direction `dir` at every post of `terrain`, in degrees
 /// (NaN for nodata posts), into `out` (one value per post): one band.
 pub fn line_horizons(terrain: &Terrain, dir: &GridDirection, out: &mut [f32]) -> SweepStats {
+    line_horizons_with_distances(terrain, dir, out, None)
+}
+
+/// [`line_horizons`], and where `distances` is given (one value per post),
+/// each post's distance to the point that sets its horizon
+/// ([`BandedSweep::sweep_with_distances`]).
+pub fn line_horizons_with_distances(
+    terrain: &Terrain,
+    dir: &GridDirection,
+    out: &mut [f32],
+    distances: Option<&mut [f32]>,
+) -> SweepStats {
     assert_eq!(out.len(), terrain.z.len());
     let mut sweep = BandedSweep::new(
         dir,
@@ -731,23 +744,26 @@ pub fn line_horizons(terrain: &Terrain, dir: &GridDirection, out: &mut [f32]) ->
         terrain.row_scale,
         terrain.has_nodata(),
     );
-    sweep.sweep(terrain, 0..terrain.height, out);
+    sweep.sweep_with_distances(terrain, 0..terrain.height, out, distances);
     sweep.stats
 }
 
 /// The line horizon (degrees) of one post, looking no farther than
-/// `max_distance` metres: a walk along the post's line ([`step_lengths`] of
-/// its direction in `lengths`). NaN for nodata.
-pub fn line_horizon_within(
+/// `max_distance` metres, and `T` of the point that sets it (`Option<f64>`:
+/// its horizontal distance in metres; `()`: nothing): a walk along the
+/// post's line ([`step_lengths`] of its direction in `lengths`). NaN for
+/// nodata; -90 and an empty tag where no terrain lies within the distance.
+/// Of points exactly as steep, the farther, as the sweep keeps it.
+pub fn line_horizon_within<T: Tag<f64>>(
     terrain: &Terrain,
     stencil: &Stencil,
     lengths: &[f64],
     (col, row): (i64, i64),
     max_distance: f64,
-) -> f32 {
+) -> (f32, T) {
     let zp = terrain.at(col as usize, row as usize);
     if zp.is_nan() {
-        return f32::NAN;
+        return (f32::NAN, T::default());
     }
     let placed = Placed {
         t: terrain,
@@ -755,7 +771,7 @@ pub fn line_horizon_within(
     };
     let (a, b) = stencil.step;
     let c = terrain.curvature;
-    let mut best: Option<f64> = None;
+    let mut best = Steepest::<T>::default();
     let mut base = (col, row);
     let mut t0 = 0.0;
     'walk: loop {
@@ -766,8 +782,7 @@ pub fn line_horizon_within(
                 break 'walk;
             }
             if let Some(z) = placed.vertex(base, k) {
-                let slope = (z - c * d * d - f64::from(zp)) / d;
-                best = Some(best.map_or(slope, |b: f64| b.max(slope)));
+                best.take_last((z - c * d * d - f64::from(zp)) / d, T::of(d));
             }
         }
         base = (base.0 + a, base.1 + b);
@@ -776,7 +791,11 @@ pub fn line_horizon_within(
             break;
         }
     }
-    best.map_or(-90.0, |s| s.atan().to_degrees() as f32)
+    if best.found() {
+        (best.slope.atan().to_degrees() as f32, best.tag)
+    } else {
+        (-90.0, best.tag)
+    }
 }
 
 #[cfg(test)]

@@ -38,6 +38,7 @@ pub mod line;
 pub mod sampled;
 pub mod sector;
 pub mod sky;
+pub mod steepest;
 pub mod terrain;
 
 use std::path::Path;
@@ -203,17 +204,36 @@ pub fn band_horizons_rows(
     terrain: &Terrain,
     band: &Band,
     opts: BandOptions,
-    [rows, cols]: [std::ops::Range<usize>; 2],
+    area: [std::ops::Range<usize>; 2],
 ) -> (Vec<f32>, u64) {
+    let mut out = vec![0f32; terrain.z.len()];
+    let work = band_horizons_into(terrain, band, opts, area, &mut out, None);
+    (out, work)
+}
+
+/// [`band_horizons_rows`] into `out` (one value per post of `terrain`),
+/// and where `distances` is given (the same shape), each post's horizontal
+/// distance in metres to the point that sets its horizon: exact for
+/// `line`, the arg-max post for `sector`, the steepest sample for
+/// `sampled`; NaN for nodata and where nothing lies ahead. Returns the
+/// count of work done.
+pub fn band_horizons_into(
+    terrain: &Terrain,
+    band: &Band,
+    opts: BandOptions,
+    [rows, cols]: [std::ops::Range<usize>; 2],
+    out: &mut [f32],
+    distances: Option<&mut [f32]>,
+) -> u64 {
     let windowed = terrain.row0 > 0 || terrain.z.len() < terrain.width * terrain.height;
     assert!(
         !windowed || (matches!(band.kind, BandKind::Line(_)) && opts.max_distance.is_some()),
         "only bounded line horizons run over a window of rows"
     );
-    let mut out = vec![0f32; terrain.z.len()];
-    let work = match &band.kind {
+    assert_eq!(out.len(), terrain.z.len());
+    match &band.kind {
         BandKind::Line(dir) => match opts.max_distance {
-            None => line::line_horizons(terrain, dir, &mut out).vertices,
+            None => line::line_horizons_with_distances(terrain, dir, out, distances).vertices,
             Some(max) => {
                 let stencil = line::Stencil::new(dir.step);
                 let lengths = line::step_lengths(
@@ -222,43 +242,59 @@ pub fn band_horizons_rows(
                     (terrain.dx, terrain.dy),
                     terrain.row_scale,
                 );
-                out.par_chunks_mut(terrain.width)
-                    .enumerate()
-                    .for_each(|(i, out)| {
-                        let row = terrain.row0 + i;
-                        if !rows.contains(&row) {
-                            out.fill(f32::NAN);
-                            return;
+                let walk = |i, out: &mut [f32], distances: Option<&mut [f32]>| {
+                    let row = terrain.row0 + i;
+                    if rows.contains(&row) {
+                        bounded_line_row(
+                            terrain,
+                            (&stencil, &lengths),
+                            max,
+                            (row, &cols),
+                            out,
+                            distances,
+                        );
+                    } else {
+                        out.fill(f32::NAN);
+                        if let Some(d) = distances {
+                            d.fill(f32::NAN);
                         }
-                        for (col, v) in out.iter_mut().enumerate() {
-                            if !cols.contains(&col) {
-                                *v = f32::NAN;
-                                continue;
-                            }
-                            *v = line::line_horizon_within(
-                                terrain,
-                                &stencil,
-                                &lengths,
-                                (col as i64, row as i64),
-                                max,
-                            );
-                        }
-                    });
+                    }
+                };
+                let w = terrain.width;
+                match distances {
+                    Some(d) => out
+                        .par_chunks_mut(w)
+                        .zip(d.par_chunks_mut(w))
+                        .enumerate()
+                        .for_each(|(i, (out, d))| walk(i, out, Some(d))),
+                    None => out
+                        .par_chunks_mut(w)
+                        .enumerate()
+                        .for_each(|(i, out)| walk(i, out, None)),
+                }
                 0
             }
         },
         BandKind::Sector { index, count } => {
-            let s = match opts.max_distance {
-                None => {
-                    sector::sector_horizons(terrain, *index, *count, opts.narrow_check, &mut out)
+            let s = match (opts.max_distance, distances) {
+                (None, None) => {
+                    sector::sector_horizons(terrain, *index, *count, opts.narrow_check, out)
                 }
-                Some(max) => sector::sector_horizons_within(
+                (None, Some(d)) => sector::sector_horizons_with_distances(
+                    terrain,
+                    (*index, *count),
+                    opts.narrow_check,
+                    out,
+                    d,
+                ),
+                (Some(max), distances) => sector::sector_horizons_within(
                     terrain,
                     (*index, *count),
                     opts.narrow_check,
                     max,
                     [0..terrain.height, cols.clone()],
-                    &mut out,
+                    out,
+                    distances,
                 ),
             };
             s.tangent_steps + s.inserts
@@ -268,12 +304,62 @@ pub fn band_horizons_rows(
                 terrain,
                 band.azimuth,
                 opts.max_distance.unwrap_or(f64::INFINITY),
-                &mut out,
+                out,
+                distances,
             );
             0
         }
-    };
-    (out, work)
+    }
+}
+
+/// Bounded line horizons of row `row`'s posts in `cols` into `out` (the
+/// row; NaN outside `cols`), and their distances where asked: the walk
+/// keeps a distance only then.
+fn bounded_line_row(
+    terrain: &Terrain,
+    (stencil, lengths): (&line::Stencil, &[f64]),
+    max_distance: f64,
+    (row, cols): (usize, &std::ops::Range<usize>),
+    out: &mut [f32],
+    distances: Option<&mut [f32]>,
+) {
+    let post = |col: usize| (col as i64, row as i64);
+    match distances {
+        None => {
+            for (col, v) in out.iter_mut().enumerate() {
+                *v = match cols.contains(&col) {
+                    true => {
+                        line::line_horizon_within::<()>(
+                            terrain,
+                            stencil,
+                            lengths,
+                            post(col),
+                            max_distance,
+                        )
+                        .0
+                    }
+                    false => f32::NAN,
+                };
+            }
+        }
+        Some(distances) => {
+            for (col, (v, d)) in out.iter_mut().zip(distances).enumerate() {
+                (*v, *d) = match cols.contains(&col) {
+                    true => {
+                        let (angle, metres) = line::line_horizon_within::<Option<f64>>(
+                            terrain,
+                            stencil,
+                            lengths,
+                            post(col),
+                            max_distance,
+                        );
+                        (angle, metres.map_or(f32::NAN, |m| m as f32))
+                    }
+                    false => (f32::NAN, f32::NAN),
+                };
+            }
+        }
+    }
 }
 
 /// An area of interest in posts: columns `x0..x1`, rows `y0..y1`.
@@ -322,7 +408,8 @@ pub struct HorizonsStage {
     #[arg(long, allow_hyphen_values = true, value_parser = crate::args::parse_positive)]
     pub direction_tolerance: Option<f64>,
     /// Also write `horizon_distance`: per post and band, the horizontal distance in metres to
-    /// the point that sets the horizon (exact; --method line without --max-distance).
+    /// the point that sets the horizon (line: exact; sector: the steepest post of the wedge;
+    /// sampled: the steepest sample).
     #[arg(long)]
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub distance: bool,
@@ -477,11 +564,16 @@ impl HorizonsStage {
     /// Bytes held in memory for `posts` posts with `threads` bands in
     /// flight, or `None` where the method runs out of core: the DEM (4
     /// bytes per post) and per band Stewart's tree ([`SECTOR_BYTES_PER_POST`])
-    /// or one band of angles.
+    /// or one band of angles; with distances, a band of them and the
+    /// tree's tags (the post of every hull point and bucket entry: 12
+    /// bytes per post measured, 30-46 MiB more at 1.44 M posts and two
+    /// sectors in flight).
     pub fn in_core_bytes(&self, posts: u64, threads: u64) -> Option<u64> {
-        let per_band = match self.method {
-            Method::Sector => SECTOR_BYTES_PER_POST,
-            Method::Line | Method::Sampled => 4,
+        let per_band = match (self.method, self.distance) {
+            (Method::Sector, false) => SECTOR_BYTES_PER_POST,
+            (Method::Sector, true) => SECTOR_BYTES_PER_POST + 16,
+            (Method::Line | Method::Sampled, false) => 4,
+            (Method::Line | Method::Sampled, true) => 8,
         };
         (!self.out_of_core()).then_some(posts * (4 + per_band * threads))
     }
@@ -573,13 +665,6 @@ impl Stage for HorizonsStage {
             self.direction_tolerance,
         )?;
         positive(("max_error_deg", "max-error"), Some(self.max_error))?;
-        if self.distance && !(self.method == Method::Line && self.max_distance.is_none()) {
-            bail!(
-                "distance = true (--distance) is written by the unbounded line method only \
-                 (--method line without --max-distance); the sector method's arg-max and bounded \
-                 lines do not record it yet"
-            );
-        }
         Ok(())
     }
 
@@ -693,8 +778,7 @@ impl Stage for HorizonsStage {
                 })
             };
         let out = band_writer(HORIZON, enc, description)?;
-        // Distances: f32 metres, written beside the angles (check() allows
-        // them only on the out-of-core line sweeps).
+        // Distances: f32 metres, written beside the angles.
         let distances = self
             .distance
             .then(|| band_writer(
@@ -787,32 +871,50 @@ impl Stage for HorizonsStage {
             let threads = rayon::current_num_threads().max(1);
             let first = mine.start;
             let mut tile_row = vec![0f32; ts * w];
+            // A band's values over the window into `writer`, tile row by
+            // tile row (NaN outside the window, fill outside the share).
+            let mut write_band = |writer: &BandWriter, band: usize, values: &[f32]| -> Result<()> {
+                for y0 in (0..h).step_by(ts) {
+                    if !wanted(y0) {
+                        writer.push(band, y0, None)?;
+                        continue;
+                    }
+                    let tile_row = &mut tile_row[..ts.min(h - y0) * w];
+                    for (r, row) in tile_row.chunks_mut(w).enumerate() {
+                        match (y0 + r)
+                            .checked_sub(window.start)
+                            .filter(|&i| i < window.len())
+                        {
+                            Some(i) => row.copy_from_slice(&values[i * w..(i + 1) * w]),
+                            None => row.fill(f32::NAN),
+                        }
+                    }
+                    writer.write(band, y0, tile_row)?;
+                }
+                Ok(())
+            };
             for (b, batch) in bands[mine.clone()].chunks(threads).enumerate() {
-                let results: Vec<(Vec<f32>, u64)> = batch
+                let results: Vec<(Vec<f32>, Option<Vec<f32>>)> = batch
                     .par_iter()
                     .map(|band| {
-                        band_horizons_rows(&terrain, band, opts, [rows.clone(), cols.clone()])
+                        let mut angles = vec![0f32; terrain.z.len()];
+                        let mut metres = distances.as_ref().map(|_| vec![0f32; angles.len()]);
+                        band_horizons_into(
+                            &terrain,
+                            band,
+                            opts,
+                            [rows.clone(), cols.clone()],
+                            &mut angles,
+                            metres.as_deref_mut(),
+                        );
+                        (angles, metres)
                     })
                     .collect();
-                for (j, (angles, _)) in results.into_iter().enumerate() {
+                for (j, (angles, metres)) in results.into_iter().enumerate() {
                     let band = first + b * threads + j;
-                    for y0 in (0..h).step_by(ts) {
-                        if !wanted(y0) {
-                            out.push(band, y0, None)?;
-                            continue;
-                        }
-                        // The tile row's rows from the window, NaN outside it.
-                        let tile_row = &mut tile_row[..ts.min(h - y0) * w];
-                        for (r, row) in tile_row.chunks_mut(w).enumerate() {
-                            match (y0 + r)
-                                .checked_sub(window.start)
-                                .filter(|&i| i < window.len())
-                            {
-                                Some(i) => row.copy_from_slice(&angles[i * w..(i + 1) * w]),
-                                None => row.fill(f32::NAN),
-                            }
-                        }
-                        out.write(band, y0, tile_row)?;
+                    write_band(&out, band, &angles)?;
+                    if let (Some(d), Some(metres)) = (&distances, metres) {
+                        write_band(d, band, &metres)?;
                     }
                     bar.inc(1);
                 }
@@ -841,7 +943,7 @@ trait RowBands {
     /// The DEM rows that output rows `band` need.
     fn window(&self, band: &std::ops::Range<usize>) -> std::ops::Range<usize>;
     /// Angles of output rows `band` from `window`, the rows [`Self::window`]
-    /// named, and their distances to the horizon where asked (line only).
+    /// named, and their distances to the horizon where asked.
     fn sweep(
         &mut self,
         window: &Terrain,
@@ -908,10 +1010,6 @@ impl RowBands for BoundedSector {
         out: &mut [f32],
         distances: Option<&mut [f32]>,
     ) {
-        assert!(
-            distances.is_none(),
-            "HorizonsStage::check allows distances on lines only"
-        );
         sector::sector_horizons_within(
             window,
             self.sector,
@@ -919,6 +1017,7 @@ impl RowBands for BoundedSector {
             self.max_distance,
             [band, self.cols.clone()],
             out,
+            distances,
         );
     }
 

@@ -8,10 +8,19 @@
 use super::terrain::{compass, Terrain};
 
 /// Sampled horizons in direction `azimuth` (compass degrees) at every post,
-/// degrees (NaN for nodata), looking at most `max_distance` metres.
-pub fn sampled_horizons(terrain: &Terrain, azimuth: f64, max_distance: f64, out: &mut [f32]) {
+/// degrees (NaN for nodata), looking at most `max_distance` metres; where
+/// `distances` is given, the distance (metres) of the steepest sample, NaN
+/// where none was taken.
+pub fn sampled_horizons(
+    terrain: &Terrain,
+    azimuth: f64,
+    max_distance: f64,
+    out: &mut [f32],
+    mut distances: Option<&mut [f32]>,
+) {
     let (w, h) = (terrain.width, terrain.height);
     assert_eq!(out.len(), w * h);
+    assert!(distances.as_ref().is_none_or(|d| d.len() == out.len()));
     let (e, n) = compass(azimuth);
     let step = terrain.dx.min(terrain.dy);
     // Per sample: rows south, and east in units of the centre row's `dx`
@@ -29,10 +38,13 @@ pub fn sampled_horizons(terrain: &Terrain, azimuth: f64, max_distance: f64, out:
             let zp = terrain.at(col, row);
             if zp.is_nan() {
                 out[row * w + col] = f32::NAN;
+                if let Some(d) = distances.as_deref_mut() {
+                    d[row * w + col] = f32::NAN;
+                }
                 continue;
             }
             let east = terrain.key_position(col, row).0;
-            let mut best = f64::NEG_INFINITY;
+            let (mut best, mut at) = (f64::NEG_INFINITY, f64::NAN);
             let mut k = 1.0;
             loop {
                 let d = k * step;
@@ -45,8 +57,9 @@ pub fn sampled_horizons(terrain: &Terrain, azimuth: f64, max_distance: f64, out:
                     break;
                 }
                 let zq = terrain.at(qc as usize, qr as usize);
-                if !zq.is_nan() {
-                    best = best.max((f64::from(zq) - c * d * d - f64::from(zp)) / d);
+                let slope = (f64::from(zq) - c * d * d - f64::from(zp)) / d;
+                if slope > best {
+                    (best, at) = (slope, d);
                 }
                 k += 1.0;
             }
@@ -55,6 +68,9 @@ pub fn sampled_horizons(terrain: &Terrain, azimuth: f64, max_distance: f64, out:
             } else {
                 best.atan().to_degrees() as f32
             };
+            if let Some(d) = distances.as_deref_mut() {
+                d[row * w + col] = at as f32;
+            }
         }
     }
 }

@@ -45,6 +45,7 @@
 //! walk up a tall tree misses the caches at its foot; a bucket is contiguous
 //! (1.3x faster at 1.44 M posts).
 
+use super::steepest::{Steepest, Tag};
 use super::terrain::{angle_between, Terrain};
 
 /// The geometry of sector `index` of `count`: its boundaries and centre.
@@ -203,47 +204,59 @@ pub struct SectorStats {
 /// Ranks per bucket at the foot of the tree.
 const BUCKET: usize = 128;
 
-/// The processed posts of one bucket: rank (as f64, exact) and centre-plane
-/// `(t, w)`, column by column so that a scan runs in SIMD lanes.
+/// A point of a hull: centre-plane `(t, w)` and its tag.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Point<T> {
+    t: f64,
+    w: f64,
+    tag: T,
+}
+
+/// The processed posts of one bucket: rank (as f64, exact), centre-plane
+/// `(t, w)` and tag, column by column so that a scan runs in SIMD lanes.
 #[derive(Debug, Clone, Default)]
-struct Bucket {
+struct Bucket<T> {
     rank: Vec<f64>,
     t: Vec<f64>,
     w: Vec<f64>,
+    tag: Vec<T>,
 }
 
-impl Bucket {
-    fn push(&mut self, rank: f64, t: f64, w: f64) {
+impl<T: Copy + Default> Bucket<T> {
+    fn push(&mut self, rank: f64, p: Point<T>) {
         self.rank.push(rank);
-        self.t.push(t);
-        self.w.push(w);
+        self.t.push(p.t);
+        self.w.push(p.w);
+        self.tag.push(p.tag);
     }
 
     /// Steepest slope from `(tp, wp)` to the posts ranked above `rank`:
     /// every entry, the others masked out (a branch on the rank would go
     /// either way at random), in four independent lanes.
-    fn steepest_above(&self, rank: f64, tp: f64, wp: f64) -> f64 {
+    fn steepest_above(&self, rank: f64, tp: f64, wp: f64) -> Steepest<T> {
         const LANES: usize = 4;
-        let mut best = [f64::NEG_INFINITY; LANES];
-        let lane = |best: &mut f64, r: f64, t: f64, w: f64| {
+        let mut best = [Steepest::default(); LANES];
+        let lane = |best: &mut Steepest<T>, r: f64, t: f64, w: f64, tag: T| {
             let slope = (w - wp) / (t - tp);
-            *best = steeper(*best, if r > rank { slope } else { f64::NEG_INFINITY });
+            best.take(if r > rank { slope } else { f64::NEG_INFINITY }, tag);
         };
-        let (r, t, w) = (&self.rank, &self.t, &self.w);
+        let (r, t, w, tag) = (&self.rank, &self.t, &self.w, &self.tag);
         let whole = r.len() / LANES * LANES;
-        for ((r, t), w) in r[..whole]
+        for (((r, t), w), tag) in r[..whole]
             .chunks_exact(LANES)
             .zip(t[..whole].chunks_exact(LANES))
             .zip(w[..whole].chunks_exact(LANES))
+            .zip(tag[..whole].chunks_exact(LANES))
         {
             for l in 0..LANES {
-                lane(&mut best[l], r[l], t[l], w[l]);
+                lane(&mut best[l], r[l], t[l], w[l], tag[l]);
             }
         }
         for i in whole..r.len() {
-            lane(&mut best[0], r[i], t[i], w[i]);
+            lane(&mut best[0], r[i], t[i], w[i], tag[i]);
         }
-        best.into_iter().fold(f64::NEG_INFINITY, steeper)
+        best.into_iter()
+            .fold(Steepest::default(), Steepest::steeper)
     }
 }
 
@@ -253,56 +266,54 @@ struct Node {
     len: u32,
 }
 
-/// Inserts `(t, w)` into an upper hull sorted by `t`.
-fn hull_insert(hull: &mut Vec<[f64; 2]>, t: f64, w: f64) {
-    let i = hull.partition_point(|q| q[0] < t);
-    if i < hull.len() && hull[i][0] == t {
-        if hull[i][1] >= w {
+/// Inserts `p` into an upper hull sorted by `t`.
+fn hull_insert<T: Copy>(hull: &mut Vec<Point<T>>, p: Point<T>) {
+    let (t, w) = (p.t, p.w);
+    let i = hull.partition_point(|q| q.t < t);
+    if i < hull.len() && hull[i].t == t {
+        if hull[i].w >= w {
             return;
         }
         hull.remove(i);
     }
     // Below the hull edge over `t`: not on the hull.
-    let below = |l: [f64; 2], r: [f64; 2], t: f64, w: f64| {
-        (w - l[1]) * (r[0] - l[0]) <= (r[1] - l[1]) * (t - l[0])
+    let below = |l: Point<T>, r: Point<T>, t: f64, w: f64| {
+        (w - l.w) * (r.t - l.t) <= (r.w - l.w) * (t - l.t)
     };
     if i > 0 && i < hull.len() && below(hull[i - 1], hull[i], t, w) {
         return;
     }
-    hull.insert(i, [t, w]);
+    hull.insert(i, p);
     let mut i = i;
-    while i >= 2 && below(hull[i - 2], hull[i], hull[i - 1][0], hull[i - 1][1]) {
+    while i >= 2 && below(hull[i - 2], hull[i], hull[i - 1].t, hull[i - 1].w) {
         hull.remove(i - 1);
         i -= 1;
     }
-    while i + 2 < hull.len() && below(hull[i], hull[i + 2], hull[i + 1][0], hull[i + 1][1]) {
+    while i + 2 < hull.len() && below(hull[i], hull[i + 2], hull[i + 1].t, hull[i + 1].w) {
         hull.remove(i + 1);
     }
 }
 
 /// Steepest slope from `(t, w)` (left of every hull point) to the hull.
-fn hull_tangent(hull: &[[f64; 2]], t: f64, w: f64, steps: &mut u64) -> f64 {
-    let mut best = f64::NEG_INFINITY;
+fn hull_tangent<T: Copy + Default>(
+    hull: &[Point<T>],
+    t: f64,
+    w: f64,
+    steps: &mut u64,
+) -> Steepest<T> {
+    let mut best = Steepest::default();
     for q in hull {
         *steps += 1;
-        let s = (q[1] - w) / (q[0] - t);
-        if s < best {
+        let s = (q.w - w) / (q.t - t);
+        if s < best.slope {
             break; // slopes to an upper hull rise, then fall
         }
-        best = s;
+        best = Steepest {
+            slope: s,
+            tag: q.tag,
+        };
     }
     best
-}
-
-/// The larger of two slopes, NaN-blind (one `maxsd`; `f64::max` adds NaN
-/// handling that the hull walks never need).
-#[inline]
-fn steeper(a: f64, b: f64) -> f64 {
-    if b > a {
-        b
-    } else {
-        a
-    }
 }
 
 /// Order-preserving `u64` of an `f64` (for radix-friendly sorting keys).
@@ -324,8 +335,34 @@ pub fn sector_horizons(
     narrow: bool,
     out: &mut [f32],
 ) -> SectorStats {
+    tree::<()>(terrain, (index, count), narrow, out, None)
+}
+
+/// [`sector_horizons`], also writing each post's distance to the post
+/// that sets its horizon (the arg-max; horizontal metres, NaN for nodata
+/// and where the wedge holds no post) into `distances`. Of posts exactly
+/// as steep, any one may be named. The tree's points carry their posts.
+pub fn sector_horizons_with_distances(
+    terrain: &Terrain,
+    (index, count): (usize, usize),
+    narrow: bool,
+    out: &mut [f32],
+    distances: &mut [f32],
+) -> SectorStats {
+    tree::<Option<u32>>(terrain, (index, count), narrow, out, Some(distances))
+}
+
+/// Stewart's tree over one sector, its points tagged with `T`.
+fn tree<T: Tag<u32>>(
+    terrain: &Terrain,
+    (index, count): (usize, usize),
+    narrow: bool,
+    out: &mut [f32],
+    mut distances: Option<&mut [f32]>,
+) -> SectorStats {
     let (w, h) = (terrain.width, terrain.height);
     assert_eq!(out.len(), w * h);
+    assert!(distances.as_ref().is_none_or(|d| d.len() == out.len()));
     let frame = SectorFrame::new(index, count, terrain.dx, terrain.dy);
     let c = terrain.curvature;
     let posts: Vec<u32> = (0..w * h)
@@ -369,9 +406,9 @@ pub fn sector_horizons(
     // misses the caches, and a bucket is contiguous.
     let buckets = n.div_ceil(BUCKET).max(1);
     let leaves = buckets.next_power_of_two();
-    let mut hulls: Vec<Vec<[f64; 2]>> = vec![Vec::new(); 2 * leaves];
+    let mut hulls: Vec<Vec<Point<T>>> = vec![Vec::new(); 2 * leaves];
     let mut nodes = vec![Node::default(); 2 * leaves];
-    let mut bucket_points: Vec<Bucket> = vec![Bucket::default(); buckets];
+    let mut bucket_points: Vec<Bucket<T>> = vec![Bucket::default(); buckets];
     for b in 0..buckets {
         let ranks = BUCKET.min(n - b * BUCKET) as u32;
         let mut v = leaves + b;
@@ -383,9 +420,17 @@ pub fn sector_horizons(
     let stencil = narrow.then(|| NarrowStencil::new(&frame, count, terrain.dx, terrain.dy));
     let mut stats = SectorStats::default();
     out.fill(f32::NAN);
+    if let Some(d) = distances.as_deref_mut() {
+        d.fill(f32::NAN);
+    }
     for &j in &order {
         let post = posts[j as usize] as usize;
         let [tp, wp] = plane[post];
+        let me = Point {
+            t: tp,
+            w: wp,
+            tag: T::of(post as u32),
+        };
         let k = rank[j as usize];
         let bucket = k as usize / BUCKET;
         let kf = f64::from(k);
@@ -395,10 +440,7 @@ pub fn sector_horizons(
         while v >= 1 {
             let node = &mut nodes[v];
             if node.len > 0 {
-                best = steeper(
-                    best,
-                    hull_tangent(&hulls[v], tp, wp, &mut stats.tangent_steps),
-                );
+                best = best.steeper(hull_tangent(&hulls[v], tp, wp, &mut stats.tangent_steps));
             }
             node.remaining -= 1;
             if node.remaining == 0 && node.len > 0 {
@@ -411,19 +453,23 @@ pub fn sector_horizons(
             let (col, row) = ((post % w) as i64, (post / w) as i64);
             for &(dc, dr) in &st.offsets {
                 if terrain.contains(col + dc, row + dr) {
-                    let [tq, wq] = plane[(row + dr) as usize * w + (col + dc) as usize];
+                    let q = (row + dr) as usize * w + (col + dc) as usize;
+                    let [tq, wq] = plane[q];
                     if tq > tp {
-                        best = steeper(best, (wq - wp) / (tq - tp));
+                        best.take((wq - wp) / (tq - tp), T::of(q as u32));
                     }
                 }
             }
         }
-        out[post] = elevation_deg(best, c, tp);
+        out[post] = elevation_deg(best.slope, c, tp);
+        if let (Some(d), Some(q)) = (distances.as_deref_mut(), best.tag.get()) {
+            d[post] = terrain.key_distance(position(post as u32), position(q)) as f32;
+        }
         // Join the ranks below k: in its own bucket by the scan, above by
         // the hulls of the left siblings along the path (they cover ranks
         // below the bucket, whose posts have p on their b side).
         if nodes[leaves + bucket].remaining > 0 {
-            bucket_points[bucket].push(kf, tp, wp);
+            bucket_points[bucket].push(kf, me);
         } else {
             bucket_points[bucket] = Bucket::default();
         }
@@ -431,7 +477,7 @@ pub fn sector_horizons(
         while v > 1 {
             if v & 1 == 1 && nodes[v - 1].remaining > 0 {
                 let hull = &mut hulls[v - 1];
-                hull_insert(hull, tp, wp);
+                hull_insert(hull, me);
                 nodes[v - 1].len = hull.len() as u32;
                 stats.inserts += 1;
             }
@@ -453,17 +499,40 @@ pub fn sector_horizons(
 /// every candidate is then tested with the same keys and tie rules as the
 /// tree. `O(M^2 / S)` per post for a distance of `M` posts; exact; and
 /// independent of everything beyond the distance, so the stage runs it
-/// band by band out of core.
+/// band by band out of core. `distances`, where given (the shape of
+/// `out`), receives each post's horizontal distance to the post that sets
+/// its horizon, as [`sector_horizons_with_distances`].
 pub fn sector_horizons_within(
+    terrain: &Terrain,
+    sector: (usize, usize),
+    narrow: bool,
+    max_distance: f64,
+    area: [std::ops::Range<usize>; 2],
+    out: &mut [f32],
+    distances: Option<&mut [f32]>,
+) -> SectorStats {
+    assert_eq!(out.len(), area[0].len() * terrain.width);
+    match distances {
+        None => scan::<()>(terrain, sector, narrow, max_distance, area, out, None),
+        Some(d) => {
+            assert_eq!(d.len(), out.len());
+            scan::<Option<f64>>(terrain, sector, narrow, max_distance, area, out, Some(d))
+        }
+    }
+}
+
+/// [`sector_horizons_within`], keeping `T` of each post's steepest
+/// candidate (its distance, or nothing).
+fn scan<T: Tag<f64>>(
     terrain: &Terrain,
     (index, count): (usize, usize),
     narrow: bool,
     max_distance: f64,
     [rows, cols]: [std::ops::Range<usize>; 2],
     out: &mut [f32],
+    mut distances: Option<&mut [f32]>,
 ) -> SectorStats {
     let w = terrain.width;
-    assert_eq!(out.len(), rows.len() * w);
     let frame = SectorFrame::new(index, count, terrain.dx, terrain.dy);
     let stencil = narrow.then(|| NarrowStencil::new(&frame, count, terrain.dx, terrain.dy));
     let window = terrain.row0..terrain.row0 + terrain.z.len() / w;
@@ -500,23 +569,28 @@ pub fn sector_horizons_within(
     for (i, v) in out.iter_mut().enumerate() {
         let (col, row) = (i % w, rows.start + i / w);
         let zp = terrain.at(col, row);
+        let distance = distances.as_deref_mut().map(|d| &mut d[i]);
         if zp.is_nan() || !cols.contains(&col) {
             *v = f32::NAN;
+            if let Some(d) = distance {
+                *d = f32::NAN;
+            }
             continue;
         }
         let pp = terrain.key_position(col, row);
         let kp = frame.keys(pp);
         let tp = frame.along(pp);
         let wp = f64::from(zp) - c * tp * tp;
-        let mut best = f64::NEG_INFINITY;
-        let consider = |qc: usize, qr: usize, best: &mut f64| {
+        let mut best = Steepest::<T>::default();
+        let consider = |qc: usize, qr: usize, best: &mut Steepest<T>| {
             let zq = terrain.at(qc, qr);
             let pq = terrain.key_position(qc, qr);
-            if zq.is_nan() || terrain.key_distance(pp, pq) > max_distance {
+            let d = terrain.key_distance(pp, pq);
+            if zq.is_nan() || d > max_distance {
                 return;
             }
             let tq = frame.along(pq);
-            *best = steeper(*best, (f64::from(zq) - c * tq * tq - wp) / (tq - tp));
+            best.take((f64::from(zq) - c * tq * tq - wp) / (tq - tp), T::of(d));
         };
         let (r0, r1) = (
             row.saturating_sub(rows_north),
@@ -568,7 +642,10 @@ pub fn sector_horizons_within(
                 consider(qc as usize, qr as usize, &mut best);
             }
         }
-        *v = elevation_deg(best, c, tp);
+        *v = elevation_deg(best.slope, c, tp);
+        if let Some(d) = distance {
+            *d = best.tag.get().map_or(f32::NAN, |d| d as f32);
+        }
     }
     stats
 }
@@ -604,9 +681,10 @@ mod tests {
             (4.0, 1.0),
             (2.0, 4.0),
         ] {
-            hull_insert(&mut hull, t, w);
+            hull_insert(&mut hull, Point { t, w, tag: () });
         }
-        assert_eq!(hull, vec![[1.0, 0.0], [2.0, 5.0], [5.0, 0.0]]);
+        let points: Vec<[f64; 2]> = hull.iter().map(|p| [p.t, p.w]).collect();
+        assert_eq!(points, vec![[1.0, 0.0], [2.0, 5.0], [5.0, 0.0]]);
     }
 
     #[test]
