@@ -5,7 +5,7 @@ BIN := target/release/terrabake
 DEMO_DEM := data/srtm3_n07w006_geographic_int16.tif
 OUT ?= out
 
-.PHONY: all build demo test test-full test-page bake-parts bake-slurm test-slurm fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-visibility bench-plan bench-cog bench-reader fixtures fmt lint clean
+.PHONY: all build demo test test-full capi capi-header test-page bake-parts bake-slurm test-slurm fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-visibility bench-plan bench-cog bench-reader fixtures fmt lint clean
 
 all: build
 
@@ -58,8 +58,22 @@ demo: build
 ## already built: the dependencies are compiled once for both.
 test:
 	$(CARGO) test --release --locked
+	bash pipelines/capi/test.sh target/release/terrabake
 	bash pipelines/python/test.sh
 	bash pipelines/gis/check_grass.sh target/release/terrabake
+
+## The C ABI (docs/CAPI.md): target/capi/ gets libterrabake_c.so and .a,
+## terrabake.h and the example program, built with the machine's gcc.
+capi:
+	$(CARGO) build --release --locked -p terrabake-capi
+	mkdir -p target/capi
+	cp target/release/libterrabake_c.so target/release/libterrabake_c.a capi/include/terrabake.h target/capi/
+	gcc -O2 -g -std=c11 -Wall -Wextra -Werror -D_DEFAULT_SOURCE examples/c/sample.c -I capi/include \
+	  target/capi/libterrabake_c.a -lpthread -ldl -lm -o target/capi/sample
+
+## Regenerate capi/include/terrabake.h (cbindgen: cargo install cbindgen).
+capi-header:
+	cbindgen --config capi/cbindgen.toml --crate terrabake-capi --output capi/include/terrabake.h capi
 
 ## Every test again with debug assertions and overflow checks
 ## ([profile.test]: optimised, but checked), and the tracers' full matrices
@@ -67,6 +81,7 @@ test:
 ## CI runs it after `make test`.
 test-full:
 	TERRABAKE_TRACE_RAYS=1000000 $(CARGO) test --locked
+	VALGRIND=1 bash pipelines/capi/test.sh target/release/terrabake
 
 ## The demo page in a real headless browser (Debian's chromium, installed
 ## if missing): it loads, every picture shows, the console stays quiet.

@@ -13,9 +13,8 @@ page=${1:?usage: check.sh PAGE.html}
 browser=$(command -v chromium || command -v chromium-browser || true)
 if [ -z "$browser" ]; then
   echo "check.sh: installing Debian's chromium (once)" >&2
-  export DEBIAN_FRONTEND=noninteractive
-  apt-get install -y -qq chromium >/dev/null 2>&1 ||
-    { apt-get update -qq >/dev/null && apt-get install -y -qq chromium >/dev/null; }
+  source "$(dirname "$0")/../apt.sh"
+  apt_install chromium
   browser=$(command -v chromium)
 fi
 

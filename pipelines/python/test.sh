@@ -11,12 +11,7 @@ set -euo pipefail
 cd "$(dirname "$0")/../.."
 py=/usr/bin/python3
 [ -x "$py" ] || py=$(command -v python3)
-apt_install() {
-  [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null || return 1
-  export DEBIAN_FRONTEND=noninteractive
-  apt-get install -y -qq "$@" >/dev/null 2>&1 ||
-    { apt-get update -qq >/dev/null && apt-get install -y -qq "$@" >/dev/null; }
-}
+source pipelines/apt.sh
 if ! "$py" -c "import ensurepip, venv" 2>/dev/null; then
   echo "python/test.sh: installing Debian's python3-venv (once)" >&2
   apt_install python3-venv
