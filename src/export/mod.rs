@@ -6,6 +6,7 @@
 //! Every writer here goes through [`write_atomically`]: a failed export
 //! never leaves a half-written file where a good one stood.
 
+pub mod engine;
 pub mod grass;
 
 use std::io::Write;
@@ -268,9 +269,12 @@ pub struct ExportArgs {
     pub band: u32,
     #[command(flatten)]
     pub tiff: TiffOptions,
-    /// Write for another program instead: `grass` writes the horizon layer as `r.horizon` does
-    /// (one GeoTIFF per direction into the directory -o names, radians, counter-clockwise from
-    /// east, named for `r.sun horizon_basename=horizon horizon_step=STEP`).
+    /// Write for another program instead, into the directory -o names: `grass` writes the
+    /// horizon layer as `r.horizon` does (one GeoTIFF per direction, radians, counter-clockwise
+    /// from east, named for `r.sun horizon_basename=horizon horizon_step=STEP`); `unreal`,
+    /// `unity` and `godot` write the height layer as their terrain importers take it (16-bit
+    /// PNG, 16-bit RAW, float EXR; padded to the sizes they accept, tiled past one terrain)
+    /// with heightmap.json, the scale, offset and cell size that give the heights back.
     #[arg(long = "for", value_enum, value_name = "PROGRAM")]
     pub for_program: Option<ExportFor>,
     /// With --for grass: degrees between directions, 0.1 to 360 (360 / the layer's bands by default);
@@ -288,6 +292,12 @@ pub struct ExportArgs {
 pub enum ExportFor {
     /// GRASS GIS: `r.horizon`'s files, for `r.sun`.
     Grass,
+    /// Unreal Engine's landscape: a 16-bit PNG (tiles for World Partition past 8129 posts).
+    Unreal,
+    /// Unity's terrain: a 16-bit little-endian RAW of 2^n + 1 posts.
+    Unity,
+    /// Godot's Terrain3D: a float EXR of heights in metres.
+    Godot,
 }
 
 impl ExportArgs {
@@ -305,6 +315,32 @@ impl ExportArgs {
                 self.output.display(),
                 grass::BASENAME,
                 format_step(step)
+            ));
+            return Ok(());
+        }
+        if let Some(program) = self.for_program {
+            let engine = match program {
+                ExportFor::Unreal => engine::Engine::Unreal,
+                ExportFor::Unity => engine::Engine::Unity,
+                ExportFor::Godot => engine::Engine::Godot,
+                ExportFor::Grass => unreachable!("handled above"),
+            };
+            if self.layer != terrabake_format::HEIGHT_LAYER || self.level != 0 {
+                bail!(
+                    "--for {} exports the height layer at level 0: drop --layer {} --level {}",
+                    engine.name(),
+                    self.layer,
+                    self.level
+                );
+            }
+            let sidecar = engine::export_heightmap(&asset, engine, &self.output, None, progress)?;
+            say(format!(
+                "wrote {} file(s) of {} x {} posts and heightmap.json to {} (heights within {:.3} m)",
+                sidecar.files.len(),
+                sidecar.layout.size.0,
+                sidecar.layout.size.1,
+                self.output.display(),
+                sidecar.height.max_error_m
             ));
             return Ok(());
         }
