@@ -8,6 +8,7 @@
 
 pub mod engine;
 pub mod grass;
+pub mod texture;
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -26,6 +27,7 @@ pub enum ExportKind {
     GeoTiff,
     Exr,
     Png,
+    Ktx2,
 }
 
 impl ExportKind {
@@ -39,7 +41,11 @@ impl ExportKind {
             Some("tif" | "tiff") => Ok(Self::GeoTiff),
             Some("exr") => Ok(Self::Exr),
             Some("png") => Ok(Self::Png),
-            _ => bail!("{}: export writes .tif, .exr or .png", path.display()),
+            Some("ktx2") => Ok(Self::Ktx2),
+            _ => bail!(
+                "{}: export writes .tif, .exr, .png or .ktx2",
+                path.display()
+            ),
         }
     }
 }
@@ -281,8 +287,9 @@ pub struct ExportArgs {
     /// give `r.sun` the same `horizon_step`.
     #[arg(long, requires = "for_program")]
     pub step: Option<f64>,
-    /// The file to write: .tif (GeoTIFF), .exr or .png (a preview), by its extension; a
-    /// directory with --for grass.
+    /// The file to write: .tif (GeoTIFF), .exr, .png (a preview) or .ktx2 (a texture for
+    /// shaders: horizons as an array, cone planes as an RG texture conservative under bilinear
+    /// filtering), by its extension; a directory with --for.
     #[arg(short, long)]
     pub output: PathBuf,
 }
@@ -428,6 +435,7 @@ pub fn export_layer(
             })
         }
         ExportKind::Png => write_png_preview(out, layer, manifest, style, band, height_like),
+        ExportKind::Ktx2 => texture::write_ktx2(out, &texture::texture_for_layer(asset, layer)?),
     }
 }
 
