@@ -59,6 +59,7 @@ demo: build
 test:
 	$(CARGO) test --release --locked
 	bash pipelines/capi/test.sh target/release/terrabake
+	bash pipelines/gpu/test.sh
 	bash pipelines/python/test.sh
 	bash pipelines/gis/check_grass.sh target/release/terrabake
 

@@ -1,0 +1,148 @@
+//! The reference WGSL shader against the CPU parametric tracer, on the
+//! bundled SRTM tile (1201 x 1201 posts, 92 m) baked with the exact cone
+//! planes and exported as the cone texture (dilated for filtering): the
+//! same rays, the same hits within f32's reach. Runs on whatever Vulkan
+//! adapter the machine has (lavapipe where there is no GPU; the test
+//! script installs it); with none, it says so and passes only when
+//! `TERRABAKE_REQUIRE_GPU` is unset.
+
+use std::path::Path;
+
+use terrabake::asset::Wait;
+use terrabake::progress::Progress;
+use terrabake::recipe::{bake, Recipe};
+use terrabake_format::trace::{Method, Ray, Tracer};
+use terrabake_format::Asset;
+use terrabake_gpu::{Gpu, Scene};
+
+fn repo(path: &str) -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(path)
+}
+
+#[test]
+fn the_shader_finds_the_cpu_tracers_hits() {
+    let gpu = match Gpu::new() {
+        Ok(g) => g,
+        Err(why) if std::env::var_os("TERRABAKE_REQUIRE_GPU").is_none() => {
+            eprintln!("shader test skipped: {why}");
+            return;
+        }
+        Err(why) => panic!("{why}"),
+    };
+    eprintln!("adapter: {}", gpu.adapter);
+    let dir = tempfile::tempdir().unwrap();
+    let asset_dir = dir.path().join("srtm.tbake");
+    let recipe_path = dir.path().join("r.toml");
+    let recipe = Recipe::parse(
+        &recipe_path,
+        "[[stage]]\nname = \"pyramid\"\n[[stage]]\nname = \"cones\"\nslices = \"exact\"\n".into(),
+    )
+    .unwrap();
+    bake(
+        &repo("data/srtm3_n07w006_geographic_int16.tif"),
+        &asset_dir,
+        &recipe,
+        Wait::Wait,
+        Progress::hidden(),
+    )
+    .unwrap();
+    let asset = Asset::open(&asset_dir).unwrap();
+    let m = asset.manifest();
+    let (pw, ph) = (m.width, m.height);
+    let mut heights = vec![0f32; pw as usize * ph as usize];
+    asset
+        .height()
+        .unwrap()
+        .read_rows_f32(0, 0, &mut heights)
+        .unwrap();
+    // The exported texture's texels (what `export -o cones.ktx2` writes).
+    let texture = terrabake::export::texture::texture_for_layer(
+        &asset,
+        asset.layer("cone_slope", 0).unwrap(),
+    )
+    .unwrap();
+    let cones: Vec<[f32; 2]> = texture
+        .data
+        .chunks(8)
+        .map(|b| {
+            [
+                f32::from_le_bytes(b[..4].try_into().unwrap()),
+                f32::from_le_bytes(b[4..].try_into().unwrap()),
+            ]
+        })
+        .collect();
+    let scene = Scene {
+        heights: &heights,
+        posts: (pw, ph),
+        spacing: (m.cell_size.dx, m.cell_size.dy),
+        cones: &cones,
+    };
+    // Rays from above the terrain at random places, in every direction,
+    // down at random angles from 0.1 to 30 degrees below the horizontal,
+    // most of them shallow (long, grazing: where leaps and rounding matter).
+    let tracer = Tracer::new(&asset).unwrap();
+    let (x_max, y_max) = tracer.extent();
+    let top = f64::from(m.height_range.unwrap().max);
+    let mut state = 0x9E37_79B9_7F4A_7C15u64;
+    let mut next = || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let rays: Vec<Ray> = (0..20000)
+        .map(|_| {
+            let shallow = next();
+            let (az, down) = (
+                next() * std::f64::consts::TAU,
+                (0.1 + 29.9 * shallow * shallow).to_radians(),
+            );
+            Ray {
+                origin: [next() * x_max, next() * y_max, top + 10.0 + 300.0 * next()],
+                dir: [az.sin() * down.cos(), az.cos() * down.cos(), -down.sin()],
+                t_min: 0.0,
+                t_max: f64::INFINITY,
+            }
+        })
+        .collect();
+    let got = gpu.trace(&scene, &rays);
+    let cells_x = pw - 1;
+    let (mut same_cell, mut near_cell, mut both_miss) = (0, 0, 0);
+    let mut worst_t = 0f64;
+    let (mut steps_gpu, mut steps_cpu) = (0u64, 0u64);
+    for (ray, g) in rays.iter().zip(&got) {
+        let (cpu, cost) = tracer.trace(ray, Method::Parametric).unwrap();
+        steps_cpu += cost.steps;
+        steps_gpu += u64::from(g.cells_tested);
+        match (cpu, g.cell(cells_x)) {
+            (None, None) => both_miss += 1,
+            (Some(h), Some((c, r))) => {
+                // f32 against f64: the hit parameter within 1e-4 of the
+                // ray's length to it, and the same cell or a neighbour (a
+                // grazing ray may meet the surface at a shared edge).
+                let dt = (f64::from(g.t) - h.t).abs() / h.t.max(1.0);
+                worst_t = worst_t.max(dt);
+                assert!(dt < 1e-4, "ray {ray:?}: GPU t {} against CPU {}", g.t, h.t);
+                let (dc, dr) = (c.abs_diff(h.cell.0), r.abs_diff(h.cell.1));
+                assert!(
+                    dc <= 1 && dr <= 1,
+                    "ray {ray:?}: GPU cell ({c}, {r}) against CPU {:?}",
+                    h.cell
+                );
+                if (dc, dr) == (0, 0) {
+                    same_cell += 1;
+                } else {
+                    near_cell += 1;
+                }
+            }
+            (cpu, gpu_cell) => panic!("ray {ray:?}: CPU {cpu:?}, GPU {gpu_cell:?} ({g:?})"),
+        }
+    }
+    eprintln!(
+        "{} rays: {same_cell} hits in the same cell, {near_cell} in a neighbouring one (a shared edge), {both_miss} misses by both; worst relative t difference {worst_t:.2e}; cells tested per ray: GPU {:.1}, CPU steps {:.1}",
+        rays.len(),
+        steps_gpu as f64 / rays.len() as f64,
+        steps_cpu as f64 / rays.len() as f64
+    );
+    assert!(same_cell > 9 * (same_cell + near_cell) / 10);
+}
