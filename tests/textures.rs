@@ -255,3 +255,69 @@ fn cone_textures_are_conservative_under_bilinear_filtering() {
         "{samples} filtered samples: undilated planes {plain} cells inside a cone, dilated 0"
     );
 }
+
+/// `--fourier K`: 2K + 1 float layers, coefficient by coefficient, each
+/// post's the least-squares fit of its bands (the same as fitting the
+/// asset's bands here), and they give the bands back at the band azimuths
+/// no worse than the fit allows.
+#[test]
+fn fourier_horizon_textures_hold_each_posts_fit() {
+    use terrabake::horizon::fourier::FourierBasis;
+    let dir = tempfile::tempdir().unwrap();
+    let asset = baked(
+        dir.path(),
+        "[[stage]]\nname = \"horizons\"\nsectors = 16\nencoding = \"f32\"\n",
+    );
+    let out = dir.path().join("f.ktx2");
+    run(&[
+        "export",
+        s(&asset),
+        "--layer",
+        "horizon",
+        "--fourier",
+        "4",
+        "-o",
+        s(&out),
+        "-q",
+    ]);
+    let reader = ktx2::Reader::new(std::fs::read(&out).unwrap()).unwrap();
+    let header = reader.header();
+    assert_eq!(header.format, Some(ktx2::Format::R32_SFLOAT));
+    assert_eq!(
+        (header.layer_count, header.pixel_width, header.pixel_height),
+        (9, 90, 70)
+    );
+    assert!(kv(&reader, "terrabake.fourier").contains("cos(k a)"));
+    let data = reader.levels().next().unwrap().data;
+    let coefficient = |j: usize, i: usize| {
+        let k = 4 * (j * 90 * 70 + i);
+        f32::from_le_bytes(data[k..k + 4].try_into().unwrap())
+    };
+    let a = Asset::open(&asset).unwrap();
+    let (bands, azimuths) = terrabake::horizon::read_horizons(&a).unwrap();
+    let fit = FourierBasis::new(&azimuths, 4).unwrap();
+    let (mut post, mut want, mut back) = (vec![0f32; 16], vec![0f32; 9], vec![0f64; 16]);
+    let mut checked = 0;
+    for i in 0..90 * 70 {
+        post.iter_mut().zip(&bands).for_each(|(p, b)| *p = b[i]);
+        let got: Vec<f32> = (0..9).map(|j| coefficient(j, i)).collect();
+        if post.iter().any(|v| v.is_nan()) {
+            assert!(got.iter().all(|c| c.is_nan()), "nodata post {i}");
+            continue;
+        }
+        fit.fit(&post, &mut want);
+        assert_eq!(got, want, "post {i}");
+        // Nothing fits the bands better with 9 coefficients than the
+        // least squares does: no worse than the post's own mean.
+        fit.reconstruct(&got, &mut back);
+        let mean = post.iter().map(|&v| f64::from(v)).sum::<f64>() / 16.0;
+        let sq = |f: &dyn Fn(usize) -> f64| {
+            (0..16)
+                .map(|b| (f(b) - f64::from(post[b])).powi(2))
+                .sum::<f64>()
+        };
+        assert!(sq(&|b| back[b]) <= sq(&|_| mean) + 1e-6, "post {i}");
+        checked += 1;
+    }
+    assert!(checked > 90 * 70 / 2);
+}

@@ -318,6 +318,99 @@ pub fn accuracy_charts(prefix: &Path, rows: &[AccuracyRow]) -> Result<()> {
     )
 }
 
+/// What `K` harmonics cost ([`crate::horizon::fourier`]): the error of the
+/// fit at the stored band azimuths over every post.
+#[derive(Debug, Clone, Serialize)]
+pub struct FourierRow {
+    pub harmonics: usize,
+    pub coefficients: usize,
+    /// RMS over every post and band, degrees.
+    pub rms_deg: f64,
+    /// The 99th percentile over posts of a post's largest band error.
+    pub p99_deg: f64,
+    pub max_deg: f64,
+}
+
+/// The Fourier study of a horizon layer's `bands` (band-major) at
+/// `azimuths`, one row per harmonics count.
+pub fn fourier_study(
+    bands: &[Vec<f32>],
+    azimuths: &[f64],
+    harmonics: &[usize],
+) -> Result<Vec<FourierRow>> {
+    let posts = bands.first().map_or(0, Vec::len);
+    harmonics
+        .iter()
+        .map(|&k| {
+            let fit = crate::horizon::fourier::FourierBasis::new(azimuths, k)?;
+            // Per post: its sum of squares and its largest error.
+            let per_post: Vec<(f64, f64, usize)> = (0..posts)
+                .into_par_iter()
+                .map_init(
+                    || {
+                        let n = bands.len();
+                        (vec![0f32; n], vec![0f32; fit.len()], vec![0f64; n])
+                    },
+                    |(post, c, back), i| {
+                        post.iter_mut().zip(bands).for_each(|(p, b)| *p = b[i]);
+                        if post.iter().any(|v| v.is_nan()) {
+                            return (0.0, 0.0, 0);
+                        }
+                        fit.fit(post, c);
+                        fit.reconstruct(c, back);
+                        back.iter().zip(post.iter()).fold(
+                            (0.0, 0.0, bands.len()),
+                            |(sq, worst, n), (&b, &h)| {
+                                let e = (b - f64::from(h)).abs();
+                                (sq + e * e, f64::max(worst, e), n)
+                            },
+                        )
+                    },
+                )
+                .collect();
+            let n: usize = per_post.iter().map(|p| p.2).sum();
+            let sq: f64 = per_post.iter().map(|p| p.0).sum();
+            let mut worst: Vec<f64> = per_post.iter().filter(|p| p.2 > 0).map(|p| p.1).collect();
+            worst.sort_by(f64::total_cmp);
+            let p99 = worst
+                .get(((worst.len() as f64 * 0.99) as usize).min(worst.len().saturating_sub(1)))
+                .copied()
+                .unwrap_or(0.0);
+            Ok(FourierRow {
+                harmonics: k,
+                coefficients: fit.len(),
+                rms_deg: (sq / n.max(1) as f64).sqrt(),
+                p99_deg: p99,
+                max_deg: worst.last().copied().unwrap_or(0.0),
+            })
+        })
+        .collect()
+}
+
+/// The study as a Markdown table.
+pub fn fourier_table_markdown(rows: &[FourierRow], bands: usize) -> String {
+    markdown_table(
+        &[
+            "harmonics K",
+            "coefficients 2K + 1",
+            "share of the bands",
+            "RMS error (deg)",
+            "p99 of each post's largest (deg)",
+            "largest (deg)",
+        ],
+        rows.iter().map(|r| {
+            vec![
+                r.harmonics.to_string(),
+                r.coefficients.to_string(),
+                format!("{:.2}", r.coefficients as f64 / bands as f64),
+                format!("{:.3}", r.rms_deg),
+                format!("{:.3}", r.p99_deg),
+                format!("{:.2}", r.max_deg),
+            ]
+        }),
+    )
+}
+
 /// `terrabake bench-horizons`: its flags.
 #[derive(Debug, Clone, clap::Args)]
 pub struct BenchHorizonsArgs {
@@ -342,9 +435,14 @@ pub struct BenchHorizonsArgs {
         default_value = "line:16,line:64,sector:16,sector:64,sampled:16"
     )]
     pub speed: Vec<String>,
-    /// Write PREFIX_horizon.svg and PREFIX_svf.svg.
+    /// Write PREFIX_horizon.svg and PREFIX_svf.svg (with --fourier, PREFIX_fourier.svg).
     #[arg(long)]
     pub chart: Option<std::path::PathBuf>,
+    /// Instead of the study above: the asset's stored horizon layer fitted with these numbers of
+    /// Fourier harmonics (comma-separated; at most (bands - 1) / 2), the error at its band
+    /// azimuths against the coefficients kept.
+    #[arg(long, value_delimiter = ',')]
+    pub fourier: Vec<usize>,
     /// Print the rows as JSON.
     #[arg(long)]
     pub json: bool,
@@ -355,6 +453,38 @@ impl BenchHorizonsArgs {
     pub fn run(&self, say: &dyn Fn(String)) -> Result<()> {
         use anyhow::Context;
         let opened = crate::asset::open(&self.asset)?;
+        if !self.fourier.is_empty() {
+            let (bands, azimuths) = crate::horizon::read_horizons(&opened)?;
+            let rows = fourier_study(&bands, &azimuths, &self.fourier)?;
+            if self.json {
+                println!("{}", serde_json::to_string_pretty(&rows)?);
+            } else {
+                print!("{}", fourier_table_markdown(&rows, bands.len()));
+            }
+            if let Some(prefix) = &self.chart {
+                let path = std::path::PathBuf::from(format!("{}_fourier.svg", prefix.display()));
+                let series = |name: &str, f: &dyn Fn(&FourierRow) -> f64| Series {
+                    name: name.into(),
+                    points: rows.iter().map(|r| (r.coefficients as f64, f(r))).collect(),
+                };
+                log_log_svg(
+                    &path,
+                    &format!(
+                        "Horizons as Fourier coefficients ({} stored bands)",
+                        bands.len()
+                    ),
+                    "coefficients per post (2K + 1)",
+                    "error at the band azimuths (degrees)",
+                    &[
+                        series("RMS", &|r| r.rms_deg),
+                        series("p99 of each post's largest", &|r| r.p99_deg),
+                        series("largest", &|r| r.max_deg),
+                    ],
+                )?;
+                say(format!("wrote {}", path.display()));
+            }
+            return Ok(());
+        }
         let dem = crate::horizon::HeldDem::read(&opened)?;
         let runs = self
             .speed

@@ -287,6 +287,10 @@ pub struct ExportArgs {
     /// give `r.sun` the same `horizon_step`.
     #[arg(long, requires = "for_program")]
     pub step: Option<f64>,
+    /// With a .ktx2 horizon export: the horizons as 2K + 1 Fourier coefficients per post for K
+    /// harmonics (at most (bands - 1) / 2), a float array texture, instead of the bands.
+    #[arg(long, value_name = "K")]
+    pub fourier: Option<usize>,
     /// The file to write: .tif (GeoTIFF), .exr, .png (a preview) or .ktx2 (a texture for
     /// shaders: horizons as an array, cone planes as an RG texture conservative under bilinear
     /// filtering), by its extension; a directory with --for.
@@ -348,6 +352,20 @@ impl ExportArgs {
                 sidecar.layout.size.1,
                 self.output.display(),
                 sidecar.height.max_error_m
+            ));
+            return Ok(());
+        }
+        if let Some(harmonics) = self.fourier {
+            if self.layer != terrabake_format::layers::HORIZON
+                || ExportKind::from_path(&self.output)? != ExportKind::Ktx2
+            {
+                bail!("--fourier writes the horizon layer as a texture: give --layer horizon and an -o ending in .ktx2");
+            }
+            texture::write_ktx2(&self.output, &texture::fourier_texture(&asset, harmonics)?)?;
+            say(format!(
+                "wrote {} ({} coefficients per post)",
+                self.output.display(),
+                2 * harmonics + 1
             ));
             return Ok(());
         }

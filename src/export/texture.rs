@@ -303,6 +303,55 @@ pub fn conservative_cones(
     (a, m)
 }
 
+/// The horizon layer of `asset` as `2K + 1` Fourier coefficients per post
+/// ([`crate::horizon::fourier`]): an `R32_SFLOAT` array texture, layer `j`
+/// coefficient `j` (`c_0`, then `cos` and `sin` of each harmonic), NaN for
+/// nodata.
+pub fn fourier_texture(asset: &Asset<Mmap>, harmonics: usize) -> Result<Ktx2> {
+    let layer = asset.layer(terrabake_format::layers::HORIZON, 0)?;
+    let e = layer.entry();
+    let held = u64::from(e.bands).max(2 * harmonics as u64 + 1);
+    if u64::from(e.width) * u64::from(e.height) * held > 1 << 28 {
+        bail!(
+            "layer {} is {} x {} x {}: a Fourier export holds the bands and the coefficients and is limited to 2^28 values",
+            e.key(),
+            e.width,
+            e.height,
+            held
+        );
+    }
+    let (bands, azimuths) = crate::horizon::read_horizons(asset)?;
+    let fit = crate::horizon::fourier::FourierBasis::new(&azimuths, harmonics)?;
+    let (w, h) = (layer.width(), layer.height());
+    let posts = w as usize * h as usize;
+    let mut coefficients = vec![0f32; fit.len() * posts];
+    let (mut post, mut c) = (vec![0f32; bands.len()], vec![0f32; fit.len()]);
+    for i in 0..posts {
+        post.iter_mut().zip(&bands).for_each(|(p, b)| *p = b[i]);
+        fit.fit(&post, &mut c);
+        for (j, &v) in c.iter().enumerate() {
+            coefficients[j * posts + i] = v;
+        }
+    }
+    Ok(Ktx2 {
+        vk_format: VK_FORMAT_R32_SFLOAT,
+        width: w,
+        height: h,
+        layers: fit.len() as u32,
+        channels: 1,
+        bits: 32,
+        float: true,
+        kv: vec![(
+            "terrabake.fourier".into(),
+            format!(
+                "horizon (degrees) at compass azimuth a (radians) = L0 + sum over k = 1..{harmonics} of L(2k-1) cos(k a) + L(2k) sin(k a), least squares through the {} stored bands",
+                bands.len()
+            ),
+        )],
+        data: coefficients.iter().flat_map(|v| v.to_le_bytes()).collect(),
+    })
+}
+
 /// Writes `texture` to `path` (atomically).
 pub fn write_ktx2(path: &Path, texture: &Ktx2) -> Result<()> {
     let bytes = texture.to_bytes();

@@ -33,6 +33,7 @@
 //! own, and bounded `line` holds only its rows and their reach.
 
 pub mod brute;
+pub mod fourier;
 pub mod hull_tree;
 pub mod line;
 pub mod sampled;
