@@ -15,15 +15,31 @@
 // inside the cone from that point. The exported texture is dilated (each
 // texel the highest apex and least slope of its 3 x 3 cells), which makes
 // every filtered cone empty of terrain, so a leap never passes a hit.
+//
+// The shading: at the hit, the share of the sun's disc above the horizon of
+// the nearest post, from the exported horizon array (`export --layer
+// horizon -o horizons.ktx2`: 16-bit codes, degrees = offset + scale * code,
+// 0 nodata), linear between the two bands either side of the sun's azimuth,
+// the disc cut by a straight horizon (terrabake_format::horizons).
 
 struct Params {
-    cells: vec2<u32>,
+    cells_x: u32,
+    cells_y: u32,
     posts_x: u32,
     rays: u32,
     dx: f32,
     dy: f32,
     max_steps: u32,
-    _pad: u32,
+    // Horizon bands (0: no shading), the sun, and the codes' decoding.
+    bands: u32,
+    sun_azimuth: f32,
+    sun_elevation: f32,
+    sun_radius: f32,
+    horizon_offset: f32,
+    horizon_scale: f32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 };
 
 // Grid-space origin (u, v, z) and t_max; direction (du, dv, dz).
@@ -39,6 +55,8 @@ struct Hit {
     // Cells whose triangles were tested, and leaps taken.
     cells_tested: u32,
     leaps: u32,
+    // The sun's lit share at the hit, or -1 (a miss, nodata, no horizons).
+    lit: f32,
 };
 
 @group(0) @binding(0) var<uniform> P: Params;
@@ -48,6 +66,10 @@ struct Hit {
 @group(0) @binding(2) var<storage, read> cones: array<vec2<f32>>;
 @group(0) @binding(3) var<storage, read> rays: array<Ray>;
 @group(0) @binding(4) var<storage, read_write> hits: array<Hit>;
+// The horizon array's codes, band after band, one per post (widened to u32).
+@group(0) @binding(5) var<storage, read> horizon: array<u32>;
+// The bands' compass azimuths, degrees, ascending.
+@group(0) @binding(6) var<storage, read> azimuths: array<f32>;
 
 const NODATA: f32 = -1.0e38;
 const MISS: u32 = 0xffffffffu;
@@ -57,9 +79,9 @@ fn post(c: i32, r: i32) -> f32 {
 }
 
 fn texel(c: i32, r: i32) -> vec2<f32> {
-    let cc = clamp(c, 0, i32(P.cells.x) - 1);
-    let rr = clamp(r, 0, i32(P.cells.y) - 1);
-    return cones[u32(rr) * P.cells.x + u32(cc)];
+    let cc = clamp(c, 0, i32(P.cells_x) - 1);
+    let rr = clamp(r, 0, i32(P.cells_y) - 1);
+    return cones[u32(rr) * P.cells_x + u32(cc)];
 }
 
 // The filtered cone at grid point q.
@@ -136,6 +158,53 @@ fn intersect_cell(o: vec3<f32>, d: vec3<f32>, c: i32, r: i32, t0: f32, t1: f32) 
     return -1.0;
 }
 
+fn wrap360(a: f32) -> f32 {
+    return a - 360.0 * floor(a / 360.0);
+}
+
+// The horizon (degrees) of band b at post p, or a value below -1000 for nodata.
+fn horizon_deg(b: u32, p: u32) -> f32 {
+    let code = horizon[b * P.posts_x * (P.cells_y + 1u) + p];
+    if (code == 0u) {
+        return -2000.0;
+    }
+    return P.horizon_offset + P.horizon_scale * f32(code);
+}
+
+// The lit share of the sun's disc at post (x, y), or -1.
+fn lit_at(x: u32, y: u32) -> f32 {
+    let n = P.bands;
+    if (n == 0u) {
+        return -1.0;
+    }
+    let az = wrap360(P.sun_azimuth);
+    var after = 0u;
+    for (var b = 0u; b < n; b++) {
+        if (azimuths[b] <= az) {
+            after = b + 1u;
+        }
+    }
+    let i = (after + n - 1u) % n;
+    let j = after % n;
+    let span = wrap360(azimuths[j] - azimuths[i]);
+    var f = 0.0;
+    if (span != 0.0) {
+        f = wrap360(az - azimuths[i]) / span;
+    }
+    let p = y * P.posts_x + x;
+    let h0 = horizon_deg(i, p);
+    let h1 = horizon_deg(j, p);
+    if (h0 < -1000.0 || h1 < -1000.0) {
+        return -1.0;
+    }
+    let h = h0 + f * (h1 - h0);
+    if (P.sun_radius <= 0.0) {
+        return select(0.0, 1.0, P.sun_elevation > h);
+    }
+    let d = clamp((P.sun_elevation - h) / P.sun_radius, -1.0, 1.0);
+    return 1.0 - (acos(d) - d * sqrt(1.0 - d * d)) / 3.14159265358979;
+}
+
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     let k = id.x;
@@ -144,9 +213,9 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     }
     let o = rays[k].origin.xyz;
     let d = rays[k].dir.xyz;
-    var hit = Hit(0.0, MISS, 0u, 0u);
+    var hit = Hit(0.0, MISS, 0u, 0u, -1.0);
     // The stretch of the ray over the DEM (slabs).
-    let size = vec2<f32>(f32(P.cells.x), f32(P.cells.y));
+    let size = vec2<f32>(f32(P.cells_x), f32(P.cells_y));
     var ta = 0.0;
     var tb = rays[k].origin.w;
     for (var axis = 0; axis < 2; axis++) {
@@ -169,8 +238,8 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
         let p = o + t * d;
         // The cell the ray is over just after t.
         let ahead = p.xy + d.xy * 1e-4;
-        let c = clamp(i32(floor(ahead.x)), 0, i32(P.cells.x) - 1);
-        let r = clamp(i32(floor(ahead.y)), 0, i32(P.cells.y) - 1);
+        let c = clamp(i32(floor(ahead.x)), 0, i32(P.cells_x) - 1);
+        let r = clamp(i32(floor(ahead.y)), 0, i32(P.cells_y) - 1);
         // Where it leaves the cell.
         var t1 = tb;
         if (d.x > 0.0) { t1 = min(t1, (f32(c + 1) - o.x) / d.x); }
@@ -182,7 +251,12 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
         let th = intersect_cell(o, d, c, r, t, t1);
         if (th >= 0.0) {
             hit.t = th;
-            hit.cell = u32(r) * P.cells.x + u32(c);
+            hit.cell = u32(r) * P.cells_x + u32(c);
+            // Shade from the nearest post's horizon.
+            let at = o + th * d;
+            let x = u32(clamp(round(at.x), 0.0, f32(P.cells_x)));
+            let y = u32(clamp(round(at.y), 0.0, f32(P.cells_y)));
+            hit.lit = lit_at(x, y);
             break;
         }
         // Leap inside the filtered cone where the ray leaves the cell.

@@ -2,7 +2,9 @@
 //!
 //! The reference WGSL shader (`src/cone_step.wgsl`): cone stepping through
 //! the cone texture terrabake exports (`export --layer cone_slope -o
-//! cones.ktx2`), one ray per invocation, in f32, run through wgpu on
+//! cones.ktx2`) and shading each hit with the exported horizon array
+//! (`export --layer horizon -o horizons.ktx2`), one ray per invocation, in
+//! f32, run through wgpu on
 //! whatever adapter the machine has (Mesa's lavapipe, software Vulkan, where
 //! there is no GPU). Its hits are compared with the CPU parametric tracer
 //! (tests/shader.rs). It depends on the format crate alone, as a renderer
@@ -31,7 +33,10 @@ struct Params {
     dx: f32,
     dy: f32,
     max_steps: u32,
-    _pad: u32,
+    bands: u32,
+    sun: [f32; 3],
+    horizon_decode: [f32; 2],
+    _pad: [u32; 3],
 }
 
 #[repr(C)]
@@ -50,6 +55,9 @@ pub struct GpuHit {
     pub cell: u32,
     pub cells_tested: u32,
     pub leaps: u32,
+    /// The lit share of the sun's disc at the hit's nearest post, or -1
+    /// (a miss, nodata, or no horizons).
+    pub lit: f32,
 }
 
 impl GpuHit {
@@ -69,6 +77,22 @@ pub struct Scene<'a> {
     pub spacing: (f64, f64),
     /// The exported cone texture: (apex, slope) per cell.
     pub cones: &'a [[f32; 2]],
+    /// The exported horizon array and the sun to shade with, if any.
+    pub shading: Option<Shading<'a>>,
+}
+
+/// What the shader shades hits with: the exported 16-bit horizon array
+/// (`export --layer horizon -o X.ktx2`), its decoding, and the sun.
+#[derive(Debug)]
+pub struct Shading<'a> {
+    /// Codes, band after band, one per post; 0 is nodata.
+    pub codes: &'a [u16],
+    /// Degrees = `offset + scale * code`.
+    pub decode: (f64, f64),
+    /// The bands' compass azimuths, degrees, ascending.
+    pub azimuths: &'a [f64],
+    /// Compass azimuth, elevation and angular radius of the sun, degrees.
+    pub sun: [f64; 3],
 }
 
 /// A device and the compiled shader.
@@ -97,8 +121,11 @@ impl Gpu {
             let (device, queue) = adapter
                 .request_device(&wgpu::DeviceDescriptor {
                     label: Some("terrabake-gpu"),
-                    required_limits: wgpu::Limits::downlevel_defaults()
-                        .using_resolution(adapter.limits()),
+                    // WebGPU's default of 8 storage buffers (downlevel has 4).
+                    required_limits: wgpu::Limits {
+                        max_storage_buffers_per_shader_stage: 8,
+                        ..wgpu::Limits::downlevel_defaults().using_resolution(adapter.limits())
+                    },
                     ..Default::default()
                 })
                 .await
@@ -152,6 +179,7 @@ impl Gpu {
             .iter()
             .map(|&z| if z.is_nan() { NODATA } else { z })
             .collect();
+        let shading = scene.shading.as_ref();
         let params = Params {
             cells: [pw - 1, ph - 1],
             posts_x: pw,
@@ -159,8 +187,17 @@ impl Gpu {
             dx: dx as f32,
             dy: dy as f32,
             max_steps: 4 * (pw + ph) + 64,
-            _pad: 0,
+            bands: shading.map_or(0, |s| s.azimuths.len() as u32),
+            sun: shading.map_or([0.0; 3], |s| s.sun.map(|v| v as f32)),
+            horizon_decode: shading.map_or([0.0; 2], |s| [s.decode.0 as f32, s.decode.1 as f32]),
+            _pad: [0; 3],
         };
+        // Storage buffers may not be empty: one dummy element without shading.
+        let codes: Vec<u32> =
+            shading.map_or(vec![0], |s| s.codes.iter().map(|&c| u32::from(c)).collect());
+        let azimuths: Vec<f32> = shading.map_or(vec![0.0], |s| {
+            s.azimuths.iter().map(|&a| a as f32).collect()
+        });
         let d = &self.device;
         let buffer = |label, bytes: &[u8], usage| {
             d.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -178,6 +215,8 @@ impl Gpu {
         let heights_buf = buffer("heights", bytemuck::cast_slice(&heights), storage);
         let cones_buf = buffer("cones", bytemuck::cast_slice(scene.cones), storage);
         let rays_buf = buffer("rays", bytemuck::cast_slice(&gpu_rays), storage);
+        let codes_buf = buffer("horizon", bytemuck::cast_slice(&codes), storage);
+        let azimuths_buf = buffer("azimuths", bytemuck::cast_slice(&azimuths), storage);
         let size = (rays.len().max(1) * std::mem::size_of::<GpuHit>()) as u64;
         let hits_buf = d.create_buffer(&wgpu::BufferDescriptor {
             label: Some("hits"),
@@ -200,6 +239,8 @@ impl Gpu {
                 (2, &cones_buf),
                 (3, &rays_buf),
                 (4, &hits_buf),
+                (5, &codes_buf),
+                (6, &azimuths_buf),
             ]
             .map(|(binding, b)| wgpu::BindGroupEntry {
                 binding,

@@ -13,7 +13,7 @@ use terrabake::progress::Progress;
 use terrabake::recipe::{bake, Recipe};
 use terrabake_format::trace::{Method, Ray, Tracer};
 use terrabake_format::Asset;
-use terrabake_gpu::{Gpu, Scene};
+use terrabake_gpu::{Gpu, Scene, Shading};
 
 fn repo(path: &str) -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(path)
@@ -35,7 +35,9 @@ fn the_shader_finds_the_cpu_tracers_hits() {
     let recipe_path = dir.path().join("r.toml");
     let recipe = Recipe::parse(
         &recipe_path,
-        "[[stage]]\nname = \"pyramid\"\n[[stage]]\nname = \"cones\"\nslices = \"exact\"\n".into(),
+        "[[stage]]\nname = \"pyramid\"\n[[stage]]\nname = \"cones\"\nslices = \"exact\"\n\
+         [[stage]]\nname = \"horizons\"\nsectors = 16\nencoding = \"u16\"\n"
+            .into(),
     )
     .unwrap();
     bake(
@@ -71,11 +73,29 @@ fn the_shader_finds_the_cpu_tracers_hits() {
             ]
         })
         .collect();
+    // The exported horizon array (16-bit codes) and a low sun.
+    let horizons =
+        terrabake::export::texture::texture_for_layer(&asset, asset.layer("horizon", 0).unwrap())
+            .unwrap();
+    let codes: Vec<u16> = horizons
+        .data
+        .chunks(2)
+        .map(|b| u16::from_le_bytes([b[0], b[1]]))
+        .collect();
+    let map = terrabake_format::horizons::HorizonMap::open(&asset).unwrap();
+    let q = map.encoding().quantization().unwrap();
+    let sun = [250.0, 3.0, 0.27];
     let scene = Scene {
         heights: &heights,
         posts: (pw, ph),
         spacing: (m.cell_size.dx, m.cell_size.dy),
         cones: &cones,
+        shading: Some(Shading {
+            codes: &codes,
+            decode: (q.offset, q.scale),
+            azimuths: map.azimuths(),
+            sun,
+        }),
     };
     // Rays from above the terrain at random places, in every direction,
     // down at random angles from 0.1 to 30 degrees below the horizontal,
@@ -109,6 +129,7 @@ fn the_shader_finds_the_cpu_tracers_hits() {
     let cells_x = pw - 1;
     let (mut same_cell, mut near_cell, mut both_miss) = (0, 0, 0);
     let mut worst_t = 0f64;
+    let (mut worst_lit, mut shaded, mut partial, mut dark) = (0f64, 0, 0, 0);
     let (mut steps_gpu, mut steps_cpu) = (0u64, 0u64);
     for (ray, g) in rays.iter().zip(&got) {
         let (cpu, cost) = tracer.trace(ray, Method::Parametric).unwrap();
@@ -134,10 +155,43 @@ fn the_shader_finds_the_cpu_tracers_hits() {
                 } else {
                     near_cell += 1;
                 }
+                // The shading, at the post nearest the GPU's hit, against
+                // the Rust reader's lit fraction there.
+                let post =
+                    |v: f64, last: u32| v.round_ties_even().clamp(0.0, f64::from(last)) as u32;
+                let g_point = [
+                    ray.origin[0] / m.cell_size.dx + f64::from(g.t) * ray.dir[0] / m.cell_size.dx,
+                    f64::from(ph - 1)
+                        - (ray.origin[1] + f64::from(g.t) * ray.dir[1]) / m.cell_size.dy,
+                ];
+                let (x, y) = (post(g_point[0], pw - 1), post(g_point[1], ph - 1));
+                let want = map.lit_fraction(x, y, sun[0], sun[1], sun[2]).unwrap();
+                match want {
+                    None => assert_eq!(g.lit, -1.0, "nodata post ({x}, {y})"),
+                    Some(w) => {
+                        let dl = (f64::from(g.lit) - w).abs();
+                        worst_lit = worst_lit.max(dl);
+                        assert!(
+                            dl < 2e-3,
+                            "ray {ray:?}: GPU lit {} against {w} at ({x}, {y})",
+                            g.lit
+                        );
+                        shaded += 1;
+                        if w > 0.0 && w < 1.0 {
+                            partial += 1;
+                        }
+                        if w == 0.0 {
+                            dark += 1;
+                        }
+                    }
+                }
             }
             (cpu, gpu_cell) => panic!("ray {ray:?}: CPU {cpu:?}, GPU {gpu_cell:?} ({g:?})"),
         }
     }
+    eprintln!(
+        "shading: {shaded} hits shaded, {dark} in shadow, {partial} under a partly hidden sun, largest difference from the Rust reader {worst_lit:.1e}"
+    );
     eprintln!(
         "{} rays: {same_cell} hits in the same cell, {near_cell} in a neighbouring one (a shared edge), {both_miss} misses by both; worst relative t difference {worst_t:.2e}; cells tested per ray: GPU {:.1}, CPU steps {:.1}",
         rays.len(),
@@ -145,4 +199,8 @@ fn the_shader_finds_the_cpu_tracers_hits() {
         steps_cpu as f64 / rays.len() as f64
     );
     assert!(same_cell > 9 * (same_cell + near_cell) / 10);
+    assert!(
+        dark > 100 && shaded - dark > 100,
+        "the sun lights some hits and not others"
+    );
 }
