@@ -330,44 +330,10 @@ impl ExportArgs {
             return Ok(());
         }
         if let Some(program) = self.for_program {
-            let engine = match program {
-                ExportFor::Unreal => engine::Engine::Unreal,
-                ExportFor::Unity => engine::Engine::Unity,
-                ExportFor::Godot => engine::Engine::Godot,
-                ExportFor::Grass => unreachable!("handled above"),
-            };
-            if self.layer != terrabake_format::HEIGHT_LAYER || self.level != 0 {
-                bail!(
-                    "--for {} exports the height layer at level 0: drop --layer {} --level {}",
-                    engine.name(),
-                    self.layer,
-                    self.level
-                );
-            }
-            let sidecar = engine::export_heightmap(&asset, engine, &self.output, None, progress)?;
-            say(format!(
-                "wrote {} file(s) of {} x {} posts and heightmap.json to {} (heights within {:.3} m)",
-                sidecar.files.len(),
-                sidecar.layout.size.0,
-                sidecar.layout.size.1,
-                self.output.display(),
-                sidecar.height.max_error_m
-            ));
-            return Ok(());
+            return self.run_for_engine(&asset, program, progress, say);
         }
         if let Some(harmonics) = self.fourier {
-            if self.layer != terrabake_format::layers::HORIZON
-                || ExportKind::from_path(&self.output)? != ExportKind::Ktx2
-            {
-                bail!("--fourier writes the horizon layer as a texture: give --layer horizon and an -o ending in .ktx2");
-            }
-            texture::write_ktx2(&self.output, &texture::fourier_texture(&asset, harmonics)?)?;
-            say(format!(
-                "wrote {} ({} coefficients per post)",
-                self.output.display(),
-                2 * harmonics + 1
-            ));
-            return Ok(());
+            return self.run_fourier(&asset, harmonics, say);
         }
         let layer = asset.layer(&self.layer, self.level)?;
         export_layer(
@@ -380,6 +346,63 @@ impl ExportArgs {
             progress,
         )?;
         say(format!("wrote {}", self.output.display()));
+        Ok(())
+    }
+}
+
+impl ExportArgs {
+    /// `--for unreal|unity|godot`: the heights as the engine imports them.
+    fn run_for_engine(
+        &self,
+        asset: &Asset<Mmap>,
+        program: ExportFor,
+        progress: Progress,
+        say: &dyn Fn(String),
+    ) -> Result<()> {
+        let engine = match program {
+            ExportFor::Unreal => engine::Engine::Unreal,
+            ExportFor::Unity => engine::Engine::Unity,
+            ExportFor::Godot => engine::Engine::Godot,
+            ExportFor::Grass => unreachable!("run handles grass"),
+        };
+        if self.layer != terrabake_format::HEIGHT_LAYER || self.level != 0 {
+            bail!(
+                "--for {} exports the height layer at level 0: drop --layer {} --level {}",
+                engine.name(),
+                self.layer,
+                self.level
+            );
+        }
+        let sidecar = engine::export_heightmap(asset, engine, &self.output, None, progress)?;
+        say(format!(
+            "wrote {} file(s) of {} x {} posts and heightmap.json to {} (heights within {:.3} m)",
+            sidecar.files.len(),
+            sidecar.layout.size.0,
+            sidecar.layout.size.1,
+            self.output.display(),
+            sidecar.height.max_error_m
+        ));
+        Ok(())
+    }
+
+    /// `--fourier K`: the horizons as Fourier coefficients, a KTX2 texture.
+    fn run_fourier(
+        &self,
+        asset: &Asset<Mmap>,
+        harmonics: usize,
+        say: &dyn Fn(String),
+    ) -> Result<()> {
+        if self.layer != terrabake_format::layers::HORIZON
+            || ExportKind::from_path(&self.output)? != ExportKind::Ktx2
+        {
+            bail!("--fourier writes the horizon layer as a texture: give --layer horizon and an -o ending in .ktx2");
+        }
+        texture::write_ktx2(&self.output, &texture::fourier_texture(asset, harmonics)?)?;
+        say(format!(
+            "wrote {} ({} coefficients per post)",
+            self.output.display(),
+            2 * harmonics + 1
+        ));
         Ok(())
     }
 }
