@@ -247,7 +247,10 @@ pub fn export_heightmap(
     std::fs::create_dir_all(dir)
         .with_context(|| format!("{}: cannot create the directory", dir.display()))?;
     let (dx, dy) = (m.cell_size.dx, m.cell_size.dy);
-    let rows_total = u64::from(layout.tiles.0) * u64::from(layout.tiles.1) * u64::from(layout.tile);
+    let rows_total: u64 = (0..layout.tiles.1)
+        .flat_map(|j| (0..layout.tiles.0).map(move |i| (i, j)))
+        .map(|t| u64::from(layout.window(t)[3]))
+        .sum();
     let bar = progress.bar(rows_total, "export", "rows");
     let mut files = Vec::new();
     for j in 0..layout.tiles.1 {
