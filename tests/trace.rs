@@ -451,10 +451,21 @@ mod random_terrains {
                 }
                 let ray = Ray { origin: o, dir: d, t_min: 0.0, t_max: f64::INFINITY };
                 let (want, _) = tracer.trace(&ray, Method::BruteForce).unwrap();
+                let mut cost = Vec::new();
                 for m in [Method::Incremental, Method::Runs, Method::Hierarchical, Method::Parametric] {
-                    let (got, _) = tracer.trace(&ray, m).unwrap();
+                    let (got, c) = tracer.trace(&ray, m).unwrap();
                     prop_assert!(same_hit(&tracer, &ray, &got, &want), "{}: {ray:?}\n got {got:?}\nwant {want:?}", m.name());
+                    cost.push(c);
                 }
+                // Leaps only skip cells: the parametric walk takes no more
+                // steps than the incremental one, but for the cell each
+                // leap lands in, which the walk may have entered before.
+                let (inc, par) = (cost[0], cost[3]);
+                prop_assert!(
+                    par.steps <= inc.steps + par.leaps,
+                    "{ray:?}: parametric {} steps ({} leaps) against incremental {}",
+                    par.steps, par.leaps, inc.steps
+                );
             }
         }
     }

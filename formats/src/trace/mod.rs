@@ -85,6 +85,9 @@ pub struct Counters {
     pub steps: u64,
     /// Pyramid nodes descended into (hierarchical).
     pub nodes_pushed: u64,
+    /// Leaps through empty cones (parametric): each restarts the cell walk
+    /// where the leap lands.
+    pub leaps: u64,
 }
 
 impl std::ops::AddAssign for Counters {
@@ -92,6 +95,7 @@ impl std::ops::AddAssign for Counters {
         self.cells += o.cells;
         self.steps += o.steps;
         self.nodes_pushed += o.nodes_pushed;
+        self.leaps += o.leaps;
     }
 }
 
@@ -625,6 +629,7 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
             );
             match leap {
                 Some(t) if t <= tb && st.err.is_none() => {
+                    st.counters.leaps += 1;
                     t_start = t;
                     leaping = st.counters.steps <= budget;
                 }
