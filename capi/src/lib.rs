@@ -540,23 +540,7 @@ pub unsafe extern "C" fn tb_tile(
             )
         };
         let l = asset.layer(layer)?;
-        if band >= l.bands() || tx >= l.tiles_x() || ty >= l.tiles_y() {
-            return Err(Failure::new(
-                TbStatus::TbOutOfRange,
-                format!(
-                    "{}: layer {}: tile ({tx}, {ty}) band {band} out of range ({} x {} tiles, {} bands)",
-                    asset.asset.dir().display(),
-                    l.entry().key(),
-                    l.tiles_x(),
-                    l.tiles_y(),
-                    l.bands()
-                ),
-            ));
-        }
-        let chunk = (u64::from(band) * u64::from(l.tiles_y()) + u64::from(ty))
-            * u64::from(l.tiles_x())
-            + u64::from(tx);
-        let stored = l.stored_chunk(chunk)?;
+        let stored = l.stored_tile(band, tx, ty)?;
         if stored.codec != terrabake_format::Codec::Raw {
             return Err(Failure::new(
                 TbStatus::TbWrongType,
@@ -609,17 +593,6 @@ pub unsafe extern "C" fn tb_read_window(
         // SAFETY: the caller's promise: out_len writable floats.
         let values = unsafe { std::slice::from_raw_parts_mut(out, out_len) };
         let l = asset.layer(layer)?;
-        if band >= l.bands() {
-            return Err(Failure::new(
-                TbStatus::TbOutOfRange,
-                format!(
-                    "{}: layer {}: band {band} out of range ({} bands)",
-                    asset.asset.dir().display(),
-                    l.entry().key(),
-                    l.bands()
-                ),
-            ));
-        }
         let w = window;
         l.read_window_f32(band, [w.x0, w.y0, w.width, w.height], values)?;
         Ok(())
@@ -639,12 +612,8 @@ pub unsafe extern "C" fn tb_height_bilinear(
     gy: f64,
     z: *mut f32,
 ) -> TbStatus {
-    guard(|| {
-        // SAFETY: the caller's promise.
-        let (asset, z) = unsafe { (arg(asset, "asset")?, out(z, "z")?) };
-        *z = asset.asset.height()?.bilinear(gx, gy)?.unwrap_or(f32::NAN);
-        Ok(())
-    })
+    // SAFETY: the caller's promise, passed on.
+    unsafe { height_into(asset, z, |a| a.height()?.bilinear(gx, gy)) }
 }
 
 /// The height at CRS coordinates `(x, y)` of the asset's georeferencing,
@@ -660,10 +629,23 @@ pub unsafe extern "C" fn tb_height_at_world(
     y: f64,
     z: *mut f32,
 ) -> TbStatus {
+    // SAFETY: the caller's promise, passed on.
+    unsafe { height_into(asset, z, |a| a.height_at_world(x, y)) }
+}
+
+/// `*z` from `height` (NaN where it gives none): the two height lookups.
+///
+/// # Safety
+/// `asset` is NULL or open; `z` is NULL or writable.
+unsafe fn height_into(
+    asset: *const TbAsset,
+    z: *mut f32,
+    height: impl FnOnce(&Asset<Mmap>) -> Result<Option<f32>, Error>,
+) -> TbStatus {
     guard(|| {
         // SAFETY: the caller's promise.
         let (asset, z) = unsafe { (arg(asset, "asset")?, out(z, "z")?) };
-        *z = asset.asset.height_at_world(x, y)?.unwrap_or(f32::NAN);
+        *z = height(&asset.asset)?.unwrap_or(f32::NAN);
         Ok(())
     })
 }

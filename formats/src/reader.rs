@@ -369,6 +369,13 @@ impl<D: AsRef<[u8]>> Layer<D> {
         Ok((stored, entry))
     }
 
+    /// Tile `(tx, ty)` of `band` as it is stored ([`Self::stored_chunk`]),
+    /// with the band and tile checked against the layer: what a C caller
+    /// borrows (terrabake-capi's `tb_tile`).
+    pub fn stored_tile(&self, band: u32, tx: u32, ty: u32) -> Result<StoredChunk<'_>> {
+        self.stored_chunk(self.chunk_of(band, tx, ty)?)
+    }
+
     /// Chunk number `chunk` (`(band * tiles_y + ty) * tiles_x + tx`) as it
     /// is stored, checksummed but not decoded: what the join of a
     /// partitioned bake copies into the assembled layer

@@ -14,7 +14,7 @@
 //! traces a batch of rays and reads the hits back.
 
 use bytemuck::{Pod, Zeroable};
-use terrabake_format::trace::Ray;
+use terrabake_format::trace::{grid_ray, Ray};
 use wgpu::util::DeviceExt;
 
 /// The shader's source.
@@ -156,22 +156,15 @@ impl Gpu {
     pub fn trace(&self, scene: &Scene, rays: &[Ray]) -> Vec<GpuHit> {
         let (pw, ph) = scene.posts;
         let (dx, dy) = scene.spacing;
-        let top = f64::from(ph - 1);
         let gpu_rays: Vec<GpuRay> = rays
             .iter()
-            .map(|r| GpuRay {
-                origin: [
-                    (r.origin[0] / dx) as f32,
-                    (top - r.origin[1] / dy) as f32,
-                    r.origin[2] as f32,
-                    r.t_max.min(f64::from(f32::MAX)) as f32,
-                ],
-                dir: [
-                    (r.dir[0] / dx) as f32,
-                    (-r.dir[1] / dy) as f32,
-                    r.dir[2] as f32,
-                    0.0,
-                ],
+            .map(|r| {
+                let g = grid_ray(r, scene.spacing, ph);
+                let [o, d] = [g.origin, g.dir].map(|v| v.map(|x| x as f32));
+                GpuRay {
+                    origin: [o[0], o[1], o[2], r.t_max.min(f64::from(f32::MAX)) as f32],
+                    dir: [d[0], d[1], d[2], 0.0],
+                }
             })
             .collect();
         let heights: Vec<f32> = scene

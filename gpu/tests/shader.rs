@@ -159,11 +159,7 @@ fn the_shader_finds_the_cpu_tracers_hits() {
                 // the Rust reader's lit fraction there.
                 let post =
                     |v: f64, last: u32| v.round_ties_even().clamp(0.0, f64::from(last)) as u32;
-                let g_point = [
-                    ray.origin[0] / m.cell_size.dx + f64::from(g.t) * ray.dir[0] / m.cell_size.dx,
-                    f64::from(ph - 1)
-                        - (ray.origin[1] + f64::from(g.t) * ray.dir[1]) / m.cell_size.dy,
-                ];
+                let g_point = tracer.grid_ray(ray).at(f64::from(g.t));
                 let (x, y) = (post(g_point[0], pw - 1), post(g_point[1], ph - 1));
                 let want = map.lit_fraction(x, y, sun[0], sun[1], sun[2]).unwrap();
                 match want {

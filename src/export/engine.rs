@@ -357,20 +357,23 @@ pub fn export_heightmap(
 }
 
 /// The heights of `window` of the padded grid, north first: posts past the
-/// DEM repeat its edge posts, nodata becomes `fill`.
+/// DEM repeat its edge posts, nodata becomes `fill`. Only the window's own
+/// columns of the DEM are read (tiles side by side share no reads).
 fn padded_window(height: &Layer<Mmap>, [x0, y0, w, h]: [u32; 4], fill: f32) -> Result<Vec<f32>> {
     let (dw, dh) = (height.width(), height.height());
+    // The DEM's columns under the window (the last one when it lies past
+    // the east edge).
+    let c0 = x0.min(dw - 1);
+    let c1 = (x0 + w).min(dw).max(c0 + 1);
     let mut out = Vec::with_capacity(w as usize * h as usize);
-    let mut row = vec![0f32; dw as usize];
-    let mut last = None;
+    let mut row = vec![0f32; (c1 - c0) as usize];
     for y in y0..y0 + h {
-        let sy = y.min(dh - 1);
-        if last != Some(sy) {
-            height.read_rows_f32(0, sy, &mut row)?;
-            last = Some(sy);
+        // Rows past the south edge repeat the last: read it once.
+        if y < dh || y == y0 {
+            height.read_window_f32(0, [c0, y.min(dh - 1), c1 - c0, 1], &mut row)?;
         }
         out.extend((x0..x0 + w).map(|x| {
-            let z = row[x.min(dw - 1) as usize];
+            let z = row[(x.clamp(c0, c1 - 1) - c0) as usize];
             if z.is_nan() {
                 fill
             } else {

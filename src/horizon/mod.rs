@@ -52,6 +52,7 @@ use terrabake_format::layers::HORIZON_DISTANCE;
 use terrabake_format::manifest::CrsKind;
 use terrabake_format::{Asset, Codec, LayerEntry, LayerSpec, LayerWriter, Mmap};
 
+use self::steepest::Tag;
 use crate::progress::Progress;
 use crate::stage::{Share, Split, Stage};
 use crate::tiling::encode_tile_row;
@@ -243,35 +244,27 @@ pub fn band_horizons_into(
                     (terrain.dx, terrain.dy),
                     terrain.row_scale,
                 );
-                let walk = |i, out: &mut [f32], distances: Option<&mut [f32]>| {
-                    let row = terrain.row0 + i;
-                    if rows.contains(&row) {
-                        bounded_line_row(
-                            terrain,
-                            (&stencil, &lengths),
-                            max,
-                            (row, &cols),
-                            out,
-                            distances,
-                        );
-                    } else {
-                        out.fill(f32::NAN);
-                        if let Some(d) = distances {
-                            d.fill(f32::NAN);
-                        }
-                    }
-                };
-                let w = terrain.width;
+                let (w, line) = (terrain.width, (&stencil, &lengths[..]));
+                let area = (&rows, &cols);
                 match distances {
                     Some(d) => out
                         .par_chunks_mut(w)
                         .zip(d.par_chunks_mut(w))
                         .enumerate()
-                        .for_each(|(i, (out, d))| walk(i, out, Some(d))),
-                    None => out
-                        .par_chunks_mut(w)
-                        .enumerate()
-                        .for_each(|(i, out)| walk(i, out, None)),
+                        .for_each(|(i, (out, d))| {
+                            bounded_line_row::<Option<f64>>(
+                                terrain,
+                                line,
+                                max,
+                                i,
+                                area,
+                                out,
+                                Some(d),
+                            )
+                        }),
+                    None => out.par_chunks_mut(w).enumerate().for_each(|(i, out)| {
+                        bounded_line_row::<()>(terrain, line, max, i, area, out, None)
+                    }),
                 }
                 0
             }
@@ -313,52 +306,35 @@ pub fn band_horizons_into(
     }
 }
 
-/// Bounded line horizons of row `row`'s posts in `cols` into `out` (the
-/// row; NaN outside `cols`), and their distances where asked: the walk
-/// keeps a distance only then.
-fn bounded_line_row(
+/// Bounded line horizons of the window's row `i` into `out`, for the posts
+/// in `rows` x `cols` (NaN elsewhere), and their distances where asked:
+/// the walk keeps `T` of each post's steepest point (`()` without
+/// distances).
+fn bounded_line_row<T: Tag<f64>>(
     terrain: &Terrain,
     (stencil, lengths): (&line::Stencil, &[f64]),
     max_distance: f64,
-    (row, cols): (usize, &std::ops::Range<usize>),
+    i: usize,
+    (rows, cols): (&std::ops::Range<usize>, &std::ops::Range<usize>),
     out: &mut [f32],
-    distances: Option<&mut [f32]>,
+    mut distances: Option<&mut [f32]>,
 ) {
-    let post = |col: usize| (col as i64, row as i64);
-    match distances {
-        None => {
-            for (col, v) in out.iter_mut().enumerate() {
-                *v = match cols.contains(&col) {
-                    true => {
-                        line::line_horizon_within::<()>(
-                            terrain,
-                            stencil,
-                            lengths,
-                            post(col),
-                            max_distance,
-                        )
-                        .0
-                    }
-                    false => f32::NAN,
-                };
-            }
-        }
-        Some(distances) => {
-            for (col, (v, d)) in out.iter_mut().zip(distances).enumerate() {
-                (*v, *d) = match cols.contains(&col) {
-                    true => {
-                        let (angle, metres) = line::line_horizon_within::<Option<f64>>(
-                            terrain,
-                            stencil,
-                            lengths,
-                            post(col),
-                            max_distance,
-                        );
-                        (angle, metres.map_or(f32::NAN, |m| m as f32))
-                    }
-                    false => (f32::NAN, f32::NAN),
-                };
-            }
+    let row = terrain.row0 + i;
+    for (col, v) in out.iter_mut().enumerate() {
+        let (angle, steepest) = if rows.contains(&row) && cols.contains(&col) {
+            line::line_horizon_within::<T>(
+                terrain,
+                stencil,
+                lengths,
+                (col as i64, row as i64),
+                max_distance,
+            )
+        } else {
+            (f32::NAN, T::default())
+        };
+        *v = angle;
+        if let Some(d) = distances.as_deref_mut() {
+            d[col] = steepest::metres(steepest);
         }
     }
 }

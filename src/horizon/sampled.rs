@@ -5,6 +5,7 @@
 //! post, and it misses what falls between samples (a narrow spike off the
 //! line). Kept for comparison only.
 
+use super::steepest::{metres, Steepest, Tag};
 use super::terrain::{compass, Terrain};
 
 /// Sampled horizons in direction `azimuth` (compass degrees) at every post,
@@ -16,11 +17,26 @@ pub fn sampled_horizons(
     azimuth: f64,
     max_distance: f64,
     out: &mut [f32],
+    distances: Option<&mut [f32]>,
+) {
+    assert!(distances.as_ref().is_none_or(|d| d.len() == out.len()));
+    match distances {
+        None => sample::<()>(terrain, azimuth, max_distance, out, None),
+        Some(d) => sample::<Option<f64>>(terrain, azimuth, max_distance, out, Some(d)),
+    }
+}
+
+/// [`sampled_horizons`], keeping `T` of each post's steepest sample (its
+/// distance, or nothing).
+fn sample<T: Tag<f64>>(
+    terrain: &Terrain,
+    azimuth: f64,
+    max_distance: f64,
+    out: &mut [f32],
     mut distances: Option<&mut [f32]>,
 ) {
     let (w, h) = (terrain.width, terrain.height);
     assert_eq!(out.len(), w * h);
-    assert!(distances.as_ref().is_none_or(|d| d.len() == out.len()));
     let (e, n) = compass(azimuth);
     let step = terrain.dx.min(terrain.dy);
     // Per sample: rows south, and east in units of the centre row's `dx`
@@ -44,7 +60,7 @@ pub fn sampled_horizons(
                 continue;
             }
             let east = terrain.key_position(col, row).0;
-            let (mut best, mut at) = (f64::NEG_INFINITY, f64::NAN);
+            let mut best = Steepest::<T>::default();
             let mut k = 1.0;
             loop {
                 let d = k * step;
@@ -57,19 +73,17 @@ pub fn sampled_horizons(
                     break;
                 }
                 let zq = terrain.at(qc as usize, qr as usize);
-                let slope = (f64::from(zq) - c * d * d - f64::from(zp)) / d;
-                if slope > best {
-                    (best, at) = (slope, d);
-                }
+                // A nodata sample's slope is NaN, which `take` passes over.
+                best.take((f64::from(zq) - c * d * d - f64::from(zp)) / d, T::of(d));
                 k += 1.0;
             }
-            out[row * w + col] = if best == f64::NEG_INFINITY {
-                -90.0
+            out[row * w + col] = if best.found() {
+                best.slope.atan().to_degrees() as f32
             } else {
-                best.atan().to_degrees() as f32
+                -90.0
             };
             if let Some(d) = distances.as_deref_mut() {
-                d[row * w + col] = at as f32;
+                d[row * w + col] = metres(best.tag);
             }
         }
     }

@@ -644,7 +644,7 @@ fn scan<T: Tag<f64>>(
         }
         *v = elevation_deg(best.slope, c, tp);
         if let Some(d) = distance {
-            *d = best.tag.get().map_or(f32::NAN, |d| d as f32);
+            *d = super::steepest::metres(best.tag);
         }
     }
     stats

@@ -87,3 +87,8 @@ impl<T: Copy + Default> Steepest<T> {
         self.slope > f64::NEG_INFINITY
     }
 }
+
+/// A kept distance as the layer stores it: metres, NaN where none was kept.
+pub fn metres<T: Tag<f64>>(tag: T) -> f32 {
+    tag.get().map_or(f32::NAN, |d| d as f32)
+}

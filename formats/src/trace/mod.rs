@@ -140,6 +140,18 @@ impl std::str::FromStr for Method {
     }
 }
 
+/// `ray` (local metres) in grid space for a DEM `rows` posts tall with posts
+/// `dx x dy` metres apart: u east in cells from the west edge, v south in
+/// rows from the north edge, z in metres; the same `t`. Shaders take their
+/// rays in this frame (terrabake-gpu).
+pub fn grid_ray(ray: &Ray, (dx, dy): (f64, f64), rows: u32) -> GridRay {
+    let top = f64::from(rows - 1);
+    GridRay {
+        origin: [ray.origin[0] / dx, top - ray.origin[1] / dy, ray.origin[2]],
+        dir: [ray.dir[0] / dx, -ray.dir[1] / dy, ray.dir[2]],
+    }
+}
+
 /// A tracer over an opened asset. Cheap to create; `Sync`, so one tracer
 /// serves every render thread.
 pub struct Tracer<'a, D> {
@@ -400,17 +412,9 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
         )
     }
 
-    /// The ray in grid space.
+    /// The ray in grid space ([`grid_ray`]).
     pub fn grid_ray(&self, ray: &Ray) -> GridRay {
-        let top = f64::from(self.posts.1 - 1);
-        GridRay {
-            origin: [
-                ray.origin[0] / self.dx,
-                top - ray.origin[1] / self.dy,
-                ray.origin[2],
-            ],
-            dir: [ray.dir[0] / self.dx, -ray.dir[1] / self.dy, ray.dir[2]],
-        }
+        grid_ray(ray, (self.dx, self.dy), self.posts.1)
     }
 
     /// The parameter range in which the ray is over the DEM, or `None`.
