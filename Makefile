@@ -5,7 +5,7 @@ BIN := target/release/terrabake
 DEMO_DEM := data/srtm3_n07w006_geographic_int16.tif
 OUT ?= out
 
-.PHONY: all build demo test test-full capi capi-header test-page bake-parts bake-slurm test-slurm fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-visibility bench-plan bench-cog bench-reader fixtures fmt lint clean
+.PHONY: all build demo test test-full capi capi-header test-page bake-parts bake-slurm test-slurm fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-visibility bench-plan bench-cog bench-peers bench-reader fixtures fmt lint clean
 
 all: build
 
@@ -130,8 +130,8 @@ bench-ingest-ooc: build
 bench-trace: build
 	BIN=$(BIN) bash pipelines/bench_trace.sh
 
-## Horizons: speed and the accuracy chart on the SRTM tile, time and
-## memory against DEM size (docs/charts/horizons_*.svg).
+## Horizons: speed and accuracy on the SRTM tile, time and memory against
+## DEM size, the Fourier chart (docs/charts/horizons_fourier.svg).
 bench-horizons: build
 	BIN=$(BIN) bash pipelines/bench_horizons.sh
 
@@ -161,6 +161,14 @@ bench-cones: build
 bench-plan: build
 	BIN=$(BIN) bash pipelines/bench_plan.sh
 	BIN=$(BIN) bash pipelines/fit_plan_models.sh
+
+## The peers beside us: HORAYZON, WhiteboxTools, topocalc, RVT, SurtGIS,
+## GRASS r.horizon and SAGA installed (Debian packages, a venv from PyPI)
+## and run on the same DEM, directions and radius as terrabake; their error
+## against our exact reference, time and peak memory (docs/BENCHMARKS.md),
+## and their points on docs/charts/horizons_*.svg.
+bench-peers: build
+	BIN=$(BIN) bash pipelines/peers/bench_peers.sh
 
 ## COG export: a 1 GiB height layer inside a 256 MiB memory cgroup,
 ## deflate/zstd/none, beside GDAL's COG driver (and OLD=binary alternating).

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Horizons (docs/BENCHMARKS.md): speed on the bundled SRTM tile and the
-# accuracy chart (bench-horizons), then time and peak memory of the whole
+# Horizons (docs/BENCHMARKS.md): speed and accuracy on the bundled SRTM tile
+# (bench-horizons), the Fourier chart, then time and peak memory of the whole
 # stage against DEM size and sector count on fractal DEMs.
 # Usage: bash pipelines/bench_horizons.sh [WORK=/tmp/terrabake-horizons]
 set -euo pipefail
@@ -8,7 +8,9 @@ BIN=${BIN:-target/release/terrabake}
 WORK=${WORK:-/tmp/terrabake-horizons}
 mkdir -p "$WORK"
 "$BIN" ingest data/srtm3_n07w006_geographic_int16.tif -o "$WORK/srtm.tbake" -q
-"$BIN" bench-horizons "$WORK/srtm.tbake" --chart docs/charts/horizons
+# (The horizon and svf charts are make bench-peers's: the same study on the
+# UTM tile with every peer beside our methods.)
+"$BIN" bench-horizons "$WORK/srtm.tbake"
 echo
 # The demo's 32 line bands as Fourier coefficients: error against kept coefficients.
 "$BIN" bake data/srtm3_n07w006_geographic_int16.tif -o "$WORK/demo.tbake" --recipe pipelines/demo.toml -q

@@ -74,8 +74,22 @@ pub fn log_log_svg(
     y_label: &str,
     series: &[Series],
 ) -> Result<()> {
+    log_log_svg_with_marks(path, title, x_label, y_label, series, &[])
+}
+
+/// [`log_log_svg`] with `marks` besides: series drawn as triangles without
+/// lines (other tools' results, one point each or a few).
+pub fn log_log_svg_with_marks(
+    path: &Path,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    series: &[Series],
+    marks: &[Series],
+) -> Result<()> {
     let all: Vec<(f64, f64)> = series
         .iter()
+        .chain(marks)
         .flat_map(|s| s.points.iter().copied())
         .filter(|p| p.0 > 0.0 && p.1 > 0.0)
         .collect();
@@ -126,6 +140,10 @@ pub fn log_log_svg(
             RGBColor(0x8c, 0x56, 0x4b),
             RGBColor(0xe3, 0x77, 0xc2),
             RGBColor(0x17, 0xbe, 0xcf),
+            RGBColor(0xbc, 0xbd, 0x22),
+            RGBColor(0x7f, 0x7f, 0x7f),
+            RGBColor(0x39, 0x3b, 0x79),
+            RGBColor(0xad, 0x49, 0x4a),
         ];
         for (i, s) in series.iter().enumerate() {
             let colour = palette[i % palette.len()];
@@ -142,6 +160,18 @@ pub fn log_log_svg(
             chart
                 .draw_series(s.points.iter().map(|&p| Circle::new(p, 3, colour.filled())))
                 .map_err(|e| err(&e))?;
+        }
+        for (i, s) in marks.iter().enumerate() {
+            let colour = palette[(series.len() + i) % palette.len()];
+            chart
+                .draw_series(
+                    s.points
+                        .iter()
+                        .map(|&p| TriangleMarker::new(p, 7, colour.filled())),
+                )
+                .map_err(|e| err(&e))?
+                .label(s.name.as_str())
+                .legend(move |(x, y)| TriangleMarker::new((x + 10, y), 6, colour.filled()));
         }
         chart
             .configure_series_labels()

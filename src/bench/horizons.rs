@@ -19,9 +19,10 @@ use rayon::prelude::*;
 use serde::Serialize;
 use terrabake_format::horizons::bands_around;
 
-use super::chart::{log_log_svg, Series};
+use super::chart::{log_log_svg, log_log_svg_with_marks, Series};
 use super::markdown_table;
-use crate::horizon::sky::{svf_of_horizons, BandIntegrals};
+use super::peers::{LoadedPeer, PeerManifest, PeerRow, SvfDefinition};
+use crate::horizon::sky::{svf_of_horizons, BandIntegrals, SkySums};
 use crate::horizon::terrain::Terrain;
 use crate::horizon::{band_horizons, plan_bands, Band, BandKind, BandOptions, Method};
 
@@ -99,13 +100,15 @@ fn integrals(bands: &[Band]) -> Vec<BandIntegrals> {
 }
 
 /// The reference on `terrain`: its bands and values, the posts the errors
-/// are taken at (the central half) and its sky-view factor there.
+/// are taken at (the central half) and its sky-view factor there in both
+/// definitions (Zakšek's over the horizontal; the slope-aware cosine one).
 #[derive(Debug)]
 pub struct Reference {
-    bands: Vec<Band>,
-    values: Vec<Vec<f32>>,
-    posts: Vec<usize>,
-    svf: Vec<f64>,
+    pub(super) bands: Vec<Band>,
+    pub(super) values: Vec<Vec<f32>>,
+    pub(super) posts: Vec<usize>,
+    pub(super) svf: Vec<f64>,
+    pub(super) svf_cosine: Vec<f64>,
     pub seconds: f64,
 }
 
@@ -119,18 +122,67 @@ impl Reference {
             .filter(|&i| !terrain.z[i].is_nan())
             .collect();
         let integrals = integrals(&bands);
-        let svf = posts
+        let sums: Vec<SkySums> = posts
             .iter()
-            .map(|&p| svf_of(&integrals, &values, p))
+            .map(|&p| {
+                let normal = terrain.normal(p % w, p / w).expect("a post with a height");
+                let mut sums = SkySums::default();
+                for (band, v) in integrals.iter().zip(&values) {
+                    let h = f64::from(v[p]);
+                    sums.add(h, h.to_radians().sin_cos(), band, normal);
+                }
+                sums
+            })
             .collect();
         Self {
             bands,
             values,
             posts,
-            svf,
+            svf: sums.iter().map(SkySums::svf).collect(),
+            svf_cosine: sums.iter().map(SkySums::svf_cosine).collect(),
             seconds,
         }
     }
+
+    /// RMS and mean of `estimate(post, azimuth) - reference` over every
+    /// reference azimuth and post, degrees.
+    pub(super) fn horizon_errors(&self, estimate: impl Fn(usize, f64) -> f64) -> (f64, f64) {
+        let (mut sq, mut sum, mut n) = (0.0, 0.0, 0usize);
+        for (rb, rv) in self.bands.iter().zip(&self.values) {
+            for &p in &self.posts {
+                let d = estimate(p, rb.azimuth) - f64::from(rv[p]);
+                sq += d * d;
+                sum += d;
+                n += 1;
+            }
+        }
+        ((sq / n as f64).sqrt(), sum / n as f64)
+    }
+}
+
+/// RMS and largest absolute error of `svf(post)` against `reference` (one
+/// value per post of `posts`, in order).
+pub(super) fn svf_errors(
+    posts: &[usize],
+    reference: &[f64],
+    svf: impl Fn(usize) -> f64,
+) -> (f64, f64) {
+    let (mut sq, mut max) = (0.0, 0f64);
+    for (&p, r) in posts.iter().zip(reference) {
+        let d = svf(p) - r;
+        sq += d * d;
+        max = max.max(d.abs());
+    }
+    ((sq / posts.len() as f64).sqrt(), max)
+}
+
+/// The horizon at `azimuth` of a post whose values at the ascending
+/// `azimuths` are `at(i)`: linear between the two neighbours, as
+/// `lit_fraction` does.
+pub(super) fn interpolated(azimuths: &[f64], azimuth: f64, at: impl Fn(usize) -> f64) -> f64 {
+    let (i, j, f) = bands_around(azimuths, azimuth);
+    let (a, b) = (at(i), at(j));
+    a + f * (b - a)
 }
 
 /// Errors of `method` with `count` bands against `reference`, on the posts
@@ -150,37 +202,21 @@ pub fn accuracy(
                 let i = (az / (360.0 / count as f64)).round() as usize % count;
                 f64::from(values[i][post])
             }
-            _ => {
-                let (i, j, f) = bands_around(&azimuths, az);
-                let (a, b) = (f64::from(values[i][post]), f64::from(values[j][post]));
-                a + f * (b - a)
-            }
+            _ => interpolated(&azimuths, az, |i| f64::from(values[i][post])),
         }
     };
-    let posts = &reference.posts;
-    let (mut sq, mut sum, mut n) = (0.0, 0.0, 0usize);
-    for (rb, rv) in reference.bands.iter().zip(&reference.values) {
-        for &p in posts {
-            let d = estimate(p, rb.azimuth) - f64::from(rv[p]);
-            sq += d * d;
-            sum += d;
-            n += 1;
-        }
-    }
+    let (horizon_rms_deg, horizon_bias_deg) = reference.horizon_errors(estimate);
     let integrals = integrals(&bands);
-    let (mut svf_sq, mut svf_max) = (0.0, 0f64);
-    for (&p, reference_svf) in posts.iter().zip(&reference.svf) {
-        let d = svf_of(&integrals, &values, p) - reference_svf;
-        svf_sq += d * d;
-        svf_max = svf_max.max(d.abs());
-    }
+    let (svf_rms, svf_max) = svf_errors(&reference.posts, &reference.svf, |p| {
+        svf_of(&integrals, &values, p)
+    });
     AccuracyRow {
         method: method.name().into(),
         bands: count,
         seconds,
-        horizon_rms_deg: (sq / n as f64).sqrt(),
-        horizon_bias_deg: sum / n as f64,
-        svf_rms: (svf_sq / posts.len() as f64).sqrt(),
+        horizon_rms_deg,
+        horizon_bias_deg,
+        svf_rms,
         svf_max,
     }
 }
@@ -194,6 +230,8 @@ pub struct AccuracyStudy {
     pub reference_directions: usize,
     pub reference_seconds: f64,
     pub rows: Vec<AccuracyRow>,
+    /// The peers' outputs on the same crop, against the same reference.
+    pub peers: Vec<PeerRow>,
 }
 
 pub fn accuracy_study(
@@ -202,6 +240,7 @@ pub fn accuracy_study(
     reference: usize,
     methods: &[Method],
     counts: &[usize],
+    peers: &[LoadedPeer],
 ) -> AccuracyStudy {
     let side = side.min(whole.width).min(whole.height);
     let (x0, y0) = ((whole.width - side) / 2, (whole.height - side) / 2);
@@ -221,6 +260,7 @@ pub fn accuracy_study(
         reference_directions: reference,
         reference_seconds: reference_bands.seconds,
         rows,
+        peers: peers.iter().map(|p| p.score(&reference_bands)).collect(),
     }
 }
 
@@ -275,8 +315,9 @@ pub fn accuracy_table_markdown(rows: &[AccuracyRow]) -> String {
 }
 
 /// `PREFIX_horizon.svg` and `PREFIX_svf.svg`: error against time, one line
-/// per method through its band counts.
-pub fn accuracy_charts(prefix: &Path, rows: &[AccuracyRow]) -> Result<()> {
+/// per method through its band counts, a triangle per peer output.
+pub fn accuracy_charts(prefix: &Path, study: &AccuracyStudy) -> Result<()> {
+    let rows = &study.rows;
     let series = |value: &dyn Fn(&AccuracyRow) -> f64| -> Vec<Series> {
         let mut methods: Vec<&str> = Vec::new();
         for r in rows {
@@ -300,21 +341,38 @@ pub fn accuracy_charts(prefix: &Path, rows: &[AccuracyRow]) -> Result<()> {
             })
             .collect()
     };
+    let marks = |value: &dyn Fn(&PeerRow) -> Option<f64>, label: &dyn Fn(&PeerRow) -> String| {
+        study
+            .peers
+            .iter()
+            .filter_map(|p| {
+                Some(Series {
+                    name: label(p),
+                    points: vec![(p.seconds, value(p)?)],
+                })
+            })
+            .collect::<Vec<_>>()
+    };
     let path =
         |suffix: &str| std::path::PathBuf::from(format!("{}_{suffix}.svg", prefix.display()));
-    log_log_svg(
+    log_log_svg_with_marks(
         &path("horizon"),
         "Horizon angle error against time (reference: 1024 exact sight lines)",
         "time for all bands (s, 2 cores)",
         "RMS horizon angle error (degrees)",
         &series(&|r| r.horizon_rms_deg),
+        &marks(&|p| p.horizon_rms_deg, &|p| p.name.clone()),
     )?;
-    log_log_svg(
+    log_log_svg_with_marks(
         &path("svf"),
         "Sky-view factor error against time (reference: 1024 exact sight lines)",
         "time for all bands (s, 2 cores)",
         "RMS sky-view factor error",
         &series(&|r| r.svf_rms),
+        &marks(&|p| Some(p.svf_rms), &|p| match p.svf_definition {
+            SvfDefinition::Zaksek => p.name.clone(),
+            SvfDefinition::SlopeAware => format!("{} (slope-aware svf)", p.name),
+        }),
     )
 }
 
@@ -443,6 +501,10 @@ pub struct BenchHorizonsArgs {
     /// azimuths against the coefficients kept.
     #[arg(long, value_delimiter = ',')]
     pub fourier: Vec<usize>,
+    /// Score other tools' outputs too: the `peers.json` that `make bench-peers` writes (its
+    /// outputs on the same crop, in our conventions); they join the tables and the charts.
+    #[arg(long, value_name = "PEERS_JSON")]
+    pub peers: Option<std::path::PathBuf>,
     /// Print the rows as JSON.
     #[arg(long)]
     pub json: bool,
@@ -486,9 +548,19 @@ impl BenchHorizonsArgs {
             return Ok(());
         }
         let dem = crate::horizon::HeldDem::read(&opened)?;
+        let manifest = self.peers.as_deref().map(PeerManifest::read).transpose()?;
+        let peers = match (&manifest, &self.peers) {
+            (Some(m), Some(path)) => {
+                let side = self.crop.min(dem.width).min(dem.height);
+                m.load(path.parent().unwrap_or(Path::new(".")), side)
+                    .with_context(|| path.display().to_string())?
+            }
+            _ => Vec::new(),
+        };
         let runs = self
             .speed
             .iter()
+            .filter(|r| r.as_str() != "none")
             .map(|r| {
                 let (m, k) = r.split_once(':').context("--speed takes METHOD:COUNT")?;
                 let m = m
@@ -505,6 +577,7 @@ impl BenchHorizonsArgs {
             self.reference,
             &self.methods,
             &self.counts,
+            &peers,
         );
         if self.json {
             println!(
@@ -515,6 +588,7 @@ impl BenchHorizonsArgs {
                     "reference_directions": study.reference_directions,
                     "reference_seconds": study.reference_seconds,
                     "accuracy": study.rows,
+                    "peers": study.peers,
                 }))?
             );
         } else {
@@ -527,9 +601,19 @@ impl BenchHorizonsArgs {
                 side = study.crop
             );
             print!("{}", accuracy_table_markdown(&study.rows));
+            if let Some(m) = &manifest {
+                println!();
+                println!("the peers on the same crop, {} directions:", m.directions);
+                print!("{}", super::peers::accuracy_table_markdown(&study.peers));
+                println!();
+                println!("whole processes on the whole DEM ({}):", m.dem);
+                print!("{}", super::peers::whole_table_markdown(m)?);
+                println!();
+                print!("{}", super::peers::notes_markdown(m));
+            }
         }
         if let Some(prefix) = &self.chart {
-            accuracy_charts(prefix, &study.rows)?;
+            accuracy_charts(prefix, &study)?;
             say(format!(
                 "wrote {0}_horizon.svg and {0}_svf.svg",
                 prefix.display()

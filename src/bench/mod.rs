@@ -8,6 +8,8 @@
 //!   time, per slice count and encoding.
 //! - [`horizons`]: the horizon methods' speed, and their accuracy against a
 //!   dense exact reference.
+//! - [`peers`]: other tools' horizons and sky-view factors, scored
+//!   against the same reference (`make bench-peers`).
 //! - [`plan`]: planned bakes, their achieved error and cost against the
 //!   budget.
 //! - [`markdown_table`] and [`chart`]: the one table writer and the one
@@ -16,6 +18,7 @@
 pub mod chart;
 pub mod cones;
 pub mod horizons;
+pub mod peers;
 pub mod plan;
 pub mod views;
 pub mod visibility;

@@ -1,0 +1,274 @@
+"""`make bench-peers`: every peer beside terrabake, in one run.
+
+    python3 bench_peers.py --bin target/release/terrabake --venv target/peers-venv \
+        --dem DEM.tif --work DIR [--directions 16] [--crop 256] [--limit 600]
+
+bench_peers.sh installs the peers, then calls this. For each peer: its
+computation on the centred CROP x CROP crop of the DEM (outputs converted to
+our conventions by run_peer.py, or here for GRASS and SAGA, then scored by
+`terrabake bench-horizons --peers`), and its whole process on the whole DEM
+under /usr/bin/time (wall seconds, peak RSS), stopped at --limit seconds.
+Our own whole-DEM stage is timed the same way, before and after the peers.
+Writes DIR/peers.json (src/bench/peers.rs reads it). Standard library only:
+it runs under the system Python, the peers under the venv's.
+"""
+
+import argparse
+import json
+import math
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+PYTHON_PEERS = {
+    # module name: (shown name, installed distribution)
+    "whitebox_workflows": ("WhiteboxTools (whitebox-workflows) horizon_angle", "whitebox-workflows"),
+    "topocalc": ("topocalc horizon", "topocalc"),
+    "surtgis": ("SurtGIS horizon_angle_map", "surtgis"),
+    "rvt": ("RVT sky_view_factor", "rvt-py"),
+    "horayzon": ("HORAYZON horizon_gridded", "horayzon"),
+}
+
+
+def timed(label, cmd, work, limit, **kw):
+    """Runs cmd under /usr/bin/time and timeout: a WholeRun, or the reason it failed."""
+    out = os.path.join(work, "time.txt")
+    if os.path.exists(out):
+        os.remove(out)
+    # timeout inside time: it signals the peer itself, not time (which
+    # would leave the peer running on, and timing the next).
+    full = ["/usr/bin/time", "-f", "%e %M", "-o", out, "timeout", "-k", "5", str(limit)] + cmd
+    t0 = time.monotonic()
+    p = subprocess.run(full, capture_output=True, text=True, **kw)
+    wall = time.monotonic() - t0
+    if p.returncode == 124:
+        return {"label": label, "seconds": float(limit), "peak_mib": None, "timed_out": True}, None
+    if p.returncode != 0:
+        tail = (p.stderr or p.stdout).strip().splitlines()[-3:]
+        return None, f"exit {p.returncode}: {' / '.join(tail)}"
+    with open(out) as f:
+        secs, kb = f.read().split()[-2:]
+    return {"label": label, "seconds": float(secs) if float(secs) > 0 else wall, "peak_mib": int(kb) / 1024}, None
+
+
+def raster_shape(path):
+    info = json.loads(subprocess.check_output(["gdalinfo", "-json", path]))
+    cols, rows = info["size"]
+    gt = info["geoTransform"]
+    return rows, cols, abs(gt[1]), abs(gt[5])
+
+
+def to_raw(src, dst):
+    """Any GDAL raster to raw little-endian float32, north up."""
+    subprocess.run(["gdal_translate", "-q", "-of", "ENVI", "-ot", "Float32", src, dst], check=True)
+
+
+def grass_script(directions, radius_m, outdir):
+    """r.horizon in a temporary GRASS location: the crop's horizons, compass order."""
+    step = 360.0 / directions
+    return f"""set -euo pipefail
+r.in.gdal --q input="$DEM" output=dem
+g.region raster=dem
+t0=$(date +%s.%N)
+r.horizon -d --q elevation=dem step={step} maxdistance={radius_m} output=hor
+t1=$(date +%s.%N)
+echo "$t1 - $t0" | bc > "{outdir}/seconds"
+if [ -n "${{EXPORT:-}}" ]; then
+  for m in $(g.list raster pattern='hor_*'); do
+    r.out.gdal --q -c input=$m output="{outdir}/$m.tif" type=Float32 >/dev/null
+  done
+fi
+"""
+
+
+def grass_output(directions, outdir):
+    """GRASS names each map by its angle counter-clockwise from east: to compass, ascending."""
+    step = 360.0 / directions
+    bands = []
+    for i in range(directions):
+        ccw = i * step
+        name = f"hor_{int(ccw):03d}_{round((ccw - int(ccw)) * 10):d}"
+        bands.append(((90.0 - ccw) % 360.0, os.path.join(outdir, name + ".tif")))
+    return sorted(bands)
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--bin", required=True)
+    ap.add_argument("--venv", required=True)
+    ap.add_argument("--dem", required=True)
+    ap.add_argument("--work", required=True)
+    ap.add_argument("--directions", type=int, default=16)
+    ap.add_argument("--crop", type=int, default=256)
+    ap.add_argument("--limit", type=int, default=600)
+    ap.add_argument("--missing", action="append", default=[], help="PEER=REASON: a peer that could not be installed")
+    a = ap.parse_args()
+    work = os.path.abspath(a.work)
+    os.makedirs(work, exist_ok=True)
+    K = a.directions
+    rows, cols, dx, dy = raster_shape(a.dem)
+    assert abs(dx - dy) < 1e-9 * dx, f"{a.dem}: the peers want square cells, not {dx} x {dy}"
+    side = min(a.crop, rows, cols)
+    x0, y0 = (cols - side) // 2, (rows - side) // 2
+    crop_tif, crop_bin = os.path.join(work, "crop.tif"), os.path.join(work, "crop.bin")
+    whole_bin = os.path.join(work, "whole.bin")
+    subprocess.run(["gdal_translate", "-q", "-srcwin", str(x0), str(y0), str(side), str(side), a.dem, crop_tif], check=True)
+    to_raw(crop_tif, crop_bin)
+    to_raw(a.dem, whole_bin)
+    radius = {"crop": math.ceil(math.hypot(side, side)), "whole": math.ceil(math.hypot(rows, cols))}
+    py = os.path.join(a.venv, "bin", "python")
+    peers = []
+
+    def log(msg):
+        print(f"bench-peers: {msg}", file=sys.stderr, flush=True)
+
+    # Ours, the whole stage on the whole DEM (ingest timed apart).
+    asset = os.path.join(work, "whole.tbake")
+    ingest, err = timed("terrabake ingest", [a.bin, "ingest", a.dem, "-o", asset, "-q"], work, a.limit)
+    assert ingest, err
+
+    def ours():
+        cmd = [a.bin, "horizons", asset, "--method", "line", "--sectors", str(K), "--force", "-q"]
+        run, err = timed(f"terrabake horizons, line, {K}", cmd, work, a.limit)
+        assert run, err
+        return run
+
+    our_runs = [ours()]
+
+    # The Python peers.
+    missing = dict(m.split("=", 1) for m in a.missing)
+    for module, (name, dist) in PYTHON_PEERS.items():
+        if module in missing:
+            peers.append({"name": name, "missing": missing[module]})
+            continue
+        # HORAYZON's search hangs on some runs and not on others (the same
+        # input): it gets three tries, and the hangs are reported.
+        tries = 3 if module == "horayzon" else 1
+        hangs = []
+        out = os.path.join(work, module)
+        cmd = [py, os.path.join(HERE, "run_peer.py"), module]
+        for attempt in range(tries):
+            log(f"{name}: the crop")
+            shutil.rmtree(out, ignore_errors=True)
+            try:
+                p = subprocess.run(cmd + [crop_tif, crop_bin, str(side), str(side), str(dx), str(K), out],
+                                   capture_output=True, text=True, timeout=a.limit)
+                break
+            except subprocess.TimeoutExpired:
+                hangs.append("the crop")
+        else:
+            peers.append({"name": name, "missing": f"no end on the crop in {tries} tries of {a.limit} s"})
+            continue
+        if p.returncode != 0:
+            peers.append({"name": name, "missing": "failed on the crop: " + p.stderr.strip().splitlines()[-1]})
+            continue
+        with open(os.path.join(out, "result.json")) as f:
+            r = json.load(f)
+        whole_out = os.path.join(work, module + "_whole")
+        for attempt in range(tries):
+            log(f"{name}: the whole DEM (limit {a.limit} s)")
+            w, err = timed(name, cmd + [a.dem, whole_bin, str(rows), str(cols), str(dx), str(K), whole_out], work, a.limit)
+            shutil.rmtree(whole_out, ignore_errors=True)
+            if not (w and w.get("timed_out")) or attempt + 1 == tries:
+                break
+            hangs.append("the whole DEM")
+        if hangs:
+            r["notes"].append(f"runs stopped at the {a.limit} s limit and run again: {', '.join(hangs)}")
+        base = {"version": r["version"], "crop_seconds": r["seconds"], "notes": r["notes"]}
+        if w is None:
+            r["notes"].append("the whole DEM failed: " + err)
+        else:
+            base["whole"] = w
+        if "horizons" in r:
+            peers.append({"name": name, **base, "azimuths_deg": r["azimuths_deg"], "horizons": os.path.join(module, r["horizons"])})
+        if "svf" in r:
+            svf_name = {"topocalc": "topocalc viewf", "rvt": name}[module]
+            definition = {"topocalc": "slope_aware", "rvt": "zaksek"}[module]
+            entry = {"name": svf_name, **base, "svf": os.path.join(module, r["svf"]), "svf_definition": definition}
+            if module == "topocalc":
+                entry["crop_seconds"] = r["viewf_seconds"]
+                entry["notes"] = [f"viewf: Dozier and Frew's slope-aware svf, nangles = {K}; the whole-DEM row is horizon and viewf together"]
+            peers.append(entry)
+
+    # GRASS r.horizon.
+    if "grass" in missing or not shutil.which("grass"):
+        peers.append({"name": "GRASS r.horizon", "missing": missing.get("grass", "grass not on PATH")})
+    else:
+        version = subprocess.run(["grass", "--version"], capture_output=True, text=True)
+        version = (version.stdout + version.stderr).split("GRASS GIS ")[1].split()[0]
+        out = os.path.join(work, "grass")
+        shutil.rmtree(out, ignore_errors=True)
+        os.makedirs(out)
+        for which, tif in (("crop", crop_tif), ("whole", a.dem)):
+            log(f"GRASS r.horizon: the {which}")
+            script = os.path.join(work, f"grass_{which}.sh")
+            with open(script, "w") as f:
+                f.write(grass_script(K, radius[which] * dx, out))
+            env = dict(os.environ, DEM=tif, EXPORT="1" if which == "crop" else "")
+            run, err = timed("GRASS r.horizon", ["grass", "--tmp-location", tif, "--exec", "bash", script], work, a.limit, env=env)
+            if which == "crop":
+                assert run, err
+                with open(os.path.join(out, "seconds")) as f:
+                    crop_seconds = float(f.read())
+                bands = grass_output(K, out)
+                with open(os.path.join(out, "horizons.f32"), "wb") as dst:
+                    for _, path in bands:
+                        to_raw(path, path + ".bin")
+                        with open(path + ".bin", "rb") as src:
+                            dst.write(src.read())
+            else:
+                whole, whole_err = run, err
+        peers.append({
+            "name": "GRASS r.horizon", "version": version, "crop_seconds": crop_seconds,
+            **({"whole": whole} if whole else {}),
+            "azimuths_deg": [az for az, _ in bands], "horizons": "grass/horizons.f32",
+            "notes": ["-d (degrees); map angles counter-clockwise from east, compass = 90 - angle",
+                      "the whole process includes GRASS's start, the import and the export"]
+                     + ([f"the whole DEM failed: {whole_err}"] if not whole else []),
+        })
+
+    # SAGA's Sky View Factor (ta_lighting 3): the slope-aware svf.
+    if "saga" in missing or not shutil.which("saga_cmd"):
+        peers.append({"name": "SAGA Sky View Factor", "missing": missing.get("saga", "saga_cmd not on PATH")})
+    else:
+        version = subprocess.run(["saga_cmd", "--version"], capture_output=True, text=True).stdout.split("SAGA Version:")[1].split()[0]
+        out = os.path.join(work, "saga")
+        shutil.rmtree(out, ignore_errors=True)
+        os.makedirs(out)
+        runs = {}
+        for which, tif in (("crop", crop_tif), ("whole", a.dem)):
+            log(f"SAGA Sky View Factor: the {which}")
+            cmd = ["saga_cmd", "ta_lighting", "3", "-DEM", tif, "-SVF", os.path.join(out, f"svf_{which}.sdat"),
+                   "-VISIBLE", os.path.join(out, f"visible_{which}.sdat"), "-RADIUS", str(radius[which] * dx),
+                   "-NDIRS", str(K), "-METHOD", "0"]
+            runs[which], err = timed("SAGA Sky View Factor", cmd, work, a.limit)
+            if which == "crop":
+                assert runs[which], err
+                to_raw(os.path.join(out, "svf_crop.sdat"), os.path.join(out, "svf.f32"))
+        peers.append({
+            "name": "SAGA Sky View Factor", "version": version, "crop_seconds": runs["crop"]["seconds"],
+            **({"whole": runs["whole"]} if runs["whole"] else {}),
+            "svf": "saga/svf.f32", "svf_definition": "slope_aware",
+            "notes": ["-METHOD 0 ('cell size'); its crop time is the whole saga_cmd process (it reports no timing)",
+                      "its svf is the slope-aware one; it floors horizons at 0"],
+        })
+
+    our_runs += [ours(), ours()]
+    median = statistics.median(r["seconds"] for r in our_runs)
+    stage = dict(min(our_runs, key=lambda r: abs(r["seconds"] - median)))
+    stage["notes"] = [f"median of {len(our_runs)} runs, one before the peers: " + ", ".join(f"{r['seconds']:.2f} s" for r in our_runs)]
+    both = {"label": "terrabake ingest + horizons", "seconds": ingest["seconds"] + stage["seconds"],
+            "peak_mib": max(ingest["peak_mib"], stage["peak_mib"])}
+    manifest = {"dem": os.path.basename(a.dem) + f" ({cols} x {rows}, {dx:g} m)", "crop": side,
+                "directions": K, "peers": peers, "ours": [stage, both]}
+    with open(os.path.join(work, "peers.json"), "w") as f:
+        json.dump(manifest, f, indent=1, allow_nan=False)
+    log(f"wrote {os.path.join(work, 'peers.json')}")
+
+
+if __name__ == "__main__":
+    main()
