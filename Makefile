@@ -131,9 +131,11 @@ bench-trace: build
 	BIN=$(BIN) bash pipelines/bench_trace.sh
 
 ## Horizons: speed and accuracy on the SRTM tile, time and memory against
-## DEM size, the Fourier chart (docs/charts/horizons_fourier.svg).
+## DEM size, the Fourier chart (docs/charts/horizons_fourier.svg), and the
+## line sweep against this machine's memory-bandwidth floor.
 bench-horizons: build
 	BIN=$(BIN) bash pipelines/bench_horizons.sh
+	BIN=$(BIN) bash pipelines/bench_line_floor.sh
 
 ## Timonen's tables on the SRTM tile and synthetic terrains, the bounded
 ## total viewshed, charts docs/charts/visibility_*.svg; then the observer
