@@ -25,12 +25,12 @@ import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 PYTHON_PEERS = {
-    # module name: (shown name, installed distribution)
-    "whitebox_workflows": ("WhiteboxTools (whitebox-workflows) horizon_angle", "whitebox-workflows"),
-    "topocalc": ("topocalc horizon", "topocalc"),
-    "surtgis": ("SurtGIS horizon_angle_map", "surtgis"),
-    "rvt": ("RVT sky_view_factor", "rvt-py"),
-    "horayzon": ("HORAYZON horizon_gridded", "horayzon"),
+    # run_peer.py's name for it: the name in the tables.
+    "whitebox_workflows": "WhiteboxTools (whitebox-workflows) horizon_angle",
+    "topocalc": "topocalc horizon",
+    "surtgis": "SurtGIS horizon_angle_map",
+    "rvt": "RVT sky_view_factor",
+    "horayzon": "HORAYZON horizon_gridded",
 }
 
 
@@ -141,7 +141,7 @@ def main():
 
     # The Python peers.
     missing = dict(m.split("=", 1) for m in a.missing)
-    for module, (name, dist) in PYTHON_PEERS.items():
+    for module, name in PYTHON_PEERS.items():
         if module in missing:
             peers.append({"name": name, "missing": missing[module]})
             continue
