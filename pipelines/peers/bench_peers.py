@@ -21,7 +21,6 @@ import shutil
 import statistics
 import subprocess
 import sys
-import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 PYTHON_PEERS = {
@@ -34,25 +33,27 @@ PYTHON_PEERS = {
 }
 
 
-def timed(label, cmd, work, limit, **kw):
-    """Runs cmd under /usr/bin/time and timeout: a WholeRun, or the reason it failed."""
+def timed(label, cmd, work, limit, tries=1, **kw):
+    """Runs cmd under /usr/bin/time and timeout, again (up to `tries` runs)
+    while it hits the limit: (a WholeRun or None, the reason it failed or
+    None, how many runs were stopped at the limit and run again)."""
     out = os.path.join(work, "time.txt")
-    if os.path.exists(out):
-        os.remove(out)
     # timeout inside time: it signals the peer itself, not time (which
     # would leave the peer running on, and timing the next).
     full = ["/usr/bin/time", "-f", "%e %M", "-o", out, "timeout", "-k", "5", str(limit)] + cmd
-    t0 = time.monotonic()
-    p = subprocess.run(full, capture_output=True, text=True, **kw)
-    wall = time.monotonic() - t0
+    for attempt in range(tries):
+        p = subprocess.run(full, capture_output=True, text=True, **kw)
+        if p.returncode != 124:
+            break
+    stops = attempt
     if p.returncode == 124:
-        return {"label": label, "seconds": float(limit), "peak_mib": None, "timed_out": True}, None
+        return {"label": label, "seconds": float(limit), "peak_mib": None, "timed_out": True}, None, stops
     if p.returncode != 0:
         tail = (p.stderr or p.stdout).strip().splitlines()[-3:]
-        return None, f"exit {p.returncode}: {' / '.join(tail)}"
+        return None, f"exit {p.returncode}: {' / '.join(tail)}", stops
     with open(out) as f:
         secs, kb = f.read().split()[-2:]
-    return {"label": label, "seconds": float(secs) if float(secs) > 0 else wall, "peak_mib": int(kb) / 1024}, None
+    return {"label": label, "seconds": float(secs), "peak_mib": int(kb) / 1024}, None, stops
 
 
 def raster_shape(path):
@@ -128,12 +129,12 @@ def main():
 
     # Ours, the whole stage on the whole DEM (ingest timed apart).
     asset = os.path.join(work, "whole.tbake")
-    ingest, err = timed("terrabake ingest", [a.bin, "ingest", a.dem, "-o", asset, "-q"], work, a.limit)
+    ingest, err, _ = timed("terrabake ingest", [a.bin, "ingest", a.dem, "-o", asset, "-q"], work, a.limit)
     assert ingest, err
 
     def ours():
         cmd = [a.bin, "horizons", asset, "--method", "line", "--sectors", str(K), "--force", "-q"]
-        run, err = timed(f"terrabake horizons, line, {K}", cmd, work, a.limit)
+        run, err, _ = timed(f"terrabake horizons, line, {K}", cmd, work, a.limit)
         assert run, err
         return run
 
@@ -146,52 +147,42 @@ def main():
             peers.append({"name": name, "missing": missing[module]})
             continue
         # HORAYZON's search hangs on some runs and not on others (the same
-        # input): it gets three tries, and the hangs are reported.
+        # input): it gets three tries, and the reruns are reported.
         tries = 3 if module == "horayzon" else 1
-        hangs = []
-        out = os.path.join(work, module)
+        out, whole_out = os.path.join(work, module), os.path.join(work, module + "_whole")
         cmd = [py, os.path.join(HERE, "run_peer.py"), module]
-        for attempt in range(tries):
-            log(f"{name}: the crop")
-            shutil.rmtree(out, ignore_errors=True)
-            try:
-                p = subprocess.run(cmd + [crop_tif, crop_bin, str(side), str(side), str(dx), str(K), out],
-                                   capture_output=True, text=True, timeout=a.limit)
-                break
-            except subprocess.TimeoutExpired:
-                hangs.append("the crop")
-        else:
-            peers.append({"name": name, "missing": f"no end on the crop in {tries} tries of {a.limit} s"})
-            continue
-        if p.returncode != 0:
-            peers.append({"name": name, "missing": "failed on the crop: " + p.stderr.strip().splitlines()[-1]})
+        log(f"{name}: the crop")
+        shutil.rmtree(out, ignore_errors=True)
+        run, err, crop_stops = timed(name, cmd + [crop_tif, crop_bin, str(side), str(side), str(dx), str(K), out],
+                                     work, a.limit, tries)
+        if run is None or run.get("timed_out"):
+            peers.append({"name": name, "missing": "failed on the crop: " + (err or f"no end in {tries} runs of {a.limit} s")})
             continue
         with open(os.path.join(out, "result.json")) as f:
             r = json.load(f)
-        whole_out = os.path.join(work, module + "_whole")
-        for attempt in range(tries):
-            log(f"{name}: the whole DEM (limit {a.limit} s)")
-            w, err = timed(name, cmd + [a.dem, whole_bin, str(rows), str(cols), str(dx), str(K), whole_out], work, a.limit)
-            shutil.rmtree(whole_out, ignore_errors=True)
-            if not (w and w.get("timed_out")) or attempt + 1 == tries:
-                break
-            hangs.append("the whole DEM")
-        if hangs:
-            r["notes"].append(f"runs stopped at the {a.limit} s limit and run again: {', '.join(hangs)}")
-        base = {"version": r["version"], "crop_seconds": r["seconds"], "notes": r["notes"]}
+        log(f"{name}: the whole DEM (limit {a.limit} s)")
+        w, err, whole_stops = timed(name, cmd + [a.dem, whole_bin, str(rows), str(cols), str(dx), str(K), whole_out],
+                                    work, a.limit, tries)
+        shutil.rmtree(whole_out, ignore_errors=True)
+        if crop_stops or whole_stops:
+            r["notes"].append(f"runs stopped at the {a.limit} s limit and run again: "
+                              f"{crop_stops} on the crop, {whole_stops} on the whole DEM")
         if w is None:
             r["notes"].append("the whole DEM failed: " + err)
-        else:
-            base["whole"] = w
+        base = {"version": r["version"], "crop_seconds": r["seconds"], "notes": r["notes"]}
+        # The whole-DEM run goes with the peer's first output.
+        first = {"whole": w} if w else {}
         if "horizons" in r:
-            peers.append({"name": name, **base, "azimuths_deg": r["azimuths_deg"], "horizons": os.path.join(module, r["horizons"])})
+            peers.append({"name": name, **base, **first, "azimuths_deg": r["azimuths_deg"],
+                          "horizons": os.path.join(module, r["horizons"])})
+            first = {}
         if "svf" in r:
             svf_name = {"topocalc": "topocalc viewf", "rvt": name}[module]
             definition = {"topocalc": "slope_aware", "rvt": "zaksek"}[module]
-            entry = {"name": svf_name, **base, "svf": os.path.join(module, r["svf"]), "svf_definition": definition}
+            entry = {"name": svf_name, **base, **first, "svf": os.path.join(module, r["svf"]), "svf_definition": definition}
             if module == "topocalc":
                 entry["crop_seconds"] = r["viewf_seconds"]
-                entry["notes"] = [f"viewf: Dozier and Frew's slope-aware svf, nangles = {K}; the whole-DEM row is horizon and viewf together"]
+                entry["notes"] = [f"viewf: Dozier and Frew's slope-aware svf, nangles = {K}; the whole-DEM row (topocalc horizon) is horizon and viewf together"]
             peers.append(entry)
 
     # GRASS r.horizon.
@@ -203,25 +194,26 @@ def main():
         out = os.path.join(work, "grass")
         shutil.rmtree(out, ignore_errors=True)
         os.makedirs(out)
-        for which, tif in (("crop", crop_tif), ("whole", a.dem)):
+        def grass(which, tif):
             log(f"GRASS r.horizon: the {which}")
             script = os.path.join(work, f"grass_{which}.sh")
             with open(script, "w") as f:
                 f.write(grass_script(K, radius[which] * dx, out))
             env = dict(os.environ, DEM=tif, EXPORT="1" if which == "crop" else "")
-            run, err = timed("GRASS r.horizon", ["grass", "--tmp-location", tif, "--exec", "bash", script], work, a.limit, env=env)
-            if which == "crop":
-                assert run, err
-                with open(os.path.join(out, "seconds")) as f:
-                    crop_seconds = float(f.read())
-                bands = grass_output(K, out)
-                with open(os.path.join(out, "horizons.f32"), "wb") as dst:
-                    for _, path in bands:
-                        to_raw(path, path + ".bin")
-                        with open(path + ".bin", "rb") as src:
-                            dst.write(src.read())
-            else:
-                whole, whole_err = run, err
+            return timed("GRASS r.horizon", ["grass", "--tmp-location", tif, "--exec", "bash", script],
+                         work, a.limit, env=env)[:2]
+
+        crop, err = grass("crop", crop_tif)
+        assert crop, err
+        with open(os.path.join(out, "seconds")) as f:
+            crop_seconds = float(f.read())
+        bands = grass_output(K, out)
+        with open(os.path.join(out, "horizons.f32"), "wb") as dst:
+            for _, path in bands:
+                to_raw(path, path + ".bin")
+                with open(path + ".bin", "rb") as src:
+                    dst.write(src.read())
+        whole, whole_err = grass("whole", a.dem)
         peers.append({
             "name": "GRASS r.horizon", "version": version, "crop_seconds": crop_seconds,
             **({"whole": whole} if whole else {}),
@@ -239,22 +231,24 @@ def main():
         out = os.path.join(work, "saga")
         shutil.rmtree(out, ignore_errors=True)
         os.makedirs(out)
-        runs = {}
-        for which, tif in (("crop", crop_tif), ("whole", a.dem)):
+        def saga(which, tif):
             log(f"SAGA Sky View Factor: the {which}")
             cmd = ["saga_cmd", "ta_lighting", "3", "-DEM", tif, "-SVF", os.path.join(out, f"svf_{which}.sdat"),
                    "-VISIBLE", os.path.join(out, f"visible_{which}.sdat"), "-RADIUS", str(radius[which] * dx),
                    "-NDIRS", str(K), "-METHOD", "0"]
-            runs[which], err = timed("SAGA Sky View Factor", cmd, work, a.limit)
-            if which == "crop":
-                assert runs[which], err
-                to_raw(os.path.join(out, "svf_crop.sdat"), os.path.join(out, "svf.f32"))
+            return timed("SAGA Sky View Factor", cmd, work, a.limit)[:2]
+
+        crop, err = saga("crop", crop_tif)
+        assert crop, err
+        to_raw(os.path.join(out, "svf_crop.sdat"), os.path.join(out, "svf.f32"))
+        whole, whole_err = saga("whole", a.dem)
         peers.append({
-            "name": "SAGA Sky View Factor", "version": version, "crop_seconds": runs["crop"]["seconds"],
-            **({"whole": runs["whole"]} if runs["whole"] else {}),
+            "name": "SAGA Sky View Factor", "version": version, "crop_seconds": crop["seconds"],
+            **({"whole": whole} if whole else {}),
             "svf": "saga/svf.f32", "svf_definition": "slope_aware",
             "notes": ["-METHOD 0 ('cell size'); its crop time is the whole saga_cmd process (it reports no timing)",
-                      "its svf is the slope-aware one; it floors horizons at 0"],
+                      "its svf is the slope-aware one; it floors horizons at 0"]
+                     + ([f"the whole DEM failed: {whole_err}"] if not whole else []),
         })
 
     our_runs += [ours(), ours()]

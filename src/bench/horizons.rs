@@ -234,6 +234,11 @@ pub struct AccuracyStudy {
     pub peers: Vec<PeerRow>,
 }
 
+/// The side of the study's centred crop: `side`, or all of a smaller DEM.
+pub fn crop_side(whole: &Terrain, side: usize) -> usize {
+    side.min(whole.width).min(whole.height)
+}
+
 pub fn accuracy_study(
     whole: &Terrain,
     side: usize,
@@ -242,7 +247,7 @@ pub fn accuracy_study(
     counts: &[usize],
     peers: &[LoadedPeer],
 ) -> AccuracyStudy {
-    let side = side.min(whole.width).min(whole.height);
+    let side = crop_side(whole, side);
     let (x0, y0) = ((whole.width - side) / 2, (whole.height - side) / 2);
     let cropped: Vec<f32> = (y0..y0 + side)
         .flat_map(|r| whole.z[r * whole.width + x0..][..side].iter().copied())
@@ -548,14 +553,17 @@ impl BenchHorizonsArgs {
             return Ok(());
         }
         let dem = crate::horizon::HeldDem::read(&opened)?;
-        let manifest = self.peers.as_deref().map(PeerManifest::read).transpose()?;
-        let peers = match (&manifest, &self.peers) {
-            (Some(m), Some(path)) => {
-                let side = self.crop.min(dem.width).min(dem.height);
-                m.load(path.parent().unwrap_or(Path::new(".")), side)
-                    .with_context(|| path.display().to_string())?
+        let whole = dem.terrain(0.0);
+        let (manifest, peers) = match &self.peers {
+            Some(path) => {
+                let m = PeerManifest::read(path)?;
+                let dir = path.parent().unwrap_or(Path::new("."));
+                let peers = m
+                    .load(dir, crop_side(&whole, self.crop))
+                    .with_context(|| path.display().to_string())?;
+                (Some(m), peers)
             }
-            _ => Vec::new(),
+            None => (None, Vec::new()),
         };
         let runs = self
             .speed
@@ -569,7 +577,6 @@ impl BenchHorizonsArgs {
                 Ok((m, k.parse::<usize>().context("--speed METHOD:COUNT")?))
             })
             .collect::<Result<Vec<_>>>()?;
-        let whole = dem.terrain(0.0);
         let speed_rows = speed(&whole, &runs);
         let study = accuracy_study(
             &whole,
@@ -592,8 +599,10 @@ impl BenchHorizonsArgs {
                 }))?
             );
         } else {
-            print!("{}", speed_table_markdown(&speed_rows));
-            println!();
+            if !speed_rows.is_empty() {
+                print!("{}", speed_table_markdown(&speed_rows));
+                println!();
+            }
             println!(
                 "accuracy on a {side} x {side} crop, reference {} directions ({:.1} s):",
                 self.reference,

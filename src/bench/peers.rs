@@ -70,7 +70,8 @@ pub struct PeerOutput {
     /// inside its process).
     #[serde(default)]
     pub crop_seconds: Option<f64>,
-    /// The whole peer process on the whole DEM.
+    /// The whole peer process on the whole DEM (on the first of a peer's
+    /// outputs only: one process gives them all).
     #[serde(default)]
     pub whole: Option<WholeRun>,
     /// The conversions applied, and anything a reader should know.
@@ -309,16 +310,12 @@ pub fn whole_table_markdown(manifest: &PeerManifest) -> Result<String> {
             ]
         })
         .collect();
-    // A peer with several outputs ran once on the whole DEM: one row.
-    let mut seen: Vec<&str> = Vec::new();
+    // (A peer with several outputs ran once on the whole DEM: its first
+    // output carries the run.)
     for p in &manifest.peers {
         let Some(w) = &p.whole else {
             continue;
         };
-        if seen.contains(&w.label.as_str()) {
-            continue;
-        }
-        seen.push(&w.label);
         let bound = if w.timed_out { "> " } else { "" };
         rows.push(vec![
             w.label.clone(),
