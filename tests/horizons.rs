@@ -708,6 +708,138 @@ fn line_sweeps_by_bands_equal_one_band() {
     }
 }
 
+/// The lines swept in SIMD lanes (`line::lanes`, AVX-512 where the CPU has
+/// it) give the scalar sweep's bits, in one band and in bands of rows: every
+/// direction of 16 and 64 and long steps, on terrains narrower than a
+/// vector and wider than several, with curvature and geographic rows, and
+/// on a dome whose hulls outgrow the lanes' depth (those lines leave the
+/// lanes for the scalar sweep).
+#[test]
+fn line_lanes_equal_the_scalar_sweep_bit_for_bit() {
+    use terrabake::horizon::line::{grid_direction, BandedSweep};
+    let cpu = cfg!(target_arch = "x86_64") && {
+        #[cfg(target_arch = "x86_64")]
+        {
+            std::arch::is_x86_feature_detected!("avx512f")
+                && std::arch::is_x86_feature_detected!("avx512vl")
+                && std::arch::is_x86_feature_detected!("avx512dq")
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        false
+    };
+    let (srtm, sdx, sdy) = common::srtm_crop((500, 300), (83, 61));
+    let scale = geographic_scale(61, 55.0, 1.0 / 1200.0);
+    // A dome: every vertex of a concave profile stays on the hull.
+    let dome: Vec<f32> = synth_grid(SynthKind::Bowl, 300, 40, 1)
+        .iter()
+        .map(|z| -z)
+        .collect();
+    let plain = RowScale::default();
+    let (noise, fractal) = (
+        synth_grid(SynthKind::Noise, 5, 9, 3),
+        synth_grid(SynthKind::Fractal, 37, 29, 2),
+    );
+    // Name, heights, width, spacing, curvature, rows' scale.
+    type Case<'a> = (&'a str, &'a [f32], usize, (f64, f64), f64, RowScale<'a>);
+    let cases: Vec<Case> = vec![
+        ("noise 5 x 9", &noise, 5, (30.0, 20.0), 0.0, plain),
+        ("fractal 37 x 29", &fractal, 37, (30.0, 30.0), 0.0, plain),
+        (
+            "SRTM crop, curved",
+            &srtm,
+            83,
+            (sdx, sdy),
+            curvature_coefficient(0.13),
+            plain,
+        ),
+        (
+            "SRTM crop, geographic",
+            &srtm,
+            83,
+            (sdx, sdy),
+            curvature_coefficient(0.13),
+            RowScale::new(&scale),
+        ),
+        ("dome 300 x 40", &dome, 300, (30.0, 30.0), 0.0, plain),
+    ];
+    let (mut in_lanes, mut spilled) = (0, false);
+    for &(name, z, w, (dx, dy), curvature, row_scale) in &cases {
+        let h = z.len() / w;
+        let mut dirs: Vec<GridDirection> = [16, 64]
+            .into_iter()
+            .flat_map(|count| plan_bands(Method::Line, count, dx, dy, None))
+            .map(|b| match b.kind {
+                BandKind::Line(d) => d,
+                _ => unreachable!(),
+            })
+            .collect();
+        for step in [(5, -13), (-7, 3), (3, 11), (-1, 1)] {
+            let mut d = grid_direction(0.0, dx, dy, 1.0);
+            d.step = step;
+            dirs.push(d);
+        }
+        for dir in &dirs {
+            let new = || BandedSweep::new(dir, (w, h), (dx, dy), row_scale, false);
+            let mut scalar = new().without_lanes();
+            let whole = Terrain::new(z, w, h, dx, dy)
+                .with_row_scale(row_scale)
+                .with_curvature(curvature);
+            let mut want = vec![0f32; w * h];
+            scalar.sweep(&whole, 0..h, &mut want);
+            let short = line::Stencil::new(dir.step).len() <= line::lanes::DEPTH / 4;
+            assert_eq!(
+                new().in_lanes(),
+                cpu && dir.step.1 != 0 && short,
+                "{name}: {:?}",
+                dir.step
+            );
+            for rows in [1, 7, h] {
+                let mut sweep = new();
+                in_lanes += usize::from(sweep.in_lanes());
+                let mut got = vec![0f32; w * h];
+                for band in sweep.bands(rows) {
+                    let win = sweep.window(&band);
+                    let window = Terrain::window(
+                        &z[win.start * w..win.end * w],
+                        (w, h),
+                        win.start,
+                        (dx, dy),
+                    )
+                    .with_row_scale(row_scale)
+                    .with_curvature(curvature);
+                    sweep.sweep(
+                        &window,
+                        band.clone(),
+                        &mut got[band.start * w..band.end * w],
+                    );
+                }
+                assert_eq!(
+                    sweep.stats.posts, scalar.stats.posts,
+                    "{name}: {:?}",
+                    dir.step
+                );
+                assert_eq!(sweep.stats.vertices, scalar.stats.vertices);
+                spilled |= sweep.stats.spilled > 0;
+                for i in 0..w * h {
+                    assert!(
+                        common::same_heights(want[i], got[i]),
+                        "{name}: {:?} bands of {rows}: post ({}, {}): scalar {} vs lanes {}",
+                        dir.step,
+                        i % w,
+                        i / w,
+                        want[i],
+                        got[i]
+                    );
+                }
+            }
+        }
+    }
+    eprintln!("{in_lanes} sweeps in lanes (AVX-512: {cpu})");
+    assert_eq!(in_lanes > 0, cpu);
+    // The dome's long lines left the lanes.
+    assert_eq!(spilled, cpu);
+}
+
 /// Stewart's tree above its 128-rank buckets: on DEMs of more than 10^5
 /// posts every level of the tree is built and walked, where the whole-DEM
 /// tests above (at most 480 posts) barely leave the buckets. Sampled posts

@@ -54,6 +54,8 @@
 //! (far vertices must leave it), so [`line_horizon_within`] walks each post's
 //! line up to the distance instead: `O(distance)` per post.
 
+pub mod lanes;
+
 use super::steepest::{Steepest, Tag};
 use super::terrain::{angle_between, RowScale, Terrain};
 
@@ -267,6 +269,8 @@ pub struct SweepStats {
     pub pops: u64,
     /// Posts that received a horizon.
     pub posts: u64,
+    /// Lines that left the SIMD lanes for the scalar sweep ([`lanes`]).
+    pub spilled: u64,
 }
 
 impl std::ops::AddAssign for SweepStats {
@@ -274,6 +278,7 @@ impl std::ops::AddAssign for SweepStats {
         self.vertices += o.vertices;
         self.pops += o.pops;
         self.posts += o.posts;
+        self.spilled += o.spilled;
     }
 }
 
@@ -535,6 +540,10 @@ pub struct BandedSweep {
     nodata: bool,
     /// Lines that go on into the next band.
     lanes: Vec<Lane>,
+    /// The lines in SIMD lanes instead, where they apply ([`lanes`]).
+    simd: Option<lanes::Lines>,
+    /// Bands swept so far.
+    swept: usize,
     pub stats: SweepStats,
 }
 
@@ -548,15 +557,33 @@ impl BandedSweep {
         row_scale: RowScale,
         nodata: bool,
     ) -> Self {
+        let stencil = Stencil::new(dir.step);
         Self {
-            stencil: Stencil::new(dir.step),
+            simd: if nodata {
+                None
+            } else {
+                lanes::Lines::new(&stencil, width)
+            },
+            stencil,
             lengths: step_lengths(dir.step, height, spacing, row_scale),
             width,
             height,
             nodata,
             lanes: Vec::new(),
+            swept: 0,
             stats: SweepStats::default(),
         }
+    }
+
+    /// The same sweep without SIMD lanes (the scalar sweep they are
+    /// checked against; the same bits).
+    pub fn without_lanes(self) -> Self {
+        Self { simd: None, ..self }
+    }
+
+    /// Whether the lines go in SIMD lanes ([`lanes`]).
+    pub fn in_lanes(&self) -> bool {
+        self.simd.is_some()
     }
 
     /// Whether bands go from the south edge up.
@@ -618,6 +645,16 @@ impl BandedSweep {
             nodata: self.nodata,
         };
         let stats = &mut self.stats;
+        if out.distances.is_some() && self.simd.is_some() {
+            // The lanes keep no distances: the scalar sweep from the start.
+            assert_eq!(self.swept, 0, "distances asked after a band without");
+            self.simd = None;
+        }
+        self.swept += 1;
+        if let Some(simd) = &mut self.simd {
+            simd.sweep(&sweep, band, &mut out, stats);
+            return;
+        }
         // Lines from earlier bands first, then the lines whose far posts
         // are in this band; each in its own order of steps, as in one band.
         let mut going_on = Vec::with_capacity(self.lanes.len());

@@ -1,0 +1,514 @@
+//! Line sweeps in SIMD lanes: the lines of one direction stepped together
+//! row by row, eight neighbouring lines to a vector, with masked pops
+//! (issue #17, item 1; Timonen 2013, sec. 4, whose sweep keeps one line's
+//! hull at a time).
+//!
+//! The scalar sweep ([`super::BandedSweep`] without lanes) walks a line
+//! through a band of rows before it starts the next, so every hull push
+//! waits on a pop loop whose exit is a data-dependent branch (about 15 ns a
+//! vertex). Here the lines take their steps row by row instead: on a row
+//! every line that has a post there receives it, and the posts of eight
+//! neighbouring columns are eight different lines (a step with `b != 0`
+//! never joins two posts of one row). Their crossings load with plain
+//! vector loads (the stencil's offsets are the same for every post), and a
+//! pop is one masked compare over eight hulls, repeated while any lane
+//! still pops.
+//!
+//! **State.** A line is known by `col - s * (row div |b|)` (`s = a
+//! sign(b)`) within its row class `row mod |b|`: the key stays the same
+//! along the line and runs over consecutive integers along a row, so eight
+//! lanes load their lines' `t` and hull lengths with one load. Keys are
+//! taken modulo `width + |s|`, more than the lines alive in a class at
+//! once, so the state is `O(width |b|)` whatever the height (a band of rows
+//! at a time, out of core, as the scalar sweep). Hulls are stacks of at
+//! most [`DEPTH`] vertices stored depth-major (`[depth][line]`: the tops of
+//! neighbouring lines share cache lines); a lane holds its top two vertices
+//! in registers through a row.
+//!
+//! **The same bits.** Each line does the scalar sweep's arithmetic in the
+//! scalar sweep's order (no fused multiply-adds; the arctangent is
+//! [`super::atan_deg`] with its branches as blends), so the angles are the
+//! scalar sweep's bits, which `tests/horizons.rs` checks on random and real
+//! terrains in every direction, in one band and in many. The far post of
+//! each line (its crossings may leave the DEM), the posts of a row beyond
+//! the vectors' reach at its ends, and a line whose hull could outgrow
+//! [`DEPTH`] in its next step (it leaves the lanes for good) go through the
+//! scalar sweep.
+//!
+//! **When.** AVX-512 (F, VL, DQ), detected at run time; without nodata and
+//! without distances; for steps with `b != 0` (an east or west step has one
+//! line per row); while the hulls take at most [`MAX_BYTES`]. Anything else
+//! takes the scalar sweep, which gives the same bits.
+
+use super::{Lane, Out, Stencil, Sweep, SweepStats};
+
+/// Hull vertices a lane keeps.
+pub const DEPTH: usize = 64;
+
+/// The most the lanes' hulls of one direction may take (bytes); eight
+/// directions are swept at once out of core.
+pub const MAX_BYTES: usize = 64 << 20;
+
+/// The state of every line of one direction, indexed as the module docs
+/// say.
+#[derive(Debug)]
+pub(super) struct Lines {
+    step: (i64, i64),
+    width: usize,
+    /// `|b|`: rows between a line's posts.
+    q: usize,
+    /// `a sign(b)`: how far a line's key moves per `|b|` rows.
+    s: i64,
+    /// Keys are taken modulo this.
+    modulus: usize,
+    /// Lines in all: `q * modulus`.
+    count: usize,
+    /// `t` of each line's last post.
+    t: Vec<f64>,
+    /// Vertices on each line's hull; -1 for a line swept by the scalar
+    /// sweep.
+    len: Vec<i64>,
+    /// Hull vertices, `[depth * count + line]`.
+    hull_t: Vec<f64>,
+    hull_w: Vec<f64>,
+    /// Lines that left the lanes, carried from band to band.
+    spilled: Vec<Lane>,
+}
+
+impl Lines {
+    /// The lanes for lines of `stencil`'s step over a DEM `width` posts
+    /// wide, or `None` where they do not apply (the CPU, the step, the
+    /// memory, or steps of more than `DEPTH / 4` vertices).
+    pub(super) fn new(stencil: &Stencil, width: usize) -> Option<Self> {
+        let step = stencil.step;
+        if !cpu_has_lanes() || step.1 == 0 || stencil.len() > DEPTH / 4 {
+            return None;
+        }
+        let q = step.1.unsigned_abs() as usize;
+        let s = step.0 * step.1.signum();
+        let modulus = width + s.unsigned_abs() as usize;
+        let count = q * modulus;
+        if 2 * 8 * DEPTH * count > MAX_BYTES {
+            return None;
+        }
+        Some(Self {
+            step,
+            width,
+            q,
+            s,
+            modulus,
+            count,
+            t: vec![0.0; count],
+            len: vec![0; count],
+            hull_t: vec![0.0; DEPTH * count],
+            hull_w: vec![0.0; DEPTH * count],
+            spilled: Vec::new(),
+        })
+    }
+
+    /// The index of the line through post `(col, row)`.
+    fn index(&self, col: usize, row: usize) -> usize {
+        let (class, j) = (row % self.q, (row / self.q) as i64);
+        class * self.modulus + (col as i64 - self.s * j).rem_euclid(self.modulus as i64) as usize
+    }
+
+    /// Takes line `i`, whose last post is `(col, row)`, out of the lanes and
+    /// sweeps it through `band` with the scalar sweep.
+    fn spill(
+        &mut self,
+        i: usize,
+        lane: Lane,
+        sweep: &Sweep,
+        band: &std::ops::Range<usize>,
+        out: &mut Out,
+        stats: &mut SweepStats,
+    ) {
+        self.len[i] = -1;
+        stats.spilled += 1;
+        let mut lane = lane;
+        if sweep.run(&mut lane, band, out, stats) {
+            self.spilled.push(lane);
+        }
+    }
+
+    /// Sweeps output rows `band` (the next in the sweep's order) of
+    /// `sweep`'s window into `out`: as the scalar sweep, the same bits.
+    pub(super) fn sweep(
+        &mut self,
+        sweep: &Sweep,
+        band: std::ops::Range<usize>,
+        out: &mut Out,
+        stats: &mut SweepStats,
+    ) {
+        let mut spilled = std::mem::take(&mut self.spilled);
+        spilled.retain_mut(|lane| sweep.run(lane, &band, out, stats));
+        self.spilled = spilled;
+        let terrain = sweep.placed.t;
+        let n = sweep.placed.stencil.len();
+        let kernel = Kernel::new(sweep, terrain.width);
+        let (a, b) = self.step;
+        let (w, h) = (self.width as i64, terrain.height as i64);
+        // Columns whose far neighbour `col + a` is on the DEM.
+        let lo = (-a).clamp(0, w);
+        let cols = lo as usize..(w - a).clamp(lo, w) as usize;
+        let rows: Vec<usize> = if b < 0 {
+            band.clone().collect()
+        } else {
+            band.clone().rev().collect()
+        };
+        for row in rows {
+            let far_row = !(0..h).contains(&(row as i64 + b));
+            for col in (0..self.width).filter(|c| far_row || !cols.contains(c)) {
+                let lane = sweep.start((col as i64, row as i64), out, stats);
+                let i = self.index(col, row);
+                if lane.hull.len() + n > DEPTH {
+                    self.spill(i, lane, sweep, &band, out, stats);
+                    continue;
+                }
+                self.t[i] = lane.t;
+                self.len[i] = lane.hull.len() as i64;
+                for (d, &[t, w]) in lane.hull.iter().enumerate() {
+                    self.hull_t[d * self.count + i] = t;
+                    self.hull_w[d * self.count + i] = w;
+                }
+            }
+            if far_row {
+                continue;
+            }
+            // Lines whose hull could outgrow DEPTH in this step.
+            for col in cols.clone() {
+                let i = self.index(col, row);
+                if self.len[i] > (DEPTH - n) as i64 {
+                    let hull = (0..self.len[i] as usize)
+                        .map(|d| {
+                            [
+                                self.hull_t[d * self.count + i],
+                                self.hull_w[d * self.count + i],
+                            ]
+                        })
+                        .collect();
+                    let (col, row) = (col as i64 + a, row as i64 + b);
+                    let lane = Lane {
+                        hull,
+                        col,
+                        row,
+                        t: self.t[i],
+                    };
+                    self.spill(i, lane, sweep, &band, out, stats);
+                }
+            }
+            // Keys are consecutive along the row but wrap once at most.
+            let wrap = (0..cols.len())
+                .find(|&k| {
+                    k > 0
+                        && self.index(cols.start + k, row)
+                            == self.index(cols.start, row)
+                                - (self.index(cols.start, row) % self.modulus)
+                })
+                .map_or(cols.end, |k| cols.start + k);
+            let _ = wrap;
+            let split = cols.start + self.unwrapped(cols.clone(), row);
+            for part in [cols.start..split, split..cols.end] {
+                if part.is_empty() {
+                    continue;
+                }
+                #[cfg(target_arch = "x86_64")]
+                // SAFETY: `new` checked the CPU; a step from `part` stays on
+                // the DEM, whose rows the window holds.
+                unsafe {
+                    kernel.row(self, terrain, row, part, out, stats)
+                };
+            }
+        }
+    }
+
+    /// How many columns of `cols` on `row`, from the first, have
+    /// consecutive indices (before the key wraps).
+    fn unwrapped(&self, cols: std::ops::Range<usize>, row: usize) -> usize {
+        let first = self.index(cols.start, row) % self.modulus;
+        (self.modulus - first).min(cols.len())
+    }
+}
+
+/// Whether this CPU runs the lanes.
+fn cpu_has_lanes() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx512f")
+            && std::arch::is_x86_feature_detected!("avx512vl")
+            && std::arch::is_x86_feature_detected!("avx512dq")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    false
+}
+
+/// A step's interior crossings as offsets into the heights, and what a row
+/// needs of the sweep.
+struct Kernel<'s> {
+    /// Per crossing, far first: fraction of the step, the two posts'
+    /// offsets from the step's near post, and the weight of the second.
+    crossings: Vec<(f64, isize, isize, f64)>,
+    curvature: f64,
+    /// [`super::step_lengths`] of the direction.
+    lengths: &'s [f64],
+}
+
+impl<'s> Kernel<'s> {
+    fn new(sweep: &'s Sweep, width: usize) -> Self {
+        let w = width as i64;
+        let vertices = &sweep.placed.stencil.vertices;
+        let crossings = vertices[..vertices.len() - 1]
+            .iter()
+            .rev()
+            .map(|v| {
+                let off = |(c, r): (i64, i64)| (c + r * w) as isize;
+                (v.s, off(v.a), off(v.b), v.wb)
+            })
+            .collect();
+        Self {
+            crossings,
+            curvature: sweep.placed.t.curvature,
+            lengths: sweep.lengths,
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx512 {
+    use super::{Kernel, Lines, Out, SweepStats};
+    use crate::horizon::terrain::Terrain;
+    use std::arch::x86_64::*;
+
+    /// Eight lanes' hulls: the top two vertices of each, its length, the
+    /// index of its top in the depth-major storage, and the storage.
+    struct Hulls {
+        top_t: __m512d,
+        top_w: __m512d,
+        sec_t: __m512d,
+        sec_w: __m512d,
+        len: __m512i,
+        /// `(len - 1) * count + line`.
+        top: __m512i,
+        /// Lines in all: one depth further in the storage.
+        count: __m512i,
+        /// Lanes that take part: on the row and not outgrown.
+        active: __mmask8,
+        hull_t: *mut f64,
+        hull_w: *mut f64,
+    }
+
+    impl Kernel<'_> {
+        /// Steps every line with a post on `row` in `cols` (each with its
+        /// far neighbour on the DEM) by one post, eight lines at a time.
+        ///
+        /// # Safety
+        /// AVX-512 F, VL and DQ; every crossing of the steps from `cols`
+        /// in `terrain`'s rows, `row` in `out`'s, and the lines' indices
+        /// consecutive over `cols`.
+        #[target_feature(enable = "avx512f,avx512vl,avx512dq")]
+        pub(super) unsafe fn row(
+            &self,
+            lines: &mut Lines,
+            terrain: &Terrain,
+            row: usize,
+            cols: std::ops::Range<usize>,
+            out: &mut Out,
+            stats: &mut SweepStats,
+        ) {
+            let (z, step) = (terrain.z, self.lengths[row]);
+            let angles = &mut *out.angles;
+            let lane = _mm512_set_epi64(7, 6, 5, 4, 3, 2, 1, 0);
+            let one = _mm512_set1_epi64(1);
+            let count = _mm512_set1_epi64(lines.count as i64);
+            let c = _mm512_set1_pd(self.curvature);
+            let twice_c = _mm512_set1_pd(2.0 * self.curvature);
+            let step_v = _mm512_set1_pd(step);
+            for c0 in cols.clone().step_by(8) {
+                let on_row: __mmask8 = if cols.end - c0 >= 8 {
+                    0xff
+                } else {
+                    (1u8 << (cols.end - c0)) - 1
+                };
+                let i0 = lines.index(c0, row);
+                debug_assert!(i0 + (cols.end - c0).min(8) <= lines.count);
+                // SAFETY: lines `i0..` under `on_row` exist.
+                let (len, t) = unsafe {
+                    (
+                        _mm512_maskz_loadu_epi64(on_row, lines.len.as_ptr().add(i0)),
+                        _mm512_maskz_loadu_pd(on_row, lines.t.as_ptr().add(i0)),
+                    )
+                };
+                let active = _mm512_mask_cmpge_epi64_mask(on_row, len, _mm512_setzero_si512());
+                if active == 0 {
+                    continue;
+                }
+                let line = _mm512_add_epi64(_mm512_set1_epi64(i0 as i64), lane);
+                let top =
+                    _mm512_add_epi64(_mm512_mullo_epi64(_mm512_sub_epi64(len, one), count), line);
+                let has1 = _mm512_mask_cmpge_epi64_mask(active, len, one);
+                let has2 = _mm512_mask_cmpge_epi64_mask(active, len, _mm512_set1_epi64(2));
+                let below = _mm512_sub_epi64(top, count);
+                let zero = _mm512_setzero_pd();
+                let (ht, hw) = (lines.hull_t.as_mut_ptr(), lines.hull_w.as_mut_ptr());
+                // SAFETY: indices of vertices on the hulls.
+                let mut hulls = unsafe {
+                    Hulls {
+                        top_t: _mm512_mask_i64gather_pd::<8>(zero, has1, top, ht),
+                        top_w: _mm512_mask_i64gather_pd::<8>(zero, has1, top, hw),
+                        sec_t: _mm512_mask_i64gather_pd::<8>(zero, has2, below, ht),
+                        sec_w: _mm512_mask_i64gather_pd::<8>(zero, has2, below, hw),
+                        len,
+                        top,
+                        count,
+                        active,
+                        hull_t: ht,
+                        hull_w: hw,
+                    }
+                };
+                // The step to this row's post, then the step's crossings far
+                // first and the post, as the scalar sweep takes them.
+                let t = _mm512_sub_pd(t, step_v);
+                let near = ((row - terrain.row0) * lines.width + c0) as isize;
+                let near_out = ((row - out.row0) * lines.width + c0) as isize;
+                // SAFETY (loads): the caller keeps every crossing on the
+                // DEM; lanes off the row are masked.
+                let load = |off: isize| unsafe {
+                    _mm512_cvtps_pd(_mm256_maskz_loadu_ps(
+                        on_row,
+                        z.as_ptr().wrapping_offset(near + off),
+                    ))
+                };
+                for &(s, off_a, off_b, wb) in &self.crossings {
+                    let (za, zb) = (load(off_a), load(off_b));
+                    let zc =
+                        _mm512_add_pd(za, _mm512_mul_pd(_mm512_set1_pd(wb), _mm512_sub_pd(zb, za)));
+                    let tc = _mm512_add_pd(t, _mm512_mul_pd(_mm512_set1_pd(s), step_v));
+                    let wc = _mm512_sub_pd(zc, _mm512_mul_pd(_mm512_mul_pd(c, tc), tc));
+                    // SAFETY: the hulls' storage.
+                    unsafe {
+                        pop(&mut hulls, tc, wc, stats);
+                        push(&mut hulls, tc, wc, stats);
+                    }
+                }
+                let zp = load(0);
+                let wp = _mm512_sub_pd(zp, _mm512_mul_pd(_mm512_mul_pd(c, t), t));
+                // SAFETY: the hulls' storage.
+                unsafe { pop(&mut hulls, t, wp, stats) };
+                let posts = hulls.active;
+                let has = _mm512_mask_cmpge_epi64_mask(posts, hulls.len, one);
+                let slope = _mm512_add_pd(
+                    _mm512_div_pd(
+                        _mm512_sub_pd(hulls.top_w, wp),
+                        _mm512_sub_pd(hulls.top_t, t),
+                    ),
+                    _mm512_mul_pd(twice_c, t),
+                );
+                let angle = _mm512_mask_blend_pd(has, _mm512_set1_pd(-90.0), atan_deg(slope));
+                stats.posts += u64::from(posts.count_ones());
+                // SAFETY: the hulls' storage, and posts of the row.
+                unsafe {
+                    push(&mut hulls, t, wp, stats);
+                    _mm256_mask_storeu_ps(
+                        angles.as_mut_ptr().wrapping_offset(near_out),
+                        posts,
+                        _mm512_cvtpd_ps(angle),
+                    );
+                    _mm512_mask_storeu_epi64(lines.len.as_mut_ptr().add(i0), on_row, hulls.len);
+                    _mm512_mask_storeu_pd(lines.t.as_mut_ptr().add(i0), on_row, t);
+                }
+            }
+        }
+    }
+
+    /// Pops, in every active lane, the top while it lies on or below the
+    /// line from `(t, w)` to the vertex behind it: the scalar `push`'s loop,
+    /// repeated while any lane still pops.
+    ///
+    /// # Safety
+    /// AVX-512 F; `hulls` over live storage.
+    #[target_feature(enable = "avx512f,avx512vl,avx512dq")]
+    unsafe fn pop(hulls: &mut Hulls, t: __m512d, w: __m512d, stats: &mut SweepStats) {
+        let (one, two) = (_mm512_set1_epi64(1), _mm512_set1_epi64(2));
+        loop {
+            let has2 = _mm512_mask_cmpge_epi64_mask(hulls.active, hulls.len, two);
+            let lhs = _mm512_mul_pd(_mm512_sub_pd(hulls.top_w, w), _mm512_sub_pd(hulls.sec_t, t));
+            let rhs = _mm512_mul_pd(_mm512_sub_pd(hulls.sec_w, w), _mm512_sub_pd(hulls.top_t, t));
+            let popped = _mm512_mask_cmp_pd_mask::<_CMP_LE_OQ>(has2, lhs, rhs);
+            if popped == 0 {
+                return;
+            }
+            stats.pops += u64::from(popped.count_ones());
+            hulls.len = _mm512_mask_sub_epi64(hulls.len, popped, hulls.len, one);
+            hulls.top = _mm512_mask_sub_epi64(hulls.top, popped, hulls.top, hulls.count);
+            hulls.top_t = _mm512_mask_mov_pd(hulls.top_t, popped, hulls.sec_t);
+            hulls.top_w = _mm512_mask_mov_pd(hulls.top_w, popped, hulls.sec_w);
+            let refill = _mm512_mask_cmpge_epi64_mask(popped, hulls.len, two);
+            let below = _mm512_sub_epi64(hulls.top, hulls.count);
+            // SAFETY: the vertex below each refilled top is on its hull.
+            unsafe {
+                hulls.sec_t =
+                    _mm512_mask_i64gather_pd::<8>(hulls.sec_t, refill, below, hulls.hull_t);
+                hulls.sec_w =
+                    _mm512_mask_i64gather_pd::<8>(hulls.sec_w, refill, below, hulls.hull_w);
+            }
+        }
+    }
+
+    /// Pushes `(t, w)` on every active lane's hull (after [`pop`]); the
+    /// caller spilled every line that could outgrow [`DEPTH`].
+    ///
+    /// # Safety
+    /// AVX-512 F; `hulls` over live storage.
+    #[target_feature(enable = "avx512f,avx512vl,avx512dq")]
+    unsafe fn push(hulls: &mut Hulls, t: __m512d, w: __m512d, stats: &mut SweepStats) {
+        let pushed = hulls.active;
+        hulls.top = _mm512_mask_add_epi64(hulls.top, pushed, hulls.top, hulls.count);
+        // SAFETY: below DEPTH in each pushed lane's line.
+        unsafe {
+            _mm512_mask_i64scatter_pd::<8>(hulls.hull_t, pushed, hulls.top, t);
+            _mm512_mask_i64scatter_pd::<8>(hulls.hull_w, pushed, hulls.top, w);
+        }
+        hulls.sec_t = _mm512_mask_mov_pd(hulls.sec_t, pushed, hulls.top_t);
+        hulls.sec_w = _mm512_mask_mov_pd(hulls.sec_w, pushed, hulls.top_w);
+        hulls.top_t = _mm512_mask_mov_pd(hulls.top_t, pushed, t);
+        hulls.top_w = _mm512_mask_mov_pd(hulls.top_w, pushed, w);
+        hulls.len = _mm512_mask_add_epi64(hulls.len, pushed, hulls.len, _mm512_set1_epi64(1));
+        stats.vertices += u64::from(pushed.count_ones());
+    }
+
+    /// [`super::super::atan_deg`] in eight lanes, its branches as blends:
+    /// the same operations in the same order, so the same bits.
+    #[target_feature(enable = "avx512f,avx512vl,avx512dq")]
+    fn atan_deg(x: __m512d) -> __m512d {
+        const TAN_3PI_8: f64 = 2.414_213_562_373_095;
+        const TAN_PI_8: f64 = 0.414_213_562_373_095_1;
+        let set = _mm512_set1_pd;
+        let sign_bit = set(-0.0);
+        // `signum` of a number: 1 with its sign.
+        let sign = _mm512_or_pd(_mm512_and_pd(x, sign_bit), set(1.0));
+        let ax = _mm512_andnot_pd(sign_bit, x);
+        let high = _mm512_cmp_pd_mask::<_CMP_GT_OQ>(ax, set(TAN_3PI_8));
+        let mid = _mm512_cmp_pd_mask::<_CMP_GT_OQ>(ax, set(TAN_PI_8)) & !high;
+        let base = _mm512_mask_blend_pd(
+            high,
+            _mm512_mask_blend_pd(mid, set(0.0), set(std::f64::consts::FRAC_PI_4)),
+            set(std::f64::consts::FRAC_PI_2),
+        );
+        let r = _mm512_mask_blend_pd(
+            mid,
+            ax,
+            _mm512_div_pd(_mm512_sub_pd(ax, set(1.0)), _mm512_add_pd(ax, set(1.0))),
+        );
+        let r = _mm512_mask_blend_pd(high, r, _mm512_div_pd(set(-1.0), ax));
+        let zz = _mm512_mul_pd(r, r);
+        let mut p = _mm512_sub_pd(
+            _mm512_mul_pd(set(8.053_744_495_38e-2), zz),
+            set(1.387_768_560_32e-1),
+        );
+        p = _mm512_add_pd(_mm512_mul_pd(p, zz), set(1.997_771_064_78e-1));
+        p = _mm512_sub_pd(_mm512_mul_pd(p, zz), set(3.333_294_915_39e-1));
+        let poly = _mm512_add_pd(_mm512_mul_pd(_mm512_mul_pd(p, zz), r), r);
+        let radians = _mm512_mul_pd(sign, _mm512_add_pd(base, poly));
+        _mm512_mul_pd(radians, set(1f64.to_degrees()))
+    }
+}
