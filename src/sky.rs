@@ -15,7 +15,9 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 use rayon::prelude::*;
-use terrabake_format::horizons::{edge_distance, HORIZON, HORIZON_EDGE, OPENNESS, SVF, SVF_COSINE};
+use terrabake_format::horizons::{
+    edge_distance_along, heading, HORIZON, HORIZON_EDGE, OPENNESS, SVF, SVF_COSINE,
+};
 use terrabake_format::{Asset, Codec, ElemType, LayerEntry, LayerWriter, Mmap, HEIGHT_LAYER};
 
 use crate::horizon::sky::{BandIntegrals, SkySums};
@@ -216,6 +218,7 @@ impl Stage for SkyStage {
             let mut angles = vec![0f32; rows * w];
             for (b, &azimuth) in azimuths.iter().enumerate() {
                 horizon.read_rows_f32(b as u32, y0 as u32, &mut angles)?;
+                let towards = heading(azimuth);
                 sums.par_chunks_mut(w)
                     .zip(edges.par_chunks_mut(w))
                     .zip(angles.par_chunks(w))
@@ -231,11 +234,11 @@ impl Stage for SkyStage {
                             sums[col].add(hz, (sh, ch), &integrals[b], normal);
                             // Could terrain no higher than the DEM's top, just
                             // past the edge, rise above this horizon?
-                            let d = edge_distance(
+                            let d = edge_distance_along(
                                 (w as u32, h as u32),
                                 (terrain.dx_at(row), dy),
                                 (col as f64, row as f64),
-                                azimuth,
+                                towards,
                             );
                             let rise =
                                 (z_max - f64::from(terrain.at(col, row)) - curvature * d * d) / d;

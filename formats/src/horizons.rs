@@ -183,9 +183,25 @@ pub fn edge_distance(
     (x, y): (f64, f64),
     azimuth: f64,
 ) -> f64 {
+    edge_distance_along((width, height), (dx, dy), (x, y), heading(azimuth))
+}
+
+/// Metres east and south per metre travelled in the compass direction
+/// `azimuth` (degrees), as [`edge_distance_along`] takes it.
+pub fn heading(azimuth: f64) -> (f64, f64) {
     let (sin, cos) = azimuth.to_radians().sin_cos();
-    // Metres east and south per metre travelled.
-    let (ve, vs) = (sin, -cos);
+    (sin, -cos)
+}
+
+/// [`edge_distance`] going `(ve, vs)` metres east and south per metre
+/// ([`heading`]): one direction's sine and cosine taken once for a whole
+/// band of posts.
+pub fn edge_distance_along(
+    (width, height): (u32, u32),
+    (dx, dy): (f64, f64),
+    (x, y): (f64, f64),
+    (ve, vs): (f64, f64),
+) -> f64 {
     let reach = |pos: f64, v: f64, last: f64, step: f64| {
         if v > 1e-12 {
             (last - pos) * step / v

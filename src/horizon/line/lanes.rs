@@ -158,7 +158,12 @@ impl Lines {
         };
         for row in rows {
             let far_row = !(0..h).contains(&(row as i64 + b));
-            for col in (0..self.width).filter(|c| far_row || !cols.contains(c)) {
+            let edges = if far_row {
+                [0..self.width, 0..0]
+            } else {
+                [0..cols.start, cols.end..self.width]
+            };
+            for col in edges.into_iter().flatten() {
                 let lane = sweep.start((col as i64, row as i64), out, stats);
                 let i = self.index(col, row);
                 if lane.hull.len() + n > DEPTH {
@@ -176,8 +181,7 @@ impl Lines {
                 continue;
             }
             // Lines whose hull could outgrow DEPTH in this step.
-            for col in cols.clone() {
-                let i = self.index(col, row);
+            for (col, i) in cols.clone().zip(self.indices(cols.clone(), row)) {
                 if self.len[i] > (DEPTH - n) as i64 {
                     let hull = (0..self.len[i] as usize)
                         .map(|d| {
@@ -198,15 +202,6 @@ impl Lines {
                 }
             }
             // Keys are consecutive along the row but wrap once at most.
-            let wrap = (0..cols.len())
-                .find(|&k| {
-                    k > 0
-                        && self.index(cols.start + k, row)
-                            == self.index(cols.start, row)
-                                - (self.index(cols.start, row) % self.modulus)
-                })
-                .map_or(cols.end, |k| cols.start + k);
-            let _ = wrap;
             let split = cols.start + self.unwrapped(cols.clone(), row);
             for part in [cols.start..split, split..cols.end] {
                 if part.is_empty() {
@@ -220,6 +215,22 @@ impl Lines {
                 };
             }
         }
+    }
+
+    /// The indices of the lines through posts `cols` of `row`, in order.
+    fn indices(
+        &self,
+        cols: std::ops::Range<usize>,
+        row: usize,
+    ) -> impl Iterator<Item = usize> + use<> {
+        let first = self.index(cols.start, row);
+        let class = first - first % self.modulus;
+        let (m, mut key) = (self.modulus, first - class);
+        cols.map(move |_| {
+            let i = class + key;
+            key = if key + 1 == m { 0 } else { key + 1 };
+            i
+        })
     }
 
     /// How many columns of `cols` on `row`, from the first, have
@@ -237,6 +248,7 @@ fn cpu_has_lanes() -> bool {
         std::arch::is_x86_feature_detected!("avx512f")
             && std::arch::is_x86_feature_detected!("avx512vl")
             && std::arch::is_x86_feature_detected!("avx512dq")
+            && std::arch::is_x86_feature_detected!("popcnt")
     }
     #[cfg(not(target_arch = "x86_64"))]
     false
@@ -279,13 +291,16 @@ mod avx512 {
     use crate::horizon::terrain::Terrain;
     use std::arch::x86_64::*;
 
-    /// Eight lanes' hulls: the top two vertices of each, its length, the
-    /// index of its top in the depth-major storage, and the storage.
+    /// Eight lanes' hulls: the top three vertices of each (the third
+    /// gathered while the pops go on, off their critical path), its length,
+    /// the index of its top in the depth-major storage, and the storage.
     struct Hulls {
         top_t: __m512d,
         top_w: __m512d,
         sec_t: __m512d,
         sec_w: __m512d,
+        third_t: __m512d,
+        third_w: __m512d,
         len: __m512i,
         /// `(len - 1) * count + line`.
         top: __m512i,
@@ -305,7 +320,7 @@ mod avx512 {
         /// AVX-512 F, VL and DQ; every crossing of the steps from `cols`
         /// in `terrain`'s rows, `row` in `out`'s, and the lines' indices
         /// consecutive over `cols`.
-        #[target_feature(enable = "avx512f,avx512vl,avx512dq")]
+        #[target_feature(enable = "avx512f,avx512vl,avx512dq,popcnt")]
         pub(super) unsafe fn row(
             &self,
             lines: &mut Lines,
@@ -347,7 +362,9 @@ mod avx512 {
                     _mm512_add_epi64(_mm512_mullo_epi64(_mm512_sub_epi64(len, one), count), line);
                 let has1 = _mm512_mask_cmpge_epi64_mask(active, len, one);
                 let has2 = _mm512_mask_cmpge_epi64_mask(active, len, _mm512_set1_epi64(2));
+                let has3 = _mm512_mask_cmpge_epi64_mask(active, len, _mm512_set1_epi64(3));
                 let below = _mm512_sub_epi64(top, count);
+                let below2 = _mm512_sub_epi64(below, count);
                 let zero = _mm512_setzero_pd();
                 let (ht, hw) = (lines.hull_t.as_mut_ptr(), lines.hull_w.as_mut_ptr());
                 // SAFETY: indices of vertices on the hulls.
@@ -357,6 +374,8 @@ mod avx512 {
                         top_w: _mm512_mask_i64gather_pd::<8>(zero, has1, top, hw),
                         sec_t: _mm512_mask_i64gather_pd::<8>(zero, has2, below, ht),
                         sec_w: _mm512_mask_i64gather_pd::<8>(zero, has2, below, hw),
+                        third_t: _mm512_mask_i64gather_pd::<8>(zero, has3, below2, ht),
+                        third_w: _mm512_mask_i64gather_pd::<8>(zero, has3, below2, hw),
                         len,
                         top,
                         count,
@@ -426,9 +445,13 @@ mod avx512 {
     ///
     /// # Safety
     /// AVX-512 F; `hulls` over live storage.
-    #[target_feature(enable = "avx512f,avx512vl,avx512dq")]
+    #[target_feature(enable = "avx512f,avx512vl,avx512dq,popcnt")]
     unsafe fn pop(hulls: &mut Hulls, t: __m512d, w: __m512d, stats: &mut SweepStats) {
-        let (one, two) = (_mm512_set1_epi64(1), _mm512_set1_epi64(2));
+        let (one, two, three) = (
+            _mm512_set1_epi64(1),
+            _mm512_set1_epi64(2),
+            _mm512_set1_epi64(3),
+        );
         loop {
             let has2 = _mm512_mask_cmpge_epi64_mask(hulls.active, hulls.len, two);
             let lhs = _mm512_mul_pd(_mm512_sub_pd(hulls.top_w, w), _mm512_sub_pd(hulls.sec_t, t));
@@ -442,14 +465,16 @@ mod avx512 {
             hulls.top = _mm512_mask_sub_epi64(hulls.top, popped, hulls.top, hulls.count);
             hulls.top_t = _mm512_mask_mov_pd(hulls.top_t, popped, hulls.sec_t);
             hulls.top_w = _mm512_mask_mov_pd(hulls.top_w, popped, hulls.sec_w);
-            let refill = _mm512_mask_cmpge_epi64_mask(popped, hulls.len, two);
-            let below = _mm512_sub_epi64(hulls.top, hulls.count);
-            // SAFETY: the vertex below each refilled top is on its hull.
+            hulls.sec_t = _mm512_mask_mov_pd(hulls.sec_t, popped, hulls.third_t);
+            hulls.sec_w = _mm512_mask_mov_pd(hulls.sec_w, popped, hulls.third_w);
+            let refill = _mm512_mask_cmpge_epi64_mask(popped, hulls.len, three);
+            let third = _mm512_sub_epi64(hulls.top, _mm512_add_epi64(hulls.count, hulls.count));
+            // SAFETY: the vertex two below each refilled top is on its hull.
             unsafe {
-                hulls.sec_t =
-                    _mm512_mask_i64gather_pd::<8>(hulls.sec_t, refill, below, hulls.hull_t);
-                hulls.sec_w =
-                    _mm512_mask_i64gather_pd::<8>(hulls.sec_w, refill, below, hulls.hull_w);
+                hulls.third_t =
+                    _mm512_mask_i64gather_pd::<8>(hulls.third_t, refill, third, hulls.hull_t);
+                hulls.third_w =
+                    _mm512_mask_i64gather_pd::<8>(hulls.third_w, refill, third, hulls.hull_w);
             }
         }
     }
@@ -459,7 +484,7 @@ mod avx512 {
     ///
     /// # Safety
     /// AVX-512 F; `hulls` over live storage.
-    #[target_feature(enable = "avx512f,avx512vl,avx512dq")]
+    #[target_feature(enable = "avx512f,avx512vl,avx512dq,popcnt")]
     unsafe fn push(hulls: &mut Hulls, t: __m512d, w: __m512d, stats: &mut SweepStats) {
         let pushed = hulls.active;
         hulls.top = _mm512_mask_add_epi64(hulls.top, pushed, hulls.top, hulls.count);
@@ -468,6 +493,8 @@ mod avx512 {
             _mm512_mask_i64scatter_pd::<8>(hulls.hull_t, pushed, hulls.top, t);
             _mm512_mask_i64scatter_pd::<8>(hulls.hull_w, pushed, hulls.top, w);
         }
+        hulls.third_t = _mm512_mask_mov_pd(hulls.third_t, pushed, hulls.sec_t);
+        hulls.third_w = _mm512_mask_mov_pd(hulls.third_w, pushed, hulls.sec_w);
         hulls.sec_t = _mm512_mask_mov_pd(hulls.sec_t, pushed, hulls.top_t);
         hulls.sec_w = _mm512_mask_mov_pd(hulls.sec_w, pushed, hulls.top_w);
         hulls.top_t = _mm512_mask_mov_pd(hulls.top_t, pushed, t);
@@ -478,7 +505,7 @@ mod avx512 {
 
     /// [`super::super::atan_deg`] in eight lanes, its branches as blends:
     /// the same operations in the same order, so the same bits.
-    #[target_feature(enable = "avx512f,avx512vl,avx512dq")]
+    #[target_feature(enable = "avx512f,avx512vl,avx512dq,popcnt")]
     fn atan_deg(x: __m512d) -> __m512d {
         const TAN_3PI_8: f64 = 2.414_213_562_373_095;
         const TAN_PI_8: f64 = 0.414_213_562_373_095_1;
