@@ -43,11 +43,11 @@
 use super::{Lane, Out, Stencil, Sweep, SweepStats};
 
 /// Hull vertices a lane keeps.
-pub const DEPTH: usize = 64;
+pub const DEPTH: usize = 128;
 
 /// The most the lanes' hulls of one direction may take (bytes); eight
 /// directions are swept at once out of core.
-pub const MAX_BYTES: usize = 64 << 20;
+pub const MAX_BYTES: usize = 32 << 20;
 
 /// The state of every line of one direction, indexed as the module docs
 /// say.
