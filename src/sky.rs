@@ -20,7 +20,7 @@ use terrabake_format::horizons::{
 };
 use terrabake_format::{Asset, Codec, ElemType, LayerEntry, LayerWriter, Mmap, HEIGHT_LAYER};
 
-use crate::horizon::sky::{BandIntegrals, SkySums};
+use crate::horizon::sky::{BandIntegrals, SinCosMemo, SkySums};
 use crate::horizon::terrain::{RowScale, Terrain};
 use crate::horizon::{band_bounds, post_layer, HorizonsStage};
 use crate::progress::Progress;
@@ -223,14 +223,14 @@ impl Stage for SkyStage {
                     .zip(edges.par_chunks_mut(w))
                     .zip(angles.par_chunks(w))
                     .enumerate()
-                    .for_each(|(r, ((sums, edges), angles))| {
+                    .for_each_init(SinCosMemo::default, |memo, (r, ((sums, edges), angles))| {
                         let row = y0 + r;
                         for col in 0..w {
                             let hz = f64::from(angles[col]);
                             let Some(normal) = normals[r * w + col].filter(|_| !hz.is_nan()) else {
                                 continue;
                             };
-                            let (sh, ch) = hz.to_radians().sin_cos();
+                            let (sh, ch) = memo.get(angles[col]);
                             sums[col].add(hz, (sh, ch), &integrals[b], normal);
                             // Could terrain no higher than the DEM's top, just
                             // past the edge, rise above this horizon?
@@ -240,9 +240,10 @@ impl Stage for SkyStage {
                                 (col as f64, row as f64),
                                 towards,
                             );
-                            let rise =
-                                (z_max - f64::from(terrain.at(col, row)) - curvature * d * d) / d;
-                            if d == 0.0 || rise * ch > sh {
+                            // The rise's slope (z_max - z - c d^2) / d against
+                            // tan h, both sides times d cos h (d, cos h >= 0).
+                            let rise = z_max - f64::from(terrain.at(col, row)) - curvature * d * d;
+                            if d == 0.0 || rise * ch > sh * d {
                                 edges[col] += 1;
                             }
                         }

@@ -787,7 +787,7 @@ fn line_lanes_equal_the_scalar_sweep_bit_for_bit() {
                 .with_curvature(curvature);
             let mut want = vec![0f32; w * h];
             scalar.sweep(&whole, 0..h, &mut want);
-            let short = line::Stencil::new(dir.step).len() <= line::lanes::DEPTH / 4;
+            let short = line::Stencil::new(dir.step).len() <= line::lanes::MAX_DEPTH / 4;
             assert_eq!(
                 new().in_lanes(),
                 cpu && dir.step.1 != 0 && short,

@@ -76,9 +76,10 @@ impl SkySums {
         let (h, sh, ch) = if sh >= tan_plane * ch {
             (h, sh, ch)
         } else {
-            let p = tan_plane.atan();
-            let (sp, cp) = p.sin_cos();
-            (p, sp, cp)
+            // The plane's elevation p = atan(tan p), |p| < 90 degrees, so
+            // cos p = 1 / sqrt(1 + tan^2 p) > 0: no sine or cosine to call.
+            let cp = 1.0 / (tan_plane * tan_plane + 1.0).sqrt();
+            (tan_plane.atan(), tan_plane * cp, cp)
         };
         let cos_squared_integral = std::f64::consts::FRAC_PI_4 - h / 2.0 - sh * ch / 2.0;
         let sin_cos_integral = ch * ch / 2.0;
@@ -94,6 +95,44 @@ impl SkySums {
     }
     pub fn openness(&self) -> f64 {
         self.zenith_sum
+    }
+}
+
+/// The sine and cosine of horizon angles (degrees), remembered: a stored
+/// horizon takes few distinct values (at most 256 per band in a u8
+/// encoding), so most posts find theirs here instead of calling `sin_cos`.
+/// The same bits as `h.to_radians().sin_cos()`, whatever it holds.
+#[derive(Debug, Clone)]
+pub struct SinCosMemo {
+    /// Per slot: the f32 angle's bits (NaN's bits, never an angle, for an
+    /// empty slot), and its sine and cosine.
+    slots: Vec<(u32, f64, f64)>,
+}
+
+impl Default for SinCosMemo {
+    fn default() -> Self {
+        Self {
+            slots: vec![(f32::NAN.to_bits(), 0.0, 0.0); 1 << Self::BITS],
+        }
+    }
+}
+
+impl SinCosMemo {
+    /// 1024 slots, 24 KiB: within a core's L1 cache.
+    const BITS: u32 = 10;
+
+    /// `h.to_radians().sin_cos()` for the f32 angle `h` (not NaN).
+    #[inline]
+    pub fn get(&mut self, h: f32) -> (f64, f64) {
+        let bits = h.to_bits();
+        // Fibonacci hashing: the top bits of the product.
+        let slot = (bits.wrapping_mul(0x9E37_79B9) >> (32 - Self::BITS)) as usize;
+        let entry = &mut self.slots[slot];
+        if entry.0 != bits {
+            let (s, c) = f64::from(h).to_radians().sin_cos();
+            *entry = (bits, s, c);
+        }
+        (entry.1, entry.2)
     }
 }
 

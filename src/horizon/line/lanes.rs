@@ -1,52 +1,57 @@
 //! Line sweeps in SIMD lanes: the lines of one direction stepped together
-//! row by row, eight neighbouring lines to a vector, with masked pops
-//! (issue #17, item 1; Timonen 2013, sec. 4, whose sweep keeps one line's
-//! hull at a time).
+//! row by row, eight neighbouring lines to an AVX-512 vector, with masked
+//! pops (issue #17, item 1). Timonen (2013, sec. 4) sweeps one line's hull
+//! at a time, as our scalar sweep does; this is the same sweep turned a
+//! quarter: every line at once, one post each per row.
 //!
 //! The scalar sweep ([`super::BandedSweep`] without lanes) walks a line
 //! through a band of rows before it starts the next, so every hull push
 //! waits on a pop loop whose exit is a data-dependent branch (about 15 ns a
-//! vertex). Here the lines take their steps row by row instead: on a row
-//! every line that has a post there receives it, and the posts of eight
-//! neighbouring columns are eight different lines (a step with `b != 0`
-//! never joins two posts of one row). Their crossings load with plain
-//! vector loads (the stencil's offsets are the same for every post), and a
-//! pop is one masked compare over eight hulls, repeated while any lane
-//! still pops.
+//! vertex). Here, on each row, every line with a post there receives it,
+//! and the posts of eight neighbouring columns are eight different lines (a
+//! step with `b != 0` never joins two posts of one row). Their crossings
+//! load with plain vector loads (a stencil's offsets are the same for every
+//! post), and a pop is one masked compare over eight hulls, repeated while
+//! any lane still pops.
 //!
-//! **State.** A line is known by `col - s * (row div |b|)` (`s = a
+//! **State.** A line is known by its key `col - s * (row div |b|)` (`s = a
 //! sign(b)`) within its row class `row mod |b|`: the key stays the same
-//! along the line and runs over consecutive integers along a row, so eight
-//! lanes load their lines' `t` and hull lengths with one load. Keys are
-//! taken modulo `width + |s|`, more than the lines alive in a class at
-//! once, so the state is `O(width |b|)` whatever the height (a band of rows
-//! at a time, out of core, as the scalar sweep). Hulls are stacks of at
-//! most [`DEPTH`] vertices stored depth-major (`[depth][line]`: the tops of
-//! neighbouring lines share cache lines); a lane holds its top two vertices
-//! in registers through a row.
+//! along the line and counts up along a row, so eight lanes load their
+//! lines' `t` and hull lengths with one load. Keys are taken modulo `width
+//! + |s|`, more than the lines alive in a class at once, so the state is
+//! `O(width |b|)` whatever the height, and the sweep goes a band of rows at
+//! a time out of core like the scalar one. Hulls are stacks of up to 128
+//! vertices (fewer on DEMs so wide that [`MAX_BYTES`] would not hold that
+//! many for every line; never fewer than 32), stored depth-major
+//! (`[depth][line]`: the tops of neighbouring lines share cache lines). A
+//! lane holds its top three vertices in registers, the third gathered while
+//! its pops go on, so that a pop's next compare never waits on memory.
 //!
 //! **The same bits.** Each line does the scalar sweep's arithmetic in the
 //! scalar sweep's order (no fused multiply-adds; the arctangent is
 //! [`super::atan_deg`] with its branches as blends), so the angles are the
 //! scalar sweep's bits, which `tests/horizons.rs` checks on random and real
-//! terrains in every direction, in one band and in many. The far post of
-//! each line (its crossings may leave the DEM), the posts of a row beyond
-//! the vectors' reach at its ends, and a line whose hull could outgrow
-//! [`DEPTH`] in its next step (it leaves the lanes for good) go through the
-//! scalar sweep.
+//! terrains in every direction, in one band and in many. Three kinds of
+//! post go through the scalar sweep: each line's far post (its crossings
+//! may leave the DEM), the posts near a row's ends whose far neighbour is
+//! off the DEM (the same), and every post of a line whose hull could outgrow
+//! the depth in its next step (the line leaves the lanes for good).
 //!
-//! **When.** AVX-512 (F, VL, DQ), detected at run time; without nodata and
-//! without distances; for steps with `b != 0` (an east or west step has one
-//! line per row); while the hulls take at most [`MAX_BYTES`]. Anything else
-//! takes the scalar sweep, which gives the same bits.
+//! **When.** AVX-512 F, VL and DQ, detected at run time; without nodata
+//! and without distances; for steps with `b != 0` (an east or west step
+//! has one line per row) and of at most a quarter of the depth in
+//! vertices (every direction of 64 on square posts). Anything else takes
+//! the scalar sweep, which gives the same bits.
 
 use super::{Lane, Out, Stencil, Sweep, SweepStats};
 
-/// Hull vertices a lane keeps.
-pub const DEPTH: usize = 128;
+/// Hull vertices a lane keeps at most, and at least (fewer where the DEM is
+/// so wide that [`MAX_BYTES`] would not hold 128 for every line).
+pub const MAX_DEPTH: usize = 128;
+pub const MIN_DEPTH: usize = 32;
 
 /// The most the lanes' hulls of one direction may take (bytes); eight
-/// directions are swept at once out of core.
+/// directions are swept at once out of core, so 256 MiB in all.
 pub const MAX_BYTES: usize = 32 << 20;
 
 /// The state of every line of one direction, indexed as the module docs
@@ -63,6 +68,8 @@ pub(super) struct Lines {
     modulus: usize,
     /// Lines in all: `q * modulus`.
     count: usize,
+    /// Hull vertices a lane keeps.
+    depth: usize,
     /// `t` of each line's last post.
     t: Vec<f64>,
     /// Vertices on each line's hull; -1 for a line swept by the scalar
@@ -77,18 +84,19 @@ pub(super) struct Lines {
 
 impl Lines {
     /// The lanes for lines of `stencil`'s step over a DEM `width` posts
-    /// wide, or `None` where they do not apply (the CPU, the step, the
-    /// memory, or steps of more than `DEPTH / 4` vertices).
+    /// wide, or `None` where they do not apply (the CPU, the step, or
+    /// steps of more than a quarter of the depth [`MAX_BYTES`] allows).
     pub(super) fn new(stencil: &Stencil, width: usize) -> Option<Self> {
         let step = stencil.step;
-        if !cpu_has_lanes() || step.1 == 0 || stencil.len() > DEPTH / 4 {
+        if !cpu_has_lanes() || step.1 == 0 {
             return None;
         }
         let q = step.1.unsigned_abs() as usize;
         let s = step.0 * step.1.signum();
         let modulus = width + s.unsigned_abs() as usize;
         let count = q * modulus;
-        if 2 * 8 * DEPTH * count > MAX_BYTES {
+        let depth = (MAX_BYTES / (2 * 8 * count)).min(MAX_DEPTH);
+        if depth < MIN_DEPTH || stencil.len() > depth / 4 {
             return None;
         }
         Some(Self {
@@ -98,10 +106,11 @@ impl Lines {
             s,
             modulus,
             count,
+            depth,
             t: vec![0.0; count],
             len: vec![0; count],
-            hull_t: vec![0.0; DEPTH * count],
-            hull_w: vec![0.0; DEPTH * count],
+            hull_t: vec![0.0; depth * count],
+            hull_w: vec![0.0; depth * count],
             spilled: Vec::new(),
         })
     }
@@ -166,7 +175,7 @@ impl Lines {
             for col in edges.into_iter().flatten() {
                 let lane = sweep.start((col as i64, row as i64), out, stats);
                 let i = self.index(col, row);
-                if lane.hull.len() + n > DEPTH {
+                if lane.hull.len() + n > self.depth {
                     self.spill(i, lane, sweep, &band, out, stats);
                     continue;
                 }
@@ -180,9 +189,9 @@ impl Lines {
             if far_row {
                 continue;
             }
-            // Lines whose hull could outgrow DEPTH in this step.
+            // Lines whose hull could outgrow the depth in this step.
             for (col, i) in cols.clone().zip(self.indices(cols.clone(), row)) {
-                if self.len[i] > (DEPTH - n) as i64 {
+                if self.len[i] > (self.depth - n) as i64 {
                     let hull = (0..self.len[i] as usize)
                         .map(|d| {
                             [
@@ -480,7 +489,7 @@ mod avx512 {
     }
 
     /// Pushes `(t, w)` on every active lane's hull (after [`pop`]); the
-    /// caller spilled every line that could outgrow [`DEPTH`].
+    /// caller spilled every line that could outgrow the depth.
     ///
     /// # Safety
     /// AVX-512 F; `hulls` over live storage.
@@ -488,7 +497,7 @@ mod avx512 {
     unsafe fn push(hulls: &mut Hulls, t: __m512d, w: __m512d, stats: &mut SweepStats) {
         let pushed = hulls.active;
         hulls.top = _mm512_mask_add_epi64(hulls.top, pushed, hulls.top, hulls.count);
-        // SAFETY: below DEPTH in each pushed lane's line.
+        // SAFETY: below the depth in each pushed lane's line.
         unsafe {
             _mm512_mask_i64scatter_pd::<8>(hulls.hull_t, pushed, hulls.top, t);
             _mm512_mask_i64scatter_pd::<8>(hulls.hull_w, pushed, hulls.top, w);
