@@ -17,8 +17,8 @@
 //! **State.** A line is known by its key `col - s * (row div |b|)` (`s = a
 //! sign(b)`) within its row class `row mod |b|`: the key stays the same
 //! along the line and counts up along a row, so eight lanes load their
-//! lines' `t` and hull lengths with one load. Keys are taken modulo `width
-//! + |s|`, more than the lines alive in a class at once, so the state is
+//! lines' `t` and hull lengths with one load. Keys are taken modulo
+//! `width + |s|`, more than the lines alive in a class at once, so the state is
 //! `O(width |b|)` whatever the height, and the sweep goes a band of rows at
 //! a time out of core like the scalar one. Hulls are stacks of up to 128
 //! vertices (fewer on DEMs so wide that [`MAX_BYTES`] would not hold that
