@@ -28,7 +28,7 @@ run_limited() {
 
 for part in $PARTS; do
   case $part in
-    line) run_limited line 512 "$(fractal_asset "${N:-16384}")" --sectors 16 ;;
+    line) run_limited line 512 "$(fractal_asset "${N:-16384}")" --sectors 16 --max-memory 512 ;;
     sector) run_limited sector 128 "$(fractal_asset "${NS:-8192}")" --method sector --sectors 8 --max-distance 150 ;;
     *) echo "unknown part $part (line, sector)" >&2; exit 2 ;;
   esac

@@ -713,7 +713,7 @@ fn line_sweeps_by_bands_equal_one_band() {
 /// direction of 16 and 64 and long steps, on terrains narrower than a
 /// vector and wider than several, with curvature and geographic rows, and
 /// on a dome whose hulls outgrow the lanes' depth (those lines leave the
-/// lanes for the scalar sweep).
+/// lanes for the scalar sweep); with deep hulls and with shallow ones.
 #[test]
 fn line_lanes_equal_the_scalar_sweep_bit_for_bit() {
     use terrabake::horizon::line::{grid_direction, BandedSweep};
@@ -794,8 +794,14 @@ fn line_lanes_equal_the_scalar_sweep_bit_for_bit() {
                 "{name}: {:?}",
                 dir.step
             );
-            for rows in [1, 7, h] {
-                let mut sweep = new();
+            assert!(!new().with_lane_memory(0).in_lanes());
+            // Bands of rows; hulls as deep as the lanes go, and shallower
+            // (64 KiB a direction: 32 vertices or none on these widths).
+            for (rows, memory) in [(1, None), (7, None), (h, None), (7, Some(64 << 10))] {
+                let mut sweep = match memory {
+                    Some(bytes) => new().with_lane_memory(bytes),
+                    None => new(),
+                };
                 in_lanes += usize::from(sweep.in_lanes());
                 let mut got = vec![0f32; w * h];
                 for band in sweep.bands(rows) {
@@ -824,7 +830,7 @@ fn line_lanes_equal_the_scalar_sweep_bit_for_bit() {
                 for i in 0..w * h {
                     assert!(
                         common::same_heights(want[i], got[i]),
-                        "{name}: {:?} bands of {rows}: post ({}, {}): scalar {} vs lanes {}",
+                        "{name}: {:?} bands of {rows}, lanes memory {memory:?}: post ({}, {}): scalar {} vs lanes {}",
                         dir.step,
                         i % w,
                         i / w,

@@ -562,7 +562,7 @@ impl BandedSweep {
             simd: if nodata {
                 None
             } else {
-                lanes::Lines::new(&stencil, width)
+                lanes::Lines::new(&stencil, width, lanes::MAX_BYTES)
             },
             stencil,
             lengths: step_lengths(dir.step, height, spacing, row_scale),
@@ -579,6 +579,18 @@ impl BandedSweep {
     /// checked against; the same bits).
     pub fn without_lanes(self) -> Self {
         Self { simd: None, ..self }
+    }
+
+    /// The same sweep with the lanes' hulls held to `bytes` (fewer
+    /// vertices a hull, or no lanes where even 32 would not fit): the same
+    /// bits, within a memory budget.
+    pub fn with_lane_memory(self, bytes: usize) -> Self {
+        let simd = self
+            .simd
+            .is_some()
+            .then(|| lanes::Lines::new(&self.stencil, self.width, bytes))
+            .flatten();
+        Self { simd, ..self }
     }
 
     /// Whether the lines go in SIMD lanes ([`lanes`]).

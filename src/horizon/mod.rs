@@ -392,8 +392,8 @@ pub struct HorizonsStage {
     pub distance: bool,
     /// Working memory in MiB for the methods that hold the DEM in memory (sector
     /// without --max-distance, sampled, line with --max-distance); a DEM that needs more
-    /// is refused with the out-of-core routes named. Results do not depend on
-    /// it, so it is not recorded.
+    /// is refused with the out-of-core routes named. Out of core, line's SIMD lanes take
+    /// at most a sixteenth of it. Results do not depend on it, so it is not recorded.
     #[arg(long = "max-memory", value_name = "MIB", default_value = "8192", value_parser = crate::stage::mib::parse)]
     #[serde(
         rename = "max_memory_mib",
@@ -577,9 +577,12 @@ impl HorizonsStage {
         nodata: bool,
     ) -> Box<dyn RowBands + Send> {
         match (&band.kind, self.max_distance) {
-            (BandKind::Line(dir), None) => Box::new(line::BandedSweep::new(
-                dir, dims, spacing, row_scale, nodata,
-            )),
+            // The lanes' hulls of the sweeps in flight take at most a
+            // sixteenth of the working memory.
+            (BandKind::Line(dir), None) => Box::new(
+                line::BandedSweep::new(dir, dims, spacing, row_scale, nodata)
+                    .with_lane_memory(self.max_memory as usize / 16 / OUT_OF_CORE_BATCH),
+            ),
             (&BandKind::Sector { index, count }, Some(max_distance)) => Box::new(BoundedSector {
                 sector: (index, count),
                 narrow: self.narrow_check,

@@ -21,8 +21,9 @@
 //! `width + |s|`, more than the lines alive in a class at once, so the state is
 //! `O(width |b|)` whatever the height, and the sweep goes a band of rows at
 //! a time out of core like the scalar one. Hulls are stacks of up to 128
-//! vertices (fewer on DEMs so wide that [`MAX_BYTES`] would not hold that
-//! many for every line; never fewer than 32), stored depth-major
+//! vertices (fewer where the memory given, at most [`MAX_BYTES`] a
+//! direction, would not hold that many for every line; never fewer than
+//! 32, or the direction takes the scalar sweep), stored depth-major
 //! (`[depth][line]`: the tops of neighbouring lines share cache lines). A
 //! lane holds its top three vertices in registers, the third gathered while
 //! its pops go on, so that a pop's next compare never waits on memory.
@@ -50,8 +51,9 @@ use super::{Lane, Out, Stencil, Sweep, SweepStats};
 pub const MAX_DEPTH: usize = 128;
 pub const MIN_DEPTH: usize = 32;
 
-/// The most the lanes' hulls of one direction may take (bytes); eight
-/// directions are swept at once out of core, so 256 MiB in all.
+/// The most the lanes' hulls of one direction take (bytes) unless told
+/// less ([`super::BandedSweep::with_lane_memory`]: the stage gives them a
+/// share of `--max-memory`).
 pub const MAX_BYTES: usize = 32 << 20;
 
 /// The state of every line of one direction, indexed as the module docs
@@ -84,9 +86,10 @@ pub(super) struct Lines {
 
 impl Lines {
     /// The lanes for lines of `stencil`'s step over a DEM `width` posts
-    /// wide, or `None` where they do not apply (the CPU, the step, or
-    /// steps of more than a quarter of the depth [`MAX_BYTES`] allows).
-    pub(super) fn new(stencil: &Stencil, width: usize) -> Option<Self> {
+    /// wide with hulls of at most `bytes`, or `None` where they do not
+    /// apply (the CPU, the step, or steps of more than a quarter of the
+    /// depth `bytes` allows).
+    pub(super) fn new(stencil: &Stencil, width: usize, bytes: usize) -> Option<Self> {
         let step = stencil.step;
         if !cpu_has_lanes() || step.1 == 0 {
             return None;
@@ -95,7 +98,7 @@ impl Lines {
         let s = step.0 * step.1.signum();
         let modulus = width + s.unsigned_abs() as usize;
         let count = q * modulus;
-        let depth = (MAX_BYTES / (2 * 8 * count)).min(MAX_DEPTH);
+        let depth = (bytes.min(MAX_BYTES) / (2 * 8 * count)).min(MAX_DEPTH);
         if depth < MIN_DEPTH || stencil.len() > depth / 4 {
             return None;
         }
