@@ -38,7 +38,7 @@
 //! off the DEM (the same), and every post of a line whose hull could outgrow
 //! the depth in its next step (the line leaves the lanes for good).
 //!
-//! **When.** AVX-512 F, VL and DQ, detected at run time; without nodata
+//! **When.** AVX-512 F, VL and DQ (and popcnt), detected at run time; without nodata
 //! and without distances; for steps with `b != 0` (an east or west step
 //! has one line per row) and of at most a quarter of the depth in
 //! vertices (every direction of 64 on square posts). Anything else takes
@@ -46,8 +46,9 @@
 
 use super::{Lane, Out, Stencil, Sweep, SweepStats};
 
-/// Hull vertices a lane keeps at most, and at least (fewer where the DEM is
-/// so wide that [`MAX_BYTES`] would not hold 128 for every line).
+/// Hull vertices a lane keeps at most, and at least: fewer than 128 where
+/// the memory given would not hold that many for every line, and no lanes
+/// where it would not hold 32.
 pub const MAX_DEPTH: usize = 128;
 pub const MIN_DEPTH: usize = 32;
 
