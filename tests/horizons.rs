@@ -627,6 +627,30 @@ fn sector_within_a_distance_equals_brute_force_band_by_band() {
     }
 }
 
+/// `sweep` over `whole` in bands of `rows` rows, each from its own window
+/// of the DEM's rows, as the stage runs it out of core.
+fn sweep_in_bands(sweep: &mut line::BandedSweep, whole: &Terrain, rows: usize) -> Vec<f32> {
+    let w = whole.width;
+    let mut out = vec![0f32; whole.z.len()];
+    for band in sweep.bands(rows) {
+        let win = sweep.window(&band);
+        let window = Terrain::window(
+            &whole.z[win.start * w..win.end * w],
+            (w, whole.height),
+            win.start,
+            (whole.dx, whole.dy),
+        )
+        .with_row_scale(whole.row_scale)
+        .with_curvature(whole.curvature);
+        sweep.sweep(
+            &window,
+            band.clone(),
+            &mut out[band.start * w..band.end * w],
+        );
+    }
+    out
+}
+
 #[test]
 fn line_sweeps_by_bands_equal_one_band() {
     use terrabake::horizon::line::{grid_direction, BandedSweep};
@@ -677,23 +701,7 @@ fn line_sweeps_by_bands_equal_one_band() {
             for rows in [1, 2, 3, 7, 16, h] {
                 let mut sweep =
                     BandedSweep::new(dir, (w, h), (dx, dy), row_scale, whole.has_nodata());
-                let mut banded = vec![0f32; w * h];
-                for band in sweep.bands(rows) {
-                    let win = sweep.window(&band);
-                    let window = Terrain::window(
-                        &z[win.start * w..win.end * w],
-                        (w, h),
-                        win.start,
-                        (dx, dy),
-                    )
-                    .with_row_scale(row_scale)
-                    .with_curvature(curvature);
-                    sweep.sweep(
-                        &window,
-                        band.clone(),
-                        &mut banded[band.start * w..band.end * w],
-                    );
-                }
+                let banded = sweep_in_bands(&mut sweep, &whole, rows);
                 for i in 0..w * h {
                     assert!(
                         common::same_heights(one[i], banded[i]),
@@ -717,17 +725,7 @@ fn line_sweeps_by_bands_equal_one_band() {
 #[test]
 fn line_lanes_equal_the_scalar_sweep_bit_for_bit() {
     use terrabake::horizon::line::{grid_direction, BandedSweep};
-    let cpu = cfg!(target_arch = "x86_64") && {
-        #[cfg(target_arch = "x86_64")]
-        {
-            std::arch::is_x86_feature_detected!("avx512f")
-                && std::arch::is_x86_feature_detected!("avx512vl")
-                && std::arch::is_x86_feature_detected!("avx512dq")
-                && std::arch::is_x86_feature_detected!("popcnt")
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        false
-    };
+    let cpu = line::lanes::cpu_has_lanes();
     let (srtm, sdx, sdy) = common::srtm_crop((500, 300), (83, 61));
     let scale = geographic_scale(61, 55.0, 1.0 / 1200.0);
     // A dome: every vertex of a concave profile stays on the hull.
@@ -803,23 +801,7 @@ fn line_lanes_equal_the_scalar_sweep_bit_for_bit() {
                     None => new(),
                 };
                 in_lanes += usize::from(sweep.in_lanes());
-                let mut got = vec![0f32; w * h];
-                for band in sweep.bands(rows) {
-                    let win = sweep.window(&band);
-                    let window = Terrain::window(
-                        &z[win.start * w..win.end * w],
-                        (w, h),
-                        win.start,
-                        (dx, dy),
-                    )
-                    .with_row_scale(row_scale)
-                    .with_curvature(curvature);
-                    sweep.sweep(
-                        &window,
-                        band.clone(),
-                        &mut got[band.start * w..band.end * w],
-                    );
-                }
+                let got = sweep_in_bands(&mut sweep, &whole, rows);
                 assert_eq!(
                     sweep.stats.posts, scalar.stats.posts,
                     "{name}: {:?}",

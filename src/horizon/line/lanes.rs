@@ -254,8 +254,8 @@ impl Lines {
     }
 }
 
-/// Whether this CPU runs the lanes.
-fn cpu_has_lanes() -> bool {
+/// Whether this CPU runs the lanes (AVX-512 F, VL, DQ and popcnt).
+pub fn cpu_has_lanes() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
         std::arch::is_x86_feature_detected!("avx512f")
