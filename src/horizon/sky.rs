@@ -336,4 +336,25 @@ mod tests {
             open.svf_cosine()
         );
     }
+
+    #[test]
+    fn remembered_sines_are_the_same_bits() {
+        // Far more distinct angles than slots, each asked twice in a row
+        // and again later, so that slots are filled, hit and overwritten.
+        let mut memo = SinCosMemo::default();
+        let angles: Vec<f32> = (0..5000).map(|i| -90.0 + i as f32 * 0.0371).collect();
+        for pass in 0..2 {
+            for &h in &angles {
+                let want = f64::from(h).to_radians().sin_cos();
+                for _ in 0..2 {
+                    let got = memo.get(h);
+                    assert_eq!(
+                        (got.0.to_bits(), got.1.to_bits()),
+                        (want.0.to_bits(), want.1.to_bits()),
+                        "{h} (pass {pass})"
+                    );
+                }
+            }
+        }
+    }
 }
