@@ -118,9 +118,12 @@ impl AngleEncoding {
             None => (deg as f32).to_bits(),
             Some(_) if deg.is_nan() => 0,
             Some(n) => {
-                1 + ((deg.clamp(-90.0, 90.0) + 90.0) / self.step_deg())
-                    .round()
-                    .min(n) as u32
+                // `round` of a quotient in [0, n], inline (libm's call was
+                // a fifth of encoding): its integer part, plus one from a
+                // fraction of a half or more (`x - trunc(x)` is exact).
+                let x = (deg.clamp(-90.0, 90.0) + 90.0) / self.step_deg();
+                let whole = x as u32;
+                1 + (whole + u32::from(x - f64::from(whole) >= 0.5)).min(n as u32)
             }
         }
     }
@@ -304,6 +307,24 @@ impl<'a, D: AsRef<[u8]>> HorizonMap<'a, D> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The inline rounding is `f64::round`: on every code's centre and
+    /// edges (the halves, where the two could part), a hair either side,
+    /// and the ends.
+    #[test]
+    fn codes_round_as_round_does() {
+        for enc in [AngleEncoding::U8, AngleEncoding::U16] {
+            let (n, step) = (enc.codes().unwrap(), enc.step_deg());
+            let round =
+                |deg: f64| 1 + ((deg.clamp(-90.0, 90.0) + 90.0) / step).round().min(n) as u32;
+            for k in 0..=(2 * n as u32 + 2) {
+                let deg = -90.0 + f64::from(k) * step / 2.0;
+                for d in [deg, deg.next_up(), deg.next_down(), -95.0, 95.0] {
+                    assert_eq!(enc.encode(d), round(d), "{enc:?} {d}");
+                }
+            }
+        }
+    }
 
     #[test]
     fn codes_round_trip_within_half_a_step() {
