@@ -47,7 +47,7 @@ use terrabake_format::{Asset, Codec, Mmap};
 
 use crate::budget::{Budget, Need, Needs, Request, SunPosition};
 use crate::horizon::sky::{svf_of_horizons, BandIntegrals};
-use crate::horizon::{band_bounds, HorizonsStage, Method};
+use crate::horizon::{HorizonsStage, Method};
 use crate::progress::Progress;
 use crate::reference::{quantile_unsorted, shade_differs, Pilot, Sampling};
 use crate::sky::{SkyLayer, SkyStage};
@@ -362,10 +362,7 @@ fn errors(
     let azimuths: Vec<f64> = (0..sectors)
         .map(|i| pilot.reference[i * every].azimuth)
         .collect();
-    let integrals: Vec<BandIntegrals> = band_bounds(&azimuths)
-        .into_iter()
-        .map(|(lo, hi)| BandIntegrals::new(lo, hi))
-        .collect();
+    let integrals = BandIntegrals::of_azimuths(&azimuths);
     let mut e = Errors {
         horizon: Vec::new(),
         svf: Vec::new(),

@@ -22,7 +22,7 @@ use terrabake_format::{Asset, Codec, ElemType, LayerEntry, LayerWriter, Mmap, HE
 
 use crate::horizon::sky::{BandIntegrals, SinCosMemo, SkySums};
 use crate::horizon::terrain::{RowScale, Terrain};
-use crate::horizon::{band_bounds, post_layer, HorizonsStage};
+use crate::horizon::{post_layer, HorizonsStage};
 use crate::progress::Progress;
 use crate::stage::{Share, Stage};
 use crate::tiling::{push_fill_row, push_tile_row};
@@ -167,10 +167,7 @@ impl Stage for SkyStage {
             height.tile_size() as usize,
         );
         let azimuths = &horizon.entry().band_azimuths;
-        let integrals: Vec<BandIntegrals> = band_bounds(azimuths)
-            .into_iter()
-            .map(|(lo, hi)| BandIntegrals::new(lo, hi))
-            .collect();
+        let integrals = BandIntegrals::of_azimuths(azimuths);
         let [ax0, ay0, ax1, ay1] = horizons.area(w, h);
         let curvature = horizons.curvature_coefficient(asset);
         let row_scale = crate::geo::row_scale(m.georef.as_ref(), h as u32);

@@ -56,6 +56,17 @@ def timed(label, cmd, work, limit, tries=1, **kw):
     return {"label": label, "seconds": float(secs), "peak_mib": int(kb) / 1024}, None, stops
 
 
+def whole_fields(run, err):
+    """A peer entry's fields for its whole-DEM run: the run, or a note that it failed."""
+    return ({"whole": run}, []) if run else ({}, [f"the whole DEM failed: {err}"])
+
+
+def fresh_dir(path):
+    shutil.rmtree(path, ignore_errors=True)
+    os.makedirs(path)
+    return path
+
+
 def raster_shape(path):
     info = json.loads(subprocess.check_output(["gdalinfo", "-json", path]))
     cols, rows = info["size"]
@@ -167,11 +178,9 @@ def main():
         if crop_stops or whole_stops:
             r["notes"].append(f"runs stopped at the {a.limit} s limit and run again: "
                               f"{crop_stops} on the crop, {whole_stops} on the whole DEM")
-        if w is None:
-            r["notes"].append("the whole DEM failed: " + err)
-        base = {"version": r["version"], "crop_seconds": r["seconds"], "notes": r["notes"]}
         # The whole-DEM run goes with the peer's first output.
-        first = {"whole": w} if w else {}
+        first, failed = whole_fields(w, err)
+        base = {"version": r["version"], "crop_seconds": r["seconds"], "notes": r["notes"] + failed}
         if "horizons" in r:
             peers.append({"name": name, **base, **first, "azimuths_deg": r["azimuths_deg"],
                           "horizons": os.path.join(module, r["horizons"])})
@@ -191,9 +200,8 @@ def main():
     else:
         version = subprocess.run(["grass", "--version"], capture_output=True, text=True)
         version = (version.stdout + version.stderr).split("GRASS GIS ")[1].split()[0]
-        out = os.path.join(work, "grass")
-        shutil.rmtree(out, ignore_errors=True)
-        os.makedirs(out)
+        out = fresh_dir(os.path.join(work, "grass"))
+
         def grass(which, tif):
             log(f"GRASS r.horizon: the {which}")
             script = os.path.join(work, f"grass_{which}.sh")
@@ -213,14 +221,12 @@ def main():
                 to_raw(path, path + ".bin")
                 with open(path + ".bin", "rb") as src:
                     dst.write(src.read())
-        whole, whole_err = grass("whole", a.dem)
+        whole, failed = whole_fields(*grass("whole", a.dem))
         peers.append({
-            "name": "GRASS r.horizon", "version": version, "crop_seconds": crop_seconds,
-            **({"whole": whole} if whole else {}),
+            "name": "GRASS r.horizon", "version": version, "crop_seconds": crop_seconds, **whole,
             "azimuths_deg": [az for az, _ in bands], "horizons": "grass/horizons.f32",
             "notes": ["-d (degrees); map angles counter-clockwise from east, compass = 90 - angle",
-                      "the whole process includes GRASS's start, the import and the export"]
-                     + ([f"the whole DEM failed: {whole_err}"] if not whole else []),
+                      "the whole process includes GRASS's start, the import and the export"] + failed,
         })
 
     # SAGA's Sky View Factor (ta_lighting 3): the slope-aware svf.
@@ -228,9 +234,8 @@ def main():
         peers.append({"name": "SAGA Sky View Factor", "missing": missing.get("saga", "saga_cmd not on PATH")})
     else:
         version = subprocess.run(["saga_cmd", "--version"], capture_output=True, text=True).stdout.split("SAGA Version:")[1].split()[0]
-        out = os.path.join(work, "saga")
-        shutil.rmtree(out, ignore_errors=True)
-        os.makedirs(out)
+        out = fresh_dir(os.path.join(work, "saga"))
+
         def saga(which, tif):
             log(f"SAGA Sky View Factor: the {which}")
             cmd = ["saga_cmd", "ta_lighting", "3", "-DEM", tif, "-SVF", os.path.join(out, f"svf_{which}.sdat"),
@@ -241,14 +246,12 @@ def main():
         crop, err = saga("crop", crop_tif)
         assert crop, err
         to_raw(os.path.join(out, "svf_crop.sdat"), os.path.join(out, "svf.f32"))
-        whole, whole_err = saga("whole", a.dem)
+        whole, failed = whole_fields(*saga("whole", a.dem))
         peers.append({
-            "name": "SAGA Sky View Factor", "version": version, "crop_seconds": crop["seconds"],
-            **({"whole": whole} if whole else {}),
+            "name": "SAGA Sky View Factor", "version": version, "crop_seconds": crop["seconds"], **whole,
             "svf": "saga/svf.f32", "svf_definition": "slope_aware",
             "notes": ["-METHOD 0 ('cell size'); its crop time is the whole saga_cmd process (it reports no timing)",
-                      "its svf is the slope-aware one; it floors horizons at 0"]
-                     + ([f"the whole DEM failed: {whole_err}"] if not whole else []),
+                      "its svf is the slope-aware one; it floors horizons at 0"] + failed,
         })
 
     our_runs += [ours(), ours()]

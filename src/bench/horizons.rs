@@ -22,7 +22,7 @@ use terrabake_format::horizons::bands_around;
 use super::chart::{log_log_svg, log_log_svg_with_marks, Series};
 use super::markdown_table;
 use super::peers::{LoadedPeer, PeerManifest, PeerRow, SvfDefinition};
-use crate::horizon::sky::{svf_of_horizons, BandIntegrals, SkySums};
+use crate::horizon::sky::{sums_of_horizons, svf_of_horizons, BandIntegrals, SkySums};
 use crate::horizon::terrain::Terrain;
 use crate::horizon::{band_horizons, plan_bands, Band, BandKind, BandOptions, Method};
 
@@ -88,7 +88,8 @@ pub struct AccuracyRow {
     pub svf_max: f64,
 }
 
-fn svf_of(integrals: &[BandIntegrals], values: &[Vec<f32>], post: usize) -> f64 {
+/// Zakšek's svf at `post` of band-major `values` in the bands of `integrals`.
+pub(super) fn svf_of(integrals: &[BandIntegrals], values: &[Vec<f32>], post: usize) -> f64 {
     svf_of_horizons(integrals, values.iter().map(|v| f64::from(v[post])))
 }
 
@@ -126,12 +127,7 @@ impl Reference {
             .iter()
             .map(|&p| {
                 let normal = terrain.normal(p % w, p / w).expect("a post with a height");
-                let mut sums = SkySums::default();
-                for (band, v) in integrals.iter().zip(&values) {
-                    let h = f64::from(v[p]);
-                    sums.add(h, h.to_radians().sin_cos(), band, normal);
-                }
-                sums
+                sums_of_horizons(&integrals, values.iter().map(|v| f64::from(v[p])), normal)
             })
             .collect();
         Self {

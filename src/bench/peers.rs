@@ -25,10 +25,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, ensure, Context, Result};
 use serde::{Deserialize, Serialize};
 
-use super::horizons::{interpolated, svf_errors, Reference};
+use super::horizons::{interpolated, svf_errors, svf_of, Reference};
 use super::markdown_table;
-use crate::horizon::band_bounds;
-use crate::horizon::sky::{svf_of_horizons, BandIntegrals};
+use crate::horizon::sky::BandIntegrals;
 
 /// `peers.json`, as `bench_peers.sh` writes it. Paths are relative to the
 /// manifest's folder.
@@ -218,12 +217,9 @@ impl LoadedPeer {
                 (definition, errors)
             }
             _ => {
-                let integrals: Vec<BandIntegrals> = band_bounds(&p.azimuths_deg)
-                    .into_iter()
-                    .map(|(lo, hi)| BandIntegrals::new(lo, hi))
-                    .collect();
+                let integrals = BandIntegrals::of_azimuths(&p.azimuths_deg);
                 let errors = svf_errors(&reference.posts, &reference.svf, |post| {
-                    svf_of_horizons(&integrals, self.horizons.iter().map(|b| f64::from(b[post])))
+                    svf_of(&integrals, &self.horizons, post)
                 });
                 (SvfDefinition::Zaksek, errors)
             }

@@ -35,6 +35,15 @@ pub struct BandIntegrals {
 }
 
 impl BandIntegrals {
+    /// The integrals of the bands around ascending `azimuths`
+    /// ([`crate::horizon::band_bounds`]: half the way to each neighbour).
+    pub fn of_azimuths(azimuths: &[f64]) -> Vec<Self> {
+        crate::horizon::band_bounds(azimuths)
+            .into_iter()
+            .map(|(lo, hi)| Self::new(lo, hi))
+            .collect()
+    }
+
     pub fn new(lo: f64, hi: f64) -> Self {
         let (l, h) = (lo.to_radians(), hi.to_radians());
         Self {
@@ -136,17 +145,27 @@ impl SinCosMemo {
     }
 }
 
+/// The sums of a post with unit `normal` whose horizon is `horizons`
+/// degrees in the bands of `integrals`, in order.
+pub fn sums_of_horizons(
+    integrals: &[BandIntegrals],
+    horizons: impl IntoIterator<Item = f64>,
+    normal: [f64; 3],
+) -> SkySums {
+    let mut sums = SkySums::default();
+    for (band, h) in integrals.iter().zip(horizons) {
+        sums.add(h, h.to_radians().sin_cos(), band, normal);
+    }
+    sums
+}
+
 /// The sky-view factor (Zakšek's, over the horizontal) of a post whose
 /// horizon is `horizons` degrees in the bands of `integrals`, in order.
 pub fn svf_of_horizons(
     integrals: &[BandIntegrals],
     horizons: impl IntoIterator<Item = f64>,
 ) -> f64 {
-    let mut sums = SkySums::default();
-    for (band, h) in integrals.iter().zip(horizons) {
-        sums.add(h, h.to_radians().sin_cos(), band, [0.0, 0.0, 1.0]);
-    }
-    sums.svf()
+    sums_of_horizons(integrals, horizons, [0.0, 0.0, 1.0]).svf()
 }
 
 /// A sky radiance distribution tabulated for Stewart's direct primary

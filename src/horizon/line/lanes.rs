@@ -158,7 +158,7 @@ impl Lines {
         self.spilled = spilled;
         let terrain = sweep.placed.t;
         let n = sweep.placed.stencil.len();
-        let kernel = Kernel::new(sweep, terrain.width);
+        let kernel = Kernel::new(sweep);
         let (a, b) = self.step;
         let (w, h) = (self.width as i64, terrain.height as i64);
         // Columns whose far neighbour `col + a` is on the DEM.
@@ -279,8 +279,8 @@ struct Kernel<'s> {
 }
 
 impl<'s> Kernel<'s> {
-    fn new(sweep: &'s Sweep, width: usize) -> Self {
-        let w = width as i64;
+    fn new(sweep: &'s Sweep) -> Self {
+        let w = sweep.placed.t.width as i64;
         let vertices = &sweep.placed.stencil.vertices;
         let crossings = vertices[..vertices.len() - 1]
             .iter()
@@ -351,13 +351,15 @@ mod avx512 {
             let c = _mm512_set1_pd(self.curvature);
             let twice_c = _mm512_set1_pd(2.0 * self.curvature);
             let step_v = _mm512_set1_pd(step);
+            // The caller's columns have consecutive line indices.
+            let first = lines.index(cols.start, row);
             for c0 in cols.clone().step_by(8) {
                 let on_row: __mmask8 = if cols.end - c0 >= 8 {
                     0xff
                 } else {
                     (1u8 << (cols.end - c0)) - 1
                 };
-                let i0 = lines.index(c0, row);
+                let i0 = first + (c0 - cols.start);
                 debug_assert!(i0 + (cols.end - c0).min(8) <= lines.count);
                 // SAFETY: lines `i0..` under `on_row` exist.
                 let (len, t) = unsafe {
