@@ -466,6 +466,13 @@ mod random_terrains {
                     "{ray:?}: parametric {} steps ({} leaps) against incremental {}",
                     par.steps, par.leaps, inc.steps
                 );
+                // And it tests the surface of no more cells: a cell whose
+                // cone's apex the ray passes above is stepped over untested.
+                prop_assert!(
+                    par.cells <= par.steps && par.cells <= inc.cells + par.leaps,
+                    "{ray:?}: parametric tested {} cells in {} steps ({} leaps), incremental {}",
+                    par.cells, par.steps, par.leaps, inc.cells
+                );
             }
         }
     }

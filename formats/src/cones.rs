@@ -30,7 +30,7 @@ use half::f16;
 
 use crate::error::{Error, Result};
 use crate::manifest::Quantization;
-use crate::reader::{Asset, Layer};
+use crate::reader::{Asset, Layer, TileCursor};
 use crate::ElemType;
 
 pub use crate::layers::{CONE_APEX, CONE_SLOPE};
@@ -269,18 +269,66 @@ impl<'a, D: AsRef<[u8]>> ConePlanes<'a, D> {
         self.enc
     }
 
-    /// The cone over cell `(c, r)`.
-    #[inline]
+    /// A reader of cones near each other, as along a ray (see
+    /// [`ConeCursor`]).
+    pub fn cursor(&self) -> ConeCursor<'a, D> {
+        ConeCursor {
+            codes: match self.enc {
+                ConeEncoding::F32 => Codes::F32(self.apex.cursor(0), self.slope.cursor(0)),
+                ConeEncoding::F16 | ConeEncoding::U16 => {
+                    Codes::U16(self.apex.cursor(0), self.slope.cursor(0))
+                }
+            },
+            enc: self.enc,
+            apex_q: self.apex_q,
+        }
+    }
+
+    /// The cone over cell `(c, r)`. Many reads near each other go faster
+    /// through one [`cursor`](Self::cursor).
     pub fn cone(&self, c: u32, r: u32) -> Result<Cone> {
-        let (apex, slope) = match self.enc {
-            ConeEncoding::F32 => (
-                self.apex.get::<f32>(0, c, r)?.to_bits(),
-                self.slope.get::<f32>(0, c, r)?.to_bits(),
-            ),
-            ConeEncoding::F16 | ConeEncoding::U16 => (
-                u32::from(self.apex.get::<u16>(0, c, r)?),
-                u32::from(self.slope.get::<u16>(0, c, r)?),
-            ),
+        self.cursor().cone(c, r)
+    }
+}
+
+/// The cones of one walk through the planes ([`ConePlanes::cursor`]): the
+/// last tile of each plane is kept, as for the heights, so that a tracer's
+/// step costs the two codes' loads and not two tile lookups. One per
+/// thread.
+pub struct ConeCursor<'a, D> {
+    codes: Codes<'a, D>,
+    enc: ConeEncoding,
+    apex_q: Option<Quantization>,
+}
+
+enum Codes<'a, D> {
+    F32(TileCursor<'a, D, f32>, TileCursor<'a, D, f32>),
+    U16(TileCursor<'a, D, u16>, TileCursor<'a, D, u16>),
+}
+
+impl<D> std::fmt::Debug for ConeCursor<'_, D> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ConeCursor")
+            .field("encoding", &self.enc)
+            .finish()
+    }
+}
+
+impl<D: AsRef<[u8]>> ConeCursor<'_, D> {
+    /// The cone over cell `(c, r)`, as [`ConePlanes::cone`].
+    #[inline]
+    pub fn cone(&mut self, c: u32, r: u32) -> Result<Cone> {
+        // Both tiles first, then both loads back to back: on a large DEM
+        // each load is a cache miss, and so the two misses overlap.
+        let (apex, slope) = match &mut self.codes {
+            Codes::F32(apex, slope) => {
+                let ((a, i), (s, j)) = (apex.tile_of(c, r)?, slope.tile_of(c, r)?);
+                (a[i].to_bits(), s[j].to_bits())
+            }
+            Codes::U16(apex, slope) => {
+                let ((a, i), (s, j)) = (apex.tile_of(c, r)?, slope.tile_of(c, r)?);
+                (u32::from(a[i]), u32::from(s[j]))
+            }
         };
         Ok(Cone {
             apex: decode_apex(apex, self.enc, self.apex_q),

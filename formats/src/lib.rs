@@ -47,7 +47,7 @@ pub use error::{Error, Location, Result};
 pub use layout::{Codec, ElemType, FORMAT_VERSION, MANIFEST_FILE};
 pub use manifest::{LayerEntry, Manifest, Quantization, HEIGHT_LAYER};
 pub use memmap2::Mmap;
-pub use reader::{Asset, Element, Layer, StoredChunk, Tile, VerifyReport};
+pub use reader::{Asset, Element, Layer, StoredChunk, Tile, TileCursor, VerifyReport};
 pub use writer::{
     commit_manifest, encode_tile, EncodedTile, LayerSpec, LayerWriter, WriteLock, LOCK_FILE,
 };

@@ -80,6 +80,51 @@ impl quick_cache::Weighter<(u32, u64), Arc<TileBuf>> for ByteWeighter {
 
 type TileCache = quick_cache::sync::Cache<(u32, u64), Arc<TileBuf>, ByteWeighter>;
 
+/// Reads elements of one band of a layer that lie near each other, as a
+/// ray's walk does: the last tile read is kept, so that consecutive elements
+/// in one tile pay the tile's lookup (chunk index, first-read checksum flag,
+/// alignment) once, not each. One cursor per thread.
+pub struct TileCursor<'a, D, T> {
+    layer: &'a Layer<D>,
+    band: u32,
+    shift: u32,
+    tile: Option<((u32, u32), Tile<'a, T>)>,
+}
+
+impl<D, T> std::fmt::Debug for TileCursor<'_, D, T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("TileCursor")
+            .field("layer", &self.layer.entry.key())
+            .field("band", &self.band)
+            .field("tile", &self.tile.as_ref().map(|t| t.0))
+            .finish()
+    }
+}
+
+impl<'a, D: AsRef<[u8]>, T: Element> TileCursor<'a, D, T> {
+    /// The tile holding element `(x, y)` and the element's index in it
+    /// (its row-major neighbours in the tile follow at `+1` and
+    /// `+tile_size`, where the tile has them).
+    #[inline]
+    pub fn tile_of(&mut self, x: u32, y: u32) -> Result<(&[T], usize)> {
+        self.layer.check_element(x, y)?;
+        let key = (x >> self.shift, y >> self.shift);
+        if self.tile.as_ref().map(|t| t.0) != Some(key) {
+            self.tile = Some((key, self.layer.tile::<T>(self.band, key.0, key.1)?));
+        }
+        let mask = (1 << self.shift) - 1;
+        let tile = &self.tile.as_ref().expect("just set").1;
+        Ok((tile, (((y & mask) << self.shift) | (x & mask)) as usize))
+    }
+
+    /// Element `(x, y)`.
+    #[inline]
+    pub fn get(&mut self, x: u32, y: u32) -> Result<T> {
+        let (tile, i) = self.tile_of(x, y)?;
+        Ok(tile[i])
+    }
+}
+
 /// A tile's elements: borrowed from the mapping, or shared from the cache.
 pub enum Tile<'a, T> {
     Borrowed(&'a [T]),
@@ -448,6 +493,27 @@ impl<D: AsRef<[u8]>> Layer<D> {
 
     /// Element `(x, y)` of `band`.
     pub fn get<T: Element>(&self, band: u32, x: u32, y: u32) -> Result<T> {
+        self.check_element(x, y)?;
+        // The tile size is a power of two (checked at open): shifts and
+        // masks, not the four integer divisions that a tracer's every step
+        // would otherwise pay.
+        let (shift, mask) = (self.tile_size().trailing_zeros(), self.tile_size() - 1);
+        let tile = self.tile::<T>(band, x >> shift, y >> shift)?;
+        Ok(tile[(((y & mask) << shift) | (x & mask)) as usize])
+    }
+
+    /// A reader of `band` that keeps the last tile it read (see
+    /// [`TileCursor`]).
+    pub fn cursor<T: Element>(&self, band: u32) -> TileCursor<'_, D, T> {
+        TileCursor {
+            layer: self,
+            band,
+            shift: self.tile_size().trailing_zeros(),
+            tile: None,
+        }
+    }
+
+    fn check_element(&self, x: u32, y: u32) -> Result<()> {
         if x >= self.width() || y >= self.height() {
             let (what, index, limit) = if x >= self.width() {
                 ("column", x, self.width())
@@ -461,9 +527,7 @@ impl<D: AsRef<[u8]>> Layer<D> {
                 limit: limit.into(),
             });
         }
-        let ts = self.tile_size();
-        let tile = self.tile::<T>(band, x / ts, y / ts)?;
-        Ok(tile[((y % ts) * ts + x % ts) as usize])
+        Ok(())
     }
 
     /// Copies the window `x0..x0+w` x `y0..y0+h` of `band` into `out`
