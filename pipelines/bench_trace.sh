@@ -11,7 +11,7 @@ mkdir -p "$WORK"
 export RAYON_NUM_THREADS=1
 "$BIN" bake data/srtm3_n07w006_geographic_int16.tif -o "$WORK/srtm.tbake" --recipe pipelines/demo.toml -q
 echo "## SRTM N07W006, 16 views, 512 x 512, every 16th pixel"
-"$BIN" bench-views "$WORK/srtm.tbake" --every 16 --methods incremental,runs,hierarchical,parametric,brute-force
+"$BIN" bench-views "$WORK/srtm.tbake" --every 16 --repeat 5 --methods incremental,runs,hierarchical,parametric,brute-force
 echo
 echo "## SRTM N07W006, 16 views, 512 x 512, every pixel"
 "$BIN" bench-views "$WORK/srtm.tbake" --every 1 --methods incremental,runs,hierarchical,parametric
@@ -27,4 +27,4 @@ for n in 1024 2048 4096 8192; do
   assets+=("$WORK/fractal_$n.tbake")
 done
 mkdir -p docs/charts
-"$BIN" bench-views "${assets[@]}" --every 16 --methods incremental,runs,hierarchical,parametric --chart docs/charts/trace_scaling
+"$BIN" bench-views "${assets[@]}" --every 16 --repeat 5 --methods incremental,runs,hierarchical,parametric --chart docs/charts/trace_scaling

@@ -70,7 +70,7 @@ pub fn cone_tradeoff(
     let one_thread = rayon::ThreadPoolBuilder::new().num_threads(1).build()?;
     let trace = |method: Method| -> Result<BenchRow> {
         let asset = Asset::open(dir)?;
-        let rows = one_thread.install(|| bench_views(&asset, size, every, &[method]))?;
+        let rows = one_thread.install(|| bench_views(&asset, size, every, &[method], 1))?;
         Ok(rows.into_iter().next().expect("one method"))
     };
     let pyramid = run_stage(dir, &PyramidStage, true, progress)?;
