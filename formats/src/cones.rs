@@ -30,7 +30,7 @@ use half::f16;
 
 use crate::error::{Error, Result};
 use crate::manifest::Quantization;
-use crate::reader::{Asset, Layer, TileCursor};
+use crate::reader::{Asset, Element, Layer, TileCursor};
 use crate::ElemType;
 
 pub use crate::layers::{CONE_APEX, CONE_SLOPE};
@@ -320,15 +320,18 @@ impl<D: AsRef<[u8]>> ConeCursor<'_, D> {
     pub fn cone(&mut self, c: u32, r: u32) -> Result<Cone> {
         // Both tiles first, then both loads back to back: on a large DEM
         // each load is a cache miss, and so the two misses overlap.
+        fn codes<D: AsRef<[u8]>, T: Element>(
+            apex: &mut TileCursor<'_, D, T>,
+            slope: &mut TileCursor<'_, D, T>,
+            (c, r): (u32, u32),
+            code: fn(T) -> u32,
+        ) -> Result<(u32, u32)> {
+            let ((a, i), (s, j)) = (apex.tile_of(c, r)?, slope.tile_of(c, r)?);
+            Ok((code(a[i]), code(s[j])))
+        }
         let (apex, slope) = match &mut self.codes {
-            Codes::F32(apex, slope) => {
-                let ((a, i), (s, j)) = (apex.tile_of(c, r)?, slope.tile_of(c, r)?);
-                (a[i].to_bits(), s[j].to_bits())
-            }
-            Codes::U16(apex, slope) => {
-                let ((a, i), (s, j)) = (apex.tile_of(c, r)?, slope.tile_of(c, r)?);
-                (u32::from(a[i]), u32::from(s[j]))
-            }
+            Codes::F32(apex, slope) => codes(apex, slope, (c, r), f32::to_bits)?,
+            Codes::U16(apex, slope) => codes(apex, slope, (c, r), u32::from)?,
         };
         Ok(Cone {
             apex: decode_apex(apex, self.enc, self.apex_q),

@@ -117,6 +117,11 @@ impl<'a, D: AsRef<[u8]>, T: Element> TileCursor<'a, D, T> {
         Ok((tile, (((y & mask) << self.shift) | (x & mask)) as usize))
     }
 
+    /// Elements per tile side (a power of two).
+    pub fn tile_size(&self) -> u32 {
+        1 << self.shift
+    }
+
     /// Element `(x, y)`.
     #[inline]
     pub fn get(&mut self, x: u32, y: u32) -> Result<T> {

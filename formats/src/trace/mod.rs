@@ -182,21 +182,19 @@ impl<D> std::fmt::Debug for Tracer<'_, D> {
 /// The posts of the cells a trace visits, through a [`TileCursor`]:
 /// consecutive cells of a trace mostly share a tile.
 struct Posts<'a, D> {
-    layer: &'a Layer<D>,
     cursor: TileCursor<'a, D, f32>,
 }
 
 impl<'a, D: AsRef<[u8]>> Posts<'a, D> {
     fn new(layer: &'a Layer<D>) -> Self {
         Self {
-            layer,
             cursor: layer.cursor(0),
         }
     }
 
     /// The corners of cell `(c, r)`.
     fn cell(&mut self, c: u32, r: u32) -> Result<Cell> {
-        let ts = self.layer.tile_size();
+        let ts = self.cursor.tile_size();
         if (c & (ts - 1)) + 1 < ts && (r & (ts - 1)) + 1 < ts {
             let (tile, i) = self.cursor.tile_of(c, r)?;
             let t = ts as usize;
@@ -609,7 +607,7 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
                     // closing`, which cancels on grazing rays): both are shaded
                     // towards a shorter leap by far more than their rounding.
                     let slack = (g.origin[2].abs() + (t1 * rise).abs() + cone.apex.abs()) * 1e-12;
-                    let above = g.z(t1) - cone.apex - slack;
+                    let above = z1 - cone.apex - slack;
                     if !(above > 0.0 && cone.slope > 0.0) {
                         return ControlFlow::Continue(());
                     }
