@@ -20,7 +20,7 @@ use terrabake_format::horizons::{
 };
 use terrabake_format::{Asset, Codec, ElemType, LayerEntry, LayerWriter, Mmap, HEIGHT_LAYER};
 
-use crate::horizon::sky::{BandIntegrals, SinCosMemo, SkySums};
+use crate::horizon::sky::{band_terms, sin_cos_deg, BandIntegrals, SkySums};
 use crate::horizon::terrain::{RowScale, Terrain};
 use crate::horizon::{post_layer, HorizonsStage};
 use crate::progress::Progress;
@@ -205,45 +205,31 @@ impl Stage for SkyStage {
             let mut z = vec![0f32; (r1 - r0) * w];
             height.read_window(0, 0, r0 as u32, w as u32, (r1 - r0) as u32, &mut z)?;
             let terrain = Terrain::window(&z, (w, h), r0, (dx, dy)).with_row_scale(row_scale);
-            // Per post of the row: its normal (once, not once per band).
-            let normals: Vec<Option<[f64; 3]>> = (0..rows * w)
+            // Per row: its posts' normals (once, not once per band) and
+            // sums, in columns.
+            let mut post_rows: Vec<PostRow> = (y0..y0 + rows)
                 .into_par_iter()
-                .map(|i| terrain.normal(i % w, y0 + i / w))
+                .map(|row| PostRow::new(&terrain, row))
                 .collect();
-            let mut sums = vec![SkySums::default(); rows * w];
-            let mut edges = vec![0u16; rows * w];
             let mut angles = vec![0f32; rows * w];
             for (b, &azimuth) in azimuths.iter().enumerate() {
                 horizon.read_rows_f32(b as u32, y0 as u32, &mut angles)?;
                 let towards = heading(azimuth);
-                sums.par_chunks_mut(w)
-                    .zip(edges.par_chunks_mut(w))
+                post_rows
+                    .par_iter_mut()
                     .zip(angles.par_chunks(w))
                     .enumerate()
-                    .for_each_init(SinCosMemo::default, |memo, (r, ((sums, edges), angles))| {
+                    .for_each(|(r, (post_row, angles))| {
                         let row = y0 + r;
-                        for col in 0..w {
-                            let hz = f64::from(angles[col]);
-                            let Some(normal) = normals[r * w + col].filter(|_| !hz.is_nan()) else {
-                                continue;
-                            };
-                            let (sh, ch) = memo.get(angles[col]);
-                            sums[col].add(hz, (sh, ch), &integrals[b], normal);
-                            // Could terrain no higher than the DEM's top, just
-                            // past the edge, rise above this horizon?
-                            let d = edge_distance_along(
-                                (w as u32, h as u32),
-                                (terrain.dx_at(row), dy),
-                                (col as f64, row as f64),
-                                towards,
-                            );
-                            // The rise's slope (z_max - z - c d^2) / d against
-                            // tan h, both sides times d cos h (d, cos h >= 0).
-                            let rise = z_max - f64::from(terrain.at(col, row)) - curvature * d * d;
-                            if d == 0.0 || rise * ch > sh * d {
-                                edges[col] += 1;
-                            }
-                        }
+                        let edge = EdgeTest {
+                            size: (w as u32, h as u32),
+                            spacing: (terrain.dx_at(row), dy),
+                            row: row as f64,
+                            towards,
+                            z_max,
+                            curvature,
+                        };
+                        post_row.add_band(&integrals[b], angles, &edge);
                     });
             }
             let inside = |i: usize| {
@@ -252,13 +238,14 @@ impl Stage for SkyStage {
             };
             for (layer, writer) in &mut writers {
                 if *layer == SkyLayer::HorizonEdge {
+                    let edges: Vec<u16> = post_rows.iter().flat_map(|p| p.edges.clone()).collect();
                     push_tile_row(writer, &edges, w, 0u16, Codec::Raw)?;
                     continue;
                 }
                 let values: Vec<f32> = (0..rows * w)
                     .map(|i| {
                         if inside(i) {
-                            layer.value(&sums[i], edges[i]) as f32
+                            layer.value(&post_rows[i / w].sums(i % w), 0) as f32
                         } else {
                             f32::NAN
                         }
@@ -270,5 +257,122 @@ impl Stage for SkyStage {
         }
         bar.finish_and_clear();
         writers.into_iter().map(|(_, w)| Ok(w.finish()?)).collect()
+    }
+}
+
+/// One row of posts as the stage sums it, in columns (structure of
+/// arrays): the unit normals (NaN where a post has none), the heights, and
+/// the running sums and edge counts over the bands so far. A band over a
+/// whole row is then one loop without branches or calls, which the
+/// compiler turns into vector code ([`PostRow::add_band`]).
+#[derive(Debug)]
+struct PostRow {
+    normal: [Vec<f64>; 3],
+    z: Vec<f32>,
+    sin: Vec<f64>,
+    zenith: Vec<f64>,
+    cosine: Vec<f64>,
+    edges: Vec<u16>,
+}
+
+/// What the edge count asks of one band on one row: could terrain no
+/// higher than the DEM's top, just past the edge, rise above a horizon?
+#[derive(Debug, Clone, Copy)]
+struct EdgeTest {
+    size: (u32, u32),
+    spacing: (f64, f64),
+    row: f64,
+    towards: (f64, f64),
+    z_max: f64,
+    curvature: f64,
+}
+
+impl PostRow {
+    fn new(terrain: &Terrain, row: usize) -> Self {
+        let w = terrain.width;
+        let mut normal = [vec![f64::NAN; w], vec![f64::NAN; w], vec![f64::NAN; w]];
+        for col in 0..w {
+            if let Some(n) = terrain.normal(col, row) {
+                for (axis, v) in normal.iter_mut().zip(n) {
+                    axis[col] = v;
+                }
+            }
+        }
+        Self {
+            normal,
+            z: (0..w).map(|col| terrain.at(col, row)).collect(),
+            sin: vec![0.0; w],
+            zenith: vec![0.0; w],
+            cosine: vec![0.0; w],
+            edges: vec![0; w],
+        }
+    }
+
+    fn sums(&self, col: usize) -> SkySums {
+        SkySums::from_parts(self.sin[col], self.zenith[col], self.cosine[col])
+    }
+
+    /// Adds band `band`, whose angles on this row are `angles` (degrees,
+    /// NaN for none), to every post of the row: the widest vectors this
+    /// machine has, the same bits on every machine (no fused multiply-adds).
+    fn add_band(&mut self, band: &BandIntegrals, angles: &[f32], edge: &EdgeTest) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx512f") {
+                // SAFETY: the CPU has the features the function is compiled for.
+                return unsafe { self.add_band_avx512(band, angles, edge) };
+            }
+            if std::arch::is_x86_feature_detected!("avx2") {
+                // SAFETY: as above.
+                return unsafe { self.add_band_avx2(band, angles, edge) };
+            }
+        }
+        self.add_band_portable(band, angles, edge);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    unsafe fn add_band_avx512(&mut self, band: &BandIntegrals, angles: &[f32], edge: &EdgeTest) {
+        self.add_band_portable(band, angles, edge);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn add_band_avx2(&mut self, band: &BandIntegrals, angles: &[f32], edge: &EdgeTest) {
+        self.add_band_portable(band, angles, edge);
+    }
+
+    #[inline(always)]
+    fn add_band_portable(&mut self, band: &BandIntegrals, angles: &[f32], edge: &EdgeTest) {
+        let w = self.z.len();
+        let (angles, [nx, ny, nz]) = (&angles[..w], &self.normal);
+        let (nx, ny, nz) = (&nx[..w], &ny[..w], &nz[..w]);
+        let (sin, zenith, cosine) = (
+            &mut self.sin[..w],
+            &mut self.zenith[..w],
+            &mut self.cosine[..w],
+        );
+        let (z, edges) = (&self.z[..w], &mut self.edges[..w]);
+        for col in 0..w {
+            let h = f64::from(angles[col]);
+            let (sh, ch) = sin_cos_deg(h);
+            let [s, o, c] = band_terms(h, (sh, ch), band, [nx[col], ny[col], nz[col]]);
+            // A post without a normal or an angle keeps its sums (adding 0
+            // to them changes no bits: they start at +0).
+            let valid = !(h.is_nan() || nz[col].is_nan());
+            sin[col] += if valid { s } else { 0.0 };
+            zenith[col] += if valid { o } else { 0.0 };
+            cosine[col] += if valid { c } else { 0.0 };
+            let d = edge_distance_along(
+                edge.size,
+                edge.spacing,
+                (col as f64, edge.row),
+                edge.towards,
+            );
+            // The rise's slope (z_max - z - c d^2) / d against tan h, both
+            // sides times d cos h (d, cos h >= 0).
+            let rise = edge.z_max - f64::from(z[col]) - edge.curvature * d * d;
+            edges[col] += u16::from(valid && (d == 0.0 || rise * ch > sh * d));
+        }
     }
 }

@@ -72,6 +72,7 @@ impl AngleEncoding {
         }
     }
 
+    #[inline]
     fn codes(self) -> Option<f64> {
         match self {
             Self::U8 => Some(254.0),
@@ -81,6 +82,7 @@ impl AngleEncoding {
     }
 
     /// Degrees between neighbouring codes (0 for f32).
+    #[inline]
     pub fn step_deg(self) -> f64 {
         self.codes().map_or(0.0, |n| 180.0 / n)
     }
@@ -113,6 +115,7 @@ impl AngleEncoding {
     }
 
     /// The stored code of `deg` (NaN: nodata), rounded to the nearest code.
+    #[inline]
     pub fn encode(self, deg: f64) -> u32 {
         match self.codes() {
             None => (deg as f32).to_bits(),
@@ -199,6 +202,7 @@ pub fn heading(azimuth: f64) -> (f64, f64) {
 /// [`edge_distance`] going `(ve, vs)` metres east and south per metre
 /// ([`heading`]): one direction's sine and cosine taken once for a whole
 /// band of posts.
+#[inline]
 pub fn edge_distance_along(
     (width, height): (u32, u32),
     (dx, dy): (f64, f64),

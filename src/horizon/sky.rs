@@ -67,8 +67,6 @@ pub struct SkySums {
 impl SkySums {
     /// Adds a band whose horizon is `h_deg` (with `(sh, ch)` its sine and
     /// cosine, which callers often need too), at a post with unit `normal`.
-    /// The cosine integral is exact in elevation and in azimuth; only the
-    /// clip to the tangent plane is taken at the band's centre.
     pub fn add(
         &mut self,
         h_deg: f64,
@@ -76,24 +74,20 @@ impl SkySums {
         band: &BandIntegrals,
         normal: [f64; 3],
     ) {
-        let h = h_deg.to_radians();
-        self.sin_sum += band.fraction * sh.max(0.0);
-        self.zenith_sum += band.fraction * (90.0 - h_deg);
-        let [nx, ny, nz] = normal;
-        // The tangent plane's elevation at the band's centre: tan p = -A / nz.
-        let tan_plane = -(nx * band.centre.0 + ny * band.centre.1) / nz;
-        let (h, sh, ch) = if sh >= tan_plane * ch {
-            (h, sh, ch)
-        } else {
-            // The plane's elevation p = atan(tan p), |p| < 90 degrees, so
-            // cos p = 1 / sqrt(1 + tan^2 p) > 0: no sine or cosine to call.
-            let cp = 1.0 / (tan_plane * tan_plane + 1.0).sqrt();
-            (tan_plane.atan(), tan_plane * cp, cp)
-        };
-        let cos_squared_integral = std::f64::consts::FRAC_PI_4 - h / 2.0 - sh * ch / 2.0;
-        let sin_cos_integral = ch * ch / 2.0;
-        self.cosine_sum += (nx * band.sin + ny * band.cos) * cos_squared_integral
-            + nz * sin_cos_integral * band.width;
+        let [sin, zenith, cosine] = band_terms(h_deg, (sh, ch), band, normal);
+        self.sin_sum += sin;
+        self.zenith_sum += zenith;
+        self.cosine_sum += cosine;
+    }
+
+    /// The sums from their three parts: `1 - svf`, openness and `pi *
+    /// svf_cosine` (what a row of posts keeps in columns).
+    pub fn from_parts(sin_sum: f64, zenith_sum: f64, cosine_sum: f64) -> Self {
+        Self {
+            sin_sum,
+            zenith_sum,
+            cosine_sum,
+        }
     }
 
     pub fn svf(&self) -> f64 {
@@ -107,42 +101,132 @@ impl SkySums {
     }
 }
 
-/// The sine and cosine of horizon angles (degrees), remembered: a stored
-/// horizon takes few distinct values (at most 256 per band in a u8
-/// encoding), so most posts find theirs here instead of calling `sin_cos`.
-/// The same bits as `h.to_radians().sin_cos()`, whatever it holds.
-#[derive(Debug, Clone)]
-pub struct SinCosMemo {
-    /// Per slot: the f32 angle's bits (NaN's bits, never an angle, for an
-    /// empty slot), and its sine and cosine.
-    slots: Vec<(u32, f64, f64)>,
+/// What one band adds to a post's three sums ([`SkySums`]): the sine
+/// term of `svf`, the zenith term of openness and the cosine integral of
+/// `svf_cosine`, for a horizon of `h_deg` degrees whose sine and cosine are
+/// `(sh, ch)`, at a post with unit `normal`. The cosine integral is exact
+/// in elevation and in azimuth; only the clip to the tangent plane is taken
+/// at the band's centre.
+///
+/// Branch-free (both sides of the clip computed, one kept), so that the
+/// sky stage's loop over a row of posts compiles to vector code.
+#[inline(always)]
+pub fn band_terms(
+    h_deg: f64,
+    (sh, ch): (f64, f64),
+    band: &BandIntegrals,
+    [nx, ny, nz]: [f64; 3],
+) -> [f64; 3] {
+    let sin = band.fraction * sh.max(0.0);
+    let zenith = band.fraction * (90.0 - h_deg);
+    // The tangent plane's elevation p at the band's centre: tan p = -A / nz,
+    // |p| < 90 degrees, so cos p = 1 / sqrt(1 + tan^2 p) > 0.
+    let tan_plane = -(nx * band.centre.0 + ny * band.centre.1) / nz;
+    let cp = 1.0 / (tan_plane * tan_plane + 1.0).sqrt();
+    let below = sh < tan_plane * ch;
+    let h = if below {
+        atan(tan_plane)
+    } else {
+        h_deg.to_radians()
+    };
+    let (sh, ch) = if below {
+        (tan_plane * cp, cp)
+    } else {
+        (sh, ch)
+    };
+    let cos_squared_integral = std::f64::consts::FRAC_PI_4 - h / 2.0 - sh * ch / 2.0;
+    let sin_cos_integral = ch * ch / 2.0;
+    let cosine =
+        (nx * band.sin + ny * band.cos) * cos_squared_integral + nz * sin_cos_integral * band.width;
+    [sin, zenith, cosine]
 }
 
-impl Default for SinCosMemo {
-    fn default() -> Self {
-        Self {
-            slots: vec![(f32::NAN.to_bits(), 0.0, 0.0); 1 << Self::BITS],
-        }
+/// The sine and cosine of an angle of `deg` degrees in [-90, 90] (a
+/// horizon's elevation), by their Taylor series in radians to the 21st and
+/// 20th power (the next terms are below 1e-17 at 90 degrees): within 2.2e-16
+/// (one unit in the last place of 1) of libm's `sin_cos` there, and with
+/// neither calls nor branches, so that a loop of them compiles to vector
+/// code where libm's would not.
+#[inline(always)]
+pub fn sin_cos_deg(deg: f64) -> (f64, f64) {
+    // 1 / n! for n = 2..=21: the odd ones for the sine, the even ones for
+    // the cosine, each with its alternating sign.
+    const SIN: [f64; 10] = [
+        -1.0 / 6.0,
+        1.0 / 120.0,
+        -1.0 / 5040.0,
+        1.0 / 362_880.0,
+        -1.0 / 39_916_800.0,
+        1.0 / 6_227_020_800.0,
+        -1.0 / 1_307_674_368_000.0,
+        1.0 / 355_687_428_096_000.0,
+        -1.0 / 121_645_100_408_832_000.0,
+        1.0 / 51_090_942_171_709_440_000.0,
+    ];
+    const COS: [f64; 10] = [
+        -1.0 / 2.0,
+        1.0 / 24.0,
+        -1.0 / 720.0,
+        1.0 / 40_320.0,
+        -1.0 / 3_628_800.0,
+        1.0 / 479_001_600.0,
+        -1.0 / 87_178_291_200.0,
+        1.0 / 20_922_789_888_000.0,
+        -1.0 / 6_402_373_705_728_000.0,
+        1.0 / 2_432_902_008_176_640_000.0,
+    ];
+    let x = deg.to_radians();
+    let z = x * x;
+    let (mut s, mut c) = (0.0, 0.0);
+    for i in (0..10).rev() {
+        s = s * z + SIN[i];
+        c = c * z + COS[i];
     }
+    (x + x * z * s, 1.0 + z * c)
 }
 
-impl SinCosMemo {
-    /// 1024 slots, 24 KiB: within a core's L1 cache.
-    const BITS: u32 = 10;
-
-    /// `h.to_radians().sin_cos()` for the f32 angle `h` (not NaN).
-    #[inline]
-    pub fn get(&mut self, h: f32) -> (f64, f64) {
-        let bits = h.to_bits();
-        // Fibonacci hashing: the top bits of the product.
-        let slot = (bits.wrapping_mul(0x9E37_79B9) >> (32 - Self::BITS)) as usize;
-        let entry = &mut self.slots[slot];
-        if entry.0 != bits {
-            let (s, c) = f64::from(h).to_radians().sin_cos();
-            *entry = (bits, s, c);
-        }
-        (entry.1, entry.2)
-    }
+/// `atan(x)` in radians: Cephes' double-precision `atan` (Moshier), its
+/// reduction to `|x| <= 0.66` and rational approximation, within a few
+/// units in the last place of libm's, with its three ranges as selects
+/// instead of branches (the sky stage's loop vectorises).
+#[inline(always)]
+pub fn atan(x: f64) -> f64 {
+    const P: [f64; 5] = [
+        -8.750_608_600_031_904e-1,
+        -1.615_753_718_733_365e1,
+        -7.500_855_792_314_705e1,
+        -1.228_866_684_490_136_2e2,
+        -6.485_021_904_942_025e1,
+    ];
+    const Q: [f64; 5] = [
+        2.485_846_490_142_306_3e1,
+        1.650_270_098_316_988_6e2,
+        4.328_810_604_912_902_5e2,
+        4.853_903_996_359_137e2,
+        1.945_506_571_482_614e2,
+    ];
+    const TAN_3PI_8: f64 = 2.414_213_562_373_095;
+    const MORE_BITS: f64 = 6.123_233_995_736_766e-17;
+    let a = x.abs();
+    let (far, mid) = (a > TAN_3PI_8, a > 0.66);
+    let r = if far {
+        -1.0 / a
+    } else if mid {
+        (a - 1.0) / (a + 1.0)
+    } else {
+        a
+    };
+    let (base, more) = if far {
+        (std::f64::consts::FRAC_PI_2, MORE_BITS)
+    } else if mid {
+        (std::f64::consts::FRAC_PI_4, 0.5 * MORE_BITS)
+    } else {
+        (0.0, 0.0)
+    };
+    let z = r * r;
+    let p = (((P[0] * z + P[1]) * z + P[2]) * z + P[3]) * z + P[4];
+    let q = ((((z + Q[0]) * z + Q[1]) * z + Q[2]) * z + Q[3]) * z + Q[4];
+    (base + (r * (z * p / q) + r + more)).copysign(x)
 }
 
 /// The sums of a post with unit `normal` whose horizon is `horizons`
@@ -154,7 +238,7 @@ pub fn sums_of_horizons(
 ) -> SkySums {
     let mut sums = SkySums::default();
     for (band, h) in integrals.iter().zip(horizons) {
-        sums.add(h, h.to_radians().sin_cos(), band, normal);
+        sums.add(h, sin_cos_deg(h), band, normal);
     }
     sums
 }
@@ -357,23 +441,30 @@ mod tests {
     }
 
     #[test]
-    fn remembered_sines_are_the_same_bits() {
-        // Far more distinct angles than slots, each asked twice in a row
-        // and again later, so that slots are filled, hit and overwritten.
-        let mut memo = SinCosMemo::default();
-        let angles: Vec<f32> = (0..5000).map(|i| -90.0 + i as f32 * 0.0371).collect();
-        for pass in 0..2 {
-            for &h in &angles {
-                let want = f64::from(h).to_radians().sin_cos();
-                for _ in 0..2 {
-                    let got = memo.get(h);
-                    assert_eq!(
-                        (got.0.to_bits(), got.1.to_bits()),
-                        (want.0.to_bits(), want.1.to_bits()),
-                        "{h} (pass {pass})"
+    fn sines_cosines_and_arctangents_agree_with_libm() {
+        // Every hundredth of a degree over the horizon's range, and
+        // arctangents over twelve decades either side of zero (all three
+        // of Cephes' ranges).
+        for i in -9000..=9000 {
+            let deg = f64::from(i) / 100.0;
+            let (s, c) = sin_cos_deg(deg);
+            let (ws, wc) = deg.to_radians().sin_cos();
+            // One unit in the last place of 1 at most.
+            let close = |a: f64, b: f64| (a - b).abs() <= f64::EPSILON;
+            assert!(close(s, ws) && close(c, wc), "{deg}: {s} {c}");
+        }
+        for i in -1200..=1200 {
+            for x in [f64::from(i) / 100.0, 10f64.powf(f64::from(i) / 100.0)] {
+                for x in [x, -x] {
+                    let want = x.atan();
+                    assert!(
+                        (atan(x) - want).abs() <= 4.0 * f64::EPSILON * want.abs().max(1e-300),
+                        "{x}: {} against {want}",
+                        atan(x)
                     );
                 }
             }
         }
+        assert_eq!(atan(0.0), 0.0);
     }
 }

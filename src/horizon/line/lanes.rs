@@ -78,7 +78,12 @@ pub(super) struct Lines {
     /// Vertices on each line's hull; -1 for a line swept by the scalar
     /// sweep.
     len: Vec<i64>,
-    /// Hull vertices, `[depth * count + line]`.
+    /// The top three vertices of each hull, `[k * count + line]` for the
+    /// vertex `k` below the top: eight neighbouring lines' load with one
+    /// vector load where the kernel starts a row.
+    head_t: Vec<f64>,
+    head_w: Vec<f64>,
+    /// The vertices below the top three, `[depth * count + line]`.
     hull_t: Vec<f64>,
     hull_w: Vec<f64>,
     /// Lines that left the lanes, carried from band to band.
@@ -113,10 +118,38 @@ impl Lines {
             depth,
             t: vec![0.0; count],
             len: vec![0; count],
+            head_t: vec![0.0; 3 * count],
+            head_w: vec![0.0; 3 * count],
             hull_t: vec![0.0; depth * count],
             hull_w: vec![0.0; depth * count],
             spilled: Vec::new(),
         })
+    }
+
+    /// Where vertex `d` of line `i`'s hull (of `self.len[i]` vertices) is
+    /// kept: in the head (`true`) or the storage below it, and its index.
+    fn slot(&self, i: usize, d: usize) -> (bool, usize) {
+        match self.len[i] as usize - 1 - d {
+            k @ 0..3 => (true, k * self.count + i),
+            _ => (false, d * self.count + i),
+        }
+    }
+
+    fn vertex(&self, i: usize, d: usize) -> [f64; 2] {
+        match self.slot(i, d) {
+            (true, j) => [self.head_t[j], self.head_w[j]],
+            (false, j) => [self.hull_t[j], self.hull_w[j]],
+        }
+    }
+
+    fn set_vertex(&mut self, i: usize, d: usize, [t, w]: [f64; 2]) {
+        let (head, j) = self.slot(i, d);
+        let (ts, ws) = if head {
+            (&mut self.head_t, &mut self.head_w)
+        } else {
+            (&mut self.hull_t, &mut self.hull_w)
+        };
+        (ts[j], ws[j]) = (t, w);
     }
 
     /// The index of the line through post `(col, row)`.
@@ -185,9 +218,8 @@ impl Lines {
                 }
                 self.t[i] = lane.t;
                 self.len[i] = lane.hull.len() as i64;
-                for (d, &[t, w]) in lane.hull.iter().enumerate() {
-                    self.hull_t[d * self.count + i] = t;
-                    self.hull_w[d * self.count + i] = w;
+                for (d, &v) in lane.hull.iter().enumerate() {
+                    self.set_vertex(i, d, v);
                 }
             }
             if far_row {
@@ -197,12 +229,7 @@ impl Lines {
             for (col, i) in cols.clone().zip(self.indices(cols.clone(), row)) {
                 if self.len[i] > (self.depth - n) as i64 {
                     let hull = (0..self.len[i] as usize)
-                        .map(|d| {
-                            [
-                                self.hull_t[d * self.count + i],
-                                self.hull_w[d * self.count + i],
-                            ]
-                        })
+                        .map(|d| self.vertex(i, d))
                         .collect();
                     let (col, row) = (col as i64 + a, row as i64 + b);
                     let lane = Lane {
@@ -378,19 +405,27 @@ mod avx512 {
                 let has1 = _mm512_mask_cmpge_epi64_mask(active, len, one);
                 let has2 = _mm512_mask_cmpge_epi64_mask(active, len, _mm512_set1_epi64(2));
                 let has3 = _mm512_mask_cmpge_epi64_mask(active, len, _mm512_set1_epi64(3));
-                let below = _mm512_sub_epi64(top, count);
-                let below2 = _mm512_sub_epi64(below, count);
-                let zero = _mm512_setzero_pd();
                 let (ht, hw) = (lines.hull_t.as_mut_ptr(), lines.hull_w.as_mut_ptr());
-                // SAFETY: indices of vertices on the hulls.
-                let mut hulls = unsafe {
+                let head = |k: usize, has: __mmask8| {
+                    let at = k * lines.count + i0;
+                    // SAFETY: lines `i0..` under `on_row` exist.
+                    unsafe {
+                        (
+                            _mm512_maskz_loadu_pd(has, lines.head_t.as_ptr().add(at)),
+                            _mm512_maskz_loadu_pd(has, lines.head_w.as_ptr().add(at)),
+                        )
+                    }
+                };
+                let ((top_t, top_w), (sec_t, sec_w), (third_t, third_w)) =
+                    (head(0, has1), head(1, has2), head(2, has3));
+                let mut hulls = {
                     Hulls {
-                        top_t: _mm512_mask_i64gather_pd::<8>(zero, has1, top, ht),
-                        top_w: _mm512_mask_i64gather_pd::<8>(zero, has1, top, hw),
-                        sec_t: _mm512_mask_i64gather_pd::<8>(zero, has2, below, ht),
-                        sec_w: _mm512_mask_i64gather_pd::<8>(zero, has2, below, hw),
-                        third_t: _mm512_mask_i64gather_pd::<8>(zero, has3, below2, ht),
-                        third_w: _mm512_mask_i64gather_pd::<8>(zero, has3, below2, hw),
+                        top_t,
+                        top_w,
+                        sec_t,
+                        sec_w,
+                        third_t,
+                        third_w,
                         len,
                         top,
                         count,
@@ -448,6 +483,18 @@ mod avx512 {
                         _mm512_cvtpd_ps(angle),
                     );
                     _mm512_mask_storeu_epi64(lines.len.as_mut_ptr().add(i0), on_row, hulls.len);
+                    for (k, (vt, vw)) in [
+                        (hulls.top_t, hulls.top_w),
+                        (hulls.sec_t, hulls.sec_w),
+                        (hulls.third_t, hulls.third_w),
+                    ]
+                    .into_iter()
+                    .enumerate()
+                    {
+                        let at = k * lines.count + i0;
+                        _mm512_mask_storeu_pd(lines.head_t.as_mut_ptr().add(at), posts, vt);
+                        _mm512_mask_storeu_pd(lines.head_w.as_mut_ptr().add(at), posts, vw);
+                    }
                     _mm512_mask_storeu_pd(lines.t.as_mut_ptr().add(i0), on_row, t);
                 }
             }
@@ -502,12 +549,16 @@ mod avx512 {
     #[target_feature(enable = "avx512f,avx512vl,avx512dq,popcnt")]
     unsafe fn push(hulls: &mut Hulls, t: __m512d, w: __m512d, stats: &mut SweepStats) {
         let pushed = hulls.active;
-        hulls.top = _mm512_mask_add_epi64(hulls.top, pushed, hulls.top, hulls.count);
+        // The third vertex leaves the head for the storage, at its depth
+        // `len - 3`.
+        let evicted = _mm512_mask_cmpge_epi64_mask(pushed, hulls.len, _mm512_set1_epi64(3));
+        let third = _mm512_sub_epi64(hulls.top, _mm512_add_epi64(hulls.count, hulls.count));
         // SAFETY: below the depth in each pushed lane's line.
         unsafe {
-            _mm512_mask_i64scatter_pd::<8>(hulls.hull_t, pushed, hulls.top, t);
-            _mm512_mask_i64scatter_pd::<8>(hulls.hull_w, pushed, hulls.top, w);
+            _mm512_mask_i64scatter_pd::<8>(hulls.hull_t, evicted, third, hulls.third_t);
+            _mm512_mask_i64scatter_pd::<8>(hulls.hull_w, evicted, third, hulls.third_w);
         }
+        hulls.top = _mm512_mask_add_epi64(hulls.top, pushed, hulls.top, hulls.count);
         hulls.third_t = _mm512_mask_mov_pd(hulls.third_t, pushed, hulls.sec_t);
         hulls.third_w = _mm512_mask_mov_pd(hulls.third_w, pushed, hulls.sec_w);
         hulls.sec_t = _mm512_mask_mov_pd(hulls.sec_t, pushed, hulls.top_t);
