@@ -119,16 +119,23 @@ impl AngleEncoding {
     pub fn encode(self, deg: f64) -> u32 {
         match self.codes() {
             None => (deg as f32).to_bits(),
-            Some(_) if deg.is_nan() => 0,
-            Some(n) => {
-                // `round` of a quotient in [0, n], inline (libm's call was
-                // a fifth of encoding): its integer part, plus one from a
-                // fraction of a half or more (`x - trunc(x)` is exact).
-                let x = (deg.clamp(-90.0, 90.0) + 90.0) / self.step_deg();
-                let whole = x as u32;
-                1 + (whole + u32::from(x - f64::from(whole) >= 0.5)).min(n as u32)
-            }
+            Some(n) => quantise(deg, n, self.step_deg()),
         }
+    }
+
+    /// The codes of a row of angles (degrees, NaN: nodata) in a quantised
+    /// encoding, each as [`Self::encode`] gives it, narrowed by `narrow`
+    /// (to `u8` or `u16`): one loop without branches, which the compiler
+    /// turns into vector code. `None` for f32, whose angles are stored as
+    /// they are.
+    #[inline]
+    pub fn quantise_row<T>(self, degs: &[f32], narrow: impl Fn(u32) -> T) -> Option<Vec<T>> {
+        let (n, step) = (self.codes()?, self.step_deg());
+        Some(
+            degs.iter()
+                .map(|&deg| narrow(quantise(f64::from(deg), n, step)))
+                .collect(),
+        )
     }
 
     /// The angle in degrees of a stored code; `None` for nodata.
@@ -147,6 +154,23 @@ impl AngleEncoding {
             ElemType::F32 => Some(Self::F32),
             _ => None,
         }
+    }
+}
+
+/// The code of `deg` among `n + 1` codes `step` degrees apart from -90
+/// (0 for NaN, nodata), rounded to the nearest: `round` of a quotient in
+/// [0, n] inline (libm's call was a fifth of encoding), its integer part
+/// plus one from a fraction of a half or more (`x - trunc(x)` is exact).
+/// Branch-free: NaN's quotient is selected away, not tested first.
+#[inline]
+fn quantise(deg: f64, n: f64, step: f64) -> u32 {
+    let x = (deg.clamp(-90.0, 90.0) + 90.0) / step;
+    let whole = x as u32;
+    let code = 1 + (whole + u32::from(x - f64::from(whole) >= 0.5)).min(n as u32);
+    if deg.is_nan() {
+        0
+    } else {
+        code
     }
 }
 

@@ -118,6 +118,7 @@ def main():
     ap.add_argument("--crop", type=int, default=256)
     ap.add_argument("--limit", type=int, default=600)
     ap.add_argument("--missing", action="append", default=[], help="PEER=REASON: a peer that could not be installed")
+    ap.add_argument("--only", default="", help="comma-separated peers to run (horayzon, grass, saga, topocalc, ...; default: all)")
     a = ap.parse_args()
     work = os.path.abspath(a.work)
     os.makedirs(work, exist_ok=True)
@@ -153,7 +154,13 @@ def main():
 
     # The Python peers.
     missing = dict(m.split("=", 1) for m in a.missing)
+    only = {p for p in a.only.split(",") if p}
+    unknown = only - set(PYTHON_PEERS) - {"grass", "saga"}
+    assert not unknown, f"--only: no peer named {sorted(unknown)}"
+    wanted = lambda peer: not only or peer in only
     for module, name in PYTHON_PEERS.items():
+        if not wanted(module):
+            continue
         if module in missing:
             peers.append({"name": name, "missing": missing[module]})
             continue
@@ -195,7 +202,9 @@ def main():
             peers.append(entry)
 
     # GRASS r.horizon.
-    if "grass" in missing or not shutil.which("grass"):
+    if not wanted("grass"):
+        pass
+    elif "grass" in missing or not shutil.which("grass"):
         peers.append({"name": "GRASS r.horizon", "missing": missing.get("grass", "grass not on PATH")})
     else:
         version = subprocess.run(["grass", "--version"], capture_output=True, text=True)
@@ -230,7 +239,9 @@ def main():
         })
 
     # SAGA's Sky View Factor (ta_lighting 3): the slope-aware svf.
-    if "saga" in missing or not shutil.which("saga_cmd"):
+    if not wanted("saga"):
+        pass
+    elif "saga" in missing or not shutil.which("saga_cmd"):
         peers.append({"name": "SAGA Sky View Factor", "missing": missing.get("saga", "saga_cmd not on PATH")})
     else:
         version = subprocess.run(["saga_cmd", "--version"], capture_output=True, text=True).stdout.split("SAGA Version:")[1].split()[0]

@@ -3,7 +3,8 @@
 # installed outside the project's own dependencies and run beside
 # terrabake on the same DEM, directions and search radius (the whole DEM).
 #
-#   bash pipelines/peers/bench_peers.sh     # DEM=, DIRECTIONS=16, CROP=256, LIMIT=600, WORK=
+#   bash pipelines/peers/bench_peers.sh     # DEM=, DIRECTIONS=16, CROP=256, LIMIT=600, WORK=,
+#                                            # PEERS=horayzon,grass (default: every peer)
 #
 # Installs (as root; once): Debian's gdal-bin, grass-core and saga; a
 # virtual environment target/peers-venv from PyPI with whitebox-workflows,
@@ -22,6 +23,7 @@ DIRECTIONS=${DIRECTIONS:-16}
 CROP=${CROP:-256}
 LIMIT=${LIMIT:-600}
 WORK=${WORK:-/tmp/terrabake-peers}
+PEERS=${PEERS:-}
 VENV=target/peers-venv
 source pipelines/apt.sh
 say() { echo "bench-peers: $*" >&2; }
@@ -60,7 +62,8 @@ try rvt "pip install rvt-py failed" --no-deps rvt-py
 if [ -n "${HORAYZON_SRC:-}" ]; then
   if ! installed horayzon; then
     apt_install libembree-dev libtbb-dev || true
-    shim=$VENV/embree-prefix
+    # Absolute: pip builds in a directory of its own.
+    shim=$PWD/$VENV/embree-prefix
     mkdir -p "$shim/lib"
     ln -sf "$(ls /usr/lib/*/libembree3.so | head -1)" "$shim/lib/libembree3.so"
     pip tqdm requests geographiclib xarray
@@ -75,6 +78,6 @@ fi
 args=()
 for m in "${missing[@]}"; do args+=(--missing "$m"); done
 "$py" pipelines/peers/bench_peers.py --bin "$BIN" --venv "$VENV" --dem "$DEM" --work "$WORK" \
-  --directions "$DIRECTIONS" --crop "$CROP" --limit "$LIMIT" "${args[@]}"
+  --directions "$DIRECTIONS" --crop "$CROP" --limit "$LIMIT" --only "$PEERS" "${args[@]}"
 "$BIN" bench-horizons "$WORK/whole.tbake" --peers "$WORK/peers.json" --crop "$CROP" \
   --speed none --chart docs/charts/horizons

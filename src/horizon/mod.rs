@@ -1077,17 +1077,16 @@ impl BandWriter {
             }
         }
         let enc = self.enc;
-        let code = |a: &f32| enc.encode(f64::from(*a));
         match enc {
-            AngleEncoding::F32 => encode_tile_row(angles, w, ts, f32::NAN, Codec::Raw),
             AngleEncoding::U16 => {
-                let codes: Vec<u16> = angles.iter().map(|a| code(a) as u16).collect();
-                encode_tile_row(&codes, w, ts, 0u16, Codec::Raw)
+                let codes = enc.quantise_row(angles, |c| c as u16);
+                encode_tile_row(&codes.expect("u16 codes"), w, ts, 0u16, Codec::Raw)
             }
             AngleEncoding::U8 => {
-                let codes: Vec<u8> = angles.iter().map(|a| code(a) as u8).collect();
-                encode_tile_row(&codes, w, ts, 0u8, Codec::Raw)
+                let codes = enc.quantise_row(angles, |c| c as u8);
+                encode_tile_row(&codes.expect("u8 codes"), w, ts, 0u8, Codec::Raw)
             }
+            AngleEncoding::F32 => encode_tile_row(angles, w, ts, f32::NAN, Codec::Raw),
         }
     }
 

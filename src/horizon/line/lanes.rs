@@ -27,6 +27,10 @@
 //! (`[depth][line]`: the tops of neighbouring lines share cache lines). A
 //! lane holds its top three vertices in registers, the third gathered while
 //! its pops go on, so that a pop's next compare never waits on memory.
+//! Between rows the top three wait in arrays indexed by line, not in the
+//! storage, so that eight neighbouring lines load theirs with plain vector
+//! loads where a row starts (six gathers before, a sixth of the sweep); a
+//! push sends the third vertex down to the storage instead of the new top.
 //!
 //! **The same bits.** Each line does the scalar sweep's arithmetic in the
 //! scalar sweep's order (no fused multiply-adds; the arctangent is
@@ -333,7 +337,8 @@ mod avx512 {
 
     /// Eight lanes' hulls: the top three vertices of each (the third
     /// gathered while the pops go on, off their critical path), its length,
-    /// the index of its top in the depth-major storage, and the storage.
+    /// the index its top would have in the depth-major storage, and the
+    /// storage (which holds every vertex but the top three).
     struct Hulls {
         top_t: __m512d,
         top_w: __m512d,
