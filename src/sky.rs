@@ -238,14 +238,18 @@ impl Stage for SkyStage {
             };
             for (layer, writer) in &mut writers {
                 if *layer == SkyLayer::HorizonEdge {
-                    let edges: Vec<u16> = post_rows.iter().flat_map(|p| p.edges.clone()).collect();
+                    let edges: Vec<u16> = post_rows
+                        .iter()
+                        .flat_map(|p| p.edges.iter().copied())
+                        .collect();
                     push_tile_row(writer, &edges, w, 0u16, Codec::Raw)?;
                     continue;
                 }
                 let values: Vec<f32> = (0..rows * w)
                     .map(|i| {
                         if inside(i) {
-                            layer.value(&post_rows[i / w].sums(i % w), 0) as f32
+                            let (post_row, col) = (&post_rows[i / w], i % w);
+                            layer.value(&post_row.sums(col), post_row.edges[col]) as f32
                         } else {
                             f32::NAN
                         }
