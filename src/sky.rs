@@ -16,7 +16,7 @@ use std::path::Path;
 use anyhow::{Context, Result};
 use rayon::prelude::*;
 use terrabake_format::horizons::{
-    edge_distance_along, heading, HORIZON, HORIZON_EDGE, OPENNESS, SVF, SVF_COSINE,
+    edge_reach, heading, HORIZON, HORIZON_EDGE, OPENNESS, SVF, SVF_COSINE,
 };
 use terrabake_format::{Asset, Codec, ElemType, LayerEntry, LayerWriter, Mmap, HEIGHT_LAYER};
 
@@ -246,6 +246,7 @@ impl Stage for SkyStage {
                     continue;
                 }
                 let values: Vec<f32> = (0..rows * w)
+                    .into_par_iter()
                     .map(|i| {
                         if inside(i) {
                             let (post_row, col) = (&post_rows[i / w], i % w);
@@ -357,6 +358,7 @@ impl PostRow {
             &mut self.cosine[..w],
         );
         let (z, edges) = (&self.z[..w], &mut self.edges[..w]);
+        let reach_down = edge_reach(edge.row, edge.towards.1, edge.size.1, edge.spacing.1);
         for col in 0..w {
             let h = f64::from(angles[col]);
             let (sh, ch) = sin_cos_deg(h);
@@ -367,12 +369,9 @@ impl PostRow {
             sin[col] += if valid { s } else { 0.0 };
             zenith[col] += if valid { o } else { 0.0 };
             cosine[col] += if valid { c } else { 0.0 };
-            let d = edge_distance_along(
-                edge.size,
-                edge.spacing,
-                (col as f64, edge.row),
-                edge.towards,
-            );
+            // `edge_distance_along`, its row's part taken once.
+            let d =
+                edge_reach(col as f64, edge.towards.0, edge.size.0, edge.spacing.0).min(reach_down);
             // The rise's slope (z_max - z - c d^2) / d against tan h, both
             // sides times d cos h (d, cos h >= 0).
             let rise = edge.z_max - f64::from(z[col]) - edge.curvature * d * d;
@@ -384,6 +383,7 @@ impl PostRow {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use terrabake_format::horizons::edge_distance_along;
 
     /// The row kernel, on every path this CPU has, against the scalar
     /// definition (libm's sine and cosine, [`SkySums::add`], the loader's

@@ -233,16 +233,23 @@ pub fn edge_distance_along(
     (x, y): (f64, f64),
     (ve, vs): (f64, f64),
 ) -> f64 {
-    let reach = |pos: f64, v: f64, last: f64, step: f64| {
-        if v > 1e-12 {
-            (last - pos) * step / v
-        } else if v < -1e-12 {
-            pos * step / -v
-        } else {
-            f64::INFINITY
-        }
-    };
-    reach(x, ve, f64::from(width - 1), dx).min(reach(y, vs, f64::from(height - 1), dy))
+    edge_reach(x, ve, width, dx).min(edge_reach(y, vs, height, dy))
+}
+
+/// One axis of [`edge_distance_along`]: metres from position `pos` (in
+/// posts) to the last or the first of `posts` posts `step` metres apart,
+/// going `v` metres along the axis per metre travelled (infinite when the
+/// axis does not move). Its own function so that a caller with many posts
+/// on one row takes the row's axis once.
+#[inline]
+pub fn edge_reach(pos: f64, v: f64, posts: u32, step: f64) -> f64 {
+    if v > 1e-12 {
+        (f64::from(posts - 1) - pos) * step / v
+    } else if v < -1e-12 {
+        pos * step / -v
+    } else {
+        f64::INFINITY
+    }
 }
 
 /// The `horizon` layer of an asset, decoded.

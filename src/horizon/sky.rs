@@ -209,13 +209,16 @@ pub fn atan(x: f64) -> f64 {
     const MORE_BITS: f64 = 6.123_233_995_736_766e-17;
     let a = x.abs();
     let (far, mid) = (a > TAN_3PI_8, a > 0.66);
-    let r = if far {
-        -1.0 / a
+    // One division for the three ranges (`a / 1` is `a`): a division is
+    // the dearest vector operation here.
+    let (num, den) = if far {
+        (-1.0, a)
     } else if mid {
-        (a - 1.0) / (a + 1.0)
+        (a - 1.0, a + 1.0)
     } else {
-        a
+        (a, 1.0)
     };
+    let r = num / den;
     let (base, more) = if far {
         (std::f64::consts::FRAC_PI_2, MORE_BITS)
     } else if mid {
