@@ -229,7 +229,8 @@ impl Stage for SkyStage {
                             z_max,
                             curvature,
                         };
-                        post_row.add_band(&integrals[b], angles, &edge);
+                        let z = &terrain.z[(row - r0) * w..][..w];
+                        post_row.add_band(&integrals[b], angles, z, &edge);
                     });
             }
             let inside = |i: usize| {
@@ -266,14 +267,13 @@ impl Stage for SkyStage {
 }
 
 /// One row of posts as the stage sums it, in columns (structure of
-/// arrays): the unit normals (NaN where a post has none), the heights, and
-/// the running sums and edge counts over the bands so far. A band over a
+/// arrays): the unit normals (NaN where a post has none) and the running
+/// sums and edge counts over the bands so far. A band over a
 /// whole row is then one loop without branches or calls, which the
 /// compiler turns into vector code ([`PostRow::add_band`]).
 #[derive(Debug)]
 struct PostRow {
     normal: [Vec<f64>; 3],
-    z: Vec<f32>,
     sin: Vec<f64>,
     zenith: Vec<f64>,
     cosine: Vec<f64>,
@@ -305,7 +305,6 @@ impl PostRow {
         }
         Self {
             normal,
-            z: (0..w).map(|col| terrain.at(col, row)).collect(),
             sin: vec![0.0; w],
             zenith: vec![0.0; w],
             cosine: vec![0.0; w],
@@ -318,38 +317,57 @@ impl PostRow {
     }
 
     /// Adds band `band`, whose angles on this row are `angles` (degrees,
-    /// NaN for none), to every post of the row: the widest vectors this
-    /// machine has, the same bits on every machine (no fused multiply-adds).
-    fn add_band(&mut self, band: &BandIntegrals, angles: &[f32], edge: &EdgeTest) {
+    /// NaN for none), to every post of the row, whose heights are `z`: the
+    /// widest vectors this machine has, the same bits on every machine (no
+    /// fused multiply-adds).
+    fn add_band(&mut self, band: &BandIntegrals, angles: &[f32], z: &[f32], edge: &EdgeTest) {
         #[cfg(target_arch = "x86_64")]
         {
             if std::arch::is_x86_feature_detected!("avx512f") {
                 // SAFETY: the CPU has the features the function is compiled for.
-                return unsafe { self.add_band_avx512(band, angles, edge) };
+                return unsafe { self.add_band_avx512(band, angles, z, edge) };
             }
             if std::arch::is_x86_feature_detected!("avx2") {
                 // SAFETY: as above.
-                return unsafe { self.add_band_avx2(band, angles, edge) };
+                return unsafe { self.add_band_avx2(band, angles, z, edge) };
             }
         }
-        self.add_band_portable(band, angles, edge);
+        self.add_band_portable(band, angles, z, edge);
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f")]
-    unsafe fn add_band_avx512(&mut self, band: &BandIntegrals, angles: &[f32], edge: &EdgeTest) {
-        self.add_band_portable(band, angles, edge);
+    unsafe fn add_band_avx512(
+        &mut self,
+        band: &BandIntegrals,
+        angles: &[f32],
+        z: &[f32],
+        edge: &EdgeTest,
+    ) {
+        self.add_band_portable(band, angles, z, edge);
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn add_band_avx2(&mut self, band: &BandIntegrals, angles: &[f32], edge: &EdgeTest) {
-        self.add_band_portable(band, angles, edge);
+    unsafe fn add_band_avx2(
+        &mut self,
+        band: &BandIntegrals,
+        angles: &[f32],
+        z: &[f32],
+        edge: &EdgeTest,
+    ) {
+        self.add_band_portable(band, angles, z, edge);
     }
 
     #[inline(always)]
-    fn add_band_portable(&mut self, band: &BandIntegrals, angles: &[f32], edge: &EdgeTest) {
-        let w = self.z.len();
+    fn add_band_portable(
+        &mut self,
+        band: &BandIntegrals,
+        angles: &[f32],
+        z: &[f32],
+        edge: &EdgeTest,
+    ) {
+        let w = self.sin.len();
         let (angles, [nx, ny, nz]) = (&angles[..w], &self.normal);
         let (nx, ny, nz) = (&nx[..w], &ny[..w], &nz[..w]);
         let (sin, zenith, cosine) = (
@@ -357,7 +375,7 @@ impl PostRow {
             &mut self.zenith[..w],
             &mut self.cosine[..w],
         );
-        let (z, edges) = (&self.z[..w], &mut self.edges[..w]);
+        let (z, edges) = (&z[..w], &mut self.edges[..w]);
         let reach_down = edge_reach(edge.row, edge.towards.1, edge.size.1, edge.spacing.1);
         for col in 0..w {
             let h = f64::from(angles[col]);
@@ -431,7 +449,7 @@ mod tests {
             z_max: 950.0,
             curvature: 6.8e-8,
         };
-        type Path = fn(&mut PostRow, &BandIntegrals, &[f32], &EdgeTest);
+        type Path = fn(&mut PostRow, &BandIntegrals, &[f32], &[f32], &EdgeTest);
         let mut paths: Vec<(&str, Path)> = vec![
             ("dispatched", PostRow::add_band),
             ("portable", PostRow::add_band_portable),
@@ -439,12 +457,20 @@ mod tests {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU has AVX2.
-            paths.push(("avx2", |p, b, a, e| unsafe { p.add_band_avx2(b, a, e) }));
+            paths.push(("avx2", |p, b, a, z, e| unsafe {
+                p.add_band_avx2(b, a, z, e)
+            }));
         }
         for (name, add_band) in paths {
             let mut post_row = PostRow::new(&terrain, row);
             for (b, angles) in angles.iter().enumerate() {
-                add_band(&mut post_row, &integrals[b], angles, &edge_of(b));
+                add_band(
+                    &mut post_row,
+                    &integrals[b],
+                    angles,
+                    &z[row * w..][..w],
+                    &edge_of(b),
+                );
             }
             let mut tested = 0;
             for col in 0..w {

@@ -108,13 +108,11 @@ impl<'a, D: AsRef<[u8]>, T: Element> TileCursor<'a, D, T> {
     #[inline]
     pub fn tile_of(&mut self, x: u32, y: u32) -> Result<(&[T], usize)> {
         self.layer.check_element(x, y)?;
-        let key = (x >> self.shift, y >> self.shift);
+        let (key, i) = tile_index(self.shift, x, y);
         if self.tile.as_ref().map(|t| t.0) != Some(key) {
             self.tile = Some((key, self.layer.tile::<T>(self.band, key.0, key.1)?));
         }
-        let mask = (1 << self.shift) - 1;
-        let tile = &self.tile.as_ref().expect("just set").1;
-        Ok((tile, (((y & mask) << self.shift) | (x & mask)) as usize))
+        Ok((&self.tile.as_ref().expect("just set").1, i))
     }
 
     /// Elements per tile side (a power of two).
@@ -128,6 +126,18 @@ impl<'a, D: AsRef<[u8]>, T: Element> TileCursor<'a, D, T> {
         let (tile, i) = self.tile_of(x, y)?;
         Ok(tile[i])
     }
+}
+
+/// The tile holding element `(x, y)` of a layer whose tiles are `1 <<
+/// shift` elements a side, and the element's row-major index in it. The
+/// tile size is a power of two (checked at open): shifts and masks, not
+/// the four integer divisions that a tracer's every step would otherwise
+/// pay.
+#[inline]
+fn tile_index(shift: u32, x: u32, y: u32) -> ((u32, u32), usize) {
+    let mask = (1 << shift) - 1;
+    let i = ((y & mask) << shift) | (x & mask);
+    ((x >> shift, y >> shift), i as usize)
 }
 
 /// A tile's elements: borrowed from the mapping, or shared from the cache.
@@ -499,12 +509,8 @@ impl<D: AsRef<[u8]>> Layer<D> {
     /// Element `(x, y)` of `band`.
     pub fn get<T: Element>(&self, band: u32, x: u32, y: u32) -> Result<T> {
         self.check_element(x, y)?;
-        // The tile size is a power of two (checked at open): shifts and
-        // masks, not the four integer divisions that a tracer's every step
-        // would otherwise pay.
-        let (shift, mask) = (self.tile_size().trailing_zeros(), self.tile_size() - 1);
-        let tile = self.tile::<T>(band, x >> shift, y >> shift)?;
-        Ok(tile[(((y & mask) << shift) | (x & mask)) as usize])
+        let ((tx, ty), i) = tile_index(self.tile_size().trailing_zeros(), x, y);
+        Ok(self.tile::<T>(band, tx, ty)?[i])
     }
 
     /// A reader of `band` that keeps the last tile it read (see
