@@ -222,6 +222,7 @@ impl Stage for SkyStage {
                     .for_each(|(r, (post_row, angles))| {
                         let row = y0 + r;
                         let edge = EdgeTest {
+                            z: &terrain.z[(row - r0) * w..][..w],
                             size: (w as u32, h as u32),
                             spacing: (terrain.dx_at(row), dy),
                             row: row as f64,
@@ -229,8 +230,7 @@ impl Stage for SkyStage {
                             z_max,
                             curvature,
                         };
-                        let z = &terrain.z[(row - r0) * w..][..w];
-                        post_row.add_band(&integrals[b], angles, z, &edge);
+                        post_row.add_band(&integrals[b], angles, &edge);
                     });
             }
             let inside = |i: usize| {
@@ -283,7 +283,9 @@ struct PostRow {
 /// What the edge count asks of one band on one row: could terrain no
 /// higher than the DEM's top, just past the edge, rise above a horizon?
 #[derive(Debug, Clone, Copy)]
-struct EdgeTest {
+struct EdgeTest<'a> {
+    /// The row's heights.
+    z: &'a [f32],
     size: (u32, u32),
     spacing: (f64, f64),
     row: f64,
@@ -317,56 +319,37 @@ impl PostRow {
     }
 
     /// Adds band `band`, whose angles on this row are `angles` (degrees,
-    /// NaN for none), to every post of the row, whose heights are `z`: the
-    /// widest vectors this machine has, the same bits on every machine (no
-    /// fused multiply-adds).
-    fn add_band(&mut self, band: &BandIntegrals, angles: &[f32], z: &[f32], edge: &EdgeTest) {
+    /// NaN for none), to every post of the row: the widest vectors this
+    /// machine has, the same bits on every machine (no fused multiply-adds).
+    fn add_band(&mut self, band: &BandIntegrals, angles: &[f32], edge: &EdgeTest) {
         #[cfg(target_arch = "x86_64")]
         {
             if std::arch::is_x86_feature_detected!("avx512f") {
                 // SAFETY: the CPU has the features the function is compiled for.
-                return unsafe { self.add_band_avx512(band, angles, z, edge) };
+                return unsafe { self.add_band_avx512(band, angles, edge) };
             }
             if std::arch::is_x86_feature_detected!("avx2") {
                 // SAFETY: as above.
-                return unsafe { self.add_band_avx2(band, angles, z, edge) };
+                return unsafe { self.add_band_avx2(band, angles, edge) };
             }
         }
-        self.add_band_portable(band, angles, z, edge);
+        self.add_band_portable(band, angles, edge);
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f")]
-    unsafe fn add_band_avx512(
-        &mut self,
-        band: &BandIntegrals,
-        angles: &[f32],
-        z: &[f32],
-        edge: &EdgeTest,
-    ) {
-        self.add_band_portable(band, angles, z, edge);
+    unsafe fn add_band_avx512(&mut self, band: &BandIntegrals, angles: &[f32], edge: &EdgeTest) {
+        self.add_band_portable(band, angles, edge);
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn add_band_avx2(
-        &mut self,
-        band: &BandIntegrals,
-        angles: &[f32],
-        z: &[f32],
-        edge: &EdgeTest,
-    ) {
-        self.add_band_portable(band, angles, z, edge);
+    unsafe fn add_band_avx2(&mut self, band: &BandIntegrals, angles: &[f32], edge: &EdgeTest) {
+        self.add_band_portable(band, angles, edge);
     }
 
     #[inline(always)]
-    fn add_band_portable(
-        &mut self,
-        band: &BandIntegrals,
-        angles: &[f32],
-        z: &[f32],
-        edge: &EdgeTest,
-    ) {
+    fn add_band_portable(&mut self, band: &BandIntegrals, angles: &[f32], edge: &EdgeTest) {
         let w = self.sin.len();
         let (angles, [nx, ny, nz]) = (&angles[..w], &self.normal);
         let (nx, ny, nz) = (&nx[..w], &ny[..w], &nz[..w]);
@@ -375,7 +358,7 @@ impl PostRow {
             &mut self.zenith[..w],
             &mut self.cosine[..w],
         );
-        let (z, edges) = (&z[..w], &mut self.edges[..w]);
+        let (z, edges) = (&edge.z[..w], &mut self.edges[..w]);
         let reach_down = edge_reach(edge.row, edge.towards.1, edge.size.1, edge.spacing.1);
         for col in 0..w {
             let h = f64::from(angles[col]);
@@ -442,6 +425,7 @@ mod tests {
             .collect();
         let row = 2;
         let edge_of = |b: usize| EdgeTest {
+            z: &z[row * w..][..w],
             size: (w as u32, h as u32),
             spacing: (30.0, 25.0),
             row: row as f64,
@@ -449,7 +433,7 @@ mod tests {
             z_max: 950.0,
             curvature: 6.8e-8,
         };
-        type Path = fn(&mut PostRow, &BandIntegrals, &[f32], &[f32], &EdgeTest);
+        type Path = fn(&mut PostRow, &BandIntegrals, &[f32], &EdgeTest);
         let mut paths: Vec<(&str, Path)> = vec![
             ("dispatched", PostRow::add_band),
             ("portable", PostRow::add_band_portable),
@@ -457,20 +441,12 @@ mod tests {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU has AVX2.
-            paths.push(("avx2", |p, b, a, z, e| unsafe {
-                p.add_band_avx2(b, a, z, e)
-            }));
+            paths.push(("avx2", |p, b, a, e| unsafe { p.add_band_avx2(b, a, e) }));
         }
         for (name, add_band) in paths {
             let mut post_row = PostRow::new(&terrain, row);
             for (b, angles) in angles.iter().enumerate() {
-                add_band(
-                    &mut post_row,
-                    &integrals[b],
-                    angles,
-                    &z[row * w..][..w],
-                    &edge_of(b),
-                );
+                add_band(&mut post_row, &integrals[b], angles, &edge_of(b));
             }
             let mut tested = 0;
             for col in 0..w {
