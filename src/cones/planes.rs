@@ -25,7 +25,10 @@
 //!   number of distinct heights costs nothing); the column pass is two
 //!   integer sweeps over strips of columns (no parabolas needed for a bit
 //!   plane); the row pass leaves out parabolas too far to narrow any cone of
-//!   the row; the top slice runs first so that every row has a finite reach.
+//!   the row; the top slice runs first so that every row has a finite reach;
+//!   each distance found is kept, in two bytes, as a floor for the slices
+//!   above (whose planes it contains), and a cell whose floor reaches its
+//!   cone's width is left out of the slice (85 % of the evaluations at 2048²).
 //! - [`exact_planes`]: the limit `K -> infinity`, without slices: the apex at
 //!   the cell's own `nmax` (the lowest apex possible) and the least slope
 //!   over every taller cell, found by branch and bound over a max pyramid of
@@ -271,6 +274,10 @@ fn sliced_planes_with<G: ColumnDistance>(
         apex_of_slice[usize::from(m)] += 1;
     }
     let mut slope = vec![f32::INFINITY; cw * ch];
+    // Per cell, a lower bound on its distance to the plane of the slices
+    // still to come (see [`Floor`]).
+    let floor = Floor::new(dx.min(dy));
+    let mut floors = vec![0u16; cw * ch];
     let strips = cw.div_ceil(STRIP);
     let mut column = vec![G::NONE; strips * ch * STRIP];
     let mut stats = PlaneStats::default();
@@ -278,8 +285,10 @@ fn sliced_planes_with<G: ColumnDistance>(
     // that from then on every row has a finite reach and the row pass can
     // leave out far parabolas. Then bottom-up, where a cell's tightest
     // bound tends to come from its first slices: fewer slope updates than
-    // top-down.
+    // top-down, and each distance found is a floor for the slices above
+    // (their planes are subsets of this one's).
     for k in std::iter::once(k_count - 1).chain(0..k_count - 1) {
+        let keeps_floor = k + 1 < k_count;
         // Slice k's plane equals slice k + 1's when no cell has its apex at
         // k + 1; then (D_k+1, z_k+2) = (D_k, z_k+2) bounds every cell more
         // tightly than (D_k, z_k+1), and slice k adds nothing.
@@ -336,51 +345,60 @@ fn sliced_planes_with<G: ColumnDistance>(
         let member = &member;
         // Distances in units of dx: a column distance of g cells is g * dy / dx.
         let (aspect, dx2) = (dy / dx, dx * dx);
-        slope.par_chunks_mut(cw).enumerate().for_each_init(
-            || (Envelope::default(), Vec::<u32>::new()),
-            |(envelope, targets), (r, row)| {
-                let m = &member[r * cw..(r + 1) * cw];
-                // The farthest that a plane cell can be and still narrow a
-                // cone of this row (in dx units, squared): farther columns
-                // cannot lower any slope, so their parabolas are left out.
-                // At high slices, where plane cells are few and far, this
-                // leaves out most of them.
-                // The cells this slice can narrow (outside the plane, with a
-                // cone still open), and the reach: the widest of them.
-                let reach = open_cells(m, row, rise_of, targets);
-                if targets.is_empty() {
-                    return;
-                }
-                let reach2 = reach * reach / dx2;
-                envelope.clear();
-                for (s, strip) in column.chunks(ch * STRIP).enumerate() {
-                    let c0 = s * STRIP;
-                    let width = STRIP.min(cw - c0);
-                    for (j, &g) in strip[r * STRIP..r * STRIP + width].iter().enumerate() {
-                        if g == G::NONE {
-                            continue;
-                        }
-                        let g = g.cells() * aspect;
-                        if g * g < reach2 {
-                            envelope.push((c0 + j) as f64, g * g);
+        slope
+            .par_chunks_mut(cw)
+            .zip(floors.par_chunks_mut(cw))
+            .enumerate()
+            .for_each_init(
+                || (Envelope::default(), Vec::<u32>::new()),
+                |(envelope, targets), (r, (row, row_floor))| {
+                    let m = &member[r * cw..(r + 1) * cw];
+                    // The farthest that a plane cell can be and still narrow a
+                    // cone of this row (in dx units, squared): farther columns
+                    // cannot lower any slope, so their parabolas are left out.
+                    // At high slices, where plane cells are few and far, this
+                    // leaves out most of them.
+                    // The cells this slice can narrow (outside the plane, with a
+                    // cone still open), and the reach: the widest of them.
+                    let reach = open_cells(m, row, row_floor, floor.unit, rise_of, targets);
+                    if targets.is_empty() {
+                        return;
+                    }
+                    let reach2 = reach * reach / dx2;
+                    envelope.clear();
+                    for (s, strip) in column.chunks(ch * STRIP).enumerate() {
+                        let c0 = s * STRIP;
+                        let width = STRIP.min(cw - c0);
+                        for (j, &g) in strip[r * STRIP..r * STRIP + width].iter().enumerate() {
+                            if g == G::NONE {
+                                continue;
+                            }
+                            let g = g.cells() * aspect;
+                            if g * g < reach2 {
+                                envelope.push((c0 + j) as f64, g * g);
+                            }
                         }
                     }
-                }
-                // (No plane cell in reach: nothing to update.)
-                if envelope.is_empty() {
-                    return;
-                }
-                envelope.evaluate_at(targets.iter().map(|&c| c as usize), |c, d2| {
-                    let rise = rise_of[usize::from(m[c])];
-                    // Compare squares; one root only where the slope drops.
-                    let d2 = d2 * dx2;
-                    let bound = f64::from(row[c]) * rise;
-                    if d2 < bound * bound {
-                        row[c] = round_down_f32(d2.sqrt() / rise * SLOPE_MARGIN);
+                    // (No plane cell in reach: nothing to update.)
+                    if envelope.is_empty() {
+                        return;
                     }
-                });
-            },
-        );
+                    envelope.evaluate_at(targets.iter().map(|&c| c as usize), |c, d2| {
+                        let rise = rise_of[usize::from(m[c])];
+                        // Compare squares; one root only where the slope drops.
+                        let d2 = d2 * dx2;
+                        let bound = f64::from(row[c]) * rise;
+                        if d2 < bound * bound {
+                            row[c] = round_down_f32(d2.sqrt() / rise * SLOPE_MARGIN);
+                        }
+                        // Parabolas left out are `reach` or farther, so the
+                        // envelope is the distance only below it.
+                        if keeps_floor {
+                            row_floor[c] = floor.of(d2.min(reach * reach));
+                        }
+                    });
+                },
+            );
         on_slice();
     }
     // A cell in every slice has nothing above the top.
@@ -395,13 +413,51 @@ fn sliced_planes_with<G: ColumnDistance>(
     Planes { apex, slope, stats }
 }
 
+/// A cell's distance to a slice's plane, rounded down to a `u16` count of
+/// quarter cells (of the shorter side), saturating: the floor of its
+/// distance to every higher slice's plane, since those planes are subsets.
+/// A cell whose floor already reaches its cone's width at a slice's height,
+/// `slope * rise`, cannot be narrowed by that slice and is no target: no
+/// evaluation, and no part in the row's reach. (The paper evaluates every
+/// cell in every slice.) Two bytes a cell rather than a float's four: the
+/// floor is read for every cell and slice.
+#[derive(Debug, Clone, Copy)]
+struct Floor {
+    /// Metres per count.
+    unit: f64,
+}
+
+impl Floor {
+    fn new(spacing: f64) -> Self {
+        Self {
+            unit: spacing / 4.0,
+        }
+    }
+
+    /// The floor of a squared distance in metres: rounded down with a
+    /// margin above the square root's rounding, so that `count * unit`
+    /// never exceeds the distance.
+    fn of(self, d2: f64) -> u16 {
+        (d2.sqrt() / self.unit * (1.0 - 1e-9)).min(f64::from(u16::MAX)) as u16
+    }
+}
+
 /// The cells of a row that a slice can narrow, into `targets` in order:
 /// those whose cone is still open over the rise from their apex slice
-/// (`member`) to the slice above, `slope * rise > 0`. Returns the widest
-/// such `slope * rise`, the row's reach. Eight cells at a time in AVX-512
-/// where the CPU has it (compress-stored indices, a masked maximum; the
-/// same targets and the same reach, a maximum being exact in any order).
-fn open_cells(member: &[u16], slope: &[f32], rise_of: &[f64], targets: &mut Vec<u32>) -> f64 {
+/// (`member`) to the slice above, `slope * rise`, beyond their [`Floor`]
+/// (`floor` counts of `unit` metres; 0 where none is known). Returns the
+/// widest such `slope * rise`, the row's reach. Eight cells at a time in
+/// AVX-512 where the CPU has it (compress-stored indices, a masked maximum;
+/// the same targets and the same reach, a maximum being exact in any
+/// order).
+fn open_cells(
+    member: &[u16],
+    slope: &[f32],
+    floor: &[u16],
+    unit: f64,
+    rise_of: &[f64],
+    targets: &mut Vec<u32>,
+) -> f64 {
     targets.clear();
     targets.resize(member.len() + 8, 0);
     #[cfg(target_arch = "x86_64")]
@@ -412,11 +468,11 @@ fn open_cells(member: &[u16], slope: &[f32], rise_of: &[f64], targets: &mut Vec<
     {
         // SAFETY: the CPU has the features; `targets` has room for every
         // cell and a vector more.
-        let (n, reach) = unsafe { open_cells_avx512(member, slope, rise_of, targets) };
+        let (n, reach) = unsafe { open_cells_avx512(member, slope, floor, unit, rise_of, targets) };
         targets.truncate(n);
         return reach;
     }
-    open_cells_scalar(member, slope, rise_of, targets)
+    open_cells_scalar(member, slope, floor, unit, rise_of, targets)
 }
 
 /// [`open_cells`] one cell at a time, `targets` as long as `member` or
@@ -424,16 +480,18 @@ fn open_cells(member: &[u16], slope: &[f32], rise_of: &[f64], targets: &mut Vec<
 fn open_cells_scalar(
     member: &[u16],
     slope: &[f32],
+    floor: &[u16],
+    unit: f64,
     rise_of: &[f64],
     targets: &mut Vec<u32>,
 ) -> f64 {
     // Branch-free, with eight running maxima: one maximum carried through
     // the row made each cell wait on the last.
     let (mut n, mut widest) = (0, [0.0f64; 8]);
-    for (c, (&a, &s)) in member.iter().zip(slope).enumerate() {
+    for (c, ((&a, &s), &f)) in member.iter().zip(slope).zip(floor).enumerate() {
         let v = f64::from(s) * rise_of[usize::from(a)];
         // (inf * 0 is NaN, which is never greater.)
-        let open = v > 0.0;
+        let open = v > f64::from(f) * unit;
         targets[n] = c as u32;
         n += usize::from(open);
         let lane = &mut widest[c % 8];
@@ -453,11 +511,14 @@ fn open_cells_scalar(
 unsafe fn open_cells_avx512(
     member: &[u16],
     slope: &[f32],
+    floor: &[u16],
+    unit: f64,
     rise_of: &[f64],
     targets: &mut [u32],
 ) -> (usize, f64) {
     use std::arch::x86_64::*;
-    let len = member.len().min(slope.len());
+    let len = member.len().min(slope.len()).min(floor.len());
+    let unit = _mm512_set1_pd(unit);
     assert!(targets.len() >= len + 8);
     let mut n = 0;
     let mut widest = _mm512_setzero_pd();
@@ -479,10 +540,13 @@ unsafe fn open_cells_avx512(
                 rise_of.as_ptr(),
             );
             let s = _mm512_cvtps_pd(_mm256_maskz_loadu_ps(lanes, slope.as_ptr().add(c0)));
-            _mm512_mul_pd(s, rise)
+            let f = _mm_maskz_loadu_epi16(lanes, floor.as_ptr().add(c0).cast());
+            let f = _mm512_mul_pd(_mm512_cvtepi32_pd(_mm256_cvtepu16_epi32(f)), unit);
+            (_mm512_mul_pd(s, rise), f)
         };
+        let (v, f) = v;
         // (inf * 0 is NaN, which is never greater.)
-        let open = _mm512_mask_cmp_pd_mask::<_CMP_GT_OQ>(lanes, v, zero);
+        let open = _mm512_mask_cmp_pd_mask::<_CMP_GT_OQ>(lanes, v, f);
         // SAFETY: `n + 8 <= targets.len()`.
         unsafe {
             _mm256_mask_compressstoreu_epi32(targets.as_mut_ptr().add(n).cast(), open, index)
@@ -633,8 +697,34 @@ pub fn brute_force_slopes(
 mod tests {
     use super::*;
 
+    /// A floor never exceeds the distance it stands for: exact squares
+    /// (where the square root rounds to the integer) and the numbers just
+    /// below them, at several spacings, and saturation far away.
+    #[test]
+    fn floors_stay_below_their_distances() {
+        for spacing in [1.0, 0.3, 30.0, 92.6] {
+            let floor = Floor::new(spacing);
+            for i in 0..20_000u32 {
+                let d = f64::from(i) * floor.unit;
+                for d2 in [d * d, (d * d).next_down(), d * d + 0.5] {
+                    if d2 >= 0.0 {
+                        let f = floor.of(d2);
+                        assert!(
+                            f64::from(f) * floor.unit <= d2.sqrt(),
+                            "{spacing}: {d2} -> {f}"
+                        );
+                    }
+                }
+            }
+            assert_eq!(floor.of(1e300), u16::MAX);
+            assert_eq!(floor.of(0.0), 0);
+        }
+    }
+
     /// The vector scan for open cells finds the scalar scan's cells and
-    /// reach, bit for bit, on rows of every length around a vector's.
+    /// reach, bit for bit, on rows of every length around a vector's, and
+    /// both find the cells the definition names: open cones wider than
+    /// their floors.
     #[test]
     fn open_cells_in_lanes_equal_one_at_a_time() {
         let mut seed = 0x2545_f491_4f6c_dd1du64;
@@ -657,19 +747,31 @@ mod tests {
                     _ => (next() % 10_000) as f32 / 7.0,
                 })
                 .collect();
+            // Floors: none known, or anywhere around the cones' widths.
+            let floor: Vec<u16> = (0..len)
+                .map(|_| match next() % 3 {
+                    0 => 0,
+                    _ => (next() % 60_000) as u16,
+                })
+                .collect();
+            let unit = 0.75;
             let (mut want, mut got) = (Vec::new(), Vec::new());
             want.resize(len, 0);
-            let reach = open_cells_scalar(&member, &slope, &rise_of, &mut want);
-            let got_reach = open_cells(&member, &slope, &rise_of, &mut got);
+            let reach = open_cells_scalar(&member, &slope, &floor, unit, &rise_of, &mut want);
+            let got_reach = open_cells(&member, &slope, &floor, unit, &rise_of, &mut got);
             assert_eq!(want, got, "{len} cells");
             assert_eq!(reach.to_bits(), got_reach.to_bits(), "{len} cells");
             // The scalar scan against the definition.
+            let width = |c: usize| f64::from(slope[c]) * rise_of[usize::from(member[c])];
             let open: Vec<u32> = (0..len as u32)
                 .filter(|&c| {
-                    f64::from(slope[c as usize]) * rise_of[usize::from(member[c as usize])] > 0.0
+                    width(c as usize) > 0.0
+                        && width(c as usize) > f64::from(floor[c as usize]) * unit
                 })
                 .collect();
             assert_eq!(want, open);
+            let widest = open.iter().map(|&c| width(c as usize)).fold(0.0, f64::max);
+            assert_eq!(reach.to_bits(), widest.to_bits(), "{len} cells");
         }
     }
 }
