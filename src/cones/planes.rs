@@ -547,9 +547,15 @@ unsafe fn open_cells_avx512(
         let (v, f) = v;
         // (inf * 0 is NaN, which is never greater.)
         let open = _mm512_mask_cmp_pd_mask::<_CMP_GT_OQ>(lanes, v, f);
-        // SAFETY: `n + 8 <= targets.len()`.
+        // Compressed in a register and stored whole (the lanes past the
+        // open ones are overwritten or truncated later): the compressing
+        // store to memory is microcoded on AMD's Zen 4, and took 45 % of the
+        // bake there. SAFETY: `n + 8 <= targets.len()`.
         unsafe {
-            _mm256_mask_compressstoreu_epi32(targets.as_mut_ptr().add(n).cast(), open, index)
+            _mm256_storeu_si256(
+                targets.as_mut_ptr().add(n).cast(),
+                _mm256_maskz_compress_epi32(open, index),
+            )
         };
         n += open.count_ones() as usize;
         widest = _mm512_mask_max_pd(widest, open, widest, v);
