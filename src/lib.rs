@@ -64,6 +64,7 @@ pub mod legend;
 pub mod ordered;
 pub mod output;
 pub mod page;
+pub mod pages;
 pub mod partition;
 pub mod plan;
 pub mod profile;

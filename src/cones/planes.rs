@@ -46,6 +46,7 @@ use terrabake_format::surface::Cell;
 use terrabake_format::trace::max_levels;
 
 use crate::edt::Envelope;
+use crate::pages;
 
 /// Per cell of a `w x h`-post grid (`(w - 1) x (h - 1)` cells), the tallest
 /// corner of any cell in its 3 x 3 neighbourhood; `-inf` where none of them
@@ -265,21 +266,24 @@ fn sliced_planes_with<G: ColumnDistance>(
         "{k_count} slices"
     );
     // The apex slice of every cell; slice k's bit plane is `member > k`.
-    let member: Vec<u16> = nmax
-        .par_iter()
-        .map(|&v| slices.member_of(v) as u16)
-        .collect();
+    // The four per-cell arrays the slices sweep, on huge pages: the passes
+    // stride across rows and strips (see `crate::pages`).
+    let mut member = pages::filled(cw * ch, 0u16);
+    member
+        .par_iter_mut()
+        .zip(nmax)
+        .for_each(|(m, &v)| *m = slices.member_of(v) as u16);
     let mut apex_of_slice = vec![0usize; k_count + 1];
     for &m in &member {
         apex_of_slice[usize::from(m)] += 1;
     }
-    let mut slope = vec![f32::INFINITY; cw * ch];
+    let mut slope = pages::filled(cw * ch, f32::INFINITY);
     // Per cell, a lower bound on its distance to the plane of the slices
     // still to come (see [`Floor`]).
     let floor = Floor::new(dx.min(dy));
-    let mut floors = vec![0u16; cw * ch];
+    let mut floors = pages::filled(cw * ch, 0u16);
     let strips = cw.div_ceil(STRIP);
-    let mut column = vec![G::NONE; strips * ch * STRIP];
+    let mut column = pages::filled(strips * ch * STRIP, G::NONE);
     let mut stats = PlaneStats::default();
     // The top slice first: it bounds every cell below the top at once, so
     // that from then on every row has a finite reach and the row pass can
