@@ -199,6 +199,9 @@ pub struct Planes {
 /// covers the rounding of the metre scaling and of the square root.
 const SLOPE_MARGIN: f64 = 1.0 - 1e-12;
 
+/// How many rows ahead the column pass asks for the apex slices it reads.
+const COLUMN_PREFETCH_ROWS: usize = 16;
+
 /// Columns per strip in the column pass: a strip's rows are contiguous, so
 /// both sweeps stream through memory.
 const STRIP: usize = 64;
@@ -318,6 +321,12 @@ fn sliced_planes_with<G: ColumnDistance>(
                 let width = STRIP.min(cw - c0);
                 let mut prev = [G::NONE; STRIP];
                 for r in 0..ch {
+                    // A strip's rows are a row stride apart, with little
+                    // work on each to hide a miss: ask ahead.
+                    let ahead = (r + COLUMN_PREFETCH_ROWS) * cw + c0;
+                    if let Some(m) = member.get(ahead..ahead + width) {
+                        prefetch(m);
+                    }
                     let m = &member[r * cw + c0..r * cw + c0 + width];
                     let out = &mut strip[r * STRIP..r * STRIP + width];
                     for j in 0..width {
