@@ -5,8 +5,8 @@
 //! pass reads strips a megabyte apart) touch a new 4 KiB page on nearly
 //! every access, so their time goes to TLB misses as much as to memory.
 //! Linux backs an anonymous mapping with 2 MiB pages when it is advised to
-//! (`MADV_HUGEPAGE`; many distributions set transparent huge pages to
-//! `madvise`, which leaves every other mapping on small pages). The advice
+//! (`MADV_HUGEPAGE`), and where transparent huge pages are set to
+//! `madvise`, as on this project's machines, only then. The advice
 //! is given before the first touch, so that the first faults already take
 //! huge pages. It is only advice: where the kernel has none to give, or on
 //! another system, the arrays are ordinary ones and the results the same.

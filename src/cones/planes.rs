@@ -429,12 +429,14 @@ fn sliced_planes_with<G: ColumnDistance>(
     Planes { apex, slope, stats }
 }
 
-/// Asks for `values` in the cache ahead of their use. The row pass reads a
-/// row's share of every strip, one stream per strip (128 at 8192 columns),
-/// more than the hardware prefetchers follow; a worker's next row is the
-/// next share of each strip.
+/// Asks for `values` in the cache ahead of their use, where the hardware
+/// prefetchers fall behind: the row pass reads one stream per strip (128 at
+/// 8192 columns), more than they follow, and the column pass one row
+/// stride apart with too little work per row to hide a miss.
 #[inline]
 fn prefetch<T>(values: &[T]) {
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = values;
     #[cfg(target_arch = "x86_64")]
     {
         use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
