@@ -15,11 +15,18 @@
 /// holds.
 const WORTH_ADVISING: usize = 8 << 20;
 
-/// A vector of `len` copies of `value`, its memory advised onto huge pages
-/// where it is large enough to gain.
-pub fn filled<T: Clone>(len: usize, value: T) -> Vec<T> {
+/// An empty vector with room for `len` values, its memory advised onto
+/// huge pages where it is large enough to gain: fill it in place (`resize`,
+/// or rayon's `par_extend` to write it once, in parallel).
+pub fn with_capacity<T>(len: usize) -> Vec<T> {
     let mut v: Vec<T> = Vec::with_capacity(len);
     advise_huge(v.as_mut_ptr().cast(), len * std::mem::size_of::<T>());
+    v
+}
+
+/// A vector of `len` copies of `value`, on huge pages as [`with_capacity`].
+pub fn filled<T: Clone>(len: usize, value: T) -> Vec<T> {
+    let mut v = with_capacity(len);
     v.resize(len, value);
     v
 }
@@ -46,13 +53,22 @@ fn advise_huge(start: *mut u8, bytes: usize) {
 mod tests {
     use super::*;
 
-    /// Small and large, the vector holds what it was asked to.
+    /// Small and large, the vector holds what it was asked to, filled
+    /// whole or extended in parallel in place.
     #[test]
-    fn filled_vectors_hold_their_values() {
+    fn advised_vectors_hold_their_values() {
+        use rayon::prelude::*;
         for len in [0, 1, 4095, (WORTH_ADVISING / 2) + 3] {
             let v = filled(len, 7u16);
             assert_eq!(v.len(), len);
             assert!(v.iter().all(|&x| x == 7));
+            let mut w = with_capacity::<u16>(len);
+            let at = w.as_ptr();
+            w.par_extend((0..len).into_par_iter().map(|i| i as u16));
+            assert_eq!(w.len(), len);
+            assert!(w.iter().enumerate().all(|(i, &x)| x == i as u16));
+            // Written into the advised memory, not a reallocation.
+            assert_eq!(w.as_ptr(), at);
         }
     }
 }

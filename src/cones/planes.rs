@@ -271,11 +271,8 @@ fn sliced_planes_with<G: ColumnDistance>(
     // The apex slice of every cell; slice k's bit plane is `member > k`.
     // The four per-cell arrays the slices sweep, on huge pages: the passes
     // stride across rows and strips (see `crate::pages`).
-    let mut member = pages::filled(cw * ch, 0u16);
-    member
-        .par_iter_mut()
-        .zip(nmax)
-        .for_each(|(m, &v)| *m = slices.member_of(v) as u16);
+    let mut member = pages::with_capacity(cw * ch);
+    member.par_extend(nmax.par_iter().map(|&v| slices.member_of(v) as u16));
     let mut apex_of_slice = vec![0usize; k_count + 1];
     for &m in &member {
         apex_of_slice[usize::from(m)] += 1;
