@@ -139,15 +139,32 @@ pub fn bench_table_markdown(rows: &[BenchRow]) -> String {
 #[derive(Debug, Clone, Serialize)]
 pub struct DirectionRow {
     pub azimuth: f64,
+    /// The mean run length of the ground track, `major / minor` (cells per
+    /// row crossed), as Henning and Stephenson tabulate their speed-ups.
+    pub run_length: f64,
     pub rays: usize,
     /// Per method: (name, mean steps per ray, microseconds per ray).
     pub methods: Vec<(String, f64, f64)>,
 }
 
+/// Azimuths (degrees clockwise from north) whose ground tracks have mean
+/// run length `l` cells along the east-west axis: `tan(azimuth) = l`.
+pub fn run_length_azimuths(lengths: &[f64]) -> Vec<f64> {
+    lengths.iter().map(|&l| l.atan().to_degrees()).collect()
+}
+
+/// `n` azimuths evenly around the circle, from north.
+pub fn even_azimuths(n: u32) -> Vec<f64> {
+    (0..n)
+        .map(|k| 360.0 * f64::from(k) / f64::from(n))
+        .collect()
+}
+
 pub fn bench_directions(
     asset: &Asset<Mmap>,
-    azimuths: u32,
+    azimuths: &[f64],
     methods: &[Method],
+    repeat: u32,
 ) -> anyhow::Result<Vec<DirectionRow>> {
     let tracer = Tracer::new(asset)?;
     let (xm, ym) = tracer.extent();
@@ -157,8 +174,7 @@ pub fn bench_directions(
         .map_or((0.0, 1.0), |r| (f64::from(r.min), f64::from(r.max)));
     let z = r.1 + 0.05 * (r.1 - r.0).max(1.0);
     let mut rows = Vec::new();
-    for k in 0..azimuths {
-        let az = 360.0 * f64::from(k) / f64::from(azimuths);
+    for &az in azimuths {
         let (s, c) = (az.to_radians().sin(), az.to_radians().cos());
         let dir = [
             s * 2f64.to_radians().cos(),
@@ -185,18 +201,28 @@ pub fn bench_directions(
             .collect();
         let mut row = DirectionRow {
             azimuth: az,
+            run_length: s.abs().max(c.abs()) / s.abs().min(c.abs()),
             rays: rays.len(),
             methods: Vec::new(),
         };
-        for &m in methods {
-            let start = std::time::Instant::now();
-            let mut steps = 0u64;
-            for ray in &rays {
-                steps += tracer.trace(ray, m)?.1.steps;
+        // The methods take turns, `repeat` passes; each reports its median.
+        let mut passes = vec![Vec::new(); methods.len()];
+        let mut steps = vec![0u64; methods.len()];
+        for _ in 0..repeat {
+            for (i, &m) in methods.iter().enumerate() {
+                let start = std::time::Instant::now();
+                steps[i] = 0;
+                for ray in &rays {
+                    steps[i] += tracer.trace(ray, m)?.1.steps;
+                }
+                passes[i].push(start.elapsed().as_secs_f64() * 1e6 / rays.len() as f64);
             }
-            let us = start.elapsed().as_secs_f64() * 1e6 / rays.len() as f64;
+        }
+        for (i, &m) in methods.iter().enumerate() {
+            passes[i].sort_by(f64::total_cmp);
+            let us = passes[i][passes[i].len() / 2];
             row.methods
-                .push((m.name().into(), steps as f64 / rays.len() as f64, us));
+                .push((m.name().into(), steps[i] as f64 / rays.len() as f64, us));
         }
         rows.push(row);
     }
@@ -208,7 +234,8 @@ pub fn directions_table_markdown(rows: &[DirectionRow]) -> String {
     let Some(first) = rows.first() else {
         return String::new();
     };
-    let header: Vec<String> = std::iter::once("azimuth".to_string())
+    let header: Vec<String> = ["azimuth".to_string(), "run length".to_string()]
+        .into_iter()
         .chain(
             first
                 .methods
@@ -220,7 +247,8 @@ pub fn directions_table_markdown(rows: &[DirectionRow]) -> String {
     markdown_table(
         &header,
         rows.iter().map(|r| {
-            std::iter::once(format!("{:.2}", r.azimuth))
+            [format!("{:.2}", r.azimuth), format!("{:.1}", r.run_length)]
+                .into_iter()
                 .chain(
                     r.methods
                         .iter()
@@ -300,8 +328,13 @@ pub struct BenchViewsArgs {
     )]
     pub methods: Vec<Method>,
     /// Instead of the views: cost per ray in N azimuths (shallow rays from a grid of origins).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "run_lengths")]
     pub directions: Option<u32>,
+    /// Instead of the views: cost per ray along ground tracks of these mean
+    /// run lengths (cells per row crossed; 1 is the diagonal), as Henning
+    /// and Stephenson report their speed-ups, e.g. `--run-lengths 2,3,5,25`.
+    #[arg(long, value_delimiter = ',')]
+    pub run_lengths: Vec<f64>,
     /// Timed passes over the views, the methods taking turns; each row
     /// reports its median pass (one pass of 16,384 rays takes hundredths
     /// of a second, within a busy machine's noise).
@@ -319,8 +352,12 @@ impl BenchViewsArgs {
         let mut results = Vec::new();
         for asset in &self.assets {
             let opened = crate::asset::open(asset)?;
-            if let Some(n) = self.directions {
-                let rows = bench_directions(&opened, n, &self.methods)?;
+            let azimuths = match self.directions {
+                Some(n) => even_azimuths(n),
+                None => run_length_azimuths(&self.run_lengths),
+            };
+            if !azimuths.is_empty() {
+                let rows = bench_directions(&opened, &azimuths, &self.methods, self.repeat)?;
                 if self.json {
                     println!("{}", serde_json::to_string_pretty(&rows)?);
                 } else {
@@ -341,7 +378,10 @@ impl BenchViewsArgs {
             }
             results.push((f64::from(side), table));
         }
-        if let (Some(prefix), None) = (&self.chart, self.directions) {
+        if let (Some(prefix), true) = (
+            &self.chart,
+            self.directions.is_none() && self.run_lengths.is_empty(),
+        ) {
             scaling_charts(prefix, &results)?;
             say(format!(
                 "wrote {0}_steps.svg and {0}_time.svg",

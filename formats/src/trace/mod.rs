@@ -40,6 +40,7 @@
 //! metres. Internally a ray becomes a [`GridRay`] in posts (`u` = column,
 //! `v` = row, southwards); `t` is the same in both.
 
+mod runs;
 mod walk;
 
 use std::ops::ControlFlow;
@@ -49,7 +50,9 @@ use crate::error::{Error, Result};
 use crate::reader::{Asset, Layer, TileCursor};
 use crate::surface::{intersect_cell, Cell, GridRay};
 
-pub(crate) use walk::{touched_range, walk, walk_from, Bounds};
+use runs::RunEnds;
+use walk::{first_touched, last_touched};
+pub(crate) use walk::{walk, walk_from, Bounds};
 
 pub use crate::layers::{PYRAMID_MAX, PYRAMID_MIN};
 
@@ -801,6 +804,11 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
                 v: (0, n_minor - 1),
             }
         };
+        // Where runs end at the rows' boundaries: the intercept sequence in
+        // integers (`runs`), or the rounded times where it cannot start.
+        let mut ends = RunEnds::new(&g, major, ta, tb);
+        let (o, d) = (g.origin[major], g.dir[major]);
+        let forward = g.dir[minor] > 0.0;
         // A 1-D walk over the minor axis: the major axis collapses to one
         // slab that the ray never leaves.
         let mut line = g;
@@ -813,17 +821,29 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
                 return ControlFlow::Break(());
             }
             // The run: every cell along the major axis touched while the
-            // ray is in this row, from one computation per run.
-            let (first, last) = touched_range(g.origin[major], g.dir[major], 1.0, r0, r1);
+            // ray is in this row, `[r0, r1]`. It starts where the track
+            // entered the row, or at the segment's start (the truncated
+            // first run), and ends where it leaves, or at the segment's end.
+            let entered = ends
+                .as_mut()
+                .filter(|_| r0 != ta)
+                .and_then(|e| e.at_boundary(if forward { k } else { k + 1 }));
+            let left = ends
+                .as_mut()
+                .filter(|_| r1 != tb)
+                .and_then(|e| e.at_boundary(if forward { k + 1 } else { k }));
+            let first = entered.map_or_else(|| first_touched(o, d, r0), |e| e.1);
+            let last = left.map_or_else(|| last_touched(o, d, r1), |e| e.0);
             let (lo, hi) = (first.min(last).max(0), first.max(last).min(n_major - 1));
             if lo > hi {
                 return ControlFlow::Continue(());
             }
-            // The run in pieces of up to PIECE cells, in travel order; a
-            // piece of MIN_TESTED cells or more is skipped whole when the
-            // ray's lowest point over it is above its tallest post. (Shorter
-            // pieces, as on diagonals, go straight to the per-cell test,
-            // which rejects as cheaply.)
+            // A run of MIN_TESTED cells or more is skipped whole when the
+            // ray's lowest point over it is above its tallest post; runs
+            // longer than PIECE cells (tracks within 1/32 of an axis), in
+            // pieces, so that a hit near a long run's start does not pay for
+            // its far end. (Shorter runs, as near diagonals, go straight to
+            // the per-cell test, which rejects as cheaply.)
             const PIECE: i64 = 32;
             const MIN_TESTED: i64 = 4;
             let step: i64 = if first <= last { 1 } else { -1 };
@@ -835,6 +855,13 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
                     (k as u32, m as u32)
                 }
             };
+            // A cell's interval is its major-axis slab within the row's
+            // interval: the same numbers `GridRay::square` gives, with
+            // one division per cell (each boundary is shared by two).
+            let boundary = |k: i64| (k as f64 - o) / d;
+            // The boundaries where the track enters and leaves cell `m`.
+            let entry = |m: i64| if step > 0 { m } else { m + 1 };
+            let exit = |m: i64| if step > 0 { m + 1 } else { m };
             let mut start = first;
             loop {
                 let end = if step > 0 {
@@ -843,12 +870,18 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
                     (start - PIECE + 1).max(last)
                 };
                 if (end - start).abs() + 1 >= MIN_TESTED {
-                    let (first_c, first_r) = cell_at(start);
-                    let (end_c, end_r) = cell_at(end);
-                    let t_start = g
-                        .square(f64::from(first_c), f64::from(first_r), 1.0, ta, tb)
-                        .0;
-                    let t_end = g.square(f64::from(end_c), f64::from(end_r), 1.0, ta, tb).1;
+                    // The piece's interval: the row's, cut at the piece's
+                    // own ends within a long run.
+                    let t_start = if start == first {
+                        r0
+                    } else {
+                        boundary(entry(start)).max(r0)
+                    };
+                    let t_end = if end == last {
+                        r1
+                    } else {
+                        boundary(exit(end)).min(r1)
+                    };
                     if t_start > st.best.t() {
                         // The rest of this run starts after the best hit; a
                         // parallel run (ray along a grid line) may not.
@@ -868,11 +901,6 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
                         continue;
                     }
                 }
-                // A cell's interval is its major-axis slab within the row's
-                // interval: the same numbers `GridRay::square` gives, with
-                // one division per cell (each boundary is shared by two).
-                let (o, d) = (g.origin[major], g.dir[major]);
-                let boundary = |k: i64| (k as f64 - o) / d;
                 let mut m = start;
                 let (mut b_lo, mut b_hi) = (boundary(m), boundary(m + 1));
                 loop {

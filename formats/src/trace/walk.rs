@@ -253,15 +253,17 @@ pub(crate) fn walk_from(
     }
 }
 
-/// The nodes of one axis touched during `[t0, t1]`, in travel order, as an
-/// inclusive index range `(first, last)` with step +1 or -1. Used by the
-/// run-based tracer to find a run's cells with one computation per run.
-pub(crate) fn touched_range(o: f64, d: f64, size: f64, t0: f64, t1: f64) -> (i64, i64) {
-    // Touch sets list the node behind a boundary first, then the one ahead.
-    let (_, at0, n0) = Axis::start(o, d, size, t0);
-    if d == 0.0 {
-        return (at0[0], at0[n0 - 1]);
-    }
-    let (_, at1, n1) = Axis::start(o, d, size, t1);
-    (at0[0], at1[n1 - 1])
+/// The first node of one axis touched at `t` in travel order (the one
+/// behind, where `t` is on a boundary): where a run starts when it starts
+/// at the segment's start rather than at a boundary.
+pub(crate) fn first_touched(o: f64, d: f64, t: f64) -> i64 {
+    Axis::start(o, d, 1.0, t).1[0]
+}
+
+/// The last node of one axis touched at `t` in travel order (the one
+/// ahead, where `t` is on a boundary): where a run ends when it ends at the
+/// segment's end rather than at a boundary.
+pub(crate) fn last_touched(o: f64, d: f64, t: f64) -> i64 {
+    let (_, at, n) = Axis::start(o, d, 1.0, t);
+    at[n - 1]
 }
