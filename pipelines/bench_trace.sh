@@ -19,6 +19,9 @@ echo
 echo "## SRTM N07W006, cost per ray by azimuth (3600 rays each, 2 degrees down)"
 "$BIN" bench-views "$WORK/srtm.tbake" --directions 16 --methods incremental,runs,hierarchical
 echo
+echo "## SRTM N07W006, runs against incremental by run length (Henning and Stephenson's figures)"
+"$BIN" bench-views "$WORK/srtm.tbake" --run-lengths 1,2,3,4,5,6,8,10,16,25,100 --methods incremental,runs --repeat 15
+echo
 echo "## fractal terrain of growing size, 16 views, 512 x 512, every 16th pixel"
 assets=()
 for n in 1024 2048 4096 8192; do

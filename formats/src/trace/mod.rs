@@ -13,9 +13,8 @@
 //!   track is cut into runs of cells that share a row (or column, for steep
 //!   tracks); each run costs one computation, and a whole run is skipped with
 //!   one test of the ray's lowest point against the run's tallest post.
-//!   Departure: run ends are computed from the ray itself (one division per
-//!   run) rather than by the intercept recurrence (eq. 6-7), which drifts in
-//!   floating point and could drop a corner cell.
+//!   Run ends follow the paper's intercept recurrence (eq. 6-7), kept in
+//!   integers so that it cannot drift (see `runs`).
 //! - [`Method::Hierarchical`]: descends the max pyramid (layers
 //!   `pyramid_max@L`), stepping over nodes the ray passes above (Paglieroni
 //!   and Petersen sec. 1.2), the walk at each level as exact as the

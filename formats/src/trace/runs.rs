@@ -168,7 +168,7 @@ impl RunEnds {
         // is off by at most two roundings (2^-52 of the time), times the
         // terms of G at the farthest boundary the ray can need.
         let tol = 2f64.powi(-49) * ((reach * big_a + 1.0) * db_f + (reach * big_b + 1.0) * da_f);
-        if !(tol < db_f / 8.0) {
+        if tol.is_nan() || tol >= db_f / 8.0 {
             return None;
         }
         Some(Self {
