@@ -335,7 +335,7 @@ pub struct BenchViewsArgs {
     /// and Stephenson report their speed-ups, e.g. `--run-lengths 2,3,5,25`.
     #[arg(long, value_delimiter = ',')]
     pub run_lengths: Vec<f64>,
-    /// Timed passes over the views, the methods taking turns; each row
+    /// Timed passes over the views (or the directions), the methods taking turns; each row
     /// reports its median pass (one pass of 16,384 rays takes hundredths
     /// of a second, within a busy machine's noise).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=1000))]

@@ -56,8 +56,9 @@ pub(crate) struct RunEnds {
     /// `-1` where an axis runs towards lower indices (mirrored).
     s_a: i64,
     s_b: i64,
-    /// The scaled exact quantities: `p_a = s_a * o_a` as `pa_int + pa_frac`,
-    /// likewise `p_b`; `D_a`, `D_b` in units of `2^e`.
+    /// The exact quantities in units of `2^e` (the smallest power of two
+    /// among G's terms): `p_a = s_a * o_a = pa_int + f_a`, likewise `p_b`,
+    /// and `D_a = |d_a|`, `D_b = |d_b|`.
     pa_int: i64,
     pb_int: i64,
     /// `f_a * D_b - f_b * D_a` (the fractional parts of `p`) modulo 2^128.
@@ -74,8 +75,8 @@ pub(crate) struct RunEnds {
     /// mirrored major boundary `x` crossed no later than it, and
     /// `G(x, y)` in `0..D_b`; `None` before the first boundary.
     state: Option<(i64, i64, i128)>,
-    /// Boundaries settled by the rounded times (for the tests and the
-    /// benchmarks: how rare they are).
+    /// Boundaries settled by the rounded times (for the tests: that the
+    /// corner cases are reached).
     pub(crate) settled_by_rounding: u64,
 }
 
