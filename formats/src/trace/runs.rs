@@ -75,6 +75,9 @@ pub(crate) struct RunEnds {
     /// mirrored major boundary `x` crossed no later than it, and
     /// `G(x, y)` in `0..D_b`; `None` before the first boundary.
     state: Option<(i64, i64, i128)>,
+    /// The last boundary's answer, `(k, ends)`: each boundary ends one row
+    /// and starts the next, and is asked for by both.
+    last: Option<(i64, (i64, i64))>,
     /// Boundaries settled by the rounded times (for the tests: that the
     /// corner cases are reached).
     pub(crate) settled_by_rounding: u64,
@@ -189,6 +192,7 @@ impl RunEnds {
             rem: da % db,
             tol: tol.ceil() as i128 + 1,
             state: None,
+            last: None,
             settled_by_rounding: 0,
         })
     }
@@ -217,7 +221,6 @@ impl RunEnds {
     /// when `y` is the next boundary, starts afresh otherwise.
     fn advance_to(&mut self, y: i64) -> Option<(i64, i128)> {
         match self.state {
-            Some((sy, x, g)) if sy == y => return Some((x, g)),
             Some((sy, x, g)) if sy + 1 == y => {
                 // Eq. 6-7: a short run, or a long one when the intercept
                 // wraps past the corner.
@@ -261,6 +264,11 @@ impl RunEnds {
     /// not start (the caller then uses the rounded times).
     #[inline]
     pub(crate) fn at_boundary(&mut self, k: i64) -> Option<(i64, i64)> {
+        if let Some((lk, ends)) = self.last {
+            if lk == k {
+                return Some(ends);
+            }
+        }
         let y = self.s_b * k;
         let (mut x, g) = self.advance_to(y)?;
         let mut corner = false;
@@ -281,7 +289,9 @@ impl RunEnds {
         }
         // Mirrored major cell `x` lies between boundaries `x` and `x + 1`.
         let cell = |x: i64| if self.s_a > 0 { x } else { -x - 1 };
-        Some((cell(x), cell(x - i64::from(corner))))
+        let ends = (cell(x), cell(x - i64::from(corner)));
+        self.last = Some((k, ends));
+        Some(ends)
     }
 }
 
