@@ -49,8 +49,7 @@ use crate::error::{Error, Result};
 use crate::reader::{Asset, Layer, TileCursor};
 use crate::surface::{intersect_cell, Cell, GridRay};
 
-use runs::RunEnds;
-use walk::{first_touched, last_touched};
+use runs::Runs;
 pub(crate) use walk::{walk, walk_from, Bounds};
 
 pub use crate::layers::{PYRAMID_MAX, PYRAMID_MIN};
@@ -803,11 +802,9 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
                 v: (0, n_minor - 1),
             }
         };
-        // Where runs end at the rows' boundaries: the intercept sequence in
-        // integers (`runs`), or the rounded times where it cannot start.
-        let mut ends = RunEnds::new(&g, major, ta, tb);
+        // Where each run starts and ends (`runs`).
+        let mut runs = Runs::new(&g, major, ta, tb);
         let (o, d) = (g.origin[major], g.dir[major]);
-        let forward = g.dir[minor] > 0.0;
         // A 1-D walk over the minor axis: the major axis collapses to one
         // slab that the ray never leaves.
         let mut line = g;
@@ -820,19 +817,8 @@ impl<'a, D: AsRef<[u8]>> Tracer<'a, D> {
                 return ControlFlow::Break(());
             }
             // The run: every cell along the major axis touched while the
-            // ray is in this row, `[r0, r1]`. It starts where the track
-            // entered the row, or at the segment's start (the truncated
-            // first run), and ends where it leaves, or at the segment's end.
-            let entered = ends
-                .as_mut()
-                .filter(|_| r0 != ta)
-                .and_then(|e| e.at_boundary(if forward { k } else { k + 1 }));
-            let left = ends
-                .as_mut()
-                .filter(|_| r1 != tb)
-                .and_then(|e| e.at_boundary(if forward { k + 1 } else { k }));
-            let first = entered.map_or_else(|| first_touched(o, d, r0), |e| e.1);
-            let last = left.map_or_else(|| last_touched(o, d, r1), |e| e.0);
+            // ray is in this row, `[r0, r1]`.
+            let (first, last) = runs.cells(k, r0, r1);
             let (lo, hi) = (first.min(last).max(0), first.max(last).min(n_major - 1));
             if lo > hi {
                 return ControlFlow::Continue(());

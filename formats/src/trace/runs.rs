@@ -36,18 +36,73 @@
 //! every other exact decision the rounded one too. A ray whose numbers do
 //! not fit (an origin far beyond the grid, a track so close to an axis that
 //! its runs are longer than 2^16 cells) gets `None` from [`RunEnds::new`];
-//! the tracer then finds each run's ends from the rounded times
+//! [`Runs`] then finds each run's ends from the rounded times
 //! (`walk::first_touched`, `walk::last_touched`).
 //!
 //! **The truncated first run** (eq. 8-11) and the last run end where the
-//! segment `[ta, tb]` does, not at a boundary: the tracer takes those two
+//! segment `[ta, tb]` does, not at a boundary: [`Runs`] takes those two
 //! ends from the rounded times at `ta` and `tb`.
 
 use crate::surface::GridRay;
+use crate::trace::walk::{first_touched, last_touched};
+
+/// The runs of one ray's track over `[ta, tb]`, row by row of the minor
+/// axis: each run's first and last cell along the major axis, from the
+/// intercept sequence at the rows' boundaries ([`RunEnds`]) and from the
+/// rounded times at the segment's ends (or everywhere, where the sequence
+/// cannot start).
+#[derive(Debug, Clone)]
+pub(crate) struct Runs {
+    ends: Option<RunEnds>,
+    /// The major axis' origin and direction, for the rounded times.
+    o: f64,
+    d: f64,
+    /// Whether the minor axis runs towards higher indices.
+    forward: bool,
+    ta: f64,
+    tb: f64,
+}
+
+impl Runs {
+    pub(crate) fn new(g: &GridRay, major: usize, ta: f64, tb: f64) -> Self {
+        Self {
+            ends: RunEnds::new(g, major, ta, tb),
+            o: g.origin[major],
+            d: g.dir[major],
+            forward: g.dir[1 - major] > 0.0,
+            ta,
+            tb,
+        }
+    }
+
+    /// The run in minor row `k`, which the ray is over during `[r0, r1]`:
+    /// its first and last major-axis cell in travel order (unclamped). It
+    /// starts where the track entered the row, or at the segment's start
+    /// (the truncated first run), and ends where the track leaves, or at
+    /// the segment's end.
+    #[inline]
+    pub(crate) fn cells(&mut self, k: i64, r0: f64, r1: f64) -> (i64, i64) {
+        let (entry, exit) = if self.forward { (k, k + 1) } else { (k + 1, k) };
+        let entered = self
+            .ends
+            .as_mut()
+            .filter(|_| r0 != self.ta)
+            .and_then(|e| e.at_boundary(entry));
+        let left = self
+            .ends
+            .as_mut()
+            .filter(|_| r1 != self.tb)
+            .and_then(|e| e.at_boundary(exit));
+        (
+            entered.map_or_else(|| first_touched(self.o, self.d, r0), |e| e.1),
+            left.map_or_else(|| last_touched(self.o, self.d, r1), |e| e.0),
+        )
+    }
+}
 
 /// The run ends of one ray at the minor axis' boundaries, in travel order.
 #[derive(Debug, Clone)]
-pub(crate) struct RunEnds {
+struct RunEnds {
     /// The track in grid units, for the rounded crossing times.
     o_a: f64,
     d_a: f64,
@@ -80,7 +135,7 @@ pub(crate) struct RunEnds {
     last: Option<(i64, (i64, i64))>,
     /// Boundaries settled by the rounded times (for the tests: that the
     /// corner cases are reached).
-    pub(crate) settled_by_rounding: u64,
+    settled_by_rounding: u64,
 }
 
 /// An `f64` as `(m, e)` with `value = m * 2^e`, `m` odd or zero.
@@ -127,7 +182,7 @@ impl RunEnds {
     /// The run ends of `g`'s track over `[ta, tb]` with `major` the axis
     /// along which runs lie; `None` when the minor axis does not move or
     /// the numbers do not fit (see the module docs).
-    pub(crate) fn new(g: &GridRay, major: usize, ta: f64, tb: f64) -> Option<Self> {
+    fn new(g: &GridRay, major: usize, ta: f64, tb: f64) -> Option<Self> {
         let minor = 1 - major;
         let (o_a, d_a, o_b, d_b) = (g.origin[major], g.dir[major], g.origin[minor], g.dir[minor]);
         if d_b == 0.0 || d_a == 0.0 || ![o_a, d_a, o_b, d_b, ta, tb].iter().all(|v| v.is_finite()) {
@@ -263,7 +318,7 @@ impl RunEnds {
     /// then touch both cells beside it). `None` when the recurrence could
     /// not start (the caller then uses the rounded times).
     #[inline]
-    pub(crate) fn at_boundary(&mut self, k: i64) -> Option<(i64, i64)> {
+    fn at_boundary(&mut self, k: i64) -> Option<(i64, i64)> {
         if let Some((lk, ends)) = self.last {
             if lk == k {
                 return Some(ends);
@@ -318,63 +373,38 @@ mod tests {
         out
     }
 
-    /// The same cells from the run ends: each row's cells from its first
-    /// to its last, the ends at `ta` and `tb` from the rounded times.
+    /// The same cells from the runs: each row's cells from its first to
+    /// its last; with the boundaries settled by the rounded times, or
+    /// `None` where the intercept sequence could not start (the runs then
+    /// come from the rounded times alone).
     fn cells_by_runs(
         g: &GridRay,
         major: usize,
         ta: f64,
         tb: f64,
-    ) -> Option<(Vec<(i64, i64)>, u64)> {
+    ) -> (Vec<(i64, i64)>, Option<u64>) {
         let minor = 1 - major;
-        let mut ends = RunEnds::new(g, major, ta, tb)?;
+        let mut runs = Runs::new(g, major, ta, tb);
         let mut line = *g;
         line.dir[major] = 0.0;
         line.origin[major] = 0.5;
+        let all = (-1 << 40, 1 << 40);
         let rows = Bounds {
-            u: if minor == 0 {
-                (-1 << 40, 1 << 40)
-            } else {
-                (0, 0)
-            },
-            v: if minor == 1 {
-                (-1 << 40, 1 << 40)
-            } else {
-                (0, 0)
-            },
+            u: if minor == 0 { all } else { (0, 0) },
+            v: if minor == 1 { all } else { (0, 0) },
         };
-        let (o, d, forward) = (g.origin[major], g.dir[major], g.dir[minor] > 0.0);
         let mut out = Vec::new();
-        let mut failed = false;
         let _ = walk(&line, 1.0, rows, ta, tb, |a, b, r0, r1| {
             let k = if minor == 0 { a } else { b };
-            let first = if r0 == ta {
-                Some(crate::trace::walk::first_touched(o, d, r0))
-            } else {
-                ends.at_boundary(if forward { k } else { k + 1 })
-                    .map(|e| e.1)
-            };
-            let last = if r1 == tb {
-                Some(crate::trace::walk::last_touched(o, d, r1))
-            } else {
-                ends.at_boundary(if forward { k + 1 } else { k })
-                    .map(|e| e.0)
-            };
-            let (Some(first), Some(last)) = (first, last) else {
-                failed = true;
-                return ControlFlow::Break(());
-            };
+            let (first, last) = runs.cells(k, r0, r1);
             for m in first.min(last)..=first.max(last) {
                 out.push((k, m));
             }
             ControlFlow::Continue(())
         });
-        if failed {
-            return None;
-        }
         out.sort_unstable();
         out.dedup();
-        Some((out, ends.settled_by_rounding))
+        (out, runs.ends.map(|e| e.settled_by_rounding))
     }
 
     struct Rng(u64);
@@ -391,16 +421,19 @@ mod tests {
         }
     }
 
+    /// Compares the runs' cells with the walk's; returns the boundaries
+    /// settled by the rounded times, `None` where the intercept sequence
+    /// did not run.
     fn check(g: GridRay, ta: f64, tb: f64) -> Option<u64> {
         let major = if g.dir[0].abs() >= g.dir[1].abs() {
             0
         } else {
             1
         };
-        let (got, settled) = cells_by_runs(&g, major, ta, tb)?;
+        let (got, settled) = cells_by_runs(&g, major, ta, tb);
         let want = cells_by_walk(&g, major, ta, tb);
         assert_eq!(got, want, "ray {g:?} over [{ta}, {tb}]");
-        Some(settled)
+        settled
     }
 
     #[test]
