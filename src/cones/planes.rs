@@ -25,7 +25,8 @@
 //!   number of distinct heights costs nothing); the column pass is two
 //!   integer sweeps over strips of columns (no parabolas needed for a bit
 //!   plane); the row pass leaves out parabolas too far to narrow any cone of
-//!   the row; the top slice runs first so that every row has a finite reach;
+//!   the row (farther than its reach from the span of its open cells); the
+//!   top slice runs first so that every row has a finite reach;
 //!   each distance found is kept, in two bytes, as a floor for the slices
 //!   above (whose planes it contains), and a cell whose floor reaches its
 //!   cone's width is left out of the slice (85 % of the evaluations at 2048²).
@@ -567,7 +568,10 @@ unsafe fn keep_in_reach_avx512(
     assert!(kept.columns.len() >= n + len + 8 && kept.offsets.len() >= n + len + 8);
     let (aspect, reach2) = (_mm512_set1_pd(aspect), _mm512_set1_pd(reach2));
     let none = _mm256_set1_epi32(i32::from(u16::MAX));
-    let (first, last) = (_mm256_set1_epi32(first as i32), _mm256_set1_epi32(last as i32));
+    let (first, last) = (
+        _mm256_set1_epi32(first as i32),
+        _mm256_set1_epi32(last as i32),
+    );
     let mut index = _mm256_add_epi32(
         _mm256_set1_epi32(c0 as i32),
         _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
@@ -579,9 +583,14 @@ unsafe fn keep_in_reach_avx512(
             (1u8 << (len - j)) - 1
         };
         // SAFETY: lanes past the slice are masked.
-        let gi = _mm256_cvtepu16_epi32(unsafe { _mm_maskz_loadu_epi16(lanes, g.as_ptr().add(j).cast()) });
+        let gi = _mm256_cvtepu16_epi32(unsafe {
+            _mm_maskz_loadu_epi16(lanes, g.as_ptr().add(j).cast())
+        });
         let along = _mm256_max_epi32(
-            _mm256_max_epi32(_mm256_sub_epi32(first, index), _mm256_sub_epi32(index, last)),
+            _mm256_max_epi32(
+                _mm256_sub_epi32(first, index),
+                _mm256_sub_epi32(index, last),
+            ),
             _mm256_setzero_si256(),
         );
         let gd = _mm512_mul_pd(_mm512_cvtepi32_pd(gi), aspect);
@@ -1003,7 +1012,11 @@ mod tests {
             }
             let mut kept = Kept::default();
             let n = columns_in_reach(&column, (cw, ch), r, span, reach, aspect, &mut kept);
-            kept.columns[..n].iter().copied().zip(kept.offsets[..n].iter().copied()).collect()
+            kept.columns[..n]
+                .iter()
+                .copied()
+                .zip(kept.offsets[..n].iter().copied())
+                .collect()
         }
         for cw in [1, 7, 64, 65, 200, 517] {
             let ch = 3;
@@ -1029,14 +1042,21 @@ mod tests {
                         let g = g_of[r * cw + c as usize];
                         let along = f64::from(first.saturating_sub(c).max(c.saturating_sub(last)));
                         let gd = g as f64 * aspect;
-                        (g != u64::MAX
-                            && gd * gd + along * along < reach * reach * (1.0 + 1e-12))
+                        (g != u64::MAX && gd * gd + along * along < reach * reach * (1.0 + 1e-12))
                             .then_some((c, gd * gd))
                     })
                     .collect();
                 let args = ((cw, ch), r, (first, last), reach, aspect);
-                assert_eq!(case::<u16>(&g_of, args.0, args.1, args.2, args.3, args.4), want, "u16, {cw} columns");
-                assert_eq!(case::<u32>(&g_of, args.0, args.1, args.2, args.3, args.4), want, "u32, {cw} columns");
+                assert_eq!(
+                    case::<u16>(&g_of, args.0, args.1, args.2, args.3, args.4),
+                    want,
+                    "u16, {cw} columns"
+                );
+                assert_eq!(
+                    case::<u32>(&g_of, args.0, args.1, args.2, args.3, args.4),
+                    want,
+                    "u32, {cw} columns"
+                );
             }
         }
     }
