@@ -215,26 +215,16 @@ trait ColumnDistance: Copy + Send + Sync + Eq + Ord {
     const ZERO: Self;
     fn next(self) -> Self;
     fn cells(self) -> f64;
-    /// Appends to `kept` from `n` on the columns `c0..` of a row's share
-    /// of a strip, `g`, whose parabolas come within `reach2` (squared, in
-    /// columns) of the targets' span `first..=last`, with their offsets;
-    /// returns the new count. `kept` has room for every column and a vector
-    /// more.
-    fn keep_in_reach(
-        g: &[Self],
-        c0: u32,
-        span: (u32, u32),
-        aspect: f64,
-        reach2: f64,
-        kept: &mut Kept,
-        n: usize,
-    ) -> usize {
-        keep_in_reach_scalar(g, c0, span, aspect, reach2, kept, n)
+    /// The distances as `u16`, for the AVX-512 lanes of [`keep_in_reach`];
+    /// `None` where they are wider.
+    fn as_u16(g: &[Self]) -> Option<&[u16]> {
+        let _ = g;
+        None
     }
 }
 
 macro_rules! column_distance {
-    ($t:ty $(, $keep_in_reach:item)?) => {
+    ($t:ty $(, $as_u16:item)?) => {
         impl ColumnDistance for $t {
             const NONE: Self = <$t>::MAX;
             const ZERO: Self = 0;
@@ -246,32 +236,14 @@ macro_rules! column_distance {
             fn cells(self) -> f64 {
                 f64::from(self)
             }
-            $($keep_in_reach)?
+            $($as_u16)?
         }
     };
 }
 column_distance!(
     u16,
-    fn keep_in_reach(
-        g: &[Self],
-        c0: u32,
-        span: (u32, u32),
-        aspect: f64,
-        reach2: f64,
-        kept: &mut Kept,
-        n: usize,
-    ) -> usize {
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx512f")
-            && std::arch::is_x86_feature_detected!("avx512vl")
-            && std::arch::is_x86_feature_detected!("avx512bw")
-            && std::arch::is_x86_feature_detected!("popcnt")
-        {
-            // SAFETY: the CPU has the features; `kept` has a vector's room
-            // past every column.
-            return unsafe { keep_in_reach_avx512(g, c0, span, aspect, reach2, kept, n) };
-        }
-        keep_in_reach_scalar(g, c0, span, aspect, reach2, kept, n)
+    fn as_u16(g: &[Self]) -> Option<&[u16]> {
+        Some(g)
     }
 );
 column_distance!(u32);
@@ -508,16 +480,32 @@ fn columns_in_reach<G: ColumnDistance>(
     let hi = (last as usize + within + 1).min(cw);
     kept.columns.resize(cw + 8, 0);
     kept.offsets.resize(cw + 8, 0.0);
-    // (The slack keeps a column that rounding would drop.)
-    let reach2 = reach * reach * (1.0 + 1e-12);
+    let test = Span {
+        first,
+        last,
+        aspect,
+        // (The slack keeps a column that rounding would drop.)
+        reach2: reach * reach * (1.0 + 1e-12),
+    };
     let mut n = 0;
     for s in lo / STRIP..hi.div_ceil(STRIP) {
         let c0 = s * STRIP;
         let (a, b) = (lo.max(c0), hi.min(c0 + STRIP));
         let g = &column[s * ch * STRIP + r * STRIP..][a - c0..b - c0];
-        n = G::keep_in_reach(g, a as u32, (first, last), aspect, reach2, kept, n);
+        n = keep_in_reach(g, a as u32, test, kept, n);
     }
     n
+}
+
+/// What [`keep_in_reach`] tests a column against: the targets' span
+/// `first..=last`, the column distances' scale to columns, and the reach
+/// squared (in columns).
+#[derive(Debug, Clone, Copy)]
+struct Span {
+    first: u32,
+    last: u32,
+    aspect: f64,
+    reach2: f64,
 }
 
 /// Per-thread room for [`columns_in_reach`]: the columns kept and their
@@ -528,27 +516,57 @@ struct Kept {
     offsets: Vec<f64>,
 }
 
-/// [`ColumnDistance::keep_in_reach`] one column at a time.
-fn keep_in_reach_scalar<G: ColumnDistance>(
+/// Appends to `kept` from `n` on the columns `c0..` of a row's share of a
+/// strip, `g`, whose parabolas come within the reach of the targets' span
+/// (`test`), with their offsets; returns the new count. `kept` has room
+/// for every column and a vector more. Eight columns at a time in AVX-512
+/// where the CPU has it and the distances are `u16`.
+fn keep_in_reach<G: ColumnDistance>(
     g: &[G],
     c0: u32,
-    (first, last): (u32, u32),
-    aspect: f64,
-    reach2: f64,
+    test: Span,
     kept: &mut Kept,
-    mut n: usize,
+    n: usize,
 ) -> usize {
-    for (&g, c) in g.iter().zip(c0..) {
-        let along = f64::from(first.saturating_sub(c).max(c.saturating_sub(last)));
-        let gd = g.cells() * aspect;
-        kept.columns[n] = c;
-        kept.offsets[n] = gd * gd;
-        n += usize::from(g != G::NONE && gd * gd + along * along < reach2);
+    #[cfg(target_arch = "x86_64")]
+    if let Some(g) = G::as_u16(g) {
+        if std::arch::is_x86_feature_detected!("avx512f")
+            && std::arch::is_x86_feature_detected!("avx512vl")
+            && std::arch::is_x86_feature_detected!("avx512bw")
+            && std::arch::is_x86_feature_detected!("popcnt")
+        {
+            // SAFETY: the CPU has the features; `kept` has a vector's room
+            // past every column.
+            return unsafe { keep_in_reach_avx512(g, c0, test, kept, n) };
+        }
     }
-    n
+    test.keep_scalar(g, c0, kept, n)
 }
 
-/// [`ColumnDistance::keep_in_reach`] eight columns at a time.
+impl Span {
+    /// [`keep_in_reach`] one column at a time.
+    fn keep_scalar<G: ColumnDistance>(
+        self,
+        g: &[G],
+        c0: u32,
+        kept: &mut Kept,
+        mut n: usize,
+    ) -> usize {
+        for (&g, c) in g.iter().zip(c0..) {
+            let along = self
+                .first
+                .saturating_sub(c)
+                .max(c.saturating_sub(self.last));
+            let (gd, along) = (g.cells() * self.aspect, f64::from(along));
+            kept.columns[n] = c;
+            kept.offsets[n] = gd * gd;
+            n += usize::from(g != G::NONE && gd * gd + along * along < self.reach2);
+        }
+        n
+    }
+}
+
+/// [`keep_in_reach`] eight columns at a time.
 ///
 /// # Safety
 /// AVX-512 F, VL and BW; `kept` with room for `n + g.len() + 8`.
@@ -557,13 +575,17 @@ fn keep_in_reach_scalar<G: ColumnDistance>(
 unsafe fn keep_in_reach_avx512(
     g: &[u16],
     c0: u32,
-    (first, last): (u32, u32),
-    aspect: f64,
-    reach2: f64,
+    test: Span,
     kept: &mut Kept,
     mut n: usize,
 ) -> usize {
     use std::arch::x86_64::*;
+    let Span {
+        first,
+        last,
+        aspect,
+        reach2,
+    } = test;
     let len = g.len();
     assert!(kept.columns.len() >= n + len + 8 && kept.offsets.len() >= n + len + 8);
     let (aspect, reach2) = (_mm512_set1_pd(aspect), _mm512_set1_pd(reach2));
@@ -931,19 +953,23 @@ mod tests {
         }
     }
 
+    /// Marsaglia's xorshift: the tests' random rows, the same on every run.
+    fn xorshift(mut seed: u64) -> impl FnMut() -> u64 {
+        move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed
+        }
+    }
+
     /// The vector scan for open cells finds the scalar scan's cells and
     /// reach, bit for bit, on rows of every length around a vector's, and
     /// both find the cells the definition names: open cones wider than
     /// their floors.
     #[test]
     fn open_cells_in_lanes_equal_one_at_a_time() {
-        let mut seed = 0x2545_f491_4f6c_dd1du64;
-        let mut next = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            seed
-        };
+        let mut next = xorshift(0x2545_f491_4f6c_dd1d);
         // Rises per apex slice: 0 for the cells in the plane (member > k).
         let rise_of: Vec<f64> = (0..=20)
             .map(|a| if a <= 12 { 3.5 * (13 - a) as f64 } else { 0.0 })
@@ -985,15 +1011,12 @@ mod tests {
         }
     }
 
+    /// A row's kept columns are those the definition names (a column
+    /// distance, and its parabola within the reach of the targets' span),
+    /// with their offsets, in `u16` lanes and one `u32` at a time alike.
     #[test]
     fn columns_in_reach_are_the_definition() {
-        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            seed
-        };
+        let mut next = xorshift(0x9e37_79b9_7f4a_7c15);
         // Strips laid out as the column pass writes them, in both widths
         // (u16 in lanes where the CPU has them, u32 one at a time).
         fn case<G: ColumnDistance + TryFrom<u64>>(
