@@ -64,11 +64,11 @@ pub fn bench_views(
     {
         render(asset, &tracer, cam, &options(method))?;
     }
-    // One row per method and pass; the passes take turns, so that a slow
-    // spell of the machine falls on every method alike.
-    let mut passes: Vec<Vec<BenchRow>> = vec![Vec::new(); methods.len()];
-    for _ in 0..repeat.max(1) {
-        for (&method, passes) in methods.iter().zip(&mut passes) {
+    median_passes(
+        methods,
+        repeat,
+        |a: &BenchRow| a.seconds,
+        |method| {
             let (mut rays, mut hits, mut seconds, mut steps, mut cells, mut nodes) =
                 (0u64, 0u64, 0.0, 0.0, 0.0, 0.0);
             for cam in &views {
@@ -82,7 +82,7 @@ pub fn bench_views(
             }
             let threads = rayon::current_num_threads();
             let n = rays.max(1) as f64;
-            passes.push(BenchRow {
+            Ok(BenchRow {
                 method: method.name().into(),
                 rays,
                 hits,
@@ -92,13 +92,30 @@ pub fn bench_views(
                 mean_cells: cells / n,
                 mean_nodes_pushed: nodes / n,
                 rays_per_second_per_thread: rays as f64 / seconds.max(1e-9) / threads as f64,
-            });
+            })
+        },
+    )
+}
+
+/// Per method, the median by `seconds` of `repeat` timed passes (at least
+/// one). The methods take turns within each pass, so that a slow spell of
+/// the machine falls on every method alike.
+fn median_passes<T>(
+    methods: &[Method],
+    repeat: u32,
+    seconds: impl Fn(&T) -> f64,
+    mut pass: impl FnMut(Method) -> anyhow::Result<T>,
+) -> anyhow::Result<Vec<T>> {
+    let mut passes: Vec<Vec<T>> = methods.iter().map(|_| Vec::new()).collect();
+    for _ in 0..repeat.max(1) {
+        for (&method, passes) in methods.iter().zip(&mut passes) {
+            passes.push(pass(method)?);
         }
     }
     Ok(passes
         .into_iter()
         .map(|mut p| {
-            p.sort_by(|a, b| a.seconds.total_cmp(&b.seconds));
+            p.sort_by(|a, b| seconds(a).total_cmp(&seconds(b)));
             p.swap_remove(p.len() / 2)
         })
         .collect())
@@ -205,24 +222,23 @@ pub fn bench_directions(
             rays: rays.len(),
             methods: Vec::new(),
         };
-        // The methods take turns, `repeat` passes; each reports its median.
-        let mut passes = vec![Vec::new(); methods.len()];
-        let mut steps = vec![0u64; methods.len()];
-        for _ in 0..repeat {
-            for (i, &m) in methods.iter().enumerate() {
+        // Per method: (mean steps, microseconds) per ray, its median pass.
+        let medians = median_passes(
+            methods,
+            repeat,
+            |&(_, us): &(f64, f64)| us,
+            |method| {
                 let start = std::time::Instant::now();
-                steps[i] = 0;
+                let mut steps = 0u64;
                 for ray in &rays {
-                    steps[i] += tracer.trace(ray, m)?.1.steps;
+                    steps += tracer.trace(ray, method)?.1.steps;
                 }
-                passes[i].push(start.elapsed().as_secs_f64() * 1e6 / rays.len() as f64);
-            }
-        }
-        for (i, &m) in methods.iter().enumerate() {
-            passes[i].sort_by(f64::total_cmp);
-            let us = passes[i][passes[i].len() / 2];
-            row.methods
-                .push((m.name().into(), steps[i] as f64 / rays.len() as f64, us));
+                let us = start.elapsed().as_secs_f64() * 1e6 / rays.len() as f64;
+                Ok((steps as f64 / rays.len() as f64, us))
+            },
+        )?;
+        for (&m, (steps, us)) in methods.iter().zip(medians) {
+            row.methods.push((m.name().into(), steps, us));
         }
         rows.push(row);
     }
