@@ -451,8 +451,9 @@ fn sliced_planes_with<G: ColumnDistance>(
 
 /// Asks for `values` in the cache ahead of their use, where the hardware
 /// prefetchers fall behind: the row pass reads one stream per strip (128 at
-/// 8192 columns), more than they follow, and the column pass one row
-/// stride apart with too little work per row to hide a miss.
+/// 8192 columns), more than they follow, the column pass one row
+/// stride apart with too little work per row to hide a miss, and the
+/// open-cell scan the scattered blocks that are awake.
 #[inline]
 fn prefetch<T>(values: &[T]) {
     #[cfg(not(target_arch = "x86_64"))]
@@ -847,7 +848,7 @@ unsafe fn open_cells_avx512(
     let (one, most) = (_mm256_set1_epi32(1), _mm256_set1_epi32(i32::from(u16::MAX)));
     let slice = _mm512_set1_epi16(scan.slice as i16);
     // 32 blocks' wakes to a compare; only the blocks awake are read.
-    for b0 in (0..wakes.len()).step_by(32) {
+    let awake_in = |wakes: &[u16], b0: usize| -> __mmask32 {
         let group = wakes.len() - b0;
         let in_group: __mmask32 = if group >= 32 {
             u32::MAX
@@ -856,7 +857,30 @@ unsafe fn open_cells_avx512(
         };
         // SAFETY: lanes past the row are masked.
         let w = unsafe { _mm512_maskz_loadu_epi16(in_group, wakes.as_ptr().add(b0).cast()) };
-        let mut awake = _mm512_mask_cmple_epu16_mask(in_group, w, slice);
+        _mm512_mask_cmple_epu16_mask(in_group, w, slice)
+    };
+    let mut ahead = if wakes.is_empty() {
+        0
+    } else {
+        awake_in(wakes, 0)
+    };
+    for b0 in (0..wakes.len()).step_by(32) {
+        let mut awake = ahead;
+        // The blocks awake are scattered, too sparse for the hardware
+        // prefetchers: ask for the next group's while this one is tested.
+        ahead = if b0 + 32 < wakes.len() {
+            awake_in(wakes, b0 + 32)
+        } else {
+            0
+        };
+        let mut wanted = ahead;
+        while wanted != 0 {
+            let c = (b0 + 32 + wanted.trailing_zeros() as usize) * BLOCK;
+            wanted &= wanted - 1;
+            prefetch(&member[c..c + 1]);
+            prefetch(&slope[c..c + 1]);
+            prefetch(&floor[c..c + 1]);
+        }
         while awake != 0 {
             let b = b0 + awake.trailing_zeros() as usize;
             awake &= awake - 1;
