@@ -4,7 +4,8 @@
 # terrabake on the same DEM, directions and search radius (the whole DEM).
 #
 #   bash pipelines/peers/bench_peers.sh     # DEM=, DIRECTIONS=16, CROP=256, LIMIT=600, WORK=,
-#                                            # PEERS=horayzon,grass (default: every peer)
+#                                            # PEERS=horayzon,grass (default: every peer;
+#                                            # the charts are redrawn only then)
 #
 # Installs (as root; once): Debian's gdal-bin, grass-core and saga; a
 # virtual environment target/peers-venv from PyPI with whitebox-workflows,
@@ -79,5 +80,13 @@ args=()
 for m in "${missing[@]}"; do args+=(--missing "$m"); done
 "$py" pipelines/peers/bench_peers.py --bin "$BIN" --venv "$VENV" --dem "$DEM" --work "$WORK" \
   --directions "$DIRECTIONS" --crop "$CROP" --limit "$LIMIT" --only "$PEERS" "${args[@]}"
+# The charts show every peer: a run of some (PEERS=) prints their tables
+# and leaves the charts as the last full run drew them.
+chart=()
+if [ -z "$PEERS" ]; then
+  chart=(--chart docs/charts/horizons)
+else
+  say "PEERS=$PEERS: docs/charts/horizons_*.svg left as they are (they are drawn from a run of every peer)"
+fi
 "$BIN" bench-horizons "$WORK/whole.tbake" --peers "$WORK/peers.json" --crop "$CROP" \
-  --speed none --chart docs/charts/horizons
+  --speed none "${chart[@]}"

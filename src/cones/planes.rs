@@ -29,7 +29,10 @@
 //!   top slice runs first so that every row has a finite reach;
 //!   each distance found is kept, in two bytes, as a floor for the slices
 //!   above (whose planes it contains), and a cell whose floor reaches its
-//!   cone's width is left out of the slice (85 % of the evaluations at 2048²).
+//!   cone's width is left out of the slice (85 % of the evaluations at 2048²);
+//!   the scan for the cells left in reads only the blocks of eight cells
+//!   that can have opened since they were last read (their *wake*, from
+//!   each closed cell's apex slice, slope and floor; see [`Scan`]).
 //! - [`exact_planes`]: the limit `K -> infinity`, without slices: the apex at
 //!   the cell's own `nmax` (the lowest apex possible) and the least slope
 //!   over every taller cell, found by branch and bound over a max pyramid of
