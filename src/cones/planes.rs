@@ -474,6 +474,20 @@ fn prefetch<T>(values: &[T]) {
     }
 }
 
+/// Asks for the cells of the blocks `b0 + i` for every bit `i` of
+/// `awake`: the open-cell scan's next blocks, too scattered for the
+/// hardware prefetchers.
+#[inline(always)]
+fn prefetch_blocks(mut awake: u32, b0: usize, member: &[u16], slope: &[f32], floor: &[u16]) {
+    while awake != 0 {
+        let c = (b0 + awake.trailing_zeros() as usize) * BLOCK;
+        awake &= awake - 1;
+        prefetch(&member[c..c + 1]);
+        prefetch(&slope[c..c + 1]);
+        prefetch(&floor[c..c + 1]);
+    }
+}
+
 /// The columns of row `r` whose parabola can narrow a target's cone, with
 /// their parabolas' offsets (squared, in columns), into `kept` in order;
 /// returns their count. A plane cell narrows a cone only within the cone's
@@ -798,25 +812,53 @@ fn open_cells_scalar(
     // Branch-free within a block, with eight running maxima: one maximum
     // carried through the row made each cell wait on the last.
     let (mut n, mut widest) = (0, [0.0f64; 8]);
-    for (b, wake) in wakes.iter_mut().enumerate() {
-        if *wake > scan.slice {
-            continue;
+    // As in lanes: 32 blocks at a time, the next 32's awake cells asked
+    // for while these are tested.
+    let awake_in = |wakes: &[u16], b0: usize| {
+        wakes[b0..]
+            .iter()
+            .take(32)
+            .enumerate()
+            .fold(0u32, |mask, (i, &w)| mask | u32::from(w <= scan.slice) << i)
+    };
+    let mut ahead = if wakes.is_empty() {
+        0
+    } else {
+        awake_in(wakes, 0)
+    };
+    for b0 in (0..wakes.len()).step_by(32) {
+        let mut awake = ahead;
+        ahead = if b0 + 32 < wakes.len() {
+            awake_in(wakes, b0 + 32)
+        } else {
+            0
+        };
+        prefetch_blocks(ahead, b0 + 32, member, slope, floor);
+        while awake != 0 {
+            let b = b0 + awake.trailing_zeros() as usize;
+            awake &= awake - 1;
+            let (c0, c1) = (b * BLOCK, ((b + 1) * BLOCK).min(member.len()));
+            let mut any_open = false;
+            for c in c0..c1 {
+                let v = f64::from(slope[c]) * scan.rise_of[usize::from(member[c])];
+                // (inf * 0 is NaN, which is never greater.)
+                let open = v > f64::from(floor[c]) * scan.unit;
+                targets[n] = c as u32;
+                n += usize::from(open);
+                let lane = &mut widest[c % 8];
+                *lane = if open && v > *lane { v } else { *lane };
+                any_open |= open;
+            }
+            // (A block with an open cell is read again: its targets change.)
+            wakes[b] = if any_open {
+                0
+            } else {
+                (c0..c1)
+                    .map(|c| scan.wake(member[c], slope[c], floor[c]))
+                    .min()
+                    .unwrap_or(u16::MAX)
+            };
         }
-        let (c0, c1) = (b * BLOCK, ((b + 1) * BLOCK).min(member.len()));
-        let (mut any_open, mut earliest) = (false, u16::MAX);
-        for c in c0..c1 {
-            let (a, s, f) = (member[c], slope[c], floor[c]);
-            let v = f64::from(s) * scan.rise_of[usize::from(a)];
-            // (inf * 0 is NaN, which is never greater.)
-            let open = v > f64::from(f) * scan.unit;
-            targets[n] = c as u32;
-            n += usize::from(open);
-            let lane = &mut widest[c % 8];
-            *lane = if open && v > *lane { v } else { *lane };
-            any_open |= open;
-            earliest = earliest.min(scan.wake(a, s, f));
-        }
-        *wake = if any_open { 0 } else { earliest };
     }
     targets.truncate(n);
     widest.into_iter().fold(0.0, f64::max)
@@ -876,14 +918,7 @@ unsafe fn open_cells_avx512(
         } else {
             0
         };
-        let mut wanted = ahead;
-        while wanted != 0 {
-            let c = (b0 + 32 + wanted.trailing_zeros() as usize) * BLOCK;
-            wanted &= wanted - 1;
-            prefetch(&member[c..c + 1]);
-            prefetch(&slope[c..c + 1]);
-            prefetch(&floor[c..c + 1]);
-        }
+        prefetch_blocks(ahead, b0 + 32, member, slope, floor);
         while awake != 0 {
             let b = b0 + awake.trailing_zeros() as usize;
             awake &= awake - 1;
