@@ -488,6 +488,38 @@ fn prefetch_blocks(mut awake: u32, b0: usize, member: &[u16], slope: &[f32], flo
     }
 }
 
+/// The open-cell scan's walk over a row's blocks: `read(b)` for every
+/// block `b` whose wake has come (`wakes[b] <= slice`), its result the
+/// block's new wake. 32 blocks' wakes are tested at a time, and the next
+/// 32's awake cells are asked for while these are read: the blocks awake
+/// are scattered, too sparse for the hardware prefetchers.
+#[inline(always)]
+fn each_awake_block(
+    wakes: &mut [u16],
+    slice: u16,
+    (member, slope, floor): (&[u16], &[f32], &[u16]),
+    mut read: impl FnMut(usize) -> u16,
+) {
+    let awake_in = |wakes: &[u16], b0: usize| {
+        wakes[b0.min(wakes.len())..]
+            .iter()
+            .take(32)
+            .enumerate()
+            .fold(0u32, |mask, (i, &w)| mask | u32::from(w <= slice) << i)
+    };
+    let mut ahead = awake_in(wakes, 0);
+    for b0 in (0..wakes.len()).step_by(32) {
+        let mut awake = ahead;
+        ahead = awake_in(wakes, b0 + 32);
+        prefetch_blocks(ahead, b0 + 32, member, slope, floor);
+        while awake != 0 {
+            let b = b0 + awake.trailing_zeros() as usize;
+            awake &= awake - 1;
+            wakes[b] = read(b);
+        }
+    }
+}
+
 /// The columns of row `r` whose parabola can narrow a target's cone, with
 /// their parabolas' offsets (squared, in columns), into `kept` in order;
 /// returns their count. A plane cell narrows a cone only within the cone's
@@ -713,9 +745,9 @@ const BLOCK: usize = 8;
 /// **Blocks that cannot open.** Most of a row's cells are closed in most
 /// slices (at 2048², K = 256, 9 % of the cells scanned are targets), yet
 /// testing every cell's member, slope and floor was a third of the bake at
-/// 8192² (the test's gather and conversions, not its reads: the scan cost
-/// as much with its rows in the cache). A closed cell's slope
-/// and floor change only when it is evaluated, that is, when it is open; so
+/// 8192² (about half of it the test's gather and conversions, which a
+/// second scan of a row already in the cache paid again). A closed cell's
+/// slope and floor change only when it is evaluated, that is, when it is open; so
 /// while it stays closed, the first slice at which it can open follows from
 /// its three values alone: its rise grows one `step` a slice from its apex
 /// slice, and it opens once `slope * rise > floor * unit`. Each block keeps
@@ -724,8 +756,8 @@ const BLOCK: usize = 8;
 /// passes over a block until the slice reaches its wake, testing 32
 /// blocks' wakes in one compare. A block is one vector of eight cells: at
 /// 8192², K = 256, 23 % of the blocks are read; at 2048², 28 % (54 % with
-/// blocks of 64 cells, which gained nothing). The targets are the same as without
-/// blocks, so the planes are the same bit for bit.
+/// blocks of 64 cells, which gained nothing). The targets are the same as
+/// without blocks, so the planes are the same bit for bit.
 #[derive(Debug, Clone, Copy)]
 struct Scan<'a> {
     /// The slice, in the bottom-up order of the passes (the top slice,
@@ -812,54 +844,29 @@ fn open_cells_scalar(
     // Branch-free within a block, with eight running maxima: one maximum
     // carried through the row made each cell wait on the last.
     let (mut n, mut widest) = (0, [0.0f64; 8]);
-    // As in lanes: 32 blocks at a time, the next 32's awake cells asked
-    // for while these are tested.
-    let awake_in = |wakes: &[u16], b0: usize| {
-        wakes[b0..]
-            .iter()
-            .take(32)
-            .enumerate()
-            .fold(0u32, |mask, (i, &w)| mask | u32::from(w <= scan.slice) << i)
-    };
-    let mut ahead = if wakes.is_empty() {
-        0
-    } else {
-        awake_in(wakes, 0)
-    };
-    for b0 in (0..wakes.len()).step_by(32) {
-        let mut awake = ahead;
-        ahead = if b0 + 32 < wakes.len() {
-            awake_in(wakes, b0 + 32)
-        } else {
-            0
-        };
-        prefetch_blocks(ahead, b0 + 32, member, slope, floor);
-        while awake != 0 {
-            let b = b0 + awake.trailing_zeros() as usize;
-            awake &= awake - 1;
-            let (c0, c1) = (b * BLOCK, ((b + 1) * BLOCK).min(member.len()));
-            let mut any_open = false;
-            for c in c0..c1 {
-                let v = f64::from(slope[c]) * scan.rise_of[usize::from(member[c])];
-                // (inf * 0 is NaN, which is never greater.)
-                let open = v > f64::from(floor[c]) * scan.unit;
-                targets[n] = c as u32;
-                n += usize::from(open);
-                let lane = &mut widest[c % 8];
-                *lane = if open && v > *lane { v } else { *lane };
-                any_open |= open;
-            }
-            // (A block with an open cell is read again: its targets change.)
-            wakes[b] = if any_open {
-                0
-            } else {
-                (c0..c1)
-                    .map(|c| scan.wake(member[c], slope[c], floor[c]))
-                    .min()
-                    .unwrap_or(u16::MAX)
-            };
+    each_awake_block(wakes, scan.slice, (member, slope, floor), |b| {
+        let (c0, c1) = (b * BLOCK, ((b + 1) * BLOCK).min(member.len()));
+        let mut any_open = false;
+        for c in c0..c1 {
+            let v = f64::from(slope[c]) * scan.rise_of[usize::from(member[c])];
+            // (inf * 0 is NaN, which is never greater.)
+            let open = v > f64::from(floor[c]) * scan.unit;
+            targets[n] = c as u32;
+            n += usize::from(open);
+            let lane = &mut widest[c % 8];
+            *lane = if open && v > *lane { v } else { *lane };
+            any_open |= open;
         }
-    }
+        // (A block with an open cell is read again: its targets change.)
+        if any_open {
+            0
+        } else {
+            (c0..c1)
+                .map(|c| scan.wake(member[c], slope[c], floor[c]))
+                .min()
+                .unwrap_or(u16::MAX)
+        }
+    });
     targets.truncate(n);
     widest.into_iter().fold(0.0, f64::max)
 }
@@ -891,98 +898,63 @@ unsafe fn open_cells_avx512(
     let mut widest = _mm512_setzero_pd();
     let zero = _mm512_setzero_pd();
     let (one, most) = (_mm256_set1_epi32(1), _mm256_set1_epi32(i32::from(u16::MAX)));
-    let slice = _mm512_set1_epi16(scan.slice as i16);
-    // 32 blocks' wakes to a compare; only the blocks awake are read.
-    let awake_in = |wakes: &[u16], b0: usize| -> __mmask32 {
-        let group = wakes.len() - b0;
-        let in_group: __mmask32 = if group >= 32 {
-            u32::MAX
+    each_awake_block(wakes, scan.slice, (member, slope, floor), |b| {
+        let c0 = b * BLOCK;
+        let lanes: __mmask8 = if len - c0 >= 8 {
+            0xff
         } else {
-            (1u32 << group) - 1
+            (1u8 << (len - c0)) - 1
         };
-        // SAFETY: lanes past the row are masked.
-        let w = unsafe { _mm512_maskz_loadu_epi16(in_group, wakes.as_ptr().add(b0).cast()) };
-        _mm512_mask_cmple_epu16_mask(in_group, w, slice)
-    };
-    let mut ahead = if wakes.is_empty() {
-        0
-    } else {
-        awake_in(wakes, 0)
-    };
-    for b0 in (0..wakes.len()).step_by(32) {
-        let mut awake = ahead;
-        // The blocks awake are scattered, too sparse for the hardware
-        // prefetchers: ask for the next group's while this one is tested.
-        ahead = if b0 + 32 < wakes.len() {
-            awake_in(wakes, b0 + 32)
-        } else {
+        // SAFETY: lanes past the row are masked; members index `rise_of`.
+        let (m, s, f) = unsafe {
+            (
+                _mm256_cvtepu16_epi32(_mm_maskz_loadu_epi16(lanes, member.as_ptr().add(c0).cast())),
+                _mm512_cvtps_pd(_mm256_maskz_loadu_ps(lanes, slope.as_ptr().add(c0))),
+                _mm512_cvtepi32_pd(_mm256_cvtepu16_epi32(_mm_maskz_loadu_epi16(
+                    lanes,
+                    floor.as_ptr().add(c0).cast(),
+                ))),
+            )
+        };
+        // SAFETY: as above.
+        let rise = unsafe { _mm512_mask_i32gather_pd::<8>(zero, lanes, m, scan.rise_of.as_ptr()) };
+        let v = _mm512_mul_pd(s, rise);
+        // (inf * 0 is NaN, which is never greater.)
+        let open = _mm512_mask_cmp_pd_mask::<_CMP_GT_OQ>(lanes, v, _mm512_mul_pd(f, unit));
+        // Compressed in a register and stored whole (the lanes past the
+        // open ones are overwritten or truncated later): the compressing
+        // store to memory is microcoded on AMD's Zen 4, and took 45 % of the
+        // bake there. SAFETY: `n + 8 <= targets.len()`.
+        unsafe {
+            let index = _mm256_add_epi32(
+                _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
+                _mm256_set1_epi32(c0 as i32),
+            );
+            _mm256_storeu_si256(
+                targets.as_mut_ptr().add(n).cast(),
+                _mm256_maskz_compress_epi32(open, index),
+            )
+        };
+        n += open.count_ones() as usize;
+        widest = _mm512_mask_max_pd(widest, open, widest, v);
+        if open != 0 {
             0
-        };
-        prefetch_blocks(ahead, b0 + 32, member, slope, floor);
-        while awake != 0 {
-            let b = b0 + awake.trailing_zeros() as usize;
-            awake &= awake - 1;
-            let c0 = b * BLOCK;
-            let lanes: __mmask8 = if len - c0 >= 8 {
-                0xff
-            } else {
-                (1u8 << (len - c0)) - 1
-            };
-            // SAFETY: lanes past the row are masked; members index `rise_of`.
-            let (m, s, f) = unsafe {
-                (
-                    _mm256_cvtepu16_epi32(_mm_maskz_loadu_epi16(
-                        lanes,
-                        member.as_ptr().add(c0).cast(),
-                    )),
-                    _mm512_cvtps_pd(_mm256_maskz_loadu_ps(lanes, slope.as_ptr().add(c0))),
-                    _mm512_cvtepi32_pd(_mm256_cvtepu16_epi32(_mm_maskz_loadu_epi16(
-                        lanes,
-                        floor.as_ptr().add(c0).cast(),
-                    ))),
-                )
-            };
-            // SAFETY: as above.
-            let rise =
-                unsafe { _mm512_mask_i32gather_pd::<8>(zero, lanes, m, scan.rise_of.as_ptr()) };
-            let v = _mm512_mul_pd(s, rise);
-            // (inf * 0 is NaN, which is never greater.)
-            let open = _mm512_mask_cmp_pd_mask::<_CMP_GT_OQ>(lanes, v, _mm512_mul_pd(f, unit));
-            // Compressed in a register and stored whole (the lanes past the
-            // open ones are overwritten or truncated later): the compressing
-            // store to memory is microcoded on AMD's Zen 4, and took 45 % of the
-            // bake there. SAFETY: `n + 8 <= targets.len()`.
-            unsafe {
-                let index = _mm256_add_epi32(
-                    _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
-                    _mm256_set1_epi32(c0 as i32),
-                );
-                _mm256_storeu_si256(
-                    targets.as_mut_ptr().add(n).cast(),
-                    _mm256_maskz_compress_epi32(open, index),
-                )
-            };
-            n += open.count_ones() as usize;
-            widest = _mm512_mask_max_pd(widest, open, widest, v);
-            wakes[b] = if open != 0 {
-                0
-            } else {
-                // The wakes, as `Scan::wake` (the reciprocal within 2^-14,
-                // below the margin); lanes past the row never wake.
-                let x = _mm512_mul_pd(_mm512_mul_pd(f, per_slice), _mm512_rcp14_pd(s));
-                // (A NaN, 0 / 0, takes the second operand: never.)
-                let x = _mm512_cvttpd_epi32(_mm512_min_pd(x, never));
-                let w = _mm256_add_epi32(
-                    m,
-                    _mm256_max_epi32(_mm256_sub_epi32(x, one), _mm256_setzero_si256()),
-                );
-                let w = _mm256_mask_blend_epi32(lanes, most, _mm256_min_epi32(w, most));
-                // SAFETY: eight i32 lanes as an array.
-                let w: [i32; 8] = unsafe { std::mem::transmute(w) };
-                w.into_iter().min().unwrap_or(0) as u16
-            };
+        } else {
+            // The wakes, as `Scan::wake` (the reciprocal within 2^-14,
+            // below the margin); lanes past the row never wake.
+            let x = _mm512_mul_pd(_mm512_mul_pd(f, per_slice), _mm512_rcp14_pd(s));
+            // (A NaN, 0 / 0, takes the second operand: never.)
+            let x = _mm512_cvttpd_epi32(_mm512_min_pd(x, never));
+            let w = _mm256_add_epi32(
+                m,
+                _mm256_max_epi32(_mm256_sub_epi32(x, one), _mm256_setzero_si256()),
+            );
+            let w = _mm256_mask_blend_epi32(lanes, most, _mm256_min_epi32(w, most));
+            // SAFETY: eight i32 lanes as an array.
+            let w: [i32; 8] = unsafe { std::mem::transmute(w) };
+            w.into_iter().min().unwrap_or(0) as u16
         }
-    }
+    });
     (n, _mm512_reduce_max_pd(widest))
 }
 
