@@ -156,6 +156,17 @@ impl Slices {
         self.z.is_empty()
     }
 
+    /// Per apex slice `0..=len`, the rise that slice `k` bounds: from the
+    /// apex to the height above slice `k` (`z_k+1`; the top above the last
+    /// slice), since cells in slice `k` and not in `k + 1` are below it;
+    /// `0` for the cells in slice `k`'s plane, which it does not bound.
+    pub fn rise_of(&self, k: usize) -> Vec<f64> {
+        let z_next = self.z.get(k + 1).copied().unwrap_or(self.top);
+        (0..=self.len())
+            .map(|a| if a <= k { z_next - self.z[a] } else { 0.0 })
+            .collect()
+    }
+
     /// How many slices a cell of this `nmax` belongs to: it is in the bit
     /// plane of slices `0..n` and not in the rest, so `n` is the index of its
     /// apex slice (`n == len` when it is in every slice).
@@ -302,11 +313,6 @@ fn sliced_planes_with<G: ColumnDistance>(
     // (see [`Scan`]); every block is read in the first slice.
     let blocks = cw.div_ceil(BLOCK);
     let mut wakes = vec![0u16; blocks * ch];
-    let slices_per_metre = if slices.step > 0.0 {
-        1.0 / slices.step
-    } else {
-        0.0
-    };
     let strips = cw.div_ceil(STRIP);
     let mut column = pages::filled(strips * ch * STRIP, G::NONE);
     let mut stats = PlaneStats::default();
@@ -367,25 +373,12 @@ fn sliced_planes_with<G: ColumnDistance>(
             });
         // Row pass: the lower envelope of the columns' parabolas, then the
         // slope update of every cell outside the plane.
-        // Cells in slice k and not in k + 1 are below z_k+1 (the last slice:
-        // below the top).
-        let z_next = slices.z.get(k + 1).copied().unwrap_or(slices.top);
-        // Per apex slice: the rise from the apex to z_next (0 for cells in
-        // the plane, which this slice does not bound).
-        let rise_of: Vec<f64> = (0..=k_count)
-            .map(|a| if a <= k { z_next - slices.z[a] } else { 0.0 })
-            .collect();
-        let rise_of = &rise_of;
+        let rise_of = &slices.rise_of(k);
         let column = &column;
         let member = &member;
         // Distances in units of dx: a column distance of g cells is g * dy / dx.
         let (aspect, dx2) = (dy / dx, dx * dx);
-        let scan = Scan {
-            slice: k16,
-            unit: floor.unit,
-            rise_of,
-            slices_per_metre,
-        };
+        let scan = Scan::new(slices, k, floor.unit, rise_of);
         slope
             .par_chunks_mut(cw)
             .zip(floors.par_chunks_mut(cw))
@@ -393,13 +386,13 @@ fn sliced_planes_with<G: ColumnDistance>(
             .enumerate()
             .for_each_init(
                 || (Envelope::default(), Vec::<u32>::new(), Kept::default()),
-                |(envelope, targets, kept), (r, ((row, row_floor), row_wakes))| {
+                |(envelope, room, kept), (r, ((row, row_floor), row_wakes))| {
                     let m = &member[r * cw..(r + 1) * cw];
                     // The cells this slice can narrow (outside the plane, with a
                     // cone still open), and the reach: the widest of them, the
                     // farthest that a plane cell can be and still narrow a cone
                     // of this row.
-                    let reach = open_cells(m, row, row_floor, scan, row_wakes, targets);
+                    let (targets, reach) = open_cells(m, row, row_floor, scan, row_wakes, room);
                     if targets.is_empty() {
                         return;
                     }
@@ -452,6 +445,16 @@ fn sliced_planes_with<G: ColumnDistance>(
     Planes { apex, slope, stats }
 }
 
+/// Whether the CPU has what this module's AVX-512 lanes use (F, VL, BW
+/// and popcnt); where not, the scalar code runs.
+#[cfg(target_arch = "x86_64")]
+fn avx512_bw() -> bool {
+    std::arch::is_x86_feature_detected!("avx512f")
+        && std::arch::is_x86_feature_detected!("avx512vl")
+        && std::arch::is_x86_feature_detected!("avx512bw")
+        && std::arch::is_x86_feature_detected!("popcnt")
+}
+
 /// Asks for `values` in the cache ahead of their use, where the hardware
 /// prefetchers fall behind: the row pass reads one stream per strip (128 at
 /// 8192 columns), more than they follow, the column pass one row
@@ -471,20 +474,6 @@ fn prefetch<T>(values: &[T]) {
             // `values`.
             unsafe { _mm_prefetch::<_MM_HINT_T0>(start.add(offset)) };
         }
-    }
-}
-
-/// Asks for the cells of the blocks `b0 + i` for every bit `i` of
-/// `awake`: the open-cell scan's next blocks, too scattered for the
-/// hardware prefetchers.
-#[inline(always)]
-fn prefetch_blocks(mut awake: u32, b0: usize, member: &[u16], slope: &[f32], floor: &[u16]) {
-    while awake != 0 {
-        let c = (b0 + awake.trailing_zeros() as usize) * BLOCK;
-        awake &= awake - 1;
-        prefetch(&member[c..c + 1]);
-        prefetch(&slope[c..c + 1]);
-        prefetch(&floor[c..c + 1]);
     }
 }
 
@@ -511,7 +500,14 @@ fn each_awake_block(
     for b0 in (0..wakes.len()).step_by(32) {
         let mut awake = ahead;
         ahead = awake_in(wakes, b0 + 32);
-        prefetch_blocks(ahead, b0 + 32, member, slope, floor);
+        let mut wanted = ahead;
+        while wanted != 0 {
+            let c = (b0 + 32 + wanted.trailing_zeros() as usize) * BLOCK;
+            wanted &= wanted - 1;
+            prefetch(&member[c..c + 1]);
+            prefetch(&slope[c..c + 1]);
+            prefetch(&floor[c..c + 1]);
+        }
         while awake != 0 {
             let b = b0 + awake.trailing_zeros() as usize;
             awake &= awake - 1;
@@ -596,11 +592,7 @@ fn keep_in_reach<G: ColumnDistance>(
 ) -> usize {
     #[cfg(target_arch = "x86_64")]
     if let Some(g) = G::as_u16(g) {
-        if std::arch::is_x86_feature_detected!("avx512f")
-            && std::arch::is_x86_feature_detected!("avx512vl")
-            && std::arch::is_x86_feature_detected!("avx512bw")
-            && std::arch::is_x86_feature_detected!("popcnt")
-        {
+        if avx512_bw() {
             // SAFETY: the CPU has the features; `kept` has a vector's room
             // past every column.
             return unsafe { keep_in_reach_avx512(g, c0, test, kept, n) };
@@ -765,12 +757,27 @@ struct Scan<'a> {
     slice: u16,
     unit: f64,
     rise_of: &'a [f64],
-    /// `1 / step`, `0` where the slices do not step (one slice, a flat DEM:
-    /// every wake is then the apex slice).
-    slices_per_metre: f64,
+    /// Slices per floor count, `unit / step`, rounded down by
+    /// [`WAKE_MARGIN`]; `0` where the slices do not step (one slice, a
+    /// flat DEM: every wake is then the apex slice).
+    slices_per_count: f64,
 }
 
-impl Scan<'_> {
+impl<'a> Scan<'a> {
+    /// Slice `k`'s test, `rise_of` its [`Slices::rise_of`].
+    fn new(slices: &Slices, k: usize, unit: f64, rise_of: &'a [f64]) -> Self {
+        Self {
+            slice: k as u16,
+            unit,
+            rise_of,
+            slices_per_count: if slices.step > 0.0 {
+                unit / slices.step * WAKE_MARGIN
+            } else {
+                0.0
+            },
+        }
+    }
+
     /// A lower bound of the first slice, from the apex slice `member` on,
     /// at which a cell can open: `member + floor(x) - 1` with `x = floor *
     /// unit / (slope * step)` rounded down a little (the slices between the
@@ -778,8 +785,7 @@ impl Scan<'_> {
     /// slope`); the `- 1` takes up the rounding of the slice heights. `u16::MAX`
     /// where it never opens (a zero slope).
     fn wake(&self, member: u16, slope: f32, floor: u16) -> u16 {
-        let x =
-            f64::from(floor) * self.unit * self.slices_per_metre / f64::from(slope) * WAKE_MARGIN;
+        let x = f64::from(floor) * self.slices_per_count / f64::from(slope);
         // (0 / 0: never open. A NaN compares false and takes the maximum.)
         let x = if x < f64::from(u16::MAX) {
             x
@@ -804,43 +810,42 @@ const WAKE_MARGIN: f64 = 1.0 - 1.0 / 4096.0;
 /// AVX-512 where the CPU has it (compress-stored indices, a masked maximum;
 /// the same targets and the same reach, a maximum being exact in any
 /// order).
-fn open_cells(
+fn open_cells<'t>(
     member: &[u16],
     slope: &[f32],
     floor: &[u16],
     scan: Scan,
     wakes: &mut [u16],
-    targets: &mut Vec<u32>,
-) -> f64 {
+    room: &'t mut Vec<u32>,
+) -> (&'t [u32], f64) {
     assert!(member.len() == slope.len() && member.len() == floor.len());
     assert_eq!(wakes.len(), member.len().div_ceil(BLOCK));
-    targets.clear();
-    targets.resize(member.len() + 8, 0);
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx512f")
-        && std::arch::is_x86_feature_detected!("avx512vl")
-        && std::arch::is_x86_feature_detected!("avx512bw")
-        && std::arch::is_x86_feature_detected!("popcnt")
-    {
-        // SAFETY: the CPU has the features; `targets` has room for every
-        // cell and a vector more; the slices agree in length.
-        let (n, reach) = unsafe { open_cells_avx512(member, slope, floor, scan, wakes, targets) };
-        targets.truncate(n);
-        return reach;
+    // Room for every cell and a vector more, kept between rows: only the
+    // first `n` are the row's, so nothing needs clearing.
+    if room.len() < member.len() + 8 {
+        room.resize(member.len() + 8, 0);
     }
-    open_cells_scalar(member, slope, floor, scan, wakes, targets)
+    #[cfg(target_arch = "x86_64")]
+    if avx512_bw() {
+        // SAFETY: the CPU has the features; `room` has room for every
+        // cell and a vector more; the slices agree in length.
+        let (n, reach) = unsafe { open_cells_avx512(member, slope, floor, scan, wakes, room) };
+        return (&room[..n], reach);
+    }
+    let (n, reach) = open_cells_scalar(member, slope, floor, scan, wakes, room);
+    (&room[..n], reach)
 }
 
 /// [`open_cells`] one cell at a time, `targets` as long as `member` or
-/// longer.
+/// longer; returns the count and the reach.
 fn open_cells_scalar(
     member: &[u16],
     slope: &[f32],
     floor: &[u16],
     scan: Scan,
     wakes: &mut [u16],
-    targets: &mut Vec<u32>,
-) -> f64 {
+    targets: &mut [u32],
+) -> (usize, f64) {
     // Branch-free within a block, with eight running maxima: one maximum
     // carried through the row made each cell wait on the last.
     let (mut n, mut widest) = (0, [0.0f64; 8]);
@@ -867,8 +872,7 @@ fn open_cells_scalar(
                 .unwrap_or(u16::MAX)
         }
     });
-    targets.truncate(n);
-    widest.into_iter().fold(0.0, f64::max)
+    (n, widest.into_iter().fold(0.0, f64::max))
 }
 
 /// [`open_cells`] eight cells at a time; returns the count and the reach.
@@ -891,7 +895,7 @@ unsafe fn open_cells_avx512(
     const _: () = assert!(BLOCK == 8, "a block is one vector");
     let len = member.len();
     let unit = _mm512_set1_pd(scan.unit);
-    let per_slice = _mm512_set1_pd(scan.unit * scan.slices_per_metre * WAKE_MARGIN);
+    let per_count = _mm512_set1_pd(scan.slices_per_count);
     let never = _mm512_set1_pd(f64::from(u16::MAX));
     assert!(targets.len() >= len + 8);
     let mut n = 0;
@@ -942,7 +946,7 @@ unsafe fn open_cells_avx512(
         } else {
             // The wakes, as `Scan::wake` (the reciprocal within 2^-14,
             // below the margin); lanes past the row never wake.
-            let x = _mm512_mul_pd(_mm512_mul_pd(f, per_slice), _mm512_rcp14_pd(s));
+            let x = _mm512_mul_pd(_mm512_mul_pd(f, per_count), _mm512_rcp14_pd(s));
             // (A NaN, 0 / 0, takes the second operand: never.)
             let x = _mm512_cvttpd_epi32(_mm512_min_pd(x, never));
             let w = _mm256_add_epi32(
@@ -1167,18 +1171,10 @@ mod tests {
                 vec![0u16; len.div_ceil(BLOCK)],
                 vec![0u16; len.div_ceil(BLOCK)],
             );
-            let (mut lanes, mut one) = (Vec::new(), Vec::new());
+            let (mut room, mut one) = (Vec::new(), Vec::new());
             for k in std::iter::once(k_count - 1).chain(0..k_count - 1) {
-                let z_next = slices.z.get(k + 1).copied().unwrap_or(slices.top);
-                let rise_of: Vec<f64> = (0..=k_count)
-                    .map(|a| if a <= k { z_next - slices.z[a] } else { 0.0 })
-                    .collect();
-                let scan = Scan {
-                    slice: k as u16,
-                    unit,
-                    rise_of: &rise_of,
-                    slices_per_metre: 1.0 / slices.step,
-                };
+                let rise_of = slices.rise_of(k);
+                let scan = Scan::new(&slices, k, unit, &rise_of);
                 let width = |c: usize| f64::from(slope[c]) * rise_of[usize::from(member[c])];
                 let open: Vec<u32> = (0..len as u32)
                     .filter(|&c| {
@@ -1189,13 +1185,14 @@ mod tests {
                 let widest = open.iter().map(|&c| width(c as usize)).fold(0.0, f64::max);
                 blocks_seen += wakes_lanes.len();
                 slept += wakes_lanes.iter().filter(|&&w| w > scan.slice).count();
-                let reach = open_cells(&member, &slope, &floor, scan, &mut wakes_lanes, &mut lanes);
+                let (lanes, reach) =
+                    open_cells(&member, &slope, &floor, scan, &mut wakes_lanes, &mut room);
                 assert_eq!(lanes, open, "{len} cells, slice {k}");
                 assert_eq!(reach.to_bits(), widest.to_bits(), "{len} cells, slice {k}");
                 one.resize(len + 8, 0);
-                let reach =
+                let (n, reach) =
                     open_cells_scalar(&member, &slope, &floor, scan, &mut wakes_one, &mut one);
-                assert_eq!(one, open, "{len} cells, slice {k}, one at a time");
+                assert_eq!(one[..n], open, "{len} cells, slice {k}, one at a time");
                 assert_eq!(reach.to_bits(), widest.to_bits(), "{len} cells, slice {k}");
                 // The stage's update of the cells found: a narrower cone, and a
                 // floor anywhere up to the cone's width some slices above.
