@@ -4,6 +4,7 @@
 //! steps and rays per second on one thread over the sixteen views of the
 //! tracing benchmark, with the hierarchical tracer (and its pyramid's bake
 //! time) beside them. This is the chart a user reads to choose `--slices`.
+//! With `--scan`, what the sliced bake itself did instead ([`scan_stats`]).
 
 use std::path::Path;
 
@@ -16,7 +17,8 @@ use terrabake_format::Asset;
 use super::chart::{log_log_svg, Series};
 use super::markdown_table;
 use super::views::{bench_views, BenchRow};
-use crate::cones::{ConesStage, SliceChoice};
+use crate::cones::planes::{neighbourhood_max, sliced_planes, PlaneStats, Slices};
+use crate::cones::{summarize_heights, ConesStage, SliceChoice};
 use crate::progress::Progress;
 use crate::pyramid::PyramidStage;
 use crate::stage::run_stage;
@@ -189,6 +191,85 @@ pub fn tradeoff_charts(prefix: &Path, rows: &[TradeoffRow]) -> Result<()> {
     )
 }
 
+/// What one slice count's bake did (`bench-cones --scan`).
+#[derive(Debug, Clone, Serialize)]
+pub struct ScanRow {
+    pub slices: usize,
+    /// The planes alone, in memory, all cores (nothing encoded or written).
+    pub seconds: f64,
+    #[serde(flatten)]
+    pub stats: PlaneStats,
+}
+
+/// For each slice count, the sliced planes of the whole DEM as one window
+/// (the stage's in-core bake, its slices from the same heights), timed and
+/// with their [`PlaneStats`]: transforms, slices skipped, and how many of
+/// the open-cell scans' blocks were read. `exact` has no slices and is
+/// left out.
+pub fn scan_stats(dir: &Path, slices: &[SliceChoice]) -> Result<Vec<ScanRow>> {
+    let asset = crate::asset::open(dir)?;
+    let summary = summarize_heights(&asset)?;
+    let height = asset.height()?;
+    let (w, h) = (height.width() as usize, height.height() as usize);
+    anyhow::ensure!(w >= 2 && h >= 2, "a {w} x {h} DEM has no cells");
+    let mut posts = vec![0f32; w * h];
+    height.read_rows_f32(0, 0, &mut posts)?;
+    let nmax = neighbourhood_max(&posts, w, h);
+    drop(posts);
+    let cell = &asset.manifest().cell_size;
+    let mut rows = Vec::new();
+    for &choice in slices {
+        let Some(k) = choice.resolve(&summary, None).slices else {
+            continue;
+        };
+        let start = std::time::Instant::now();
+        let planes = sliced_planes(
+            &nmax,
+            (w - 1, h - 1),
+            (cell.dx, cell.dy),
+            &Slices::uniform(summary.z_min, summary.z_max, k),
+            None,
+            &|| {},
+        );
+        rows.push(ScanRow {
+            slices: k,
+            seconds: start.elapsed().as_secs_f64(),
+            stats: planes.stats,
+        });
+    }
+    Ok(rows)
+}
+
+/// The `--scan` rows as a Markdown table.
+pub fn scan_table_markdown(rows: &[ScanRow]) -> String {
+    markdown_table(
+        &[
+            "slices",
+            "planes (s)",
+            "transforms",
+            "slices skipped",
+            "scan blocks",
+            "read",
+            "share read",
+        ],
+        rows.iter().map(|r| {
+            let s = r.stats;
+            vec![
+                r.slices.to_string(),
+                format!("{:.2}", r.seconds),
+                s.transforms.to_string(),
+                s.slices_skipped.to_string(),
+                s.scan_blocks.to_string(),
+                s.scan_blocks_read.to_string(),
+                format!(
+                    "{:.1} %",
+                    100.0 * s.scan_blocks_read as f64 / s.scan_blocks.max(1) as f64
+                ),
+            ]
+        }),
+    )
+}
+
 /// `terrabake bench-cones`: its flags.
 #[derive(Debug, Clone, clap::Args)]
 pub struct BenchConesArgs {
@@ -216,11 +297,26 @@ pub struct BenchConesArgs {
     /// Print the rows as JSON.
     #[arg(long)]
     pub json: bool,
+    /// Instead of the trade-off: bake each slice count's planes in memory
+    /// (the whole DEM as one window, nothing written, no tracing) and print
+    /// what the bake did: distance transforms, slices skipped, and the
+    /// open-cell scans' blocks of eight cells and how many were read.
+    #[arg(long)]
+    pub scan: bool,
 }
 
 impl BenchConesArgs {
     /// Runs the trade-off and prints its table (or JSON); `say` reports files.
     pub fn run(&self, progress: Progress, say: &dyn Fn(String)) -> Result<()> {
+        if self.scan {
+            let rows = scan_stats(&self.asset, &self.slices)?;
+            if self.json {
+                println!("{}", serde_json::to_string_pretty(&rows)?);
+            } else {
+                print!("{}", scan_table_markdown(&rows));
+            }
+            return Ok(());
+        }
         crate::asset::open(&self.asset)?;
         let rows = cone_tradeoff(
             &self.asset,

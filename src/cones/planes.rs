@@ -199,6 +199,10 @@ pub struct PlaneStats {
     pub slices_skipped: usize,
     /// Pyramid nodes examined (exact).
     pub nodes: u64,
+    /// Blocks of the open-cell scans (sliced; every row of every transform)
+    /// and those of them read, their wake having come (see `Scan`).
+    pub scan_blocks: u64,
+    pub scan_blocks_read: u64,
 }
 
 /// The planes of one grid: per cell, the apex rounded up and the slope
@@ -379,12 +383,13 @@ fn sliced_planes_with<G: ColumnDistance>(
         // Distances in units of dx: a column distance of g cells is g * dy / dx.
         let (aspect, dx2) = (dy / dx, dx * dx);
         let scan = Scan::new(slices, k, floor.unit, rise_of);
-        slope
+        stats.scan_blocks += (blocks * ch) as u64;
+        stats.scan_blocks_read += slope
             .par_chunks_mut(cw)
             .zip(floors.par_chunks_mut(cw))
             .zip(wakes.par_chunks_mut(blocks))
             .enumerate()
-            .for_each_init(
+            .map_init(
                 || (Envelope::default(), Vec::<u32>::new(), Kept::default()),
                 |(envelope, room, kept), (r, ((row, row_floor), row_wakes))| {
                     let m = &member[r * cw..(r + 1) * cw];
@@ -392,9 +397,13 @@ fn sliced_planes_with<G: ColumnDistance>(
                     // cone still open), and the reach: the widest of them, the
                     // farthest that a plane cell can be and still narrow a cone
                     // of this row.
-                    let (targets, reach) = open_cells(m, row, row_floor, scan, row_wakes, room);
+                    let Open {
+                        targets,
+                        reach,
+                        blocks_read,
+                    } = open_cells(m, row, row_floor, scan, row_wakes, room);
                     if targets.is_empty() {
-                        return;
+                        return blocks_read;
                     }
                     for (s, strip) in column.chunks(ch * STRIP).enumerate() {
                         if r + 1 < ch {
@@ -413,7 +422,7 @@ fn sliced_planes_with<G: ColumnDistance>(
                     }
                     // (No plane cell in reach: nothing to update.)
                     if envelope.is_empty() {
-                        return;
+                        return blocks_read;
                     }
                     envelope.evaluate_at(targets.iter().map(|&c| c as usize), |c, d2| {
                         let rise = rise_of[usize::from(m[c])];
@@ -429,8 +438,10 @@ fn sliced_planes_with<G: ColumnDistance>(
                             row_floor[c] = floor.of(d2.min(reach * reach));
                         }
                     });
+                    blocks_read
                 },
-            );
+            )
+            .sum::<u64>();
         on_slice();
     }
     // A cell in every slice has nothing above the top.
@@ -479,7 +490,7 @@ fn prefetch<T>(values: &[T]) {
 
 /// The open-cell scan's walk over a row's blocks: `read(b)` for every
 /// block `b` whose wake has come (`wakes[b] <= slice`), its result the
-/// block's new wake. 32 blocks' wakes are tested at a time, and the next
+/// block's new wake; returns how many were read. 32 blocks' wakes are tested at a time, and the next
 /// 32's awake cells are asked for while these are read: the blocks awake
 /// are scattered, too sparse for the hardware prefetchers.
 #[inline(always)]
@@ -488,7 +499,7 @@ fn each_awake_block(
     slice: u16,
     (member, slope, floor): (&[u16], &[f32], &[u16]),
     mut read: impl FnMut(usize) -> u16,
-) {
+) -> u64 {
     let awake_in = |wakes: &[u16], b0: usize| {
         wakes[b0.min(wakes.len())..]
             .iter()
@@ -497,8 +508,10 @@ fn each_awake_block(
             .fold(0u32, |mask, (i, &w)| mask | u32::from(w <= slice) << i)
     };
     let mut ahead = awake_in(wakes, 0);
+    let mut blocks_read = 0;
     for b0 in (0..wakes.len()).step_by(32) {
         let mut awake = ahead;
+        blocks_read += u64::from(awake.count_ones());
         ahead = awake_in(wakes, b0 + 32);
         let mut wanted = ahead;
         while wanted != 0 {
@@ -514,6 +527,7 @@ fn each_awake_block(
             wakes[b] = read(b);
         }
     }
+    blocks_read
 }
 
 /// The columns of row `r` whose parabola can narrow a target's cone, with
@@ -817,7 +831,7 @@ fn open_cells<'t>(
     scan: Scan,
     wakes: &mut [u16],
     room: &'t mut Vec<u32>,
-) -> (&'t [u32], f64) {
+) -> Open<'t> {
     assert!(member.len() == slope.len() && member.len() == floor.len());
     assert_eq!(wakes.len(), member.len().div_ceil(BLOCK));
     // Room for every cell and a vector more, kept between rows: only the
@@ -829,15 +843,34 @@ fn open_cells<'t>(
     if avx512_bw() {
         // SAFETY: the CPU has the features; `room` has room for every
         // cell and a vector more; the slices agree in length.
-        let (n, reach) = unsafe { open_cells_avx512(member, slope, floor, scan, wakes, room) };
-        return (&room[..n], reach);
+        let (n, reach, blocks_read) =
+            unsafe { open_cells_avx512(member, slope, floor, scan, wakes, room) };
+        return Open {
+            targets: &room[..n],
+            reach,
+            blocks_read,
+        };
     }
-    let (n, reach) = open_cells_scalar(member, slope, floor, scan, wakes, room);
-    (&room[..n], reach)
+    let (n, reach, blocks_read) = open_cells_scalar(member, slope, floor, scan, wakes, room);
+    Open {
+        targets: &room[..n],
+        reach,
+        blocks_read,
+    }
+}
+
+/// What [`open_cells`] found in a row: the cells a slice can narrow, in
+/// order, the widest of their cones (the row's reach), and how many blocks
+/// it read.
+#[derive(Debug)]
+struct Open<'t> {
+    targets: &'t [u32],
+    reach: f64,
+    blocks_read: u64,
 }
 
 /// [`open_cells`] one cell at a time, `targets` as long as `member` or
-/// longer; returns the count and the reach.
+/// longer; returns the count, the reach and the blocks read.
 fn open_cells_scalar(
     member: &[u16],
     slope: &[f32],
@@ -845,11 +878,11 @@ fn open_cells_scalar(
     scan: Scan,
     wakes: &mut [u16],
     targets: &mut [u32],
-) -> (usize, f64) {
+) -> (usize, f64, u64) {
     // Branch-free within a block, with eight running maxima: one maximum
     // carried through the row made each cell wait on the last.
     let (mut n, mut widest) = (0, [0.0f64; 8]);
-    each_awake_block(wakes, scan.slice, (member, slope, floor), |b| {
+    let blocks_read = each_awake_block(wakes, scan.slice, (member, slope, floor), |b| {
         let (c0, c1) = (b * BLOCK, ((b + 1) * BLOCK).min(member.len()));
         let mut any_open = false;
         for c in c0..c1 {
@@ -872,10 +905,11 @@ fn open_cells_scalar(
                 .unwrap_or(u16::MAX)
         }
     });
-    (n, widest.into_iter().fold(0.0, f64::max))
+    (n, widest.into_iter().fold(0.0, f64::max), blocks_read)
 }
 
-/// [`open_cells`] eight cells at a time; returns the count and the reach.
+/// [`open_cells`] eight cells at a time; returns the count, the reach and
+/// the blocks read.
 ///
 /// # Safety
 /// AVX-512 F, VL and BW; `targets` at least `member.len() + 8` long,
@@ -890,7 +924,7 @@ unsafe fn open_cells_avx512(
     scan: Scan,
     wakes: &mut [u16],
     targets: &mut [u32],
-) -> (usize, f64) {
+) -> (usize, f64, u64) {
     use std::arch::x86_64::*;
     const _: () = assert!(BLOCK == 8, "a block is one vector");
     let len = member.len();
@@ -902,7 +936,7 @@ unsafe fn open_cells_avx512(
     let mut widest = _mm512_setzero_pd();
     let zero = _mm512_setzero_pd();
     let (one, most) = (_mm256_set1_epi32(1), _mm256_set1_epi32(i32::from(u16::MAX)));
-    each_awake_block(wakes, scan.slice, (member, slope, floor), |b| {
+    let blocks_read = each_awake_block(wakes, scan.slice, (member, slope, floor), |b| {
         let c0 = b * BLOCK;
         let lanes: __mmask8 = if len - c0 >= 8 {
             0xff
@@ -959,7 +993,7 @@ unsafe fn open_cells_avx512(
             w.into_iter().min().unwrap_or(0) as u16
         }
     });
-    (n, _mm512_reduce_max_pd(widest))
+    (n, _mm512_reduce_max_pd(widest), blocks_read)
 }
 
 /// The exact planes (the limit of infinitely many slices) over a `cw x ch`
@@ -1149,7 +1183,7 @@ mod tests {
         let k_count = 24usize;
         let slices = Slices::uniform(100.0, 100.0 + 3.5 * (k_count - 1) as f64, k_count);
         let unit = 0.75;
-        let (mut slept, mut blocks_seen) = (0usize, 0usize);
+        let (mut slept, mut blocks_seen) = (0u64, 0u64);
         for len in (0..40).chain([1000, 4099]) {
             let mut member: Vec<u16> = (0..len)
                 .map(|_| (next() % (k_count as u64 + 1)) as u16)
@@ -1183,14 +1217,17 @@ mod tests {
                     })
                     .collect();
                 let widest = open.iter().map(|&c| width(c as usize)).fold(0.0, f64::max);
-                blocks_seen += wakes_lanes.len();
-                slept += wakes_lanes.iter().filter(|&&w| w > scan.slice).count();
-                let (lanes, reach) =
-                    open_cells(&member, &slope, &floor, scan, &mut wakes_lanes, &mut room);
+                let blocks = wakes_lanes.len() as u64;
+                let Open {
+                    targets: lanes,
+                    reach,
+                    blocks_read,
+                } = open_cells(&member, &slope, &floor, scan, &mut wakes_lanes, &mut room);
+                (blocks_seen, slept) = (blocks_seen + blocks, slept + blocks - blocks_read);
                 assert_eq!(lanes, open, "{len} cells, slice {k}");
                 assert_eq!(reach.to_bits(), widest.to_bits(), "{len} cells, slice {k}");
                 one.resize(len + 8, 0);
-                let (n, reach) =
+                let (n, reach, _) =
                     open_cells_scalar(&member, &slope, &floor, scan, &mut wakes_one, &mut one);
                 assert_eq!(one[..n], open, "{len} cells, slice {k}, one at a time");
                 assert_eq!(reach.to_bits(), widest.to_bits(), "{len} cells, slice {k}");
