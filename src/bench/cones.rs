@@ -203,8 +203,8 @@ pub struct ScanRow {
 
 /// For each slice count, the sliced planes of the whole DEM as one window
 /// (the stage's in-core bake, its slices from the same heights), timed and
-/// with their [`PlaneStats`]: transforms, slices skipped, and how many of
-/// the open-cell scans' blocks were read. `exact` has no slices and is
+/// with their [`PlaneStats`]: transforms, slices skipped, how many of the
+/// open-cell scans' blocks were read, and how many cells were open. `exact` has no slices and is
 /// left out.
 pub fn scan_stats(dir: &Path, slices: &[SliceChoice]) -> Result<Vec<ScanRow>> {
     let asset = crate::asset::open(dir)?;
@@ -251,6 +251,7 @@ pub fn scan_table_markdown(rows: &[ScanRow]) -> String {
             "scan blocks",
             "read",
             "share read",
+            "cells open, per cell and transform",
         ],
         rows.iter().map(|r| {
             let s = r.stats;
@@ -264,6 +265,10 @@ pub fn scan_table_markdown(rows: &[ScanRow]) -> String {
                 format!(
                     "{:.1} %",
                     100.0 * s.scan_blocks_read as f64 / s.scan_blocks.max(1) as f64
+                ),
+                format!(
+                    "{:.1} %",
+                    100.0 * s.cells_open as f64 / (s.scan_blocks.max(1) * 8) as f64
                 ),
             ]
         }),

@@ -203,6 +203,8 @@ pub struct PlaneStats {
     /// and those of them read, their wake having come (see `Scan`).
     pub scan_blocks: u64,
     pub scan_blocks_read: u64,
+    /// Cells the scans found open, each evaluated once in its slice.
+    pub cells_open: u64,
 }
 
 /// The planes of one grid: per cell, the apex rounded up and the slope
@@ -384,7 +386,7 @@ fn sliced_planes_with<G: ColumnDistance>(
         let (aspect, dx2) = (dy / dx, dx * dx);
         let scan = Scan::new(slices, k, floor.unit, rise_of);
         stats.scan_blocks += (blocks * ch) as u64;
-        stats.scan_blocks_read += slope
+        let (read, open) = slope
             .par_chunks_mut(cw)
             .zip(floors.par_chunks_mut(cw))
             .zip(wakes.par_chunks_mut(blocks))
@@ -402,8 +404,9 @@ fn sliced_planes_with<G: ColumnDistance>(
                         reach,
                         blocks_read,
                     } = open_cells(m, row, row_floor, scan, row_wakes, room);
+                    let counts = (blocks_read, targets.len() as u64);
                     if targets.is_empty() {
-                        return blocks_read;
+                        return counts;
                     }
                     for (s, strip) in column.chunks(ch * STRIP).enumerate() {
                         if r + 1 < ch {
@@ -422,7 +425,7 @@ fn sliced_planes_with<G: ColumnDistance>(
                     }
                     // (No plane cell in reach: nothing to update.)
                     if envelope.is_empty() {
-                        return blocks_read;
+                        return counts;
                     }
                     envelope.evaluate_at(targets.iter().map(|&c| c as usize), |c, d2| {
                         let rise = rise_of[usize::from(m[c])];
@@ -438,10 +441,12 @@ fn sliced_planes_with<G: ColumnDistance>(
                             row_floor[c] = floor.of(d2.min(reach * reach));
                         }
                     });
-                    blocks_read
+                    counts
                 },
             )
-            .sum::<u64>();
+            .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+        stats.scan_blocks_read += read;
+        stats.cells_open += open;
         on_slice();
     }
     // A cell in every slice has nothing above the top.
