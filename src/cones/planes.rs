@@ -754,7 +754,7 @@ const BLOCK: usize = 8;
 /// exceeds its [`Floor`] (`floor * unit` metres).
 ///
 /// **Blocks that cannot open.** Most of a row's cells are closed in most
-/// slices (at 2048², K = 256, 9 % of the cells scanned are targets), yet
+/// slices (at 2048², K = 256, 7 % of the cells are open in a slice), yet
 /// testing every cell's member, slope and floor was a third of the bake at
 /// 8192² (about half of it the test's gather and conversions, which a
 /// second scan of a row already in the cache paid again). A closed cell's
@@ -767,7 +767,8 @@ const BLOCK: usize = 8;
 /// passes over a block until the slice reaches its wake, testing 32
 /// blocks' wakes in one compare. A block is one vector of eight cells: at
 /// 8192², K = 256, 23 % of the blocks are read; at 2048², 28 % (54 % with
-/// blocks of 64 cells, which gained nothing). The targets are the same as
+/// blocks of 64 cells, which gained nothing); `terrabake bench-cones
+/// --scan` counts them ([`PlaneStats`]). The targets are the same as
 /// without blocks, so the planes are the same bit for bit.
 #[derive(Debug, Clone, Copy)]
 struct Scan<'a> {
