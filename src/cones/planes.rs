@@ -495,9 +495,10 @@ fn prefetch<T>(values: &[T]) {
 
 /// The open-cell scan's walk over a row's blocks: `read(b)` for every
 /// block `b` whose wake has come (`wakes[b] <= slice`), its result the
-/// block's new wake; returns how many were read. 32 blocks' wakes are tested at a time, and the next
-/// 32's awake cells are asked for while these are read: the blocks awake
-/// are scattered, too sparse for the hardware prefetchers.
+/// block's new wake; returns how many were read. 32 blocks' wakes are
+/// tested at a time, and the next 32's awake cells are asked for while
+/// these are read: the blocks awake are scattered, too sparse for the
+/// hardware prefetchers.
 #[inline(always)]
 fn each_awake_block(
     wakes: &mut [u16],
