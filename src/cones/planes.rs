@@ -418,7 +418,8 @@ fn sliced_planes_with<G: ColumnDistance>(
                     // targets: at high slices, where plane cells are few and
                     // far, that leaves out most of them.
                     let span = (targets[0], targets[targets.len() - 1]);
-                    let n = columns_in_reach(column, (cw, ch), r, span, reach / dx, aspect, kept);
+                    let scale = (reach / dx, aspect);
+                    let n = columns_in_reach(column, (cw, ch), r, span, scale, scan.lanes, kept);
                     envelope.clear();
                     for (&c, &offset) in kept.columns[..n].iter().zip(&kept.offsets[..n]) {
                         envelope.push(f64::from(c), offset);
@@ -461,15 +462,8 @@ fn sliced_planes_with<G: ColumnDistance>(
     Planes { apex, slope, stats }
 }
 
-/// Whether the CPU has what this module's AVX-512 lanes use (F, VL, BW
-/// and popcnt); where not, the scalar code runs.
-#[cfg(target_arch = "x86_64")]
-fn avx512_bw() -> bool {
-    std::arch::is_x86_feature_detected!("avx512f")
-        && std::arch::is_x86_feature_detected!("avx512vl")
-        && std::arch::is_x86_feature_detected!("avx512bw")
-        && std::arch::is_x86_feature_detected!("popcnt")
-}
+mod lanes;
+use lanes::Lanes;
 
 /// Asks for `values` in the cache ahead of their use, where the hardware
 /// prefetchers fall behind: the row pass reads one stream per strip (128 at
@@ -539,7 +533,8 @@ fn each_awake_block(
 /// The columns of row `r` whose parabola can narrow a target's cone, with
 /// their parabolas' offsets (squared, in columns), into `kept` in order;
 /// returns their count. A plane cell narrows a cone only within the cone's
-/// width, the row's reach at most (`reach` columns), so a column is needed
+/// width, the row's reach at most (`reach` columns; `aspect` turns column
+/// distances into columns), so a column is needed
 /// only where `g^2 + a^2 < reach^2`, `g` its column distance and `a` its
 /// distance along the row to the targets' span (zero inside it). Columns
 /// farther along than the reach are not read. Parabolas left out come no
@@ -553,8 +548,8 @@ fn columns_in_reach<G: ColumnDistance>(
     (cw, ch): (usize, usize),
     r: usize,
     (first, last): (u32, u32),
-    reach: f64,
-    aspect: f64,
+    (reach, aspect): (f64, f64),
+    lanes: Lanes,
     kept: &mut Kept,
 ) -> usize {
     let within = reach.min(cw as f64) as usize;
@@ -568,6 +563,7 @@ fn columns_in_reach<G: ColumnDistance>(
         aspect,
         // (The slack keeps a column that rounding would drop.)
         reach2: reach * reach * (1.0 + 1e-12),
+        lanes,
     };
     let mut n = 0;
     for s in lo / STRIP..hi.div_ceil(STRIP) {
@@ -588,6 +584,7 @@ struct Span {
     last: u32,
     aspect: f64,
     reach2: f64,
+    lanes: Lanes,
 }
 
 /// Per-thread room for [`columns_in_reach`]: the columns kept and their
@@ -601,8 +598,8 @@ struct Kept {
 /// Appends to `kept` from `n` on the columns `c0..` of a row's share of a
 /// strip, `g`, whose parabolas come within the reach of the targets' span
 /// (`test`), with their offsets; returns the new count. `kept` has room
-/// for every column and a vector more. Eight columns at a time in AVX-512
-/// where the CPU has it and the distances are `u16`.
+/// for every column and a vector more. Eight columns at a time in the
+/// test's [`Lanes`] where the distances are `u16`.
 fn keep_in_reach<G: ColumnDistance>(
     g: &[G],
     c0: u32,
@@ -610,15 +607,15 @@ fn keep_in_reach<G: ColumnDistance>(
     kept: &mut Kept,
     n: usize,
 ) -> usize {
-    #[cfg(target_arch = "x86_64")]
-    if let Some(g) = G::as_u16(g) {
-        if avx512_bw() {
-            // SAFETY: the CPU has the features; `kept` has a vector's room
-            // past every column.
-            return unsafe { keep_in_reach_avx512(g, c0, test, kept, n) };
-        }
+    match (test.lanes, G::as_u16(g)) {
+        // SAFETY (both): the CPU has the features (`Lanes::detect`);
+        // `kept` has a vector's room past every column.
+        #[cfg(target_arch = "x86_64")]
+        (Lanes::Avx512, Some(g)) => unsafe { lanes::keep_in_reach_avx512(g, c0, test, kept, n) },
+        #[cfg(target_arch = "x86_64")]
+        (Lanes::Avx2, Some(g)) => unsafe { lanes::keep_in_reach_avx2(g, c0, test, kept, n) },
+        _ => test.keep_scalar(g, c0, kept, n),
     }
-    test.keep_scalar(g, c0, kept, n)
 }
 
 impl Span {
@@ -642,79 +639,6 @@ impl Span {
         }
         n
     }
-}
-
-/// [`keep_in_reach`] eight columns at a time.
-///
-/// # Safety
-/// AVX-512 F, VL and BW; `kept` with room for `n + g.len() + 8`.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512vl,avx512bw,popcnt")]
-unsafe fn keep_in_reach_avx512(
-    g: &[u16],
-    c0: u32,
-    test: Span,
-    kept: &mut Kept,
-    mut n: usize,
-) -> usize {
-    use std::arch::x86_64::*;
-    let Span {
-        first,
-        last,
-        aspect,
-        reach2,
-    } = test;
-    let len = g.len();
-    assert!(kept.columns.len() >= n + len + 8 && kept.offsets.len() >= n + len + 8);
-    let (aspect, reach2) = (_mm512_set1_pd(aspect), _mm512_set1_pd(reach2));
-    let none = _mm256_set1_epi32(i32::from(u16::MAX));
-    let (first, last) = (
-        _mm256_set1_epi32(first as i32),
-        _mm256_set1_epi32(last as i32),
-    );
-    let mut index = _mm256_add_epi32(
-        _mm256_set1_epi32(c0 as i32),
-        _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
-    );
-    for j in (0..len).step_by(8) {
-        let lanes: __mmask8 = if len - j >= 8 {
-            0xff
-        } else {
-            (1u8 << (len - j)) - 1
-        };
-        // SAFETY: lanes past the slice are masked.
-        let gi = _mm256_cvtepu16_epi32(unsafe {
-            _mm_maskz_loadu_epi16(lanes, g.as_ptr().add(j).cast())
-        });
-        let along = _mm256_max_epi32(
-            _mm256_max_epi32(
-                _mm256_sub_epi32(first, index),
-                _mm256_sub_epi32(index, last),
-            ),
-            _mm256_setzero_si256(),
-        );
-        let gd = _mm512_mul_pd(_mm512_cvtepi32_pd(gi), aspect);
-        let offset = _mm512_mul_pd(gd, gd);
-        let along = _mm512_cvtepi32_pd(along);
-        let d2 = _mm512_add_pd(offset, _mm512_mul_pd(along, along));
-        let keep = _mm256_mask_cmpneq_epi32_mask(lanes, gi, none)
-            & _mm512_cmp_pd_mask::<_CMP_LT_OQ>(d2, reach2);
-        // Compressed in registers, as in `open_cells_avx512`. SAFETY:
-        // `n + 8` within both.
-        unsafe {
-            _mm256_storeu_si256(
-                kept.columns.as_mut_ptr().add(n).cast(),
-                _mm256_maskz_compress_epi32(keep, index),
-            );
-            _mm512_storeu_pd(
-                kept.offsets.as_mut_ptr().add(n),
-                _mm512_maskz_compress_pd(keep, offset),
-            );
-        }
-        n += keep.count_ones() as usize;
-        index = _mm256_add_epi32(index, _mm256_set1_epi32(8));
-    }
-    n
 }
 
 /// A cell's distance to a slice's plane, rounded down to a `u16` count of
@@ -782,6 +706,9 @@ struct Scan<'a> {
     /// [`WAKE_MARGIN`]; `0` where the slices do not step (one slice, a
     /// flat DEM: every wake is then the apex slice).
     slices_per_count: f64,
+    /// The vector code that runs the scan (the CPU's best; the tests
+    /// try each).
+    lanes: Lanes,
 }
 
 impl<'a> Scan<'a> {
@@ -796,6 +723,7 @@ impl<'a> Scan<'a> {
             } else {
                 0.0
             },
+            lanes: Lanes::detect(),
         }
     }
 
@@ -828,9 +756,8 @@ const WAKE_MARGIN: f64 = 1.0 - 1.0 / 4096.0;
 /// block where the block's wake (`wakes`, one per [`BLOCK`] cells) has come
 /// (see [`Scan`]); the wakes of the blocks read are renewed. Returns the
 /// widest such `slope * rise`, the row's reach. Eight cells at a time in
-/// AVX-512 where the CPU has it (compress-stored indices, a masked maximum;
-/// the same targets and the same reach, a maximum being exact in any
-/// order).
+/// the scan's [`Lanes`] (compressed indices, a masked maximum; the same
+/// targets and the same reach, a maximum being exact in any order).
 fn open_cells<'t>(
     member: &[u16],
     slope: &[f32],
@@ -846,19 +773,18 @@ fn open_cells<'t>(
     if room.len() < member.len() + 8 {
         room.resize(member.len() + 8, 0);
     }
-    #[cfg(target_arch = "x86_64")]
-    if avx512_bw() {
-        // SAFETY: the CPU has the features; `room` has room for every
-        // cell and a vector more; the slices agree in length.
-        let (n, reach, blocks_read) =
-            unsafe { open_cells_avx512(member, slope, floor, scan, wakes, room) };
-        return Open {
-            targets: &room[..n],
-            reach,
-            blocks_read,
-        };
-    }
-    let (n, reach, blocks_read) = open_cells_scalar(member, slope, floor, scan, wakes, room);
+    // SAFETY (both): the CPU has the features (`Lanes::detect`); `room`
+    // has room for every cell and a vector more; the slices agree in
+    // length, and every member indexes `rise_of`.
+    let (n, reach, blocks_read) = match scan.lanes {
+        #[cfg(target_arch = "x86_64")]
+        Lanes::Avx512 => unsafe {
+            lanes::open_cells_avx512(member, slope, floor, scan, wakes, room)
+        },
+        #[cfg(target_arch = "x86_64")]
+        Lanes::Avx2 => unsafe { lanes::open_cells_avx2(member, slope, floor, scan, wakes, room) },
+        Lanes::Scalar => open_cells_scalar(member, slope, floor, scan, wakes, room),
+    };
     Open {
         targets: &room[..n],
         reach,
@@ -886,121 +812,54 @@ fn open_cells_scalar(
     wakes: &mut [u16],
     targets: &mut [u32],
 ) -> (usize, f64, u64) {
-    // Branch-free within a block, with eight running maxima: one maximum
-    // carried through the row made each cell wait on the last.
     let (mut n, mut widest) = (0, [0.0f64; 8]);
     let blocks_read = each_awake_block(wakes, scan.slice, (member, slope, floor), |b| {
-        let (c0, c1) = (b * BLOCK, ((b + 1) * BLOCK).min(member.len()));
-        let mut any_open = false;
-        for c in c0..c1 {
-            let v = f64::from(slope[c]) * scan.rise_of[usize::from(member[c])];
-            // (inf * 0 is NaN, which is never greater.)
-            let open = v > f64::from(floor[c]) * scan.unit;
-            targets[n] = c as u32;
-            n += usize::from(open);
-            let lane = &mut widest[c % 8];
-            *lane = if open && v > *lane { v } else { *lane };
-            any_open |= open;
-        }
-        // (A block with an open cell is read again: its targets change.)
-        if any_open {
-            0
-        } else {
-            (c0..c1)
-                .map(|c| scan.wake(member[c], slope[c], floor[c]))
-                .min()
-                .unwrap_or(u16::MAX)
-        }
+        open_block(
+            b,
+            (member, slope, floor),
+            scan,
+            targets,
+            &mut n,
+            &mut widest,
+        )
     });
     (n, widest.into_iter().fold(0.0, f64::max), blocks_read)
 }
 
-/// [`open_cells`] eight cells at a time; returns the count, the reach and
-/// the blocks read.
-///
-/// # Safety
-/// AVX-512 F, VL and BW; `targets` at least `member.len() + 8` long,
-/// `slope`, `floor` as long as `member`, `wakes` one per block of it, every
-/// `member` an index of `scan.rise_of`.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512vl,avx512bw,popcnt")]
-unsafe fn open_cells_avx512(
-    member: &[u16],
-    slope: &[f32],
-    floor: &[u16],
+/// Block `b` of [`open_cells`], one cell at a time: its open cells onto
+/// `targets` from `n`, their cones' widths into the running maxima
+/// `widest` (eight, so that each cell need not wait on the last); returns
+/// the block's new wake. Branch-free within the block.
+#[inline(always)]
+fn open_block(
+    b: usize,
+    (member, slope, floor): (&[u16], &[f32], &[u16]),
     scan: Scan,
-    wakes: &mut [u16],
     targets: &mut [u32],
-) -> (usize, f64, u64) {
-    use std::arch::x86_64::*;
-    const _: () = assert!(BLOCK == 8, "a block is one vector");
-    let len = member.len();
-    let unit = _mm512_set1_pd(scan.unit);
-    let per_count = _mm512_set1_pd(scan.slices_per_count);
-    let never = _mm512_set1_pd(f64::from(u16::MAX));
-    assert!(targets.len() >= len + 8);
-    let mut n = 0;
-    let mut widest = _mm512_setzero_pd();
-    let zero = _mm512_setzero_pd();
-    let (one, most) = (_mm256_set1_epi32(1), _mm256_set1_epi32(i32::from(u16::MAX)));
-    let blocks_read = each_awake_block(wakes, scan.slice, (member, slope, floor), |b| {
-        let c0 = b * BLOCK;
-        let lanes: __mmask8 = if len - c0 >= 8 {
-            0xff
-        } else {
-            (1u8 << (len - c0)) - 1
-        };
-        // SAFETY: lanes past the row are masked; members index `rise_of`.
-        let (m, s, f) = unsafe {
-            (
-                _mm256_cvtepu16_epi32(_mm_maskz_loadu_epi16(lanes, member.as_ptr().add(c0).cast())),
-                _mm512_cvtps_pd(_mm256_maskz_loadu_ps(lanes, slope.as_ptr().add(c0))),
-                _mm512_cvtepi32_pd(_mm256_cvtepu16_epi32(_mm_maskz_loadu_epi16(
-                    lanes,
-                    floor.as_ptr().add(c0).cast(),
-                ))),
-            )
-        };
-        // SAFETY: as above.
-        let rise = unsafe { _mm512_mask_i32gather_pd::<8>(zero, lanes, m, scan.rise_of.as_ptr()) };
-        let v = _mm512_mul_pd(s, rise);
+    n: &mut usize,
+    widest: &mut [f64; 8],
+) -> u16 {
+    let (c0, c1) = (b * BLOCK, ((b + 1) * BLOCK).min(member.len()));
+    let mut any_open = false;
+    for c in c0..c1 {
+        let v = f64::from(slope[c]) * scan.rise_of[usize::from(member[c])];
         // (inf * 0 is NaN, which is never greater.)
-        let open = _mm512_mask_cmp_pd_mask::<_CMP_GT_OQ>(lanes, v, _mm512_mul_pd(f, unit));
-        // Compressed in a register and stored whole (the lanes past the
-        // open ones are overwritten or truncated later): the compressing
-        // store to memory is microcoded on AMD's Zen 4, and took 45 % of the
-        // bake there. SAFETY: `n + 8 <= targets.len()`.
-        unsafe {
-            let index = _mm256_add_epi32(
-                _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
-                _mm256_set1_epi32(c0 as i32),
-            );
-            _mm256_storeu_si256(
-                targets.as_mut_ptr().add(n).cast(),
-                _mm256_maskz_compress_epi32(open, index),
-            )
-        };
-        n += open.count_ones() as usize;
-        widest = _mm512_mask_max_pd(widest, open, widest, v);
-        if open != 0 {
-            0
-        } else {
-            // The wakes, as `Scan::wake` (the reciprocal within 2^-14,
-            // below the margin); lanes past the row never wake.
-            let x = _mm512_mul_pd(_mm512_mul_pd(f, per_count), _mm512_rcp14_pd(s));
-            // (A NaN, 0 / 0, takes the second operand: never.)
-            let x = _mm512_cvttpd_epi32(_mm512_min_pd(x, never));
-            let w = _mm256_add_epi32(
-                m,
-                _mm256_max_epi32(_mm256_sub_epi32(x, one), _mm256_setzero_si256()),
-            );
-            let w = _mm256_mask_blend_epi32(lanes, most, _mm256_min_epi32(w, most));
-            // SAFETY: eight i32 lanes as an array.
-            let w: [i32; 8] = unsafe { std::mem::transmute(w) };
-            w.into_iter().min().unwrap_or(0) as u16
-        }
-    });
-    (n, _mm512_reduce_max_pd(widest), blocks_read)
+        let open = v > f64::from(floor[c]) * scan.unit;
+        targets[*n] = c as u32;
+        *n += usize::from(open);
+        let lane = &mut widest[c % 8];
+        *lane = if open && v > *lane { v } else { *lane };
+        any_open |= open;
+    }
+    // (A block with an open cell is read again: its targets change.)
+    if any_open {
+        0
+    } else {
+        (c0..c1)
+            .map(|c| scan.wake(member[c], slope[c], floor[c]))
+            .min()
+            .unwrap_or(u16::MAX)
+    }
 }
 
 /// The exact planes (the limit of infinitely many slices) over a `cw x ch`
@@ -1177,8 +1036,8 @@ mod tests {
     }
 
     /// The open-cell scan over a row through a whole bake's slices (the
-    /// top slice, then bottom-up), in lanes and one cell at a time, each
-    /// with its own wakes: at every slice both find exactly the cells the
+    /// top slice, then bottom-up), in every kind of lanes the CPU has and
+    /// one cell at a time, each with its own wakes: at every slice both find exactly the cells the
     /// definition names (open cones wider than their floors) and the
     /// widest of them, bit for bit, while the blocks whose wake has not
     /// come are not read. Between slices only the cells found change, as in
@@ -1208,14 +1067,12 @@ mod tests {
                 })
                 .collect();
             let mut floor = vec![0u16; len];
-            let (mut wakes_lanes, mut wakes_one) = (
-                vec![0u16; len.div_ceil(BLOCK)],
-                vec![0u16; len.div_ceil(BLOCK)],
-            );
-            let (mut room, mut one) = (Vec::new(), Vec::new());
+            // Each kind of lanes with its own wakes and room.
+            let kinds = Lanes::available();
+            let mut wakes = vec![vec![0u16; len.div_ceil(BLOCK)]; kinds.len()];
+            let mut rooms = vec![Vec::new(); kinds.len()];
             for k in std::iter::once(k_count - 1).chain(0..k_count - 1) {
                 let rise_of = slices.rise_of(k);
-                let scan = Scan::new(&slices, k, unit, &rise_of);
                 let width = |c: usize| f64::from(slope[c]) * rise_of[usize::from(member[c])];
                 let open: Vec<u32> = (0..len as u32)
                     .filter(|&c| {
@@ -1224,20 +1081,22 @@ mod tests {
                     })
                     .collect();
                 let widest = open.iter().map(|&c| width(c as usize)).fold(0.0, f64::max);
-                let blocks = wakes_lanes.len() as u64;
-                let Open {
-                    targets: lanes,
-                    reach,
-                    blocks_read,
-                } = open_cells(&member, &slope, &floor, scan, &mut wakes_lanes, &mut room);
-                (blocks_seen, slept) = (blocks_seen + blocks, slept + blocks - blocks_read);
-                assert_eq!(lanes, open, "{len} cells, slice {k}");
-                assert_eq!(reach.to_bits(), widest.to_bits(), "{len} cells, slice {k}");
-                one.resize(len + 8, 0);
-                let (n, reach, _) =
-                    open_cells_scalar(&member, &slope, &floor, scan, &mut wakes_one, &mut one);
-                assert_eq!(one[..n], open, "{len} cells, slice {k}, one at a time");
-                assert_eq!(reach.to_bits(), widest.to_bits(), "{len} cells, slice {k}");
+                for ((&lanes, wakes), room) in kinds.iter().zip(&mut wakes).zip(&mut rooms) {
+                    let scan = Scan {
+                        lanes,
+                        ..Scan::new(&slices, k, unit, &rise_of)
+                    };
+                    let blocks = wakes.len() as u64;
+                    let found = open_cells(&member, &slope, &floor, scan, wakes, room);
+                    (blocks_seen, slept) =
+                        (blocks_seen + blocks, slept + blocks - found.blocks_read);
+                    assert_eq!(found.targets, open, "{lanes:?}, {len} cells, slice {k}");
+                    assert_eq!(
+                        found.reach.to_bits(),
+                        widest.to_bits(),
+                        "{lanes:?}, {len} cells, slice {k}"
+                    );
+                }
                 // The stage's update of the cells found: a narrower cone, and a
                 // floor anywhere up to the cone's width some slices above.
                 for &c in &open {
@@ -1262,12 +1121,13 @@ mod tests {
 
     /// A row's kept columns are those the definition names (a column
     /// distance, and its parabola within the reach of the targets' span),
-    /// with their offsets, in `u16` lanes and one `u32` at a time alike.
+    /// with their offsets, in every kind of `u16` lanes the CPU has and one
+    /// `u32` at a time alike.
     #[test]
     fn columns_in_reach_are_the_definition() {
         let mut next = xorshift(0x9e37_79b9_7f4a_7c15);
         // Strips laid out as the column pass writes them, in both widths
-        // (u16 in lanes where the CPU has them, u32 one at a time).
+        // (u16 in lanes, u32 one at a time).
         fn case<G: ColumnDistance + TryFrom<u64>>(
             g_of: &[u64],
             (cw, ch): (usize, usize),
@@ -1275,6 +1135,7 @@ mod tests {
             span: (u32, u32),
             reach: f64,
             aspect: f64,
+            lanes: Lanes,
         ) -> Vec<(u32, f64)> {
             let mut column = vec![G::NONE; cw.div_ceil(STRIP) * ch * STRIP];
             for (i, &g) in g_of.iter().enumerate() {
@@ -1283,7 +1144,8 @@ mod tests {
                     G::try_from(g).unwrap_or(G::NONE);
             }
             let mut kept = Kept::default();
-            let n = columns_in_reach(&column, (cw, ch), r, span, reach, aspect, &mut kept);
+            let scale = (reach, aspect);
+            let n = columns_in_reach(&column, (cw, ch), r, span, scale, lanes, &mut kept);
             kept.columns[..n]
                 .iter()
                 .copied()
@@ -1319,13 +1181,23 @@ mod tests {
                     })
                     .collect();
                 let args = ((cw, ch), r, (first, last), reach, aspect);
+                for lanes in Lanes::available() {
+                    assert_eq!(
+                        case::<u16>(&g_of, args.0, args.1, args.2, args.3, args.4, lanes),
+                        want,
+                        "u16, {lanes:?}, {cw} columns"
+                    );
+                }
                 assert_eq!(
-                    case::<u16>(&g_of, args.0, args.1, args.2, args.3, args.4),
-                    want,
-                    "u16, {cw} columns"
-                );
-                assert_eq!(
-                    case::<u32>(&g_of, args.0, args.1, args.2, args.3, args.4),
+                    case::<u32>(
+                        &g_of,
+                        args.0,
+                        args.1,
+                        args.2,
+                        args.3,
+                        args.4,
+                        Lanes::detect()
+                    ),
                     want,
                     "u32, {cw} columns"
                 );
