@@ -716,8 +716,8 @@ fn line_sweeps_by_bands_equal_one_band() {
     }
 }
 
-/// The lines swept in SIMD lanes (`line::lanes`, AVX-512 where the CPU has
-/// it) give the scalar sweep's bits, in one band and in bands of rows: every
+/// The lines swept in SIMD lanes (`line::lanes`: AVX-512 and AVX2, each
+/// the CPU runs) give the scalar sweep's bits, in one band and in bands of rows: every
 /// direction of 16 and 64 and long steps, on terrains narrower than a
 /// vector and wider than several, with curvature and geographic rows, and
 /// on a dome whose hulls outgrow the lanes' depth (those lines leave the
@@ -793,18 +793,21 @@ fn line_lanes_equal_the_scalar_sweep_bit_for_bit() {
                 dir.step
             );
             assert!(!new().with_lane_memory(0).in_lanes());
-            // Bands of rows; hulls as deep as the lanes go, and shallower
-            // (64 KiB a direction: 32 vertices or none on these widths).
-            for (rows, memory) in [(1, None), (7, None), (h, None), (7, Some(64 << 10))] {
+            // Every kind of lanes the CPU runs; bands of rows; hulls as deep
+            // as the lanes go, and shallower (64 KiB a direction: 32
+            // vertices or none on these widths).
+            let kinds = line::lanes::Kind::available();
+            let runs = [(1, None), (7, None), (h, None), (7, Some(64 << 10))];
+            for (kind, (rows, memory)) in kinds.iter().flat_map(|&k| runs.map(|r| (k, r))) {
                 let mut sweep = match memory {
-                    Some(bytes) => new().with_lane_memory(bytes),
-                    None => new(),
+                    Some(bytes) => new().with_lanes(kind).with_lane_memory(bytes),
+                    None => new().with_lanes(kind),
                 };
                 in_lanes += usize::from(sweep.in_lanes());
                 let got = sweep_in_bands(&mut sweep, &whole, rows);
                 assert_eq!(
                     sweep.stats.posts, scalar.stats.posts,
-                    "{name}: {:?}",
+                    "{name}: {:?}, {kind:?}",
                     dir.step
                 );
                 assert_eq!(sweep.stats.vertices, scalar.stats.vertices);
@@ -812,7 +815,7 @@ fn line_lanes_equal_the_scalar_sweep_bit_for_bit() {
                 for i in 0..w * h {
                     assert!(
                         common::same_heights(want[i], got[i]),
-                        "{name}: {:?} bands of {rows}, lanes memory {memory:?}: post ({}, {}): scalar {} vs lanes {}",
+                        "{name}: {:?}, {kind:?}, bands of {rows}, lanes memory {memory:?}: post ({}, {}): scalar {} vs lanes {}",
                         dir.step,
                         i % w,
                         i / w,
@@ -823,7 +826,10 @@ fn line_lanes_equal_the_scalar_sweep_bit_for_bit() {
             }
         }
     }
-    eprintln!("{in_lanes} sweeps in lanes (AVX-512: {cpu})");
+    eprintln!(
+        "{in_lanes} sweeps in lanes ({:?})",
+        line::lanes::Kind::available()
+    );
     assert_eq!(in_lanes > 0, cpu);
     // The dome's long lines left the lanes.
     assert_eq!(spilled, cpu);

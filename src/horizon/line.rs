@@ -562,7 +562,8 @@ impl BandedSweep {
             simd: if nodata {
                 None
             } else {
-                lanes::Lines::new(&stencil, width, lanes::MAX_BYTES)
+                lanes::Kind::detect()
+                    .and_then(|kind| lanes::Lines::new(&stencil, width, lanes::MAX_BYTES, kind))
             },
             stencil,
             lengths: step_lengths(dir.step, height, spacing, row_scale),
@@ -587,9 +588,18 @@ impl BandedSweep {
     pub fn with_lane_memory(self, bytes: usize) -> Self {
         let simd = self
             .simd
-            .is_some()
-            .then(|| lanes::Lines::new(&self.stencil, self.width, bytes))
-            .flatten();
+            .as_ref()
+            .and_then(|s| lanes::Lines::new(&self.stencil, self.width, bytes, s.kind()));
+        Self { simd, ..self }
+    }
+
+    /// The same sweep with its lanes swept by `kind` (one the CPU runs;
+    /// [`lanes::Kind::available`]), where it has lanes: the same bits.
+    pub fn with_lanes(self, kind: lanes::Kind) -> Self {
+        let simd = self
+            .simd
+            .as_ref()
+            .and_then(|s| lanes::Lines::new(&self.stencil, self.width, s.bytes(), kind));
         Self { simd, ..self }
     }
 

@@ -1,6 +1,6 @@
 //! Line sweeps in SIMD lanes: the lines of one direction stepped together
-//! row by row, eight neighbouring lines to an AVX-512 vector, with masked
-//! pops (issue #17, item 1). Timonen (2013, sec. 4) sweeps one line's hull
+//! row by row, eight neighbouring lines to an AVX-512 vector (four to an
+//! AVX2 one), with masked pops (issue #17, item 1). Timonen (2013, sec. 4) sweeps one line's hull
 //! at a time, as our scalar sweep does; this is the same sweep turned a
 //! quarter: every line at once, one post each per row.
 //!
@@ -42,8 +42,10 @@
 //! off the DEM (the same), and every post of a line whose hull could outgrow
 //! the depth in its next step (the line leaves the lanes for good).
 //!
-//! **When.** AVX-512 F, VL and DQ (and popcnt), detected at run time; without nodata
-//! and without distances; for steps with `b != 0` (an east or west step
+//! **When.** AVX-512 F, VL and DQ (and popcnt), else AVX2 (and popcnt),
+//! detected at run time ([`Kind`]; the AVX2 kernel is the AVX-512 one in
+//! four lanes, its masks vectors, its scatter one lane at a time); without
+//! nodata and without distances; for steps with `b != 0` (an east or west step
 //! has one line per row) and of at most a quarter of the depth in
 //! vertices (every direction of 64 on square posts). Anything else takes
 //! the scalar sweep, which gives the same bits.
@@ -77,6 +79,8 @@ pub(super) struct Lines {
     count: usize,
     /// Hull vertices a lane keeps.
     depth: usize,
+    /// What sweeps them.
+    kind: Kind,
     /// `t` of each line's last post.
     t: Vec<f64>,
     /// Vertices on each line's hull; -1 for a line swept by the scalar
@@ -96,12 +100,12 @@ pub(super) struct Lines {
 
 impl Lines {
     /// The lanes for lines of `stencil`'s step over a DEM `width` posts
-    /// wide with hulls of at most `bytes`, or `None` where they do not
-    /// apply (the CPU, the step, or steps of more than a quarter of the
-    /// depth `bytes` allows).
-    pub(super) fn new(stencil: &Stencil, width: usize, bytes: usize) -> Option<Self> {
+    /// wide with hulls of at most `bytes`, swept by `kind` (which the CPU
+    /// must run), or `None` where they do not apply (the step, or steps of
+    /// more than a quarter of the depth `bytes` allows).
+    pub(super) fn new(stencil: &Stencil, width: usize, bytes: usize, kind: Kind) -> Option<Self> {
         let step = stencil.step;
-        if !cpu_has_lanes() || step.1 == 0 {
+        if !Kind::available().contains(&kind) || step.1 == 0 {
             return None;
         }
         let q = step.1.unsigned_abs() as usize;
@@ -120,6 +124,7 @@ impl Lines {
             modulus,
             count,
             depth,
+            kind,
             t: vec![0.0; count],
             len: vec![0; count],
             head_t: vec![0.0; 3 * count],
@@ -128,6 +133,16 @@ impl Lines {
             hull_w: vec![0.0; depth * count],
             spilled: Vec::new(),
         })
+    }
+
+    /// What sweeps these lanes.
+    pub(super) fn kind(&self) -> Kind {
+        self.kind
+    }
+
+    /// Memory that gives these lanes their depth ([`Self::new`]).
+    pub(super) fn bytes(&self) -> usize {
+        self.depth * 2 * 8 * self.count
     }
 
     /// Where vertex `d` of line `i`'s hull (of `self.len[i]` vertices) is
@@ -251,12 +266,15 @@ impl Lines {
                 if part.is_empty() {
                     continue;
                 }
+                // SAFETY: `new` was given a kind the CPU runs; a step from
+                // `part` stays on the DEM, whose rows the window holds.
                 #[cfg(target_arch = "x86_64")]
-                // SAFETY: `new` checked the CPU; a step from `part` stays on
-                // the DEM, whose rows the window holds.
-                unsafe {
-                    kernel.row(self, terrain, row, part, out, stats)
-                };
+                match self.kind {
+                    Kind::Avx512 => unsafe {
+                        kernel.row_avx512(self, terrain, row, part, out, stats)
+                    },
+                    Kind::Avx2 => unsafe { kernel.row_avx2(self, terrain, row, part, out, stats) },
+                }
             }
         }
     }
@@ -285,17 +303,46 @@ impl Lines {
     }
 }
 
-/// Whether this CPU runs the lanes (AVX-512 F, VL, DQ and popcnt).
-pub fn cpu_has_lanes() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::arch::is_x86_feature_detected!("avx512f")
-            && std::arch::is_x86_feature_detected!("avx512vl")
-            && std::arch::is_x86_feature_detected!("avx512dq")
-            && std::arch::is_x86_feature_detected!("popcnt")
+/// The vector code that sweeps the lanes: eight lines to a vector in
+/// AVX-512, four in AVX2 (where most x86 CPUs in use stop).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kind {
+    /// AVX-512 F, VL and DQ, and popcnt.
+    Avx512,
+    /// AVX2 and popcnt.
+    Avx2,
+}
+
+impl Kind {
+    /// The best this CPU runs, if any.
+    pub fn detect() -> Option<Self> {
+        #[cfg(target_arch = "x86_64")]
+        {
+            use std::arch::is_x86_feature_detected as has;
+            if has!("avx512f") && has!("avx512vl") && has!("avx512dq") && has!("popcnt") {
+                return Some(Self::Avx512);
+            }
+            if has!("avx2") && has!("popcnt") {
+                return Some(Self::Avx2);
+            }
+        }
+        None
     }
-    #[cfg(not(target_arch = "x86_64"))]
-    false
+
+    /// Every kind this CPU runs (what the tests compare with the scalar
+    /// sweep).
+    pub fn available() -> Vec<Self> {
+        match Self::detect() {
+            Some(Self::Avx512) => vec![Self::Avx512, Self::Avx2],
+            Some(Self::Avx2) => vec![Self::Avx2],
+            None => Vec::new(),
+        }
+    }
+}
+
+/// Whether this CPU runs the lanes ([`Kind::detect`]).
+pub fn cpu_has_lanes() -> bool {
+    Kind::detect().is_some()
 }
 
 /// A step's interior crossings as offsets into the heights, and what a row
@@ -366,7 +413,7 @@ mod avx512 {
         /// in `terrain`'s rows, `row` in `out`'s, and the lines' indices
         /// consecutive over `cols`.
         #[target_feature(enable = "avx512f,avx512vl,avx512dq,popcnt")]
-        pub(super) unsafe fn row(
+        pub(super) unsafe fn row_avx512(
             &self,
             lines: &mut Lines,
             terrain: &Terrain,
@@ -608,5 +655,315 @@ mod avx512 {
         let poly = _mm512_add_pd(_mm512_mul_pd(_mm512_mul_pd(p, zz), r), r);
         let radians = _mm512_mul_pd(sign, _mm512_add_pd(base, poly));
         _mm512_mul_pd(radians, set(1f64.to_degrees()))
+    }
+}
+
+/// The lanes in AVX2: four lines to a vector, masks as vectors of whole
+/// lanes, and the scatter of evicted vertices one lane at a time (AVX2 has
+/// none). The same operations in the same order as [`avx512`], so the
+/// same bits.
+#[cfg(target_arch = "x86_64")]
+mod avx2 {
+    use super::{Kernel, Lines, Out, SweepStats};
+    use crate::horizon::terrain::Terrain;
+    use std::arch::x86_64::*;
+
+    /// Four lanes' hulls, as `avx512::Hulls`; `active` has every bit of a
+    /// lane set where the lane takes part.
+    struct Hulls {
+        top_t: __m256d,
+        top_w: __m256d,
+        sec_t: __m256d,
+        sec_w: __m256d,
+        third_t: __m256d,
+        third_w: __m256d,
+        len: __m256i,
+        top: __m256i,
+        count: __m256i,
+        active: __m256i,
+        hull_t: *mut f64,
+        hull_w: *mut f64,
+    }
+
+    /// Lanes of `mask` whose `len` is at least `k`.
+    #[inline]
+    #[target_feature(enable = "avx2,popcnt")]
+    fn at_least(mask: __m256i, len: __m256i, k: i64) -> __m256i {
+        _mm256_and_si256(mask, _mm256_cmpgt_epi64(len, _mm256_set1_epi64x(k - 1)))
+    }
+
+    /// One bit per lane of a lane mask.
+    #[inline]
+    #[target_feature(enable = "avx2,popcnt")]
+    fn bits(mask: __m256i) -> u32 {
+        _mm256_movemask_pd(_mm256_castsi256_pd(mask)) as u32
+    }
+
+    /// A mask of four 64-bit lanes as four 32-bit lanes.
+    #[inline]
+    #[target_feature(enable = "avx2,popcnt")]
+    fn narrow(mask: __m256i) -> __m128i {
+        _mm256_castsi256_si128(_mm256_permutevar8x32_epi32(
+            mask,
+            _mm256_setr_epi32(0, 2, 4, 6, 0, 2, 4, 6),
+        ))
+    }
+
+    /// `on` where `mask`, else `off`.
+    #[inline]
+    #[target_feature(enable = "avx2,popcnt")]
+    fn select(mask: __m256i, on: __m256d, off: __m256d) -> __m256d {
+        _mm256_blendv_pd(off, on, _mm256_castsi256_pd(mask))
+    }
+
+    impl Kernel<'_> {
+        /// [`Kernel::row_avx512`] four lines at a time.
+        ///
+        /// # Safety
+        /// AVX2; every crossing of the steps from `cols` in `terrain`'s
+        /// rows, `row` in `out`'s, and the lines' indices consecutive over
+        /// `cols`.
+        #[target_feature(enable = "avx2,popcnt")]
+        pub(super) unsafe fn row_avx2(
+            &self,
+            lines: &mut Lines,
+            terrain: &Terrain,
+            row: usize,
+            cols: std::ops::Range<usize>,
+            out: &mut Out,
+            stats: &mut SweepStats,
+        ) {
+            let (z, step) = (terrain.z, self.lengths[row]);
+            let angles = &mut *out.angles;
+            let lane = _mm256_setr_epi64x(0, 1, 2, 3);
+            let one = _mm256_set1_epi64x(1);
+            let count = _mm256_set1_epi64x(lines.count as i64);
+            let c = _mm256_set1_pd(self.curvature);
+            let twice_c = _mm256_set1_pd(2.0 * self.curvature);
+            let step_v = _mm256_set1_pd(step);
+            let first = lines.index(cols.start, row);
+            for c0 in cols.clone().step_by(4) {
+                let on = (cols.end - c0).min(4) as i64;
+                let on_row = _mm256_cmpgt_epi64(_mm256_set1_epi64x(on), lane);
+                let on_row_32 = narrow(on_row);
+                let i0 = first + (c0 - cols.start);
+                debug_assert!(i0 + on as usize <= lines.count);
+                // SAFETY: lines `i0..` under `on_row` exist.
+                let (len, t) = unsafe {
+                    (
+                        _mm256_maskload_epi64(lines.len.as_ptr().add(i0), on_row),
+                        _mm256_maskload_pd(lines.t.as_ptr().add(i0), on_row),
+                    )
+                };
+                let active = at_least(on_row, len, 0);
+                if bits(active) == 0 {
+                    continue;
+                }
+                let line = _mm256_add_epi64(_mm256_set1_epi64x(i0 as i64), lane);
+                // (`len - 1` and the count fit 32 bits: a signed 32-bit
+                // multiply gives the 64-bit product.)
+                let top =
+                    _mm256_add_epi64(_mm256_mul_epi32(_mm256_sub_epi64(len, one), count), line);
+                let head = |k: usize, has: __m256i| {
+                    let at = k * lines.count + i0;
+                    // SAFETY: lines `i0..` under `on_row` exist.
+                    unsafe {
+                        (
+                            _mm256_maskload_pd(lines.head_t.as_ptr().add(at), has),
+                            _mm256_maskload_pd(lines.head_w.as_ptr().add(at), has),
+                        )
+                    }
+                };
+                let ((top_t, top_w), (sec_t, sec_w), (third_t, third_w)) = (
+                    head(0, at_least(active, len, 1)),
+                    head(1, at_least(active, len, 2)),
+                    head(2, at_least(active, len, 3)),
+                );
+                let mut hulls = Hulls {
+                    top_t,
+                    top_w,
+                    sec_t,
+                    sec_w,
+                    third_t,
+                    third_w,
+                    len,
+                    top,
+                    count,
+                    active,
+                    hull_t: lines.hull_t.as_mut_ptr(),
+                    hull_w: lines.hull_w.as_mut_ptr(),
+                };
+                let t = _mm256_sub_pd(t, step_v);
+                let near = ((row - terrain.row0) * lines.width + c0) as isize;
+                let near_out = ((row - out.row0) * lines.width + c0) as isize;
+                // SAFETY (loads): the caller keeps every crossing on the
+                // DEM; lanes off the row are masked (and do not fault).
+                let load = |off: isize| unsafe {
+                    _mm256_cvtps_pd(_mm_maskload_ps(
+                        z.as_ptr().wrapping_offset(near + off),
+                        on_row_32,
+                    ))
+                };
+                for &(s, off_a, off_b, wb) in &self.crossings {
+                    let (za, zb) = (load(off_a), load(off_b));
+                    let zc =
+                        _mm256_add_pd(za, _mm256_mul_pd(_mm256_set1_pd(wb), _mm256_sub_pd(zb, za)));
+                    let tc = _mm256_add_pd(t, _mm256_mul_pd(_mm256_set1_pd(s), step_v));
+                    let wc = _mm256_sub_pd(zc, _mm256_mul_pd(_mm256_mul_pd(c, tc), tc));
+                    // SAFETY: the hulls' storage.
+                    unsafe {
+                        pop(&mut hulls, tc, wc, stats);
+                        push(&mut hulls, tc, wc, stats);
+                    }
+                }
+                let zp = load(0);
+                let wp = _mm256_sub_pd(zp, _mm256_mul_pd(_mm256_mul_pd(c, t), t));
+                // SAFETY: the hulls' storage.
+                unsafe { pop(&mut hulls, t, wp, stats) };
+                let posts = hulls.active;
+                let has = at_least(posts, hulls.len, 1);
+                let slope = _mm256_add_pd(
+                    _mm256_div_pd(
+                        _mm256_sub_pd(hulls.top_w, wp),
+                        _mm256_sub_pd(hulls.top_t, t),
+                    ),
+                    _mm256_mul_pd(twice_c, t),
+                );
+                let angle = select(has, atan_deg(slope), _mm256_set1_pd(-90.0));
+                stats.posts += u64::from(bits(posts).count_ones());
+                // SAFETY: the hulls' storage, and posts of the row.
+                unsafe {
+                    push(&mut hulls, t, wp, stats);
+                    _mm_maskstore_ps(
+                        angles.as_mut_ptr().wrapping_offset(near_out),
+                        narrow(posts),
+                        _mm256_cvtpd_ps(angle),
+                    );
+                    _mm256_maskstore_epi64(lines.len.as_mut_ptr().add(i0), on_row, hulls.len);
+                    for (k, (vt, vw)) in [
+                        (hulls.top_t, hulls.top_w),
+                        (hulls.sec_t, hulls.sec_w),
+                        (hulls.third_t, hulls.third_w),
+                    ]
+                    .into_iter()
+                    .enumerate()
+                    {
+                        let at = k * lines.count + i0;
+                        _mm256_maskstore_pd(lines.head_t.as_mut_ptr().add(at), posts, vt);
+                        _mm256_maskstore_pd(lines.head_w.as_mut_ptr().add(at), posts, vw);
+                    }
+                    _mm256_maskstore_pd(lines.t.as_mut_ptr().add(i0), on_row, t);
+                }
+            }
+        }
+    }
+
+    /// `avx512::pop` in four lanes.
+    ///
+    /// # Safety
+    /// AVX2; `hulls` over live storage.
+    #[target_feature(enable = "avx2,popcnt")]
+    unsafe fn pop(hulls: &mut Hulls, t: __m256d, w: __m256d, stats: &mut SweepStats) {
+        let one = _mm256_set1_epi64x(1);
+        loop {
+            let has2 = at_least(hulls.active, hulls.len, 2);
+            let lhs = _mm256_mul_pd(_mm256_sub_pd(hulls.top_w, w), _mm256_sub_pd(hulls.sec_t, t));
+            let rhs = _mm256_mul_pd(_mm256_sub_pd(hulls.sec_w, w), _mm256_sub_pd(hulls.top_t, t));
+            let popped = _mm256_and_si256(
+                has2,
+                _mm256_castpd_si256(_mm256_cmp_pd::<_CMP_LE_OQ>(lhs, rhs)),
+            );
+            let n = bits(popped);
+            if n == 0 {
+                return;
+            }
+            stats.pops += u64::from(n.count_ones());
+            hulls.len = _mm256_sub_epi64(hulls.len, _mm256_and_si256(popped, one));
+            hulls.top = _mm256_sub_epi64(hulls.top, _mm256_and_si256(popped, hulls.count));
+            hulls.top_t = select(popped, hulls.sec_t, hulls.top_t);
+            hulls.top_w = select(popped, hulls.sec_w, hulls.top_w);
+            hulls.sec_t = select(popped, hulls.third_t, hulls.sec_t);
+            hulls.sec_w = select(popped, hulls.third_w, hulls.sec_w);
+            let refill = _mm256_castsi256_pd(at_least(popped, hulls.len, 3));
+            let third = _mm256_sub_epi64(hulls.top, _mm256_add_epi64(hulls.count, hulls.count));
+            // SAFETY: the vertex two below each refilled top is on its hull.
+            unsafe {
+                hulls.third_t =
+                    _mm256_mask_i64gather_pd::<8>(hulls.third_t, hulls.hull_t, third, refill);
+                hulls.third_w =
+                    _mm256_mask_i64gather_pd::<8>(hulls.third_w, hulls.hull_w, third, refill);
+            }
+        }
+    }
+
+    /// `avx512::push` in four lanes.
+    ///
+    /// # Safety
+    /// AVX2; `hulls` over live storage.
+    #[target_feature(enable = "avx2,popcnt")]
+    unsafe fn push(hulls: &mut Hulls, t: __m256d, w: __m256d, stats: &mut SweepStats) {
+        let pushed = hulls.active;
+        let evicted = bits(at_least(pushed, hulls.len, 3));
+        if evicted != 0 {
+            let third = _mm256_sub_epi64(hulls.top, _mm256_add_epi64(hulls.count, hulls.count));
+            let (mut at, mut vt, mut vw) = ([0i64; 4], [0f64; 4], [0f64; 4]);
+            // SAFETY: four lanes into arrays of four.
+            unsafe {
+                _mm256_storeu_si256(at.as_mut_ptr().cast(), third);
+                _mm256_storeu_pd(vt.as_mut_ptr(), hulls.third_t);
+                _mm256_storeu_pd(vw.as_mut_ptr(), hulls.third_w);
+            }
+            for l in (0..4).filter(|l| evicted >> l & 1 == 1) {
+                // SAFETY: below the depth in each pushed lane's line.
+                unsafe {
+                    *hulls.hull_t.offset(at[l] as isize) = vt[l];
+                    *hulls.hull_w.offset(at[l] as isize) = vw[l];
+                }
+            }
+        }
+        hulls.top = _mm256_add_epi64(hulls.top, _mm256_and_si256(pushed, hulls.count));
+        hulls.third_t = select(pushed, hulls.sec_t, hulls.third_t);
+        hulls.third_w = select(pushed, hulls.sec_w, hulls.third_w);
+        hulls.sec_t = select(pushed, hulls.top_t, hulls.sec_t);
+        hulls.sec_w = select(pushed, hulls.top_w, hulls.sec_w);
+        hulls.top_t = select(pushed, t, hulls.top_t);
+        hulls.top_w = select(pushed, w, hulls.top_w);
+        hulls.len = _mm256_add_epi64(hulls.len, _mm256_and_si256(pushed, _mm256_set1_epi64x(1)));
+        stats.vertices += u64::from(bits(pushed).count_ones());
+    }
+
+    /// `avx512::atan_deg` in four lanes: the same operations in the same
+    /// order, so the same bits.
+    #[target_feature(enable = "avx2,popcnt")]
+    fn atan_deg(x: __m256d) -> __m256d {
+        const TAN_3PI_8: f64 = 2.414_213_562_373_095;
+        const TAN_PI_8: f64 = 0.414_213_562_373_095_1;
+        let set = _mm256_set1_pd;
+        let sign_bit = set(-0.0);
+        let sign = _mm256_or_pd(_mm256_and_pd(x, sign_bit), set(1.0));
+        let ax = _mm256_andnot_pd(sign_bit, x);
+        let high = _mm256_cmp_pd::<_CMP_GT_OQ>(ax, set(TAN_3PI_8));
+        let mid = _mm256_andnot_pd(high, _mm256_cmp_pd::<_CMP_GT_OQ>(ax, set(TAN_PI_8)));
+        let base = _mm256_blendv_pd(
+            _mm256_blendv_pd(set(0.0), set(std::f64::consts::FRAC_PI_4), mid),
+            set(std::f64::consts::FRAC_PI_2),
+            high,
+        );
+        let r = _mm256_blendv_pd(
+            ax,
+            _mm256_div_pd(_mm256_sub_pd(ax, set(1.0)), _mm256_add_pd(ax, set(1.0))),
+            mid,
+        );
+        let r = _mm256_blendv_pd(r, _mm256_div_pd(set(-1.0), ax), high);
+        let zz = _mm256_mul_pd(r, r);
+        let mut p = _mm256_sub_pd(
+            _mm256_mul_pd(set(8.053_744_495_38e-2), zz),
+            set(1.387_768_560_32e-1),
+        );
+        p = _mm256_add_pd(_mm256_mul_pd(p, zz), set(1.997_771_064_78e-1));
+        p = _mm256_sub_pd(_mm256_mul_pd(p, zz), set(3.333_294_915_39e-1));
+        let poly = _mm256_add_pd(_mm256_mul_pd(_mm256_mul_pd(p, zz), r), r);
+        let radians = _mm256_mul_pd(sign, _mm256_add_pd(base, poly));
+        _mm256_mul_pd(radians, set(1f64.to_degrees()))
     }
 }
