@@ -367,14 +367,24 @@ fn angle_deg(q: Option<[f64; 2]>, t: f64, w: f64, curvature: f64) -> f32 {
     }
 }
 
+/// [`atan_deg`]'s reduction points, `tan(3 pi / 8)` and `tan(pi / 8)`, and
+/// its polynomial's coefficients (alternating in sign), which the lanes'
+/// vector copies share.
+const TAN_3PI_8: f64 = 2.414_213_562_373_095;
+const TAN_PI_8: f64 = 0.414_213_562_373_095_1;
+const ATAN_POLY: [f64; 4] = [
+    8.053_744_495_38e-2,
+    1.387_768_560_32e-1,
+    1.997_771_064_78e-1,
+    3.333_294_915_39e-1,
+];
+
 /// `atan(x)` in degrees, as f32: Cephes' `atanf` reduction and polynomial
 /// in f64, within 2e-7 radians (about two f32 steps of an angle near 45
 /// degrees, far below any stored encoding's step) and branch-light, where
 /// libm's `atan` is a third of a one-crossing sweep's time.
 #[inline]
 pub fn atan_deg(x: f64) -> f32 {
-    const TAN_3PI_8: f64 = 2.414_213_562_373_095;
-    const TAN_PI_8: f64 = 0.414_213_562_373_095_1;
     let (sign, x) = (x.signum(), x.abs());
     let (base, x) = if x > TAN_3PI_8 {
         (std::f64::consts::FRAC_PI_2, -1.0 / x)
@@ -384,11 +394,8 @@ pub fn atan_deg(x: f64) -> f32 {
         (0.0, x)
     };
     let z = x * x;
-    let poly = (((8.053_744_495_38e-2 * z - 1.387_768_560_32e-1) * z + 1.997_771_064_78e-1) * z
-        - 3.333_294_915_39e-1)
-        * z
-        * x
-        + x;
+    let [p0, p1, p2, p3] = ATAN_POLY;
+    let poly = (((p0 * z - p1) * z + p2) * z - p3) * z * x + x;
     (sign * (base + poly)).to_degrees() as f32
 }
 

@@ -64,19 +64,23 @@ impl Lanes {
     }
 }
 
-/// For each mask of eight lanes, the indices of the lanes set, in order,
-/// one byte each (the rest 0): the permutation that packs them to the
-/// front of a vector of eight 32-bit lanes.
+/// For each mask of `MASKS` (2^lanes) lanes, the 32-bit lanes that pack
+/// the lanes set to the front of a vector, in order, one byte each (the
+/// rest 0), each lane `halves` 32-bit lanes wide: the permutation that
+/// stands in for a compress.
 #[cfg(target_arch = "x86_64")]
-const COMPRESS: [u64; 256] = {
-    let mut table = [0u64; 256];
+const fn compress_table<const MASKS: usize>(halves: usize) -> [u64; MASKS] {
+    let mut table = [0u64; MASKS];
     let mut mask = 0;
-    while mask < 256 {
+    while mask < MASKS {
         let (mut packed, mut to, mut lane) = (0u64, 0, 0);
-        while lane < 8 {
+        while 1 << lane < MASKS {
             if mask >> lane & 1 == 1 {
-                packed |= (lane as u64) << (8 * to);
-                to += 1;
+                let mut half = 0;
+                while half < halves {
+                    packed |= ((halves * lane + half) as u64) << (8 * to);
+                    (to, half) = (to + 1, half + 1);
+                }
             }
             lane += 1;
         }
@@ -84,27 +88,15 @@ const COMPRESS: [u64; 256] = {
         mask += 1;
     }
     table
-};
+}
 
-/// [`COMPRESS`] for four 64-bit lanes, each as its two 32-bit halves.
+/// Eight 32-bit lanes.
 #[cfg(target_arch = "x86_64")]
-const COMPRESS_PAIRS: [u64; 16] = {
-    let mut table = [0u64; 16];
-    let mut mask = 0;
-    while mask < 16 {
-        let (mut packed, mut to, mut lane) = (0u64, 0, 0);
-        while lane < 4 {
-            if mask >> lane & 1 == 1 {
-                packed |= ((2 * lane) as u64) << (8 * to) | ((2 * lane + 1) as u64) << (8 * to + 8);
-                to += 2;
-            }
-            lane += 1;
-        }
-        table[mask] = packed;
-        mask += 1;
-    }
-    table
-};
+const COMPRESS: [u64; 256] = compress_table(1);
+
+/// Four 64-bit lanes, each as its two 32-bit halves.
+#[cfg(target_arch = "x86_64")]
+const COMPRESS_PAIRS: [u64; 16] = compress_table(2);
 
 /// The lanes of `v` set in `mask`, packed to the front.
 #[cfg(target_arch = "x86_64")]

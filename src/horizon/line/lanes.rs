@@ -625,8 +625,7 @@ mod avx512 {
     /// the same operations in the same order, so the same bits.
     #[target_feature(enable = "avx512f,avx512vl,avx512dq,popcnt")]
     fn atan_deg(x: __m512d) -> __m512d {
-        const TAN_3PI_8: f64 = 2.414_213_562_373_095;
-        const TAN_PI_8: f64 = 0.414_213_562_373_095_1;
+        use super::super::{ATAN_POLY, TAN_3PI_8, TAN_PI_8};
         let set = _mm512_set1_pd;
         let sign_bit = set(-0.0);
         // `signum` of a number: 1 with its sign.
@@ -646,12 +645,10 @@ mod avx512 {
         );
         let r = _mm512_mask_blend_pd(high, r, _mm512_div_pd(set(-1.0), ax));
         let zz = _mm512_mul_pd(r, r);
-        let mut p = _mm512_sub_pd(
-            _mm512_mul_pd(set(8.053_744_495_38e-2), zz),
-            set(1.387_768_560_32e-1),
-        );
-        p = _mm512_add_pd(_mm512_mul_pd(p, zz), set(1.997_771_064_78e-1));
-        p = _mm512_sub_pd(_mm512_mul_pd(p, zz), set(3.333_294_915_39e-1));
+        let [p0, p1, p2, p3] = ATAN_POLY.map(|p| set(p));
+        let mut p = _mm512_sub_pd(_mm512_mul_pd(p0, zz), p1);
+        p = _mm512_add_pd(_mm512_mul_pd(p, zz), p2);
+        p = _mm512_sub_pd(_mm512_mul_pd(p, zz), p3);
         let poly = _mm512_add_pd(_mm512_mul_pd(_mm512_mul_pd(p, zz), r), r);
         let radians = _mm512_mul_pd(sign, _mm512_add_pd(base, poly));
         _mm512_mul_pd(radians, set(1f64.to_degrees()))
@@ -936,8 +933,7 @@ mod avx2 {
     /// order, so the same bits.
     #[target_feature(enable = "avx2,popcnt")]
     fn atan_deg(x: __m256d) -> __m256d {
-        const TAN_3PI_8: f64 = 2.414_213_562_373_095;
-        const TAN_PI_8: f64 = 0.414_213_562_373_095_1;
+        use super::super::{ATAN_POLY, TAN_3PI_8, TAN_PI_8};
         let set = _mm256_set1_pd;
         let sign_bit = set(-0.0);
         let sign = _mm256_or_pd(_mm256_and_pd(x, sign_bit), set(1.0));
@@ -956,12 +952,10 @@ mod avx2 {
         );
         let r = _mm256_blendv_pd(r, _mm256_div_pd(set(-1.0), ax), high);
         let zz = _mm256_mul_pd(r, r);
-        let mut p = _mm256_sub_pd(
-            _mm256_mul_pd(set(8.053_744_495_38e-2), zz),
-            set(1.387_768_560_32e-1),
-        );
-        p = _mm256_add_pd(_mm256_mul_pd(p, zz), set(1.997_771_064_78e-1));
-        p = _mm256_sub_pd(_mm256_mul_pd(p, zz), set(3.333_294_915_39e-1));
+        let [p0, p1, p2, p3] = ATAN_POLY.map(|p| set(p));
+        let mut p = _mm256_sub_pd(_mm256_mul_pd(p0, zz), p1);
+        p = _mm256_add_pd(_mm256_mul_pd(p, zz), p2);
+        p = _mm256_sub_pd(_mm256_mul_pd(p, zz), p3);
         let poly = _mm256_add_pd(_mm256_mul_pd(_mm256_mul_pd(p, zz), r), r);
         let radians = _mm256_mul_pd(sign, _mm256_add_pd(base, poly));
         _mm256_mul_pd(radians, set(1f64.to_degrees()))
