@@ -903,13 +903,15 @@ mod avx2 {
         let evicted = bits(at_least(pushed, hulls.len, 3));
         if evicted != 0 {
             let third = _mm256_sub_epi64(hulls.top, _mm256_add_epi64(hulls.count, hulls.count));
-            let (mut at, mut vt, mut vw) = ([0i64; 4], [0f64; 4], [0f64; 4]);
-            // SAFETY: four lanes into arrays of four.
-            unsafe {
-                _mm256_storeu_si256(at.as_mut_ptr().cast(), third);
-                _mm256_storeu_pd(vt.as_mut_ptr(), hulls.third_t);
-                _mm256_storeu_pd(vw.as_mut_ptr(), hulls.third_w);
-            }
+            // By `transmute`: stores into arrays instead took the whole
+            // process from 0.68 to 0.80 s. SAFETY: four lanes as four.
+            let (at, vt, vw) = unsafe {
+                (
+                    std::mem::transmute::<__m256i, [i64; 4]>(third),
+                    std::mem::transmute::<__m256d, [f64; 4]>(hulls.third_t),
+                    std::mem::transmute::<__m256d, [f64; 4]>(hulls.third_w),
+                )
+            };
             for l in (0..4).filter(|l| evicted >> l & 1 == 1) {
                 // SAFETY: below the depth in each pushed lane's line.
                 unsafe {
