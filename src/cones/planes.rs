@@ -463,7 +463,6 @@ fn sliced_planes_with<G: ColumnDistance>(
 }
 
 mod lanes;
-use lanes::Lanes;
 
 /// Asks for `values` in the cache ahead of their use, where the hardware
 /// prefetchers fall behind: the row pass reads one stream per strip (128 at
@@ -549,7 +548,7 @@ fn columns_in_reach<G: ColumnDistance>(
     r: usize,
     (first, last): (u32, u32),
     (reach, aspect): (f64, f64),
-    lanes: Lanes,
+    lanes: lanes::Kind,
     kept: &mut Kept,
 ) -> usize {
     let within = reach.min(cw as f64) as usize;
@@ -584,7 +583,7 @@ struct Span {
     last: u32,
     aspect: f64,
     reach2: f64,
-    lanes: Lanes,
+    lanes: lanes::Kind,
 }
 
 /// Per-thread room for [`columns_in_reach`]: the columns kept and their
@@ -599,7 +598,7 @@ struct Kept {
 /// strip, `g`, whose parabolas come within the reach of the targets' span
 /// (`test`), with their offsets; returns the new count. `kept` has room
 /// for every column and a vector more. Eight columns at a time in the
-/// test's [`Lanes`] where the distances are `u16`.
+/// test's [`lanes::Kind`] where the distances are `u16`.
 fn keep_in_reach<G: ColumnDistance>(
     g: &[G],
     c0: u32,
@@ -608,12 +607,14 @@ fn keep_in_reach<G: ColumnDistance>(
     n: usize,
 ) -> usize {
     match (test.lanes, G::as_u16(g)) {
-        // SAFETY (both): the CPU has the features (`Lanes::detect`);
+        // SAFETY (both): the CPU has the features (`lanes::Kind::detect`);
         // `kept` has a vector's room past every column.
         #[cfg(target_arch = "x86_64")]
-        (Lanes::Avx512, Some(g)) => unsafe { lanes::keep_in_reach_avx512(g, c0, test, kept, n) },
+        (lanes::Kind::Avx512, Some(g)) => unsafe {
+            lanes::keep_in_reach_avx512(g, c0, test, kept, n)
+        },
         #[cfg(target_arch = "x86_64")]
-        (Lanes::Avx2, Some(g)) => unsafe { lanes::keep_in_reach_avx2(g, c0, test, kept, n) },
+        (lanes::Kind::Avx2, Some(g)) => unsafe { lanes::keep_in_reach_avx2(g, c0, test, kept, n) },
         _ => test.keep_scalar(g, c0, kept, n),
     }
 }
@@ -708,7 +709,7 @@ struct Scan<'a> {
     slices_per_count: f64,
     /// The vector code that runs the scan (the CPU's best; the tests
     /// try each).
-    lanes: Lanes,
+    lanes: lanes::Kind,
 }
 
 impl<'a> Scan<'a> {
@@ -723,7 +724,7 @@ impl<'a> Scan<'a> {
             } else {
                 0.0
             },
-            lanes: Lanes::detect(),
+            lanes: lanes::Kind::detect(),
         }
     }
 
@@ -756,7 +757,7 @@ const WAKE_MARGIN: f64 = 1.0 - 1.0 / 4096.0;
 /// block where the block's wake (`wakes`, one per [`BLOCK`] cells) has come
 /// (see [`Scan`]); the wakes of the blocks read are renewed. Returns the
 /// widest such `slope * rise`, the row's reach. Eight cells at a time in
-/// the scan's [`Lanes`] (compressed indices, a masked maximum; the same
+/// the scan's [`lanes::Kind`] (compressed indices, a masked maximum; the same
 /// targets and the same reach, a maximum being exact in any order).
 fn open_cells<'t>(
     member: &[u16],
@@ -773,17 +774,19 @@ fn open_cells<'t>(
     if room.len() < member.len() + 8 {
         room.resize(member.len() + 8, 0);
     }
-    // SAFETY (both): the CPU has the features (`Lanes::detect`); `room`
+    // SAFETY (both): the CPU has the features (`lanes::Kind::detect`); `room`
     // has room for every cell and a vector more; the slices agree in
     // length, and every member indexes `rise_of`.
     let (n, reach, blocks_read) = match scan.lanes {
         #[cfg(target_arch = "x86_64")]
-        Lanes::Avx512 => unsafe {
+        lanes::Kind::Avx512 => unsafe {
             lanes::open_cells_avx512(member, slope, floor, scan, wakes, room)
         },
         #[cfg(target_arch = "x86_64")]
-        Lanes::Avx2 => unsafe { lanes::open_cells_avx2(member, slope, floor, scan, wakes, room) },
-        Lanes::Scalar => open_cells_scalar(member, slope, floor, scan, wakes, room),
+        lanes::Kind::Avx2 => unsafe {
+            lanes::open_cells_avx2(member, slope, floor, scan, wakes, room)
+        },
+        lanes::Kind::Scalar => open_cells_scalar(member, slope, floor, scan, wakes, room),
     };
     Open {
         targets: &room[..n],
@@ -1068,7 +1071,7 @@ mod tests {
                 .collect();
             let mut floor = vec![0u16; len];
             // Each kind of lanes with its own wakes and room.
-            let kinds = Lanes::available();
+            let kinds = lanes::Kind::available();
             let mut wakes = vec![vec![0u16; len.div_ceil(BLOCK)]; kinds.len()];
             let mut rooms = vec![Vec::new(); kinds.len()];
             for k in std::iter::once(k_count - 1).chain(0..k_count - 1) {
@@ -1135,7 +1138,7 @@ mod tests {
             span: (u32, u32),
             reach: f64,
             aspect: f64,
-            lanes: Lanes,
+            lanes: lanes::Kind,
         ) -> Vec<(u32, f64)> {
             let mut column = vec![G::NONE; cw.div_ceil(STRIP) * ch * STRIP];
             for (i, &g) in g_of.iter().enumerate() {
@@ -1181,7 +1184,7 @@ mod tests {
                     })
                     .collect();
                 let args = ((cw, ch), r, (first, last), reach, aspect);
-                for lanes in Lanes::available() {
+                for lanes in lanes::Kind::available() {
                     assert_eq!(
                         case::<u16>(&g_of, args.0, args.1, args.2, args.3, args.4, lanes),
                         want,
@@ -1196,7 +1199,7 @@ mod tests {
                         args.2,
                         args.3,
                         args.4,
-                        Lanes::detect()
+                        lanes::Kind::detect()
                     ),
                     want,
                     "u32, {cw} columns"

@@ -20,7 +20,7 @@ use super::{each_awake_block, open_block, Kept, Scan, Span, BLOCK};
 
 /// Which vector code runs the scans: the best the CPU has.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(super) enum Lanes {
+pub(super) enum Kind {
     Scalar,
     /// AVX2 (with popcnt): eight 32-bit lanes, four `f64`.
     #[cfg(target_arch = "x86_64")]
@@ -30,7 +30,7 @@ pub(super) enum Lanes {
     Avx512,
 }
 
-impl Lanes {
+impl Kind {
     /// The best this CPU runs.
     pub(super) fn detect() -> Self {
         #[cfg(target_arch = "x86_64")]
