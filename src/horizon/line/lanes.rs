@@ -1,8 +1,8 @@
 //! Line sweeps in SIMD lanes: the lines of one direction stepped together
 //! row by row, eight neighbouring lines to an AVX-512 vector (four to an
-//! AVX2 one), with masked pops (issue #17, item 1). Timonen (2013, sec. 4) sweeps one line's hull
-//! at a time, as our scalar sweep does; this is the same sweep turned a
-//! quarter: every line at once, one post each per row.
+//! AVX2 one), with masked pops (issue #17, item 1). Timonen (2013, sec. 4)
+//! sweeps one line's hull at a time, as our scalar sweep does; this is the
+//! same sweep turned a quarter: every line at once, one post each per row.
 //!
 //! The scalar sweep ([`super::BandedSweep`] without lanes) walks a line
 //! through a band of rows before it starts the next, so every hull push
