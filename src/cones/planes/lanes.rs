@@ -237,7 +237,7 @@ pub(super) unsafe fn open_cells_avx2(
     (n, reach, blocks_read)
 }
 
-/// [`open_cells`] eight cells at a time; returns the count, the reach and
+/// [`super::open_cells`] eight cells at a time; returns the count, the reach and
 /// the blocks read.
 ///
 /// # Safety
@@ -392,7 +392,7 @@ pub(super) unsafe fn keep_in_reach_avx2(
     test.keep_scalar(&g[whole..], c0 + whole as u32, kept, n)
 }
 
-/// [`keep_in_reach`] eight columns at a time.
+/// [`super::keep_in_reach`] eight columns at a time in AVX-512.
 ///
 /// # Safety
 /// AVX-512 F, VL and BW; `kept` with room for `n + g.len() + 8`.
