@@ -45,6 +45,7 @@
 //! - [`cog`]: the Cloud-Optimized GeoTIFF writer (tiled, band-interleaved,
 //!   overviews, GDAL metadata), in one streaming pass.
 //! - [`output`]: files written whole or not at all.
+//! - [`simd`]: how wide the vector kernels may go (`TERRABAKE_SIMD`).
 
 pub mod args;
 pub mod asset;
@@ -76,6 +77,7 @@ pub mod render;
 pub mod report;
 pub mod resources;
 pub mod shade;
+pub mod simd;
 pub mod sky;
 pub mod source;
 pub mod stage;

@@ -42,6 +42,7 @@ fn main() -> ExitCode {
 }
 
 fn run(cli: Cli) -> Result<ExitCode> {
+    terrabake::simd::cap_from_env().map_err(anyhow::Error::msg)?;
     let progress = Progress::new(cli.quiet);
     let wait = Wait::unless(cli.no_wait);
     let run_stage = |asset: &Path, stage: &dyn Stage, force: bool| -> Result<StageOutcome> {

@@ -324,11 +324,12 @@ impl PostRow {
     fn add_band(&mut self, band: &BandIntegrals, angles: &[f32], edge: &EdgeTest) {
         #[cfg(target_arch = "x86_64")]
         {
-            if std::arch::is_x86_feature_detected!("avx512f") {
+            use crate::simd::{allows, Level};
+            if allows(Level::Avx512) && std::arch::is_x86_feature_detected!("avx512f") {
                 // SAFETY: the CPU has the features the function is compiled for.
                 return unsafe { self.add_band_avx512(band, angles, edge) };
             }
-            if std::arch::is_x86_feature_detected!("avx2") {
+            if allows(Level::Avx2) && std::arch::is_x86_feature_detected!("avx2") {
                 // SAFETY: as above.
                 return unsafe { self.add_band_avx2(band, angles, edge) };
             }

@@ -898,3 +898,49 @@ fn every_argument_has_a_help_line() {
     }
     assert!(missing.is_empty(), "no help line: {missing:?}");
 }
+
+/// `TERRABAKE_SIMD` caps the vector kernels (the cone planes' scans, the
+/// line sweep's lanes, the sky stage's sums): every cap gives the layers
+/// the widest kernels give, bit for bit (on a CPU without them, the same
+/// code runs), and a value it cannot use is refused before any work,
+/// named.
+#[test]
+fn vector_caps_change_no_layer() {
+    let tmp = tempfile::tempdir().unwrap();
+    let tif = tmp.path().join("fractal.tif");
+    ok(&["synth", "fractal", "--size", "300x200", "-o", s(&tif), "-q"]);
+    let run = |cap: Option<&str>, args: &[&str]| {
+        let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_terrabake"));
+        command.args(args);
+        if let Some(cap) = cap {
+            command.env(terrabake::simd::VAR, cap);
+        }
+        command.output().expect("run terrabake")
+    };
+    let bake = |cap: Option<&str>| {
+        let asset = tmp
+            .path()
+            .join(format!("{}.tbake", cap.unwrap_or("widest")));
+        ok(&["ingest", s(&tif), "-o", s(&asset), "-q"]);
+        for stage in [
+            &["cones", "--slices", "64"][..],
+            &["horizons", "--sectors", "16"],
+        ] {
+            let out = run(cap, &[stage, &[s(&asset), "-q"]].concat());
+            assert!(out.status.success(), "{cap:?} {stage:?}: {}", stderr(&out));
+        }
+        asset
+    };
+    let widest = bake(None);
+    for cap in ["avx2", "scalar", "AVX512"] {
+        let capped = bake(Some(cap));
+        ok(&["verify", s(&capped), "--same-as", s(&widest)]);
+    }
+    let refused = run(Some("sse9"), &["info", s(&widest)]);
+    assert_eq!(refused.status.code(), Some(1));
+    assert!(
+        stderr(&refused).contains("TERRABAKE_SIMD=\"sse9\""),
+        "{}",
+        stderr(&refused)
+    );
+}

@@ -31,15 +31,18 @@ pub(super) enum Kind {
 }
 
 impl Kind {
-    /// The best this CPU runs.
+    /// The best this CPU runs, as far as `TERRABAKE_SIMD` allows
+    /// ([`crate::simd`]).
     pub(super) fn detect() -> Self {
         #[cfg(target_arch = "x86_64")]
         {
+            use crate::simd::{allows, Level};
             use std::arch::is_x86_feature_detected as has;
-            if has!("avx512f") && has!("avx512vl") && has!("avx512bw") && has!("popcnt") {
+            let avx512 = has!("avx512f") && has!("avx512vl") && has!("avx512bw");
+            if allows(Level::Avx512) && avx512 && has!("popcnt") {
                 return Self::Avx512;
             }
-            if has!("avx2") && has!("popcnt") {
+            if allows(Level::Avx2) && has!("avx2") && has!("popcnt") {
                 return Self::Avx2;
             }
         }

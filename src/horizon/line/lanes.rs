@@ -314,15 +314,18 @@ pub enum Kind {
 }
 
 impl Kind {
-    /// The best this CPU runs, if any.
+    /// The best this CPU runs, if any, as far as `TERRABAKE_SIMD` allows
+    /// ([`crate::simd`]).
     pub fn detect() -> Option<Self> {
         #[cfg(target_arch = "x86_64")]
         {
+            use crate::simd::{allows, Level};
             use std::arch::is_x86_feature_detected as has;
-            if has!("avx512f") && has!("avx512vl") && has!("avx512dq") && has!("popcnt") {
+            let avx512 = has!("avx512f") && has!("avx512vl") && has!("avx512dq");
+            if allows(Level::Avx512) && avx512 && has!("popcnt") {
                 return Some(Self::Avx512);
             }
-            if has!("avx2") && has!("popcnt") {
+            if allows(Level::Avx2) && has!("avx2") && has!("popcnt") {
                 return Some(Self::Avx2);
             }
         }
