@@ -322,19 +322,16 @@ impl PostRow {
     /// NaN for none), to every post of the row: the widest vectors this
     /// machine has, the same bits on every machine (no fused multiply-adds).
     fn add_band(&mut self, band: &BandIntegrals, angles: &[f32], edge: &EdgeTest) {
-        #[cfg(target_arch = "x86_64")]
-        {
-            use crate::simd::{allows, Level};
-            if allows(Level::Avx512) && std::arch::is_x86_feature_detected!("avx512f") {
-                // SAFETY: the CPU has the features the function is compiled for.
-                return unsafe { self.add_band_avx512(band, angles, edge) };
-            }
-            if allows(Level::Avx2) && std::arch::is_x86_feature_detected!("avx2") {
-                // SAFETY: as above.
-                return unsafe { self.add_band_avx2(band, angles, edge) };
-            }
+        use crate::simd::Level;
+        // SAFETY (both): `simd::level` found the features the functions
+        // are compiled for.
+        match crate::simd::level() {
+            #[cfg(target_arch = "x86_64")]
+            Level::Avx512 => unsafe { self.add_band_avx512(band, angles, edge) },
+            #[cfg(target_arch = "x86_64")]
+            Level::Avx2 => unsafe { self.add_band_avx2(band, angles, edge) },
+            _ => self.add_band_portable(band, angles, edge),
         }
-        self.add_band_portable(band, angles, edge);
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -440,7 +437,7 @@ mod tests {
             ("portable", PostRow::add_band_portable),
         ];
         #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
+        if crate::simd::level() >= crate::simd::Level::Avx2 {
             // SAFETY: the CPU has AVX2.
             paths.push(("avx2", |p, b, a, e| unsafe { p.add_band_avx2(b, a, e) }));
         }

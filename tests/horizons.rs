@@ -796,7 +796,10 @@ fn line_lanes_equal_the_scalar_sweep_bit_for_bit() {
             // Every kind of lanes the CPU runs; bands of rows; hulls as deep
             // as the lanes go, and shallower (64 KiB a direction: 32
             // vertices or none on these widths).
-            let kinds = line::lanes::Kind::available();
+            let kinds: Vec<_> = terrabake::simd::available()
+                .into_iter()
+                .filter(|&l| l > terrabake::simd::Level::Scalar)
+                .collect();
             let runs = [(1, None), (7, None), (h, None), (7, Some(64 << 10))];
             for (kind, (rows, memory)) in kinds.iter().flat_map(|&k| runs.map(|r| (k, r))) {
                 let mut sweep = match memory {
@@ -828,7 +831,7 @@ fn line_lanes_equal_the_scalar_sweep_bit_for_bit() {
     }
     eprintln!(
         "{in_lanes} sweeps in lanes ({:?})",
-        line::lanes::Kind::available()
+        terrabake::simd::available()
     );
     assert_eq!(in_lanes > 0, cpu);
     // The dome's long lines left the lanes.

@@ -463,6 +463,7 @@ fn sliced_planes_with<G: ColumnDistance>(
 }
 
 mod lanes;
+use crate::simd::Level;
 
 /// Asks for `values` in the cache ahead of their use, where the hardware
 /// prefetchers fall behind: the row pass reads one stream per strip (128 at
@@ -548,7 +549,7 @@ fn columns_in_reach<G: ColumnDistance>(
     r: usize,
     (first, last): (u32, u32),
     (reach, aspect): (f64, f64),
-    lanes: lanes::Kind,
+    lanes: Level,
     kept: &mut Kept,
 ) -> usize {
     let within = reach.min(cw as f64) as usize;
@@ -583,7 +584,7 @@ struct Span {
     last: u32,
     aspect: f64,
     reach2: f64,
-    lanes: lanes::Kind,
+    lanes: Level,
 }
 
 /// Per-thread room for [`columns_in_reach`]: the columns kept and their
@@ -598,7 +599,7 @@ struct Kept {
 /// strip, `g`, whose parabolas come within the reach of the targets' span
 /// (`test`), with their offsets; returns the new count. `kept` has room
 /// for every column and a vector more. Eight columns at a time in the
-/// test's [`lanes::Kind`] where the distances are `u16`.
+/// test's [`Level`] where the distances are `u16`.
 fn keep_in_reach<G: ColumnDistance>(
     g: &[G],
     c0: u32,
@@ -607,14 +608,12 @@ fn keep_in_reach<G: ColumnDistance>(
     n: usize,
 ) -> usize {
     match (test.lanes, G::as_u16(g)) {
-        // SAFETY (both): the CPU has the features (`lanes::Kind::detect`);
+        // SAFETY (both): the CPU has the features (`crate::simd::level`);
         // `kept` has a vector's room past every column.
         #[cfg(target_arch = "x86_64")]
-        (lanes::Kind::Avx512, Some(g)) => unsafe {
-            lanes::keep_in_reach_avx512(g, c0, test, kept, n)
-        },
+        (Level::Avx512, Some(g)) => unsafe { lanes::keep_in_reach_avx512(g, c0, test, kept, n) },
         #[cfg(target_arch = "x86_64")]
-        (lanes::Kind::Avx2, Some(g)) => unsafe { lanes::keep_in_reach_avx2(g, c0, test, kept, n) },
+        (Level::Avx2, Some(g)) => unsafe { lanes::keep_in_reach_avx2(g, c0, test, kept, n) },
         _ => test.keep_scalar(g, c0, kept, n),
     }
 }
@@ -709,7 +708,7 @@ struct Scan<'a> {
     slices_per_count: f64,
     /// The vector code that runs the scan (the CPU's best; the tests
     /// try each).
-    lanes: lanes::Kind,
+    lanes: Level,
 }
 
 impl<'a> Scan<'a> {
@@ -724,7 +723,7 @@ impl<'a> Scan<'a> {
             } else {
                 0.0
             },
-            lanes: lanes::Kind::detect(),
+            lanes: crate::simd::level(),
         }
     }
 
@@ -757,7 +756,7 @@ const WAKE_MARGIN: f64 = 1.0 - 1.0 / 4096.0;
 /// block where the block's wake (`wakes`, one per [`BLOCK`] cells) has come
 /// (see [`Scan`]); the wakes of the blocks read are renewed. Returns the
 /// widest such `slope * rise`, the row's reach. Eight cells at a time in
-/// the scan's [`lanes::Kind`] (compressed indices, a masked maximum; the same
+/// the scan's [`Level`] (compressed indices, a masked maximum; the same
 /// targets and the same reach, a maximum being exact in any order).
 fn open_cells<'t>(
     member: &[u16],
@@ -774,19 +773,17 @@ fn open_cells<'t>(
     if room.len() < member.len() + 8 {
         room.resize(member.len() + 8, 0);
     }
-    // SAFETY (both): the CPU has the features (`lanes::Kind::detect`); `room`
+    // SAFETY (both): the CPU has the features (`crate::simd::level`); `room`
     // has room for every cell and a vector more; the slices agree in
     // length, and every member indexes `rise_of`.
     let (n, reach, blocks_read) = match scan.lanes {
         #[cfg(target_arch = "x86_64")]
-        lanes::Kind::Avx512 => unsafe {
+        Level::Avx512 => unsafe {
             lanes::open_cells_avx512(member, slope, floor, scan, wakes, room)
         },
         #[cfg(target_arch = "x86_64")]
-        lanes::Kind::Avx2 => unsafe {
-            lanes::open_cells_avx2(member, slope, floor, scan, wakes, room)
-        },
-        lanes::Kind::Scalar => open_cells_scalar(member, slope, floor, scan, wakes, room),
+        Level::Avx2 => unsafe { lanes::open_cells_avx2(member, slope, floor, scan, wakes, room) },
+        _ => open_cells_scalar(member, slope, floor, scan, wakes, room),
     };
     Open {
         targets: &room[..n],
@@ -1071,7 +1068,7 @@ mod tests {
                 .collect();
             let mut floor = vec![0u16; len];
             // Each kind of lanes with its own wakes and room.
-            let kinds = lanes::Kind::available();
+            let kinds = crate::simd::available();
             let mut wakes = vec![vec![0u16; len.div_ceil(BLOCK)]; kinds.len()];
             let mut rooms = vec![Vec::new(); kinds.len()];
             for k in std::iter::once(k_count - 1).chain(0..k_count - 1) {
@@ -1138,7 +1135,7 @@ mod tests {
             span: (u32, u32),
             reach: f64,
             aspect: f64,
-            lanes: lanes::Kind,
+            lanes: Level,
         ) -> Vec<(u32, f64)> {
             let mut column = vec![G::NONE; cw.div_ceil(STRIP) * ch * STRIP];
             for (i, &g) in g_of.iter().enumerate() {
@@ -1184,7 +1181,7 @@ mod tests {
                     })
                     .collect();
                 let args = ((cw, ch), r, (first, last), reach, aspect);
-                for lanes in lanes::Kind::available() {
+                for lanes in crate::simd::available() {
                     assert_eq!(
                         case::<u16>(&g_of, args.0, args.1, args.2, args.3, args.4, lanes),
                         want,
@@ -1199,7 +1196,7 @@ mod tests {
                         args.2,
                         args.3,
                         args.4,
-                        lanes::Kind::detect()
+                        crate::simd::level()
                     ),
                     want,
                     "u32, {cw} columns"

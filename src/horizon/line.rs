@@ -569,8 +569,7 @@ impl BandedSweep {
             simd: if nodata {
                 None
             } else {
-                lanes::Kind::detect()
-                    .and_then(|kind| lanes::Lines::new(&stencil, width, lanes::MAX_BYTES, kind))
+                lanes::Lines::new(&stencil, width, lanes::MAX_BYTES, crate::simd::level())
             },
             stencil,
             lengths: step_lengths(dir.step, height, spacing, row_scale),
@@ -596,17 +595,18 @@ impl BandedSweep {
         let simd = self
             .simd
             .as_ref()
-            .and_then(|s| lanes::Lines::new(&self.stencil, self.width, bytes, s.kind()));
+            .and_then(|s| lanes::Lines::new(&self.stencil, self.width, bytes, s.level()));
         Self { simd, ..self }
     }
 
-    /// The same sweep with its lanes swept by `kind` (one the CPU runs;
-    /// [`lanes::Kind::available`]), where it has lanes: the same bits.
-    pub fn with_lanes(self, kind: lanes::Kind) -> Self {
+    /// The same sweep with its lanes in vector code of `level` (one the CPU
+    /// runs, [`crate::simd::available`]; none for scalar code), where it has
+    /// lanes: the same bits.
+    pub fn with_lanes(self, level: crate::simd::Level) -> Self {
         let simd = self
             .simd
             .as_ref()
-            .and_then(|s| lanes::Lines::new(&self.stencil, self.width, s.bytes(), kind));
+            .and_then(|s| lanes::Lines::new(&self.stencil, self.width, s.bytes(), level));
         Self { simd, ..self }
     }
 

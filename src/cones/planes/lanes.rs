@@ -6,7 +6,8 @@
 //! compresses them in a register; AVX2 has no compress, so a permutation
 //! looked up by the pass mask ([`COMPRESS`]) stands in for it. Every
 //! kernel gives what the scalar code in `planes.rs` gives, bit for bit
-//! (the module's tests run each one the CPU has against the definitions).
+//! (the module's tests run each one the CPU has against the definitions);
+//! which one runs is [`crate::simd::level`].
 //!
 //! AVX2 matters beside AVX-512: most x86 CPUs in use have AVX2 and no
 //! AVX-512, and with the scalar code the 8192², K = 256 bake missed its
@@ -17,55 +18,6 @@ use std::arch::x86_64::*;
 
 #[cfg(target_arch = "x86_64")]
 use super::{each_awake_block, open_block, Kept, Scan, Span, BLOCK};
-
-/// Which vector code runs the scans: the best the CPU has.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(super) enum Kind {
-    Scalar,
-    /// AVX2 (with popcnt): eight 32-bit lanes, four `f64`.
-    #[cfg(target_arch = "x86_64")]
-    Avx2,
-    /// AVX-512 F, VL and BW (with popcnt): eight `f64` lanes, masks, compress.
-    #[cfg(target_arch = "x86_64")]
-    Avx512,
-}
-
-impl Kind {
-    /// The best this CPU runs, as far as `TERRABAKE_SIMD` allows
-    /// ([`crate::simd`]).
-    pub(super) fn detect() -> Self {
-        #[cfg(target_arch = "x86_64")]
-        {
-            use crate::simd::{allows, Level};
-            use std::arch::is_x86_feature_detected as has;
-            let avx512 = has!("avx512f") && has!("avx512vl") && has!("avx512bw");
-            if allows(Level::Avx512) && avx512 && has!("popcnt") {
-                return Self::Avx512;
-            }
-            if allows(Level::Avx2) && has!("avx2") && has!("popcnt") {
-                return Self::Avx2;
-            }
-        }
-        Self::Scalar
-    }
-
-    /// Every kind this CPU runs, scalar first (for the tests).
-    #[cfg(test)]
-    pub(super) fn available() -> Vec<Self> {
-        let best = Self::detect();
-        let mut all = vec![Self::Scalar];
-        #[cfg(target_arch = "x86_64")]
-        {
-            if best != Self::Scalar {
-                all.push(Self::Avx2);
-            }
-            if best == Self::Avx512 {
-                all.push(Self::Avx512);
-            }
-        }
-        all
-    }
-}
 
 /// For each mask of `MASKS` (2^lanes) lanes, the 32-bit lanes that pack
 /// the lanes set to the front of a vector, in order, one byte each (the
@@ -100,6 +52,17 @@ const COMPRESS: [u64; 256] = compress_table(1);
 /// Four 64-bit lanes, each as its two 32-bit halves.
 #[cfg(target_arch = "x86_64")]
 const COMPRESS_PAIRS: [u64; 16] = compress_table(2);
+
+/// The eight columns (or cells) from `c0` on, one to a 32-bit lane.
+#[cfg(target_arch = "x86_64")]
+#[inline]
+#[target_feature(enable = "avx2")]
+fn columns(c0: u32) -> __m256i {
+    _mm256_add_epi32(
+        _mm256_set1_epi32(c0 as i32),
+        _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
+    )
+}
 
 /// The lanes of `v` set in `mask`, packed to the front.
 #[cfg(target_arch = "x86_64")]
@@ -197,10 +160,7 @@ pub(super) unsafe fn open_cells_avx2(
         // Stored whole (the lanes past the open ones are overwritten or
         // truncated later). SAFETY: `n + 8 <= targets.len()`.
         unsafe {
-            let index = _mm256_add_epi32(
-                _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
-                _mm256_set1_epi32(c0 as i32),
-            );
+            let index = columns(c0 as u32);
             _mm256_storeu_si256(
                 targets.as_mut_ptr().add(n).cast(),
                 compress_epi32(index, bits),
@@ -295,10 +255,7 @@ pub(super) unsafe fn open_cells_avx512(
         // store to memory is microcoded on AMD's Zen 4, and took 45 % of the
         // bake there. SAFETY: `n + 8 <= targets.len()`.
         unsafe {
-            let index = _mm256_add_epi32(
-                _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
-                _mm256_set1_epi32(c0 as i32),
-            );
+            let index = columns(c0 as u32);
             _mm256_storeu_si256(
                 targets.as_mut_ptr().add(n).cast(),
                 _mm256_maskz_compress_epi32(open, index),
@@ -349,10 +306,7 @@ pub(super) unsafe fn keep_in_reach_avx2(
         _mm256_set1_epi32(test.first as i32),
         _mm256_set1_epi32(test.last as i32),
     );
-    let mut index = _mm256_add_epi32(
-        _mm256_set1_epi32(c0 as i32),
-        _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
-    );
+    let mut index = columns(c0);
     for j in (0..whole).step_by(8) {
         // SAFETY: `j + 8 <= g.len()`.
         let gi = _mm256_cvtepu16_epi32(unsafe { _mm_loadu_si128(g.as_ptr().add(j).cast()) });
@@ -423,10 +377,7 @@ pub(super) unsafe fn keep_in_reach_avx512(
         _mm256_set1_epi32(first as i32),
         _mm256_set1_epi32(last as i32),
     );
-    let mut index = _mm256_add_epi32(
-        _mm256_set1_epi32(c0 as i32),
-        _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
-    );
+    let mut index = columns(c0);
     for j in (0..len).step_by(8) {
         let lanes: __mmask8 = if len - j >= 8 {
             0xff

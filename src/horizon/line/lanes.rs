@@ -43,7 +43,7 @@
 //! the depth in its next step (the line leaves the lanes for good).
 //!
 //! **When.** AVX-512 F, VL and DQ (and popcnt), else AVX2 (and popcnt),
-//! detected at run time ([`Kind`]; the AVX2 kernel is the AVX-512 one in
+//! detected at run time ([`crate::simd::level`]; the AVX2 kernel is the AVX-512 one in
 //! four lanes, its masks vectors, its scatter one lane at a time); without
 //! nodata and without distances; for steps with `b != 0` (an east or west step
 //! has one line per row) and of at most a quarter of the depth in
@@ -51,6 +51,7 @@
 //! the scalar sweep, which gives the same bits.
 
 use super::{Lane, Out, Stencil, Sweep, SweepStats};
+use crate::simd::Level;
 
 /// Hull vertices a lane keeps at most, and at least: fewer than 128 where
 /// the memory given would not hold that many for every line, and no lanes
@@ -80,7 +81,7 @@ pub(super) struct Lines {
     /// Hull vertices a lane keeps.
     depth: usize,
     /// What sweeps them.
-    kind: Kind,
+    level: Level,
     /// `t` of each line's last post.
     t: Vec<f64>,
     /// Vertices on each line's hull; -1 for a line swept by the scalar
@@ -100,12 +101,13 @@ pub(super) struct Lines {
 
 impl Lines {
     /// The lanes for lines of `stencil`'s step over a DEM `width` posts
-    /// wide with hulls of at most `bytes`, swept by `kind` (which the CPU
-    /// must run), or `None` where they do not apply (the step, or steps of
-    /// more than a quarter of the depth `bytes` allows).
-    pub(super) fn new(stencil: &Stencil, width: usize, bytes: usize, kind: Kind) -> Option<Self> {
+    /// wide with hulls of at most `bytes`, swept in vector code of `level`,
+    /// or `None` where they do not apply (scalar code, a level the CPU does
+    /// not run, the step, or steps of more than a quarter of the depth
+    /// `bytes` allows).
+    pub(super) fn new(stencil: &Stencil, width: usize, bytes: usize, level: Level) -> Option<Self> {
         let step = stencil.step;
-        if !Kind::available().contains(&kind) || step.1 == 0 {
+        if level == Level::Scalar || level > crate::simd::level() || step.1 == 0 {
             return None;
         }
         let q = step.1.unsigned_abs() as usize;
@@ -124,7 +126,7 @@ impl Lines {
             modulus,
             count,
             depth,
-            kind,
+            level,
             t: vec![0.0; count],
             len: vec![0; count],
             head_t: vec![0.0; 3 * count],
@@ -136,8 +138,8 @@ impl Lines {
     }
 
     /// What sweeps these lanes.
-    pub(super) fn kind(&self) -> Kind {
-        self.kind
+    pub(super) fn level(&self) -> Level {
+        self.level
     }
 
     /// Memory that gives these lanes their depth ([`Self::new`]).
@@ -266,14 +268,15 @@ impl Lines {
                 if part.is_empty() {
                     continue;
                 }
-                // SAFETY: `new` was given a kind the CPU runs; a step from
-                // `part` stays on the DEM, whose rows the window holds.
+                // SAFETY: `new` took a vector level the CPU runs; a step
+                // from `part` stays on the DEM, whose rows the window holds.
                 #[cfg(target_arch = "x86_64")]
-                match self.kind {
-                    Kind::Avx512 => unsafe {
+                match self.level {
+                    Level::Avx512 => unsafe {
                         kernel.row_avx512(self, terrain, row, part, out, stats)
                     },
-                    Kind::Avx2 => unsafe { kernel.row_avx2(self, terrain, row, part, out, stats) },
+                    Level::Avx2 => unsafe { kernel.row_avx2(self, terrain, row, part, out, stats) },
+                    Level::Scalar => unreachable!("`new` makes no lanes for scalar code"),
                 }
             }
         }
@@ -303,49 +306,9 @@ impl Lines {
     }
 }
 
-/// The vector code that sweeps the lanes: eight lines to a vector in
-/// AVX-512, four in AVX2 (where most x86 CPUs in use stop).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Kind {
-    /// AVX-512 F, VL and DQ, and popcnt.
-    Avx512,
-    /// AVX2 and popcnt.
-    Avx2,
-}
-
-impl Kind {
-    /// The best this CPU runs, if any, as far as `TERRABAKE_SIMD` allows
-    /// ([`crate::simd`]).
-    pub fn detect() -> Option<Self> {
-        #[cfg(target_arch = "x86_64")]
-        {
-            use crate::simd::{allows, Level};
-            use std::arch::is_x86_feature_detected as has;
-            let avx512 = has!("avx512f") && has!("avx512vl") && has!("avx512dq");
-            if allows(Level::Avx512) && avx512 && has!("popcnt") {
-                return Some(Self::Avx512);
-            }
-            if allows(Level::Avx2) && has!("avx2") && has!("popcnt") {
-                return Some(Self::Avx2);
-            }
-        }
-        None
-    }
-
-    /// Every kind this CPU runs (what the tests compare with the scalar
-    /// sweep).
-    pub fn available() -> Vec<Self> {
-        match Self::detect() {
-            Some(Self::Avx512) => vec![Self::Avx512, Self::Avx2],
-            Some(Self::Avx2) => vec![Self::Avx2],
-            None => Vec::new(),
-        }
-    }
-}
-
-/// Whether this CPU runs the lanes ([`Kind::detect`]).
+/// Whether this CPU runs the lanes ([`crate::simd::level`]).
 pub fn cpu_has_lanes() -> bool {
-    Kind::detect().is_some()
+    crate::simd::level() > Level::Scalar
 }
 
 /// A step's interior crossings as offsets into the heights, and what a row
