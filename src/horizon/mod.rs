@@ -1069,21 +1069,21 @@ impl BandWriter {
     fn encode(&self, y0: usize, angles: &mut [f32]) -> Vec<terrabake_format::EncodedTile> {
         let (w, ts, [x0, ay0, x1, ay1]) = (self.width, self.tile_size, self.aoi);
         for (r, row) in angles.chunks_mut(w).enumerate() {
-            let y = y0 + r;
-            for (x, v) in row.iter_mut().enumerate() {
-                if !(x0..x1).contains(&x) || !(ay0..ay1).contains(&y) {
-                    *v = f32::NAN;
-                }
+            if (ay0..ay1).contains(&(y0 + r)) {
+                row[..x0.min(w)].fill(f32::NAN);
+                row[x1.min(w)..].fill(f32::NAN);
+            } else {
+                row.fill(f32::NAN);
             }
         }
         let enc = self.enc;
         match enc {
             AngleEncoding::U16 => {
-                let codes = enc.quantise_row(angles, |c| c as u16);
+                let codes = quantise_row(enc, angles, |c| c as u16);
                 encode_tile_row(&codes.expect("u16 codes"), w, ts, 0u16, Codec::Raw)
             }
             AngleEncoding::U8 => {
-                let codes = enc.quantise_row(angles, |c| c as u8);
+                let codes = quantise_row(enc, angles, |c| c as u8);
                 encode_tile_row(&codes.expect("u8 codes"), w, ts, 0u8, Codec::Raw)
             }
             AngleEncoding::F32 => encode_tile_row(angles, w, ts, f32::NAN, Codec::Raw),
@@ -1117,6 +1117,45 @@ impl BandWriter {
     }
 }
 
+/// [`AngleEncoding::quantise_row`] in the CPU's vectors ([`crate::simd`]):
+/// the format crate's loop, compiled here for AVX-512 or AVX2 (the same
+/// codes), where the baseline build converts two values at a time.
+fn quantise_row<T, F: Fn(u32) -> T>(enc: AngleEncoding, degs: &[f32], narrow: F) -> Option<Vec<T>> {
+    quantise_row_at(crate::simd::level(), enc, degs, narrow)
+}
+
+/// [`quantise_row`] at `level` (one the CPU runs, [`crate::simd::available`]).
+fn quantise_row_at<T, F: Fn(u32) -> T>(
+    level: crate::simd::Level,
+    enc: AngleEncoding,
+    degs: &[f32],
+    narrow: F,
+) -> Option<Vec<T>> {
+    use crate::simd::Level;
+    assert!(
+        level <= crate::simd::level(),
+        "{level:?} is not run by this CPU"
+    );
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx512vl,avx512bw,avx512dq")]
+    fn avx512<T, F: Fn(u32) -> T>(enc: AngleEncoding, degs: &[f32], narrow: F) -> Option<Vec<T>> {
+        enc.quantise_row(degs, narrow)
+    }
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn avx2<T, F: Fn(u32) -> T>(enc: AngleEncoding, degs: &[f32], narrow: F) -> Option<Vec<T>> {
+        enc.quantise_row(degs, narrow)
+    }
+    match level {
+        // SAFETY: the CPU runs `level`.
+        #[cfg(target_arch = "x86_64")]
+        Level::Avx512 => unsafe { avx512(enc, degs, narrow) },
+        #[cfg(target_arch = "x86_64")]
+        Level::Avx2 => unsafe { avx2(enc, degs, narrow) },
+        _ => enc.quantise_row(degs, narrow),
+    }
+}
+
 /// All bands of the `horizon` layer decoded to degrees, band-major.
 pub fn read_horizons(asset: &Asset<Mmap>) -> Result<(Vec<Vec<f32>>, Vec<f64>)> {
     let map = terrabake_format::horizons::HorizonMap::open(asset)
@@ -1130,4 +1169,48 @@ pub fn read_horizons(asset: &Asset<Mmap>) -> Result<(Vec<Vec<f32>>, Vec<f64>)> {
         })
         .collect::<Result<Vec<_>>>()?;
     Ok((bands, map.azimuths().to_vec()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The vector builds of the angle codes give the format crate's codes:
+    /// every code's centre and half-steps a hair either side, the ends,
+    /// NaN and infinities, and a spread of angles.
+    #[test]
+    fn quantised_rows_are_the_format_crates_codes_at_every_level() {
+        for enc in [AngleEncoding::U8, AngleEncoding::U16] {
+            let step = enc.step_deg();
+            let mut degs = vec![
+                f32::NAN,
+                f32::INFINITY,
+                f32::NEG_INFINITY,
+                -1e9,
+                1e9,
+                -90.0,
+                90.0,
+            ];
+            let mut k = -90.0;
+            while k <= 90.0 {
+                for d in [0.0, 0.5 * step, -0.5 * step] {
+                    let x = (k + d) as f32;
+                    degs.extend([
+                        x,
+                        f32::from_bits(x.to_bits() + 1),
+                        f32::from_bits(x.to_bits().wrapping_sub(1)),
+                    ]);
+                }
+                k += step;
+            }
+            degs.extend((0..10_000).map(|i| -95.0 + 190.0 * (i as f32 / 10_000.0)));
+            for level in crate::simd::available() {
+                assert_eq!(
+                    quantise_row_at(level, enc, &degs, |c| c),
+                    enc.quantise_row(&degs, |c| c),
+                    "{enc:?} at {level:?}"
+                );
+            }
+        }
+    }
 }
