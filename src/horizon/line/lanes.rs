@@ -54,10 +54,12 @@
 //! **When.** AVX-512 F, VL and DQ (and popcnt), else AVX2 (and popcnt),
 //! detected at run time ([`crate::simd::level`]; the AVX2 kernel is the AVX-512 one in
 //! four lanes, its masks vectors, its scatter one lane at a time); without
-//! nodata and without distances; for steps with `b != 0` (an east or west step
-//! has one line per row) and of at most a quarter of the depth in
-//! vertices (every direction of 64 on square posts). Anything else takes
-//! the scalar sweep, which gives the same bits.
+//! nodata and without distances; for steps with `b != 0` and of at most a
+//! quarter of the depth in vertices (every direction of 64 on square
+//! posts). An east or west step has one line per row, so its lanes are
+//! rows instead ([`Rows`]: neighbouring rows stepped column by column, the
+//! same hulls and pops, a whole row's depth of storage). Anything else
+//! takes the scalar sweep, which gives the same bits.
 
 use super::{Lane, Out, Stencil, Sweep, SweepStats};
 use crate::simd::Level;
@@ -319,6 +321,68 @@ impl Lines {
     }
 }
 
+/// East-west lines (steps `(±1, 0)`): every row is one line, so the lanes
+/// are rows instead, [`GROUPS`] vectors of neighbouring rows stepped
+/// column by column from the far end, their posts gathered. A line never
+/// leaves its row, so nothing is carried between bands, and a hull holds
+/// at most a row's posts: the storage is `16 * width` bytes a lane.
+#[derive(Debug)]
+pub(super) struct Rows {
+    level: Level,
+    /// The most the hulls may take, as given.
+    bytes: usize,
+}
+
+impl Rows {
+    /// Rows of `step` over a DEM `width` posts wide in vector code of
+    /// `level` with at most `bytes` for the hulls, or `None` where they do
+    /// not apply (not an east-west step, scalar code, a level the CPU does
+    /// not run, or a row's hull would not fit).
+    pub(super) fn new(step: (i64, i64), width: usize, bytes: usize, level: Level) -> Option<Self> {
+        let fits = Self::bytes(width) <= bytes.min(MAX_BYTES);
+        (step.1 == 0 && level > Level::Scalar && level <= crate::simd::level() && fits)
+            .then_some(Self { level, bytes })
+    }
+
+    /// The hulls' storage for rows `width` posts wide.
+    fn bytes(width: usize) -> usize {
+        2 * 8 * GROUPS * 8 * width
+    }
+
+    /// What sweeps these rows, and the memory they were given.
+    pub(super) fn level_and_bytes(&self) -> (Level, usize) {
+        (self.level, self.bytes)
+    }
+
+    /// Sweeps output rows `band` of `sweep`'s window into `out`, the same
+    /// bits as the scalar sweep.
+    pub(super) fn sweep(
+        &self,
+        sweep: &Sweep,
+        band: std::ops::Range<usize>,
+        out: &mut Out,
+        stats: &mut SweepStats,
+    ) {
+        let kernel = Kernel::new(sweep);
+        let terrain = sweep.placed.t;
+        let mut storage = vec![0.0; Self::bytes(terrain.width) / 8];
+        let (hull_t, hull_w) = storage.split_at_mut(Self::bytes(terrain.width) / 16);
+        let east = sweep.placed.stencil.step.0 > 0;
+        // SAFETY: `new` took a vector level the CPU runs; the band's rows
+        // are in the window and in `out`, and the storage holds a row.
+        #[cfg(target_arch = "x86_64")]
+        match self.level {
+            Level::Avx512 => unsafe {
+                kernel.rows_avx512(terrain, band, east, out, stats, hull_t, hull_w)
+            },
+            Level::Avx2 => unsafe {
+                kernel.rows_avx2(terrain, band, east, out, stats, hull_t, hull_w)
+            },
+            Level::Scalar => unreachable!("`new` makes no rows for scalar code"),
+        }
+    }
+}
+
 /// Whether this CPU runs the lanes ([`crate::simd::level`]).
 pub fn cpu_has_lanes() -> bool {
     crate::simd::level() > Level::Scalar
@@ -463,7 +527,7 @@ mod avx512 {
                     let v = groups.each_ref().map(vertex);
                     // SAFETY: the hulls' storage.
                     unsafe {
-                        pop(&mut groups, v, stats);
+                        pop(groups.each_mut().map(|g| &mut g.hulls), v, stats);
                         for (g, (t, w)) in groups.iter_mut().zip(v) {
                             push(&mut g.hulls, t, w, stats);
                         }
@@ -478,7 +542,7 @@ mod avx512 {
                 };
                 let p = groups.each_ref().map(post);
                 // SAFETY: the hulls' storage.
-                unsafe { pop(&mut groups, p, stats) };
+                unsafe { pop(groups.each_mut().map(|g| &mut g.hulls), p, stats) };
                 for (g, (t, wp)) in groups.iter_mut().zip(p) {
                     let hulls = &mut g.hulls;
                     let posts = hulls.active;
@@ -519,6 +583,115 @@ mod avx512 {
                             _mm512_mask_storeu_pd(lines.head_w.as_mut_ptr().add(at), posts, vw);
                         }
                         _mm512_mask_storeu_pd(lines.t.as_mut_ptr().add(i0), g.on_row, t);
+                    }
+                }
+            }
+        }
+    }
+
+    impl Kernel<'_> {
+        /// East-west lines ([`super::Rows`]): rows `band`, eight to a
+        /// vector, [`GROUPS`] vectors at a time, swept column by column from
+        /// the far end (the east end when `east`).
+        ///
+        /// # Safety
+        /// AVX-512 F, VL and DQ; rows `band` in `terrain`'s window and in
+        /// `out`; `hull_t` and `hull_w` of `8 * GROUPS * width` each.
+        #[allow(clippy::too_many_arguments)]
+        #[target_feature(enable = "avx512f,avx512vl,avx512dq,popcnt")]
+        pub(super) unsafe fn rows_avx512(
+            &self,
+            terrain: &Terrain,
+            band: std::ops::Range<usize>,
+            east: bool,
+            out: &mut Out,
+            stats: &mut SweepStats,
+            hull_t: &mut [f64],
+            hull_w: &mut [f64],
+        ) {
+            let width = terrain.width;
+            let c = _mm512_set1_pd(self.curvature);
+            let twice_c = _mm512_set1_pd(2.0 * self.curvature);
+            let one = _mm512_set1_epi64(1);
+            let lane = _mm512_set_epi64(7, 6, 5, 4, 3, 2, 1, 0);
+            let count = _mm512_set1_epi64(8 * GROUPS as i64);
+            let (z, angles) = (terrain.z.as_ptr(), out.angles.as_mut_ptr());
+            for r0 in band.clone().step_by(8 * GROUPS) {
+                let mut groups = std::array::from_fn::<_, GROUPS, _>(|g| {
+                    let first = (r0 + 8 * g).min(band.end);
+                    let on_row = ((1u16 << (band.end - first).min(8)) - 1) as u8;
+                    let rows = _mm512_add_epi64(_mm512_set1_epi64(first as i64), lane);
+                    let line = _mm512_add_epi64(_mm512_set1_epi64(8 * g as i64), lane);
+                    let hulls = Hulls {
+                        top_t: _mm512_setzero_pd(),
+                        top_w: _mm512_setzero_pd(),
+                        sec_t: _mm512_setzero_pd(),
+                        sec_w: _mm512_setzero_pd(),
+                        third_t: _mm512_setzero_pd(),
+                        third_w: _mm512_setzero_pd(),
+                        len: _mm512_setzero_si512(),
+                        top: _mm512_sub_epi64(line, count),
+                        count,
+                        active: on_row,
+                        hull_t: hull_t.as_mut_ptr(),
+                        hull_w: hull_w.as_mut_ptr(),
+                    };
+                    let at = |row0: usize| {
+                        let from = _mm512_sub_epi64(rows, _mm512_set1_epi64(row0 as i64));
+                        _mm512_mullo_epi64(from, _mm512_set1_epi64(width as i64))
+                    };
+                    // SAFETY: the rows under `on_row` have lengths.
+                    let step =
+                        unsafe { _mm512_maskz_loadu_pd(on_row, self.lengths.as_ptr().add(first)) };
+                    (hulls, step, at(terrain.row0), at(out.row0))
+                });
+                let mut t = [_mm512_setzero_pd(); GROUPS];
+                for k in 0..width {
+                    let col = _mm512_set1_epi64(if east { width - 1 - k } else { k } as i64);
+                    let p = std::array::from_fn::<_, GROUPS, _>(|g| {
+                        let (hulls, step, at_z, _) = &groups[g];
+                        if k > 0 {
+                            t[g] = _mm512_sub_pd(t[g], *step);
+                        }
+                        // SAFETY: the posts of rows under the mask.
+                        let zp = unsafe {
+                            _mm512_cvtps_pd(_mm512_mask_i64gather_ps::<4>(
+                                _mm256_setzero_ps(),
+                                hulls.active,
+                                _mm512_add_epi64(*at_z, col),
+                                z,
+                            ))
+                        };
+                        (
+                            t[g],
+                            _mm512_sub_pd(zp, _mm512_mul_pd(_mm512_mul_pd(c, t[g]), t[g])),
+                        )
+                    });
+                    // SAFETY: the hulls' storage.
+                    unsafe { pop(groups.each_mut().map(|g| &mut g.0), p, stats) };
+                    for ((hulls, _, _, at_out), (t, wp)) in groups.iter_mut().zip(p) {
+                        let posts = hulls.active;
+                        let has = _mm512_mask_cmpge_epi64_mask(posts, hulls.len, one);
+                        let slope = _mm512_add_pd(
+                            _mm512_div_pd(
+                                _mm512_sub_pd(hulls.top_w, wp),
+                                _mm512_sub_pd(hulls.top_t, t),
+                            ),
+                            _mm512_mul_pd(twice_c, t),
+                        );
+                        let angle =
+                            _mm512_mask_blend_pd(has, _mm512_set1_pd(-90.0), atan_deg(slope));
+                        stats.posts += u64::from(posts.count_ones());
+                        // SAFETY: the hulls' storage, and the rows' posts.
+                        unsafe {
+                            _mm512_mask_i64scatter_ps::<4>(
+                                angles,
+                                posts,
+                                _mm512_add_epi64(*at_out, col),
+                                _mm512_cvtpd_ps(angle),
+                            );
+                            push(hulls, t, wp, stats);
+                        }
                     }
                 }
             }
@@ -601,22 +774,22 @@ mod avx512 {
     /// AVX-512 F; `hulls` over live storage.
     #[target_feature(enable = "avx512f,avx512vl,avx512dq,popcnt")]
     unsafe fn pop(
-        groups: &mut [Group; GROUPS],
+        mut hulls: [&mut Hulls; GROUPS],
         v: [(__m512d, __m512d); GROUPS],
         stats: &mut SweepStats,
     ) {
         loop {
             let mut popped = [0; GROUPS];
-            for ((p, g), (t, w)) in popped.iter_mut().zip(groups.iter()).zip(v) {
-                *p = pops(&g.hulls, t, w);
+            for ((p, h), (t, w)) in popped.iter_mut().zip(hulls.iter()).zip(v) {
+                *p = pops(h, t, w);
             }
             if popped.iter().all(|&p| p == 0) {
                 return;
             }
-            for (g, p) in groups.iter_mut().zip(popped) {
+            for (h, p) in hulls.iter_mut().zip(popped) {
                 stats.pops += u64::from(p.count_ones());
                 // SAFETY: as the caller's.
-                unsafe { drop_top(&mut g.hulls, p) };
+                unsafe { drop_top(h, p) };
             }
         }
     }
@@ -847,7 +1020,7 @@ mod avx2 {
                     let v = groups.each_ref().map(vertex);
                     // SAFETY: the hulls' storage.
                     unsafe {
-                        pop(&mut groups, v, stats);
+                        pop(groups.each_mut().map(|g| &mut g.hulls), v, stats);
                         for (g, (t, w)) in groups.iter_mut().zip(v) {
                             push(&mut g.hulls, t, w, stats);
                         }
@@ -862,7 +1035,7 @@ mod avx2 {
                 };
                 let p = groups.each_ref().map(post);
                 // SAFETY: the hulls' storage.
-                unsafe { pop(&mut groups, p, stats) };
+                unsafe { pop(groups.each_mut().map(|g| &mut g.hulls), p, stats) };
                 for (g, (t, wp)) in groups.iter_mut().zip(p) {
                     let hulls = &mut g.hulls;
                     let posts = hulls.active;
@@ -899,6 +1072,115 @@ mod avx2 {
                             _mm256_maskstore_pd(lines.head_w.as_mut_ptr().add(at), posts, vw);
                         }
                         _mm256_maskstore_pd(lines.t.as_mut_ptr().add(i0), g.on_row, t);
+                    }
+                }
+            }
+        }
+    }
+
+    impl Kernel<'_> {
+        /// [`Kernel::rows_avx512`] four rows to a vector.
+        ///
+        /// # Safety
+        /// AVX2; rows `band` in `terrain`'s window and in `out`; `hull_t`
+        /// and `hull_w` of `4 * GROUPS * width` each (or more).
+        #[allow(clippy::too_many_arguments)]
+        #[target_feature(enable = "avx2,popcnt")]
+        pub(super) unsafe fn rows_avx2(
+            &self,
+            terrain: &Terrain,
+            band: std::ops::Range<usize>,
+            east: bool,
+            out: &mut Out,
+            stats: &mut SweepStats,
+            hull_t: &mut [f64],
+            hull_w: &mut [f64],
+        ) {
+            let width = terrain.width;
+            let c = _mm256_set1_pd(self.curvature);
+            let twice_c = _mm256_set1_pd(2.0 * self.curvature);
+            let lane = _mm256_setr_epi64x(0, 1, 2, 3);
+            let count = _mm256_set1_epi64x(4 * GROUPS as i64);
+            let (z, angles) = (terrain.z.as_ptr(), out.angles.as_mut_ptr());
+            for r0 in band.clone().step_by(4 * GROUPS) {
+                let mut groups = std::array::from_fn::<_, GROUPS, _>(|g| {
+                    let first = (r0 + 4 * g).min(band.end);
+                    let on = (band.end - first).min(4) as i64;
+                    let on_row = _mm256_cmpgt_epi64(_mm256_set1_epi64x(on), lane);
+                    let line = _mm256_add_epi64(_mm256_set1_epi64x(4 * g as i64), lane);
+                    let hulls = Hulls {
+                        top_t: _mm256_setzero_pd(),
+                        top_w: _mm256_setzero_pd(),
+                        sec_t: _mm256_setzero_pd(),
+                        sec_w: _mm256_setzero_pd(),
+                        third_t: _mm256_setzero_pd(),
+                        third_w: _mm256_setzero_pd(),
+                        len: _mm256_setzero_si256(),
+                        top: _mm256_sub_epi64(line, count),
+                        count,
+                        active: on_row,
+                        hull_t: hull_t.as_mut_ptr(),
+                        hull_w: hull_w.as_mut_ptr(),
+                    };
+                    // Where each lane's row starts (rows past the band's
+                    // end are masked).
+                    let at = |row0: usize| {
+                        let r = |l: usize| ((first + l).saturating_sub(row0) * width) as i64;
+                        [r(0), r(1), r(2), r(3)]
+                    };
+                    // SAFETY: the rows under `on_row` have lengths.
+                    let step =
+                        unsafe { _mm256_maskload_pd(self.lengths.as_ptr().add(first), on_row) };
+                    (hulls, step, at(terrain.row0), at(out.row0))
+                });
+                let mut t = [_mm256_setzero_pd(); GROUPS];
+                for k in 0..width {
+                    let col = if east { width - 1 - k } else { k } as i64;
+                    let p = std::array::from_fn::<_, GROUPS, _>(|g| {
+                        let (hulls, step, at_z, _) = &groups[g];
+                        if k > 0 {
+                            t[g] = _mm256_sub_pd(t[g], *step);
+                        }
+                        let posts = at_z.map(|a| a + col);
+                        // SAFETY: the posts of rows under the mask.
+                        let zp = unsafe {
+                            _mm256_cvtps_pd(_mm256_mask_i64gather_ps::<4>(
+                                _mm_setzero_ps(),
+                                z,
+                                _mm256_setr_epi64x(posts[0], posts[1], posts[2], posts[3]),
+                                _mm_castsi128_ps(narrow(hulls.active)),
+                            ))
+                        };
+                        (
+                            t[g],
+                            _mm256_sub_pd(zp, _mm256_mul_pd(_mm256_mul_pd(c, t[g]), t[g])),
+                        )
+                    });
+                    // SAFETY: the hulls' storage.
+                    unsafe { pop(groups.each_mut().map(|g| &mut g.0), p, stats) };
+                    for ((hulls, _, _, at_out), (t, wp)) in groups.iter_mut().zip(p) {
+                        let posts = hulls.active;
+                        let has = at_least(posts, hulls.len, 1);
+                        let slope = _mm256_add_pd(
+                            _mm256_div_pd(
+                                _mm256_sub_pd(hulls.top_w, wp),
+                                _mm256_sub_pd(hulls.top_t, t),
+                            ),
+                            _mm256_mul_pd(twice_c, t),
+                        );
+                        let angle = select(has, atan_deg(slope), _mm256_set1_pd(-90.0));
+                        let on = bits(posts);
+                        stats.posts += u64::from(on.count_ones());
+                        // SAFETY: four lanes as four.
+                        let angle = unsafe {
+                            std::mem::transmute::<__m128, [f32; 4]>(_mm256_cvtpd_ps(angle))
+                        };
+                        for l in (0..4).filter(|l| on >> l & 1 == 1) {
+                            // SAFETY: a post of the band's rows.
+                            unsafe { *angles.offset((at_out[l] + col) as isize) = angle[l] };
+                        }
+                        // SAFETY: the hulls' storage.
+                        unsafe { push(hulls, t, wp, stats) };
                     }
                 }
             }
@@ -980,22 +1262,22 @@ mod avx2 {
     /// AVX2; `hulls` over live storage.
     #[target_feature(enable = "avx2,popcnt")]
     unsafe fn pop(
-        groups: &mut [Group; GROUPS],
+        mut hulls: [&mut Hulls; GROUPS],
         v: [(__m256d, __m256d); GROUPS],
         stats: &mut SweepStats,
     ) {
         loop {
             let mut popped = [_mm256_setzero_si256(); GROUPS];
-            for ((p, g), (t, w)) in popped.iter_mut().zip(groups.iter()).zip(v) {
-                *p = pops(&g.hulls, t, w);
+            for ((p, h), (t, w)) in popped.iter_mut().zip(hulls.iter()).zip(v) {
+                *p = pops(h, t, w);
             }
             if popped.iter().all(|&p| bits(p) == 0) {
                 return;
             }
-            for (g, p) in groups.iter_mut().zip(popped) {
+            for (h, p) in hulls.iter_mut().zip(popped) {
                 stats.pops += u64::from(bits(p).count_ones());
                 // SAFETY: as the caller's.
-                unsafe { drop_top(&mut g.hulls, p) };
+                unsafe { drop_top(h, p) };
             }
         }
     }
