@@ -233,10 +233,6 @@ impl Stage for SkyStage {
                         post_row.add_band(&integrals[b], angles, &edge);
                     });
             }
-            let inside = |i: usize| {
-                let (x, y) = (i % w, y0 + i / w);
-                (ax0..ax1).contains(&x) && (ay0..ay1).contains(&y) && !terrain.at(x, y).is_nan()
-            };
             for (layer, writer) in &mut writers {
                 if *layer == SkyLayer::HorizonEdge {
                     let edges: Vec<u16> = post_rows
@@ -246,17 +242,22 @@ impl Stage for SkyStage {
                     push_tile_row(writer, &edges, w, 0u16, Codec::Raw)?;
                     continue;
                 }
-                let values: Vec<f32> = (0..rows * w)
-                    .into_par_iter()
-                    .map(|i| {
-                        if inside(i) {
-                            let (post_row, col) = (&post_rows[i / w], i % w);
-                            layer.value(&post_row.sums(col), post_row.edges[col]) as f32
-                        } else {
-                            f32::NAN
+                // Values inside the area of interest, row by row.
+                let mut values = vec![f32::NAN; rows * w];
+                values
+                    .par_chunks_mut(w)
+                    .zip(post_rows.par_iter())
+                    .enumerate()
+                    .filter(|(r, _)| (ay0..ay1).contains(&(y0 + r)))
+                    .for_each(|(r, (values, post_row))| {
+                        let x0 = ax0.min(w);
+                        let columns = x0..ax1.clamp(x0, w);
+                        for (x, v) in columns.clone().zip(&mut values[columns]) {
+                            if !terrain.at(x, y0 + r).is_nan() {
+                                *v = layer.value(&post_row.sums(x), post_row.edges[x]) as f32;
+                            }
                         }
-                    })
-                    .collect();
+                    });
                 push_tile_row(writer, &values, w, f32::NAN, Codec::Raw)?;
             }
             bar.inc(1);
