@@ -772,7 +772,8 @@ fn line_lanes_equal_the_scalar_sweep_bit_for_bit() {
                 _ => unreachable!(),
             })
             .collect();
-        for step in [(5, -13), (-7, 3), (3, 11), (-1, 1)] {
+        // Long steps too (46 and 66 vertices, the planner's kind).
+        for step in [(5, -13), (-7, 3), (3, 11), (-1, 1), (17, 7), (-25, 9)] {
             let mut d = grid_direction(0.0, dx, dy, 1.0);
             d.step = step;
             dirs.push(d);
@@ -785,7 +786,8 @@ fn line_lanes_equal_the_scalar_sweep_bit_for_bit() {
                 .with_curvature(curvature);
             let mut want = vec![0f32; w * h];
             scalar.sweep(&whole, 0..h, &mut want);
-            let short = line::Stencil::new(dir.step).len() <= line::lanes::MAX_DEPTH / 4;
+            let short = line::Stencil::new(dir.step).len() + line::lanes::HEADROOM
+                <= line::lanes::MAX_DEPTH;
             // East-west steps go in lanes of rows (`lanes::Rows`).
             assert_eq!(new().in_lanes(), cpu && short, "{name}: {:?}", dir.step);
             assert!(!new().with_lane_memory(0).in_lanes());
