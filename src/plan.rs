@@ -25,9 +25,10 @@
 //! a longer reach or a finer encoding: never more bytes or time.
 //!
 //! **Cost models**, fitted by `pipelines/fit_plan_models.sh` on the bundled
-//! tile (2 cores): unbounded line sweeps `posts * S^1.34 / 1.34e7` s;
-//! bounded lines (a walk of each post's reach) `posts * S * (4.29e-8 +
-//! 8.04e-9 * D / cell)` s; bytes from the layers' tiles; memory from the
+//! tile (2 cores), each raised until no fit run took longer: unbounded
+//! line sweeps `posts * S^1.49 / 4.71e7` s; bounded lines (a walk of each
+//! post's reach) `posts * S * (2.25e-8 + 6.08e-9 * D / cell)` s; bytes
+//! from the layers' tiles; memory from the
 //! tile row the line stage holds per band. The bake takes the faster of the
 //! two line routes that fits the memory limit.
 //!
@@ -77,15 +78,15 @@ const DECISION_QUANTILE: f64 = 0.995;
 /// The pilot's seed: apart from `check`'s default, so that a check of a
 /// planned bake measures posts the plan never saw.
 pub const PILOT_SEED: u64 = 0x504c_414e;
-/// Fitted by pipelines/fit_plan_models.sh (docs/PLANNING.md), 2 cores:
-/// unbounded line horizons and the sky stage, seconds = posts *
-/// S^EXPONENT / RATE.
-pub const TIME_EXPONENT: f64 = 1.34;
-pub const TIME_RATE: f64 = 1.34e7;
+/// Fitted by pipelines/fit_plan_models.sh (docs/PLANNING.md), 2 cores,
+/// every fit run within the model: unbounded line horizons and the sky
+/// stage, seconds = posts * S^EXPONENT / RATE.
+pub const TIME_EXPONENT: f64 = 1.49;
+pub const TIME_RATE: f64 = 4.71e7;
 /// Bounded line horizons and the sky stage: seconds = posts * S *
 /// (PER_LINE + PER_CELL * D / cell).
-pub const BOUNDED_PER_LINE: f64 = 4.29e-8;
-pub const BOUNDED_PER_CELL: f64 = 8.04e-9;
+pub const BOUNDED_PER_LINE: f64 = 2.25e-8;
+pub const BOUNDED_PER_CELL: f64 = 6.08e-9;
 /// Seconds per post of the pyramid and of the cone planes at
 /// CONE_SLICES slices, measured on the bundled tile (2 cores, 0.13 s and
 /// 0.46 s; docs/BENCHMARKS.md, cone planes).
