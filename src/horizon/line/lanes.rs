@@ -493,7 +493,6 @@ mod avx512 {
             let c = _mm512_set1_pd(self.curvature);
             let twice_c = _mm512_set1_pd(2.0 * self.curvature);
             let step_v = _mm512_set1_pd(step);
-            let one = _mm512_set1_epi64(1);
             // The caller's columns have consecutive line indices.
             let first = lines.index(cols.start, row);
             for c0 in cols.clone().step_by(8 * GROUPS) {
@@ -554,15 +553,7 @@ mod avx512 {
                 for (g, (t, wp)) in groups.iter_mut().zip(p) {
                     let hulls = &mut g.hulls;
                     let posts = hulls.active;
-                    let has = _mm512_mask_cmpge_epi64_mask(posts, hulls.len, one);
-                    let slope = _mm512_add_pd(
-                        _mm512_div_pd(
-                            _mm512_sub_pd(hulls.top_w, wp),
-                            _mm512_sub_pd(hulls.top_t, t),
-                        ),
-                        _mm512_mul_pd(twice_c, t),
-                    );
-                    let angle = _mm512_mask_blend_pd(has, _mm512_set1_pd(-90.0), atan_deg(slope));
+                    let angle = horizon(hulls, t, wp, twice_c);
                     stats.posts += u64::from(posts.count_ones());
                     let i0 = g.i0;
                     // SAFETY: the hulls' storage, and posts of the row.
@@ -620,7 +611,6 @@ mod avx512 {
             let width = terrain.width;
             let c = _mm512_set1_pd(self.curvature);
             let twice_c = _mm512_set1_pd(2.0 * self.curvature);
-            let one = _mm512_set1_epi64(1);
             let lane = _mm512_set_epi64(7, 6, 5, 4, 3, 2, 1, 0);
             let count = _mm512_set1_epi64(8 * GROUPS as i64);
             let (z, angles) = (terrain.z.as_ptr(), out.angles.as_mut_ptr());
@@ -679,16 +669,7 @@ mod avx512 {
                     unsafe { pop(groups.each_mut().map(|g| &mut g.0), p, stats) };
                     for ((hulls, _, _, at_out), (t, wp)) in groups.iter_mut().zip(p) {
                         let posts = hulls.active;
-                        let has = _mm512_mask_cmpge_epi64_mask(posts, hulls.len, one);
-                        let slope = _mm512_add_pd(
-                            _mm512_div_pd(
-                                _mm512_sub_pd(hulls.top_w, wp),
-                                _mm512_sub_pd(hulls.top_t, t),
-                            ),
-                            _mm512_mul_pd(twice_c, t),
-                        );
-                        let angle =
-                            _mm512_mask_blend_pd(has, _mm512_set1_pd(-90.0), atan_deg(slope));
+                        let angle = horizon(hulls, t, wp, twice_c);
                         stats.posts += u64::from(posts.count_ones());
                         // SAFETY: the hulls' storage, and the rows' posts.
                         unsafe {
@@ -864,6 +845,20 @@ mod avx512 {
         hulls.top_w = _mm512_mask_mov_pd(hulls.top_w, pushed, w);
         hulls.len = _mm512_mask_add_epi64(hulls.len, pushed, hulls.len, _mm512_set1_epi64(1));
         stats.vertices += u64::from(pushed.count_ones());
+    }
+
+    /// The horizon angle (degrees) of each lane's post `(t, w)` from its
+    /// hull's top after the pops, -90 where the hull is empty: the scalar
+    /// `angle_deg`.
+    #[inline]
+    #[target_feature(enable = "avx512f,avx512vl,avx512dq,popcnt")]
+    fn horizon(hulls: &Hulls, t: __m512d, w: __m512d, twice_c: __m512d) -> __m512d {
+        let has = _mm512_mask_cmpge_epi64_mask(hulls.active, hulls.len, _mm512_set1_epi64(1));
+        let slope = _mm512_add_pd(
+            _mm512_div_pd(_mm512_sub_pd(hulls.top_w, w), _mm512_sub_pd(hulls.top_t, t)),
+            _mm512_mul_pd(twice_c, t),
+        );
+        _mm512_mask_blend_pd(has, _mm512_set1_pd(-90.0), atan_deg(slope))
     }
 
     /// [`super::super::atan_deg`] in eight lanes, its branches as blends:
@@ -1047,15 +1042,7 @@ mod avx2 {
                 for (g, (t, wp)) in groups.iter_mut().zip(p) {
                     let hulls = &mut g.hulls;
                     let posts = hulls.active;
-                    let has = at_least(posts, hulls.len, 1);
-                    let slope = _mm256_add_pd(
-                        _mm256_div_pd(
-                            _mm256_sub_pd(hulls.top_w, wp),
-                            _mm256_sub_pd(hulls.top_t, t),
-                        ),
-                        _mm256_mul_pd(twice_c, t),
-                    );
-                    let angle = select(has, atan_deg(slope), _mm256_set1_pd(-90.0));
+                    let angle = horizon(hulls, t, wp, twice_c);
                     stats.posts += u64::from(bits(posts).count_ones());
                     let i0 = g.i0;
                     // SAFETY: the hulls' storage, and posts of the row.
@@ -1168,15 +1155,7 @@ mod avx2 {
                     unsafe { pop(groups.each_mut().map(|g| &mut g.0), p, stats) };
                     for ((hulls, _, _, at_out), (t, wp)) in groups.iter_mut().zip(p) {
                         let posts = hulls.active;
-                        let has = at_least(posts, hulls.len, 1);
-                        let slope = _mm256_add_pd(
-                            _mm256_div_pd(
-                                _mm256_sub_pd(hulls.top_w, wp),
-                                _mm256_sub_pd(hulls.top_t, t),
-                            ),
-                            _mm256_mul_pd(twice_c, t),
-                        );
-                        let angle = select(has, atan_deg(slope), _mm256_set1_pd(-90.0));
+                        let angle = horizon(hulls, t, wp, twice_c);
                         let on = bits(posts);
                         stats.posts += u64::from(on.count_ones());
                         // SAFETY: four lanes as four.
@@ -1364,6 +1343,18 @@ mod avx2 {
         hulls.top_w = select(pushed, w, hulls.top_w);
         hulls.len = _mm256_add_epi64(hulls.len, _mm256_and_si256(pushed, _mm256_set1_epi64x(1)));
         stats.vertices += u64::from(bits(pushed).count_ones());
+    }
+
+    /// `avx512::horizon` in four lanes.
+    #[inline]
+    #[target_feature(enable = "avx2,popcnt")]
+    fn horizon(hulls: &Hulls, t: __m256d, w: __m256d, twice_c: __m256d) -> __m256d {
+        let has = at_least(hulls.active, hulls.len, 1);
+        let slope = _mm256_add_pd(
+            _mm256_div_pd(_mm256_sub_pd(hulls.top_w, w), _mm256_sub_pd(hulls.top_t, t)),
+            _mm256_mul_pd(twice_c, t),
+        );
+        select(has, atan_deg(slope), _mm256_set1_pd(-90.0))
     }
 
     /// `avx512::atan_deg` in four lanes: the same operations in the same
