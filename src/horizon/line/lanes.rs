@@ -469,10 +469,9 @@ mod avx512 {
 
     impl Kernel<'_> {
         /// Steps every line with a post on `row` in `cols` (each with its
-        /// far neighbour on the DEM) by one post, sixteen lines at a time:
-        /// two groups of eight whose pop loops run together, so that one
-        /// group's compares go on while the other's refills are on their
-        /// way.
+        /// far neighbour on the DEM) by one post, [`GROUPS`] vectors of
+        /// eight lines at a time whose pop loops run as one (module docs,
+        /// "Two vectors at once").
         ///
         /// # Safety
         /// AVX-512 F, VL and DQ; every crossing of the steps from `cols`
