@@ -548,9 +548,7 @@ pub struct BandedSweep {
     /// Lines that go on into the next band.
     lanes: Vec<Lane>,
     /// The lines in SIMD lanes instead, where they apply ([`lanes`]).
-    simd: Option<lanes::Lines>,
-    /// Or, for an east-west step, rows in SIMD lanes ([`lanes::Rows`]).
-    rows: Option<lanes::Rows>,
+    simd: Option<lanes::Lanes>,
     /// Bands swept so far.
     swept: usize,
     pub stats: SweepStats,
@@ -571,12 +569,7 @@ impl BandedSweep {
             simd: if nodata {
                 None
             } else {
-                lanes::Lines::new(&stencil, width, lanes::MAX_BYTES, crate::simd::level())
-            },
-            rows: if nodata {
-                None
-            } else {
-                lanes::Rows::new(dir.step, width, lanes::MAX_BYTES, crate::simd::level())
+                lanes::Lanes::new(&stencil, width, lanes::MAX_BYTES, crate::simd::level())
             },
             stencil,
             lengths: step_lengths(dir.step, height, spacing, row_scale),
@@ -592,11 +585,7 @@ impl BandedSweep {
     /// The same sweep without SIMD lanes (the scalar sweep they are
     /// checked against; the same bits).
     pub fn without_lanes(self) -> Self {
-        Self {
-            simd: None,
-            rows: None,
-            ..self
-        }
+        Self { simd: None, ..self }
     }
 
     /// The same sweep with the lanes' hulls held to `bytes` (fewer
@@ -606,11 +595,8 @@ impl BandedSweep {
         let simd = self
             .simd
             .as_ref()
-            .and_then(|s| lanes::Lines::new(&self.stencil, self.width, bytes, s.level()));
-        let rows = self.rows.as_ref().and_then(|r| {
-            lanes::Rows::new(self.stencil.step, self.width, bytes, r.level_and_bytes().0)
-        });
-        Self { simd, rows, ..self }
+            .and_then(|s| lanes::Lanes::new(&self.stencil, self.width, bytes, s.level()));
+        Self { simd, ..self }
     }
 
     /// The same sweep with its lanes in vector code of `level` (one the CPU
@@ -620,16 +606,13 @@ impl BandedSweep {
         let simd = self
             .simd
             .as_ref()
-            .and_then(|s| lanes::Lines::new(&self.stencil, self.width, s.bytes(), level));
-        let rows = self.rows.as_ref().and_then(|r| {
-            lanes::Rows::new(self.stencil.step, self.width, r.level_and_bytes().1, level)
-        });
-        Self { simd, rows, ..self }
+            .and_then(|s| lanes::Lanes::new(&self.stencil, self.width, s.bytes(), level));
+        Self { simd, ..self }
     }
 
     /// Whether the lines go in SIMD lanes ([`lanes`]).
     pub fn in_lanes(&self) -> bool {
-        self.simd.is_some() || self.rows.is_some()
+        self.simd.is_some()
     }
 
     /// Whether bands go from the south edge up.
@@ -691,18 +674,14 @@ impl BandedSweep {
             nodata: self.nodata,
         };
         let stats = &mut self.stats;
-        if out.distances.is_some() && (self.simd.is_some() || self.rows.is_some()) {
+        if out.distances.is_some() && self.simd.is_some() {
             // The lanes keep no distances: the scalar sweep from the start.
             assert_eq!(self.swept, 0, "distances asked after a band without");
-            (self.simd, self.rows) = (None, None);
+            self.simd = None;
         }
         self.swept += 1;
         if let Some(simd) = &mut self.simd {
             simd.sweep(&sweep, band, &mut out, stats);
-            return;
-        }
-        if let Some(rows) = &self.rows {
-            rows.sweep(&sweep, band, &mut out, stats);
             return;
         }
         // Lines from earlier bands first, then the lines whose far posts

@@ -123,16 +123,12 @@ pub(super) struct Lines {
 }
 
 impl Lines {
-    /// The lanes for lines of `stencil`'s step over a DEM `width` posts
-    /// wide with hulls of at most `bytes`, swept in vector code of `level`,
-    /// or `None` where they do not apply (scalar code, a level the CPU does
-    /// not run, the step, or steps longer than the depth `bytes` allows,
-    /// less [`HEADROOM`]).
-    pub(super) fn new(stencil: &Stencil, width: usize, bytes: usize, level: Level) -> Option<Self> {
+    /// The lanes for lines of `stencil`'s step (`b != 0`) over a DEM
+    /// `width` posts wide with hulls of at most `bytes`, swept in vector
+    /// code of `level`, or `None` where the step is longer than the depth
+    /// `bytes` allows, less [`HEADROOM`].
+    fn new(stencil: &Stencil, width: usize, bytes: usize, level: Level) -> Option<Self> {
         let step = stencil.step;
-        if level == Level::Scalar || level > crate::simd::level() || step.1 == 0 {
-            return None;
-        }
         let q = step.1.unsigned_abs() as usize;
         let s = step.0 * step.1.signum();
         let modulus = width + s.unsigned_abs() as usize;
@@ -160,13 +156,8 @@ impl Lines {
         })
     }
 
-    /// What sweeps these lanes.
-    pub(super) fn level(&self) -> Level {
-        self.level
-    }
-
     /// Memory that gives these lanes their depth ([`Self::new`]).
-    pub(super) fn bytes(&self) -> usize {
+    fn bytes(&self) -> usize {
         self.depth * 2 * 8 * self.count
     }
 
@@ -223,7 +214,7 @@ impl Lines {
 
     /// Sweeps output rows `band` (the next in the sweep's order) of
     /// `sweep`'s window into `out`: as the scalar sweep, the same bits.
-    pub(super) fn sweep(
+    fn sweep(
         &mut self,
         sweep: &Sweep,
         band: std::ops::Range<usize>,
@@ -299,7 +290,7 @@ impl Lines {
                         kernel.row_avx512(self, terrain, row, part, out, stats)
                     },
                     Level::Avx2 => unsafe { kernel.row_avx2(self, terrain, row, part, out, stats) },
-                    Level::Scalar => unreachable!("`new` makes no lanes for scalar code"),
+                    Level::Scalar => unreachable!("`Lanes::new` makes no lanes for scalar code"),
                 }
             }
         }
@@ -329,43 +320,89 @@ impl Lines {
     }
 }
 
+/// The SIMD lanes of one direction's sweep: its lines, or for an
+/// east-west step its rows.
+#[derive(Debug)]
+pub(super) enum Lanes {
+    Lines(Lines),
+    Rows(Rows),
+}
+
+impl Lanes {
+    /// The lanes for `stencil`'s step over a DEM `width` posts wide with
+    /// hulls of at most `bytes`, in vector code of `level`, or `None` where
+    /// they do not apply (scalar code, a level the CPU does not run, or
+    /// hulls that `bytes` cannot hold).
+    pub(super) fn new(stencil: &Stencil, width: usize, bytes: usize, level: Level) -> Option<Self> {
+        if level == Level::Scalar || level > crate::simd::level() {
+            None
+        } else if stencil.step.1 == 0 {
+            Rows::new(width, bytes, level).map(Self::Rows)
+        } else {
+            Lines::new(stencil, width, bytes, level).map(Self::Lines)
+        }
+    }
+
+    /// What sweeps these lanes.
+    pub(super) fn level(&self) -> Level {
+        match self {
+            Self::Lines(l) => l.level,
+            Self::Rows(r) => r.level,
+        }
+    }
+
+    /// Memory that gives these lanes their shape: [`Self::new`] with it
+    /// makes the same lanes.
+    pub(super) fn bytes(&self) -> usize {
+        match self {
+            Self::Lines(l) => l.bytes(),
+            Self::Rows(r) => 8 * (r.hull_t.len() + r.hull_w.len()),
+        }
+    }
+
+    /// Sweeps output rows `band` (the next in the sweep's order) of
+    /// `sweep`'s window into `out`: as the scalar sweep, the same bits.
+    pub(super) fn sweep(
+        &mut self,
+        sweep: &Sweep,
+        band: std::ops::Range<usize>,
+        out: &mut Out,
+        stats: &mut SweepStats,
+    ) {
+        match self {
+            Self::Lines(l) => l.sweep(sweep, band, out, stats),
+            Self::Rows(r) => r.sweep(sweep, band, out, stats),
+        }
+    }
+}
+
 /// East-west lines (steps `(±1, 0)`): every row is one line, so the lanes
 /// are rows instead, [`GROUPS`] vectors of neighbouring rows stepped
 /// column by column from the far end, their posts gathered. A line never
 /// leaves its row, so nothing is carried between bands, and a hull holds
-/// at most a row's posts: the storage is `16 * width` bytes a lane.
+/// at most a row's posts: the storage is `16 * width` bytes a lane, kept
+/// from band to band (a vertex is stored before it is read).
 #[derive(Debug)]
 pub(super) struct Rows {
     level: Level,
-    /// The most the hulls may take, as given.
-    bytes: usize,
+    hull_t: Vec<f64>,
+    hull_w: Vec<f64>,
 }
 
 impl Rows {
-    /// Rows of `step` over a DEM `width` posts wide in vector code of
-    /// `level` with at most `bytes` for the hulls, or `None` where they do
-    /// not apply (not an east-west step, scalar code, a level the CPU does
-    /// not run, or a row's hull would not fit).
-    pub(super) fn new(step: (i64, i64), width: usize, bytes: usize, level: Level) -> Option<Self> {
-        let fits = Self::bytes(width) <= bytes.min(MAX_BYTES);
-        (step.1 == 0 && level > Level::Scalar && level <= crate::simd::level() && fits)
-            .then_some(Self { level, bytes })
+    /// Rows `width` posts wide in vector code of `level`, or `None` where
+    /// a row's hulls would take more than `bytes`.
+    fn new(width: usize, bytes: usize, level: Level) -> Option<Self> {
+        let vertices = GROUPS * 8 * width;
+        (2 * 8 * vertices <= bytes.min(MAX_BYTES)).then(|| Self {
+            level,
+            hull_t: vec![0.0; vertices],
+            hull_w: vec![0.0; vertices],
+        })
     }
 
-    /// The hulls' storage for rows `width` posts wide.
-    fn bytes(width: usize) -> usize {
-        2 * 8 * GROUPS * 8 * width
-    }
-
-    /// What sweeps these rows, and the memory they were given.
-    pub(super) fn level_and_bytes(&self) -> (Level, usize) {
-        (self.level, self.bytes)
-    }
-
-    /// Sweeps output rows `band` of `sweep`'s window into `out`, the same
-    /// bits as the scalar sweep.
-    pub(super) fn sweep(
-        &self,
+    fn sweep(
+        &mut self,
         sweep: &Sweep,
         band: std::ops::Range<usize>,
         out: &mut Out,
@@ -373,8 +410,7 @@ impl Rows {
     ) {
         let kernel = Kernel::new(sweep);
         let terrain = sweep.placed.t;
-        let mut storage = vec![0.0; Self::bytes(terrain.width) / 8];
-        let (hull_t, hull_w) = storage.split_at_mut(Self::bytes(terrain.width) / 16);
+        let (hull_t, hull_w) = (&mut self.hull_t[..], &mut self.hull_w[..]);
         let east = sweep.placed.stencil.step.0 > 0;
         // SAFETY: `new` took a vector level the CPU runs; the band's rows
         // are in the window and in `out`, and the storage holds a row.
@@ -386,7 +422,7 @@ impl Rows {
             Level::Avx2 => unsafe {
                 kernel.rows_avx2(terrain, band, east, out, stats, hull_t, hull_w)
             },
-            Level::Scalar => unreachable!("`new` makes no rows for scalar code"),
+            Level::Scalar => unreachable!("`Lanes::new` makes no rows for scalar code"),
         }
     }
 }
