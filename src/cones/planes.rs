@@ -497,7 +497,11 @@ fn prefetch<T>(values: &[T]) {
 fn each_awake_block(
     wakes: &mut [u16],
     slice: u16,
-    (member, slope, floor): (&[u16], &[f32], &[u16]),
+    RowCells {
+        member,
+        slope,
+        floor,
+    }: RowCells,
     mut read: impl FnMut(usize) -> u16,
 ) -> u64 {
     let awake_in = |wakes: &[u16], b0: usize| {
@@ -766,24 +770,22 @@ fn open_cells<'t>(
     wakes: &mut [u16],
     room: &'t mut Vec<u32>,
 ) -> Open<'t> {
-    assert!(member.len() == slope.len() && member.len() == floor.len());
-    assert_eq!(wakes.len(), member.len().div_ceil(BLOCK));
+    let cells = RowCells::new(member, slope, floor);
+    assert_eq!(wakes.len(), cells.len().div_ceil(BLOCK));
     // Room for every cell and a vector more, kept between rows: only the
     // first `n` are the row's, so nothing needs clearing.
-    if room.len() < member.len() + 8 {
-        room.resize(member.len() + 8, 0);
+    if room.len() < cells.len() + 8 {
+        room.resize(cells.len() + 8, 0);
     }
     // SAFETY (both): the CPU has the features (`crate::simd::level`); `room`
     // has room for every cell and a vector more; the slices agree in
     // length, and every member indexes `rise_of`.
     let (n, reach, blocks_read) = match scan.lanes {
         #[cfg(target_arch = "x86_64")]
-        Level::Avx512 => unsafe {
-            lanes::open_cells_avx512(member, slope, floor, scan, wakes, room)
-        },
+        Level::Avx512 => unsafe { lanes::open_cells_avx512(cells, scan, wakes, room) },
         #[cfg(target_arch = "x86_64")]
-        Level::Avx2 => unsafe { lanes::open_cells_avx2(member, slope, floor, scan, wakes, room) },
-        _ => open_cells_scalar(member, slope, floor, scan, wakes, room),
+        Level::Avx2 => unsafe { lanes::open_cells_avx2(cells, scan, wakes, room) },
+        _ => open_cells_scalar(cells, scan, wakes, room),
     };
     Open {
         targets: &room[..n],
@@ -802,26 +804,41 @@ struct Open<'t> {
     blocks_read: u64,
 }
 
-/// [`open_cells`] one cell at a time, `targets` as long as `member` or
+/// A row's cells as the open-cell scan reads them: each cell's member of
+/// the span, its slope and its floor, as long as each other.
+#[derive(Debug, Clone, Copy)]
+struct RowCells<'r> {
+    member: &'r [u16],
+    slope: &'r [f32],
+    floor: &'r [u16],
+}
+
+impl<'r> RowCells<'r> {
+    fn new(member: &'r [u16], slope: &'r [f32], floor: &'r [u16]) -> Self {
+        assert!(member.len() == slope.len() && member.len() == floor.len());
+        Self {
+            member,
+            slope,
+            floor,
+        }
+    }
+
+    fn len(&self) -> usize {
+        self.member.len()
+    }
+}
+
+/// [`open_cells`] one cell at a time, `targets` as long as the row or
 /// longer; returns the count, the reach and the blocks read.
 fn open_cells_scalar(
-    member: &[u16],
-    slope: &[f32],
-    floor: &[u16],
+    cells: RowCells,
     scan: Scan,
     wakes: &mut [u16],
     targets: &mut [u32],
 ) -> (usize, f64, u64) {
     let (mut n, mut widest) = (0, [0.0f64; 8]);
-    let blocks_read = each_awake_block(wakes, scan.slice, (member, slope, floor), |b| {
-        open_block(
-            b,
-            (member, slope, floor),
-            scan,
-            targets,
-            &mut n,
-            &mut widest,
-        )
+    let blocks_read = each_awake_block(wakes, scan.slice, cells, |b| {
+        open_block(b, cells, scan, targets, &mut n, &mut widest)
     });
     (n, widest.into_iter().fold(0.0, f64::max), blocks_read)
 }
@@ -833,7 +850,11 @@ fn open_cells_scalar(
 #[inline(always)]
 fn open_block(
     b: usize,
-    (member, slope, floor): (&[u16], &[f32], &[u16]),
+    RowCells {
+        member,
+        slope,
+        floor,
+    }: RowCells,
     scan: Scan,
     targets: &mut [u32],
     n: &mut usize,

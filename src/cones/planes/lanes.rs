@@ -17,7 +17,7 @@
 use std::arch::x86_64::*;
 
 #[cfg(target_arch = "x86_64")]
-use super::{each_awake_block, open_block, Kept, Scan, Span, BLOCK};
+use super::{each_awake_block, open_block, Kept, RowCells, Scan, Span, BLOCK};
 
 /// For each mask of `MASKS` (2^lanes) lanes, the 32-bit lanes that pack
 /// the lanes set to the front of a vector, in order, one byte each (the
@@ -108,22 +108,24 @@ fn mask_bits([lo, hi]: [__m256d; 2]) -> u8 {
 /// read.
 ///
 /// # Safety
-/// AVX2 and popcnt; `targets` at least `member.len() + 8` long, `slope`,
-/// `floor` as long as `member`, `wakes` one per block of it, every
-/// `member` an index of `scan.rise_of`.
+/// AVX2 and popcnt; `targets` at least the row and a vector long, `wakes`
+/// one per block of the row, every member an index of `scan.rise_of`.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,popcnt")]
 pub(super) unsafe fn open_cells_avx2(
-    member: &[u16],
-    slope: &[f32],
-    floor: &[u16],
+    cells: RowCells,
     scan: Scan,
     wakes: &mut [u16],
     targets: &mut [u32],
 ) -> (usize, f64, u64) {
     const _: () = assert!(BLOCK == 8, "a block is one vector");
+    let RowCells {
+        member,
+        slope,
+        floor,
+    } = cells;
     let len = member.len();
-    assert!(targets.len() >= len + 8 && slope.len() == len && floor.len() == len);
+    assert!(targets.len() >= len + 8);
     let unit = _mm256_set1_pd(scan.unit);
     let per_count = _mm256_set1_pd(scan.slices_per_count);
     let never = _mm256_set1_pd(f64::from(u16::MAX));
@@ -131,10 +133,9 @@ pub(super) unsafe fn open_cells_avx2(
     let mut n = 0;
     let mut widest = [_mm256_setzero_pd(); 2];
     let mut widest_tail = [0.0f64; 8];
-    let blocks_read = each_awake_block(wakes, scan.slice, (member, slope, floor), |b| {
+    let blocks_read = each_awake_block(wakes, scan.slice, cells, |b| {
         let c0 = b * BLOCK;
         if len - c0 < BLOCK {
-            let cells = (member, slope, floor);
             return open_block(b, cells, scan, targets, &mut n, &mut widest_tail);
         }
         // SAFETY: `c0 + 8 <= len`.
@@ -204,20 +205,23 @@ pub(super) unsafe fn open_cells_avx2(
 /// the blocks read.
 ///
 /// # Safety
-/// AVX-512 F, VL and BW; `targets` at least `member.len() + 8` long,
-/// `slope`, `floor` as long as `member`, `wakes` one per block of it, every
-/// `member` an index of `scan.rise_of`.
+/// AVX-512 F, VL and BW; `targets` at least the row and a vector long,
+/// `wakes` one per block of the row, every member an index of
+/// `scan.rise_of`.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512vl,avx512bw,popcnt")]
 pub(super) unsafe fn open_cells_avx512(
-    member: &[u16],
-    slope: &[f32],
-    floor: &[u16],
+    cells: RowCells,
     scan: Scan,
     wakes: &mut [u16],
     targets: &mut [u32],
 ) -> (usize, f64, u64) {
     const _: () = assert!(BLOCK == 8, "a block is one vector");
+    let RowCells {
+        member,
+        slope,
+        floor,
+    } = cells;
     let len = member.len();
     let unit = _mm512_set1_pd(scan.unit);
     let per_count = _mm512_set1_pd(scan.slices_per_count);
@@ -227,7 +231,7 @@ pub(super) unsafe fn open_cells_avx512(
     let mut widest = _mm512_setzero_pd();
     let zero = _mm512_setzero_pd();
     let (one, most) = (_mm256_set1_epi32(1), _mm256_set1_epi32(i32::from(u16::MAX)));
-    let blocks_read = each_awake_block(wakes, scan.slice, (member, slope, floor), |b| {
+    let blocks_read = each_awake_block(wakes, scan.slice, cells, |b| {
         let c0 = b * BLOCK;
         let lanes: __mmask8 = if len - c0 >= 8 {
             0xff
