@@ -414,8 +414,9 @@ impl HorizonsStage {
 
 /// Memory of unbounded `sector` per post and sector in flight: the tree's
 /// hulls and buckets, the posts' centre-plane coordinates, both orders and
-/// the ranks (65-75 bytes measured at 1.44 M and 16.7 M posts).
-pub const SECTOR_BYTES_PER_POST: u64 = 80;
+/// the ranks (91-95 bytes measured at 1.44 M and 4.2 M posts with the
+/// hulls in one array, `sector::hulls`; 65-78 before).
+pub const SECTOR_BYTES_PER_POST: u64 = 96;
 
 impl Default for HorizonsStage {
     fn default() -> Self {
