@@ -889,16 +889,19 @@ fn the_sector_tree_equals_brute_force_above_its_buckets() {
 }
 
 /// Stewart's tree gives the same bits, angles and distances, with its
-/// hulls in every store this CPU runs (one array for every node from
-/// AVX-512 up, a vector each below): every sector of 64 (the narrow check
-/// on) and a spread of 16, on a fractal of more than 100,000 posts with
-/// curvature, and on a dome, whose every post is on its hulls, so that
-/// they outgrow the array and move to vectors.
+/// hulls in every store this CPU runs (one array for every node in AVX-512
+/// and AVX2 code, a vector each in scalar code), and with its sorted orders handed on
+/// from sector to sector (`Ranks`): every other sector of 64 (the narrow check
+/// on), a spread of 16 and all of 4 (their boundaries on the grid's
+/// diagonals, where posts tie), on a fractal of more than 100,000 posts
+/// with curvature, and on a dome, whose every post is on its hulls, so
+/// that they outgrow the array and move to vectors.
 #[test]
-fn the_sector_trees_hulls_give_the_same_bits_in_every_store() {
-    use terrabake::horizon::sector::sector_horizons_at;
+fn the_sector_tree_gives_the_same_bits_in_every_store_and_shared() {
+    use terrabake::horizon::sector::{sector_horizons_at, Ranks, Shared};
     use terrabake::simd::Level;
-    let widest = *terrabake::simd::available().last().unwrap();
+    let levels = terrabake::simd::available();
+    let widest = *levels.last().unwrap();
     let fractal = synth_grid(SynthKind::Fractal, 400, 260, 5);
     let dome: Vec<f32> = synth_grid(SynthKind::Bowl, 240, 160, 1)
         .iter()
@@ -917,25 +920,36 @@ fn the_sector_trees_hulls_give_the_same_bits_in_every_store() {
     for (name, z, w, (dx, dy), k) in cases {
         let h = z.len() / w;
         let t = Terrain::new(z, w, h, dx, dy).with_curvature(curvature_coefficient(k));
-        for (count, every) in [(64, 1), (16, 3)] {
+        for (count, every) in [(64, 2), (16, 3), (4, 1)] {
+            let ranks: Vec<Ranks> = (0..count).map(|i| Ranks::of(&t, (i, count))).collect();
             for index in (0..count).step_by(every) {
-                let run = |level| {
+                let run = |level, shared| {
                     let (mut angles, mut metres) = (vec![0f32; w * h], vec![0f32; w * h]);
                     sector_horizons_at(
                         &t,
                         (index, count),
                         count == 64,
-                        level,
+                        (level, shared),
                         &mut angles,
                         Some(&mut metres),
                     );
                     let bits = |v: Vec<f32>| v.into_iter().map(f32::to_bits).collect::<Vec<_>>();
                     (bits(angles), bits(metres))
                 };
-                let want = run(Level::Scalar);
+                let want = run(Level::Scalar, Shared::default());
+                for &level in &levels[1..] {
+                    assert!(
+                        run(level, Shared::default()) == want,
+                        "{name}: sector {index}/{count}: {level:?} differs from scalar code"
+                    );
+                }
+                let shared = Shared {
+                    ranks: Some(&ranks[index]),
+                    previous: Some(&ranks[(index + count - 1) % count]),
+                };
                 assert!(
-                    run(widest) == want,
-                    "{name}: sector {index}/{count}: {widest:?} differs from scalar code"
+                    run(widest, shared) == want,
+                    "{name}: sector {index}/{count}: the orders handed on differ"
                 );
             }
         }

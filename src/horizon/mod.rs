@@ -414,8 +414,9 @@ impl HorizonsStage {
 
 /// Memory of unbounded `sector` per post and sector in flight: the tree's
 /// hulls and buckets, the posts' centre-plane coordinates, both orders and
-/// the ranks (91-95 bytes measured at 1.44 M and 4.2 M posts with the
-/// hulls in one array, `sector::hulls`; 65-78 before).
+/// the ranks (77-87 bytes measured at 1 M to 4.2 M posts, with the hulls
+/// in one array, `sector::hulls`, or on the heap in scalar code, and the
+/// ranks handed on, `sector::Ranks`; 65-78 before).
 pub const SECTOR_BYTES_PER_POST: u64 = 96;
 
 impl Default for HorizonsStage {
@@ -874,23 +875,57 @@ impl Stage for HorizonsStage {
                 }
                 Ok(())
             };
+            // Unbounded sectors hand their sorted orders on: a batch's
+            // sectors sort their ranks side by side, and each takes its
+            // processing order from the sector before (`sector::Ranks`).
+            let sector = |band: &Band| match band.kind {
+                BandKind::Sector { index, count } if opts.max_distance.is_none() => {
+                    Some((index, count))
+                }
+                _ => None,
+            };
+            let mut previous: Option<sector::Ranks> = None;
             for (b, batch) in bands[mine.clone()].chunks(threads).enumerate() {
+                let ranks: Vec<Option<sector::Ranks>> = batch
+                    .par_iter()
+                    .map(|band| sector(band).map(|s| sector::Ranks::of(&terrain, s)))
+                    .collect();
                 let results: Vec<(Vec<f32>, Option<Vec<f32>>)> = batch
                     .par_iter()
-                    .map(|band| {
+                    .enumerate()
+                    .map(|(j, band)| {
                         let mut angles = vec![0f32; terrain.z.len()];
                         let mut metres = distances.as_ref().map(|_| vec![0f32; angles.len()]);
-                        band_horizons_into(
-                            &terrain,
-                            band,
-                            opts,
-                            [rows.clone(), cols.clone()],
-                            &mut angles,
-                            metres.as_deref_mut(),
-                        );
+                        if let Some(s) = sector(band) {
+                            let shared = sector::Shared {
+                                ranks: ranks[j].as_ref(),
+                                previous: match j {
+                                    0 => previous.as_ref(),
+                                    _ => ranks[j - 1].as_ref(),
+                                },
+                            };
+                            sector::sector_horizons_at(
+                                &terrain,
+                                s,
+                                opts.narrow_check,
+                                (crate::simd::level(), shared),
+                                &mut angles,
+                                metres.as_deref_mut(),
+                            );
+                        } else {
+                            band_horizons_into(
+                                &terrain,
+                                band,
+                                opts,
+                                [rows.clone(), cols.clone()],
+                                &mut angles,
+                                metres.as_deref_mut(),
+                            );
+                        }
                         (angles, metres)
                     })
                     .collect();
+                previous = ranks.into_iter().next_back().flatten();
                 for (j, (angles, metres)) in results.into_iter().enumerate() {
                     let band = first + b * threads + j;
                     write_band(&out, band, &angles)?;

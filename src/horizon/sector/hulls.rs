@@ -7,17 +7,20 @@
 //! * [`Heap`] keeps each hull in a vector of its own and walks it point by
 //!   point, as Stewart does: a binary search for the insertion point, pops
 //!   one at a time, a tangent scan that stops where the slopes turn down.
-//! * [`Slab`] (AVX-512) keeps up to [`CAP`] points of every node in one
-//!   array, `t`, `w` and the tags apart, and does each operation on all the
-//!   points at once: every slope, or every pop test, in vectors; the
-//!   tangent point and the runs of pops found as bits of the resulting
-//!   masks; the kept tail moved by masked stores. A walk through the tree
-//!   then has no branch that depends on the terrain but whether a hull is
-//!   empty and whether the new post lands below it. The tree's cost was
-//!   its fixed part per level (a node, two data-dependent branches, a
-//!   pointer to a hull of six to nine points: docs/BENCHMARKS.md, "Per
-//!   level of the tree"), not moving points. A hull that outgrows `CAP`
-//!   points (a dome's every post is on it) moves to the heap.
+//! * [`Slab`] (AVX-512, eight points to a vector, or AVX2, four) keeps up
+//!   to [`CAP`] points of every node in one array, `t`, `w` and the tags
+//!   apart, and does each operation on all the points at once: every
+//!   slope, or every pop test, in vectors; the tangent point and the runs
+//!   of pops found as bits of the resulting masks; the kept tail moved by
+//!   masked stores. A walk through the tree then has no branch that
+//!   depends on the terrain but whether a hull is empty and whether the
+//!   new post lands below it. A hull that outgrows `CAP` points (a dome's
+//!   every post is on it) moves to the heap.
+//!
+//! The slab made the tree 1.2x faster at 64 sectors (docs/BENCHMARKS.md,
+//! "Sector hulls in one array"): a level's cost was its fixed part (a
+//! node, two data-dependent branches, a pointer to a hull of six to nine
+//! points: "Per level of the tree" there), not moving points.
 //!
 //! Why the masks give the scalar pops: a point left of the new post `p` is
 //! popped when it lies on or below the segment from its left neighbour to
@@ -136,20 +139,60 @@ pub(super) fn hull_tangent<T: Copy + Default>(
     best
 }
 
+/// The vector code a [`Slab`] runs on one node's hull of `len <= CAP`
+/// points (`t` and `w` the node's whole arrays; past `len` they hold
+/// anything).
+pub(super) trait Kernel {
+    /// Bit `k` set where the slope from `(tp, wp)` to point `k + 1` is
+    /// less than to point `k`, for `k + 1 < len` (higher bits anything).
+    ///
+    /// # Safety
+    /// The CPU runs the kernel's instructions.
+    unsafe fn turns(t: &[f64; CAP], w: &[f64; CAP], len: usize, p: (f64, f64)) -> u64;
+
+    /// For a post `p`, bits of the points: `t` less than the post's;
+    /// on or below the segment from the point before to the post (`left`,
+    /// for `k >= 1`); on or below the segment from the post to the point
+    /// after (`right`, for `k + 1 < len`); each [`below`] lane by lane.
+    ///
+    /// # Safety
+    /// As [`Kernel::turns`].
+    unsafe fn pop_tests(t: &[f64; CAP], w: &[f64; CAP], len: usize, p: (f64, f64)) -> [u64; 3];
+
+    /// Moves points `from..len` to start at `to` (`to + len - from <=
+    /// CAP`).
+    ///
+    /// # Safety
+    /// As [`Kernel::turns`].
+    unsafe fn move_tail(t: &mut [f64; CAP], w: &mut [f64; CAP], len: usize, from: usize, to: usize);
+}
+
 /// Up to [`CAP`] points of every node in one array (`[v * CAP + i]`), the
-/// longer hulls on the heap. Only where the CPU has AVX-512
-/// ([`crate::simd::level`]).
-pub(super) struct Slab<T> {
+/// longer hulls on the heap, searched and updated by `K`'s vector code:
+/// build it only where the CPU runs `K` ([`crate::simd::level`]).
+pub(super) struct Slab<T, K> {
     t: Vec<f64>,
     w: Vec<f64>,
     /// The points' posts, where `T` keeps them (else empty).
     tags: Vec<u32>,
     heap: Heap<T>,
+    kernel: std::marker::PhantomData<K>,
 }
 
-impl<T: Tag<u32>> Slab<T> {
+impl<T: Tag<u32>, K: Kernel> Slab<T, K> {
     fn keeps_tags() -> bool {
         T::of(0).get().is_some()
+    }
+
+    /// Node `v`'s arrays.
+    #[inline(always)]
+    fn node(&self, v: usize) -> (&[f64; CAP], &[f64; CAP]) {
+        let r = v * CAP..(v + 1) * CAP;
+        let whole = "a node holds CAP points";
+        (
+            self.t[r.clone()].try_into().expect(whole),
+            self.w[r].try_into().expect(whole),
+        )
     }
 
     /// The hull of node `v` (`len` points in the slab) as the heap keeps it.
@@ -198,7 +241,7 @@ impl<T: Tag<u32>> Slab<T> {
     }
 }
 
-impl<T: Tag<u32>> Hulls<T> for Slab<T> {
+impl<T: Tag<u32>, K: Kernel> Hulls<T> for Slab<T, K> {
     fn with_nodes(nodes: usize) -> Self {
         Self {
             t: vec![0.0; nodes * CAP],
@@ -209,6 +252,7 @@ impl<T: Tag<u32>> Hulls<T> for Slab<T> {
                 Vec::new()
             },
             heap: Heap::with_nodes(nodes),
+            kernel: std::marker::PhantomData,
         }
     }
 
@@ -217,19 +261,18 @@ impl<T: Tag<u32>> Hulls<T> for Slab<T> {
         if len & ON_HEAP != 0 {
             return self.heap.tangent(v, len, t, w, steps);
         }
-        #[cfg(target_arch = "x86_64")]
-        {
-            // SAFETY: a slab is built only where the CPU has AVX-512.
-            let (k, read) = unsafe { avx512::tangent(self, v, len as usize, t, w) };
-            *steps += read as u64;
-            let i = v * CAP + k;
-            Steepest {
-                slope: (self.w[i] - w) / (self.t[i] - t),
-                tag: self.tag(i),
-            }
+        let len = len as usize;
+        let (ts, ws) = self.node(v);
+        // SAFETY: a slab is built only where the CPU runs its kernel.
+        let turns = unsafe { K::turns(ts, ws, len, (t, w)) };
+        // The scan stops where the slopes first turn down, at the last
+        // point at the latest.
+        let k = (turns | 1 << (len - 1)).trailing_zeros() as usize;
+        *steps += (k + 2).min(len) as u64;
+        Steepest {
+            slope: (ws[k] - w) / (ts[k] - t),
+            tag: self.tag(v * CAP + k),
         }
-        #[cfg(not(target_arch = "x86_64"))]
-        unreachable!("a slab needs AVX-512")
     }
 
     #[inline(always)]
@@ -238,170 +281,17 @@ impl<T: Tag<u32>> Hulls<T> for Slab<T> {
             return self.heap.insert(v, len, p) | ON_HEAP;
         }
         let len = len as usize;
-        let base = v * CAP;
-        #[cfg(target_arch = "x86_64")]
-        {
-            // SAFETY: a slab is built only where the CPU has AVX-512.
-            let (i, kept, from) = unsafe { avx512::plan(self, v, len, (p.t, p.w)) };
-            if i < len && self.t[base + i] == p.t {
-                return self.tie(v, len, i, p);
-            }
-            let at = |i: usize| (self.t[base + i], self.w[base + i]);
-            // Below the hull edge over `t`: not on the hull.
-            if i > 0 && i < len && below(at(i - 1), at(i), (p.t, p.w)) {
-                return len as u32;
-            }
-            let new_len = kept + 1 + (len - from);
-            if new_len > CAP {
-                return self.spill(v, len, p);
-            }
-            // SAFETY: as above; `kept + 1 + len - from` points fit.
-            unsafe { avx512::move_tail(self, v, len, from, kept + 1) };
-            self.t[base + kept] = p.t;
-            self.w[base + kept] = p.w;
-            if let Some(post) = p.tag.get() {
-                self.tags[base + kept] = post;
-            }
-            new_len as u32
+        let (ts, ws) = self.node(v);
+        // SAFETY: a slab is built only where the CPU runs its kernel.
+        let [before, left, right] = unsafe { K::pop_tests(ts, ws, len, (p.t, p.w)) };
+        let i = (before & ((1u64 << len) - 1)).count_ones() as usize;
+        if i < len && ts[i] == p.t {
+            return self.tie(v, len, i, p);
         }
-        #[cfg(not(target_arch = "x86_64"))]
-        unreachable!("a slab needs AVX-512")
-    }
-
-    fn clear(&mut self, v: usize, len: u32) {
-        if len & ON_HEAP != 0 {
-            self.heap.clear(v, len);
+        // Below the hull edge over `t`: not on the hull.
+        if i > 0 && i < len && below((ts[i - 1], ws[i - 1]), (ts[i], ws[i]), (p.t, p.w)) {
+            return len as u32;
         }
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-mod avx512 {
-    use super::{Slab, CAP};
-    use crate::horizon::steepest::Tag;
-    use std::arch::x86_64::*;
-
-    const CHUNKS: usize = CAP / 8;
-
-    /// The lanes of chunk `c` that hold one of `len` points.
-    #[inline(always)]
-    fn lanes(len: usize, c: usize) -> __mmask8 {
-        let k = len.saturating_sub(8 * c).min(8);
-        ((1u32 << k) - 1) as __mmask8
-    }
-
-    /// Node `v`'s `len` points, chunk by chunk (`+inf` and 0 past them),
-    /// and one chunk more so that every point has a right neighbour.
-    #[inline]
-    #[target_feature(enable = "avx512f,avx512vl,avx512dq,popcnt")]
-    unsafe fn load<T>(
-        slab: &Slab<T>,
-        v: usize,
-        len: usize,
-    ) -> ([__m512d; CHUNKS + 1], [__m512d; CHUNKS + 1]) {
-        let (pt, pw) = (slab.t[v * CAP..].as_ptr(), slab.w[v * CAP..].as_ptr());
-        let mut t = [_mm512_set1_pd(f64::INFINITY); CHUNKS + 1];
-        let mut w = [_mm512_setzero_pd(); CHUNKS + 1];
-        for c in 0..len.div_ceil(8) {
-            let m = lanes(len, c);
-            // SAFETY: lanes under `m` are points of the node.
-            unsafe {
-                t[c] = _mm512_mask_loadu_pd(t[c], m, pt.add(8 * c));
-                w[c] = _mm512_maskz_loadu_pd(m, pw.add(8 * c));
-            }
-        }
-        (t, w)
-    }
-
-    /// The index of the point of node `v`'s hull (`len >= 1` points) where
-    /// the slopes from `(tp, wp)` first turn down (the scalar scan's stop,
-    /// so the steepest), and how many points that scan reads.
-    ///
-    /// # Safety
-    /// AVX-512 F, VL and DQ; `len <= CAP`.
-    #[inline]
-    #[target_feature(enable = "avx512f,avx512vl,avx512dq,popcnt")]
-    pub(super) unsafe fn tangent<T>(
-        slab: &Slab<T>,
-        v: usize,
-        len: usize,
-        tp: f64,
-        wp: f64,
-    ) -> (usize, usize) {
-        // SAFETY: as the caller's.
-        let (t, w) = unsafe { load(slab, v, len) };
-        let (tp_v, wp_v) = (_mm512_set1_pd(tp), _mm512_set1_pd(wp));
-        let mut slope = [_mm512_set1_pd(f64::NEG_INFINITY); CHUNKS + 1];
-        for c in 0..len.div_ceil(8) {
-            slope[c] = _mm512_mask_div_pd(
-                slope[c],
-                lanes(len, c),
-                _mm512_sub_pd(w[c], wp_v),
-                _mm512_sub_pd(t[c], tp_v),
-            );
-        }
-        // Bit k: the slope to point k + 1 is less than to point k (past
-        // the last point it is -inf, so the last point always stops).
-        let mut turns = 0u64;
-        for c in 0..len.div_ceil(8) {
-            let next = _mm512_castsi512_pd(_mm512_alignr_epi64::<1>(
-                _mm512_castpd_si512(slope[c + 1]),
-                _mm512_castpd_si512(slope[c]),
-            ));
-            turns |= u64::from(_mm512_cmp_pd_mask::<_CMP_LT_OQ>(next, slope[c])) << (8 * c);
-        }
-        let k = turns.trailing_zeros() as usize;
-        (k, (k + 2).min(len))
-    }
-
-    /// Where a post `(tp, wp)` goes into node `v`'s `len` points: `i`, the
-    /// points with a smaller `t`; and, if it is not below the hull, the
-    /// points before `kept` stay in place and the points from `from` on
-    /// follow the post (those between are popped).
-    ///
-    /// # Safety
-    /// AVX-512 F, VL and DQ; `len <= CAP`.
-    #[inline]
-    #[target_feature(enable = "avx512f,avx512vl,avx512dq,popcnt")]
-    pub(super) unsafe fn plan<T>(
-        slab: &Slab<T>,
-        v: usize,
-        len: usize,
-        (tp, wp): (f64, f64),
-    ) -> (usize, usize, usize) {
-        // SAFETY: as the caller's.
-        let (t, w) = unsafe { load(slab, v, len) };
-        let (tp_v, wp_v) = (_mm512_set1_pd(tp), _mm512_set1_pd(wp));
-        let shift = |hi: __m512d, lo: __m512d, by: i32| {
-            let (hi, lo) = (_mm512_castpd_si512(hi), _mm512_castpd_si512(lo));
-            _mm512_castsi512_pd(match by {
-                1 => _mm512_alignr_epi64::<1>(hi, lo),
-                _ => _mm512_alignr_epi64::<7>(hi, lo),
-            })
-        };
-        // Bit j of `left`: point j lies on or below the segment from point
-        // j - 1 to the post; of `right`: on or below the segment from the
-        // post to point j + 1 (`below`, lane by lane).
-        let (mut left, mut right, mut before) = (0u64, 0u64, 0u64);
-        let zero = _mm512_setzero_pd();
-        for c in 0..len.div_ceil(8) {
-            before |= u64::from(_mm512_cmp_pd_mask::<_CMP_LT_OQ>(t[c], tp_v)) << (8 * c);
-            let prev = |x: &[__m512d]| shift(x[c], if c == 0 { zero } else { x[c - 1] }, 7);
-            let next = |x: &[__m512d]| shift(x[c + 1], x[c], 1);
-            let (lt, lw) = (prev(&t), prev(&w));
-            let l = _mm512_cmp_pd_mask::<_CMP_LE_OQ>(
-                _mm512_mul_pd(_mm512_sub_pd(w[c], lw), _mm512_sub_pd(tp_v, lt)),
-                _mm512_mul_pd(_mm512_sub_pd(wp_v, lw), _mm512_sub_pd(t[c], lt)),
-            );
-            let (rt, rw) = (next(&t), next(&w));
-            let r = _mm512_cmp_pd_mask::<_CMP_LE_OQ>(
-                _mm512_mul_pd(_mm512_sub_pd(w[c], wp_v), _mm512_sub_pd(rt, tp_v)),
-                _mm512_mul_pd(_mm512_sub_pd(rw, wp_v), _mm512_sub_pd(t[c], tp_v)),
-            );
-            left |= u64::from(l) << (8 * c);
-            right |= u64::from(r) << (8 * c);
-        }
-        let i = before.count_ones() as usize;
         let below_i = (1u64 << i) - 1;
         // Left: the pops run down from i - 1 while the bit is set; point 0
         // has no left neighbour and always stays.
@@ -417,59 +307,317 @@ mod avx512 {
             let last = 1u64 << (len - 1);
             (((!right & (last - 1)) | last) & !below_i).trailing_zeros() as usize
         };
-        (i, kept, from)
+        let new_len = kept + 1 + (len - from);
+        if new_len > CAP {
+            return self.spill(v, len, p);
+        }
+        let r = v * CAP..(v + 1) * CAP;
+        let whole = "a node holds CAP points";
+        let ts: &mut [f64; CAP] = (&mut self.t[r.clone()]).try_into().expect(whole);
+        let ws: &mut [f64; CAP] = (&mut self.w[r.clone()]).try_into().expect(whole);
+        if from != kept + 1 {
+            // SAFETY: as above; `kept + 1 + len - from` points fit.
+            unsafe { K::move_tail(ts, ws, len, from, kept + 1) };
+            if Self::keeps_tags() {
+                self.tags[r.clone()].copy_within(from..len, kept + 1);
+            }
+        }
+        ts[kept] = p.t;
+        ws[kept] = p.w;
+        if let Some(post) = p.tag.get() {
+            self.tags[r.start + kept] = post;
+        }
+        new_len as u32
     }
 
-    /// Moves node `v`'s points `from..len` to start at `to`.
-    ///
-    /// # Safety
-    /// AVX-512 F, VL and DQ; `from <= len <= CAP`, `to + len - from <= CAP`.
+    fn clear(&mut self, v: usize, len: u32) {
+        if len & ON_HEAP != 0 {
+            self.heap.clear(v, len);
+        }
+    }
+}
+
+/// [`Kernel`] in AVX-512: eight points to a vector, masks as bits.
+#[cfg(target_arch = "x86_64")]
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Avx512;
+
+/// [`Kernel`] in AVX2: four points to a vector, masks as vectors.
+#[cfg(target_arch = "x86_64")]
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Avx2;
+
+#[cfg(target_arch = "x86_64")]
+mod avx512 {
+    use super::{Avx512, Kernel, CAP};
+    use std::arch::x86_64::*;
+
+    const CHUNKS: usize = CAP / 8;
+
+    /// The lanes of chunk `c` that hold one of `len` points.
+    #[inline(always)]
+    fn lanes(len: usize, c: usize) -> __mmask8 {
+        let k = len.saturating_sub(8 * c).min(8);
+        ((1u32 << k) - 1) as __mmask8
+    }
+
+    /// The node's `len` points, chunk by chunk (`+inf` and 0 past them),
+    /// and one chunk more so that every point has a right neighbour.
     #[inline]
     #[target_feature(enable = "avx512f,avx512vl,avx512dq,popcnt")]
-    pub(super) unsafe fn move_tail<T: Tag<u32>>(
-        slab: &mut Slab<T>,
-        v: usize,
+    fn load(
+        t: &[f64; CAP],
+        w: &[f64; CAP],
         len: usize,
-        from: usize,
-        to: usize,
-    ) {
-        if from == to || from == len {
-            return;
-        }
-        let tail = ((1u64 << len) - 1) & !((1u64 << from) - 1);
-        let by = to as isize - from as isize;
-        let keeps = Slab::<T>::keeps_tags();
-        // Every chunk is read before any is written.
-        // SAFETY: as the caller's.
-        let (t, w) = unsafe { load(slab, v, len) };
-        let mut tags = [_mm256_setzero_si256(); CHUNKS];
-        let base = v * CAP;
-        if keeps {
-            for (c, tag) in tags.iter_mut().enumerate().take(len.div_ceil(8)) {
-                // SAFETY: lanes under the mask are points of the node.
-                *tag = unsafe {
-                    _mm256_maskz_loadu_epi32(
-                        lanes(len, c),
-                        slab.tags[base..].as_ptr().add(8 * c).cast(),
-                    )
-                };
-            }
-        }
-        let (pt, pw) = (slab.t.as_mut_ptr(), slab.w.as_mut_ptr());
-        let ptag = slab.tags.as_mut_ptr();
+    ) -> ([__m512d; CHUNKS + 1], [__m512d; CHUNKS + 1]) {
+        let mut tv = [_mm512_set1_pd(f64::INFINITY); CHUNKS + 1];
+        let mut wv = [_mm512_setzero_pd(); CHUNKS + 1];
         for c in 0..len.div_ceil(8) {
-            let m = (tail >> (8 * c)) as __mmask8;
-            if m == 0 {
-                continue;
-            }
-            let at = (base + 8 * c) as isize + by;
-            // SAFETY: the lanes under `m` land on `to..to + len - from` of
-            // the node; the others are not written.
+            let m = lanes(len, c);
+            // SAFETY: every lane is in the node's arrays.
             unsafe {
-                _mm512_mask_storeu_pd(pt.wrapping_offset(at), m, t[c]);
-                _mm512_mask_storeu_pd(pw.wrapping_offset(at), m, w[c]);
-                if keeps {
-                    _mm256_mask_storeu_epi32(ptag.wrapping_offset(at).cast(), m, tags[c]);
+                tv[c] = _mm512_mask_loadu_pd(tv[c], m, t.as_ptr().add(8 * c));
+                wv[c] = _mm512_maskz_loadu_pd(m, w.as_ptr().add(8 * c));
+            }
+        }
+        (tv, wv)
+    }
+
+    /// Lanes `1..8` of `lo` and lane 0 of `hi` (`by` 1): each lane's next
+    /// point; or lane 7 of `lo` and lanes `0..7` of `hi` (`by` 7): each
+    /// lane's previous point.
+    #[inline]
+    #[target_feature(enable = "avx512f,avx512vl,avx512dq,popcnt")]
+    fn shift<const BY: i32>(hi: __m512d, lo: __m512d) -> __m512d {
+        let (hi, lo) = (_mm512_castpd_si512(hi), _mm512_castpd_si512(lo));
+        _mm512_castsi512_pd(_mm512_alignr_epi64::<BY>(hi, lo))
+    }
+
+    impl Kernel for Avx512 {
+        #[inline]
+        #[target_feature(enable = "avx512f,avx512vl,avx512dq,popcnt")]
+        unsafe fn turns(t: &[f64; CAP], w: &[f64; CAP], len: usize, (tp, wp): (f64, f64)) -> u64 {
+            let (t, w) = load(t, w, len);
+            let (tp, wp) = (_mm512_set1_pd(tp), _mm512_set1_pd(wp));
+            let mut slope = [_mm512_set1_pd(f64::NEG_INFINITY); CHUNKS + 1];
+            for c in 0..len.div_ceil(8) {
+                slope[c] = _mm512_mask_div_pd(
+                    slope[c],
+                    lanes(len, c),
+                    _mm512_sub_pd(w[c], wp),
+                    _mm512_sub_pd(t[c], tp),
+                );
+            }
+            let mut turns = 0u64;
+            for c in 0..len.div_ceil(8) {
+                let next = shift::<1>(slope[c + 1], slope[c]);
+                turns |= u64::from(_mm512_cmp_pd_mask::<_CMP_LT_OQ>(next, slope[c])) << (8 * c);
+            }
+            turns
+        }
+
+        #[inline]
+        #[target_feature(enable = "avx512f,avx512vl,avx512dq,popcnt")]
+        unsafe fn pop_tests(
+            t: &[f64; CAP],
+            w: &[f64; CAP],
+            len: usize,
+            (tp, wp): (f64, f64),
+        ) -> [u64; 3] {
+            let (t, w) = load(t, w, len);
+            let (tp, wp) = (_mm512_set1_pd(tp), _mm512_set1_pd(wp));
+            let [mut before, mut left, mut right] = [0u64; 3];
+            let zero = _mm512_setzero_pd();
+            for c in 0..len.div_ceil(8) {
+                let at = 8 * c;
+                before |= u64::from(_mm512_cmp_pd_mask::<_CMP_LT_OQ>(t[c], tp)) << at;
+                let prev = |x: &[__m512d]| shift::<7>(x[c], if c == 0 { zero } else { x[c - 1] });
+                let next = |x: &[__m512d]| shift::<1>(x[c + 1], x[c]);
+                let (lt, lw) = (prev(&t), prev(&w));
+                let l = _mm512_cmp_pd_mask::<_CMP_LE_OQ>(
+                    _mm512_mul_pd(_mm512_sub_pd(w[c], lw), _mm512_sub_pd(tp, lt)),
+                    _mm512_mul_pd(_mm512_sub_pd(wp, lw), _mm512_sub_pd(t[c], lt)),
+                );
+                let (rt, rw) = (next(&t), next(&w));
+                let r = _mm512_cmp_pd_mask::<_CMP_LE_OQ>(
+                    _mm512_mul_pd(_mm512_sub_pd(w[c], wp), _mm512_sub_pd(rt, tp)),
+                    _mm512_mul_pd(_mm512_sub_pd(rw, wp), _mm512_sub_pd(t[c], tp)),
+                );
+                left |= u64::from(l) << at;
+                right |= u64::from(r) << at;
+            }
+            [before, left, right]
+        }
+
+        #[inline]
+        #[target_feature(enable = "avx512f,avx512vl,avx512dq,popcnt")]
+        unsafe fn move_tail(
+            t: &mut [f64; CAP],
+            w: &mut [f64; CAP],
+            len: usize,
+            from: usize,
+            to: usize,
+        ) {
+            let tail = ((1u64 << len) - 1) & !((1u64 << from) - 1);
+            let by = to as isize - from as isize;
+            // Every chunk is read before any is written.
+            let (tv, wv) = load(t, w, len);
+            for c in 0..len.div_ceil(8) {
+                let m = (tail >> (8 * c)) as __mmask8;
+                let at = (8 * c) as isize + by;
+                // SAFETY: the lanes under `m` land on `to..to + len - from`
+                // of the node; the others are not written.
+                unsafe {
+                    _mm512_mask_storeu_pd(t.as_mut_ptr().wrapping_offset(at), m, tv[c]);
+                    _mm512_mask_storeu_pd(w.as_mut_ptr().wrapping_offset(at), m, wv[c]);
+                }
+            }
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx2 {
+    use super::{Avx2, Kernel, CAP};
+    use std::arch::x86_64::*;
+
+    const CHUNKS: usize = CAP / 4;
+
+    /// The lane indices of chunk `c`.
+    #[inline]
+    #[target_feature(enable = "avx2,popcnt")]
+    fn indices(c: usize) -> __m256i {
+        let at = 4 * c as i64;
+        _mm256_set_epi64x(at + 3, at + 2, at + 1, at)
+    }
+
+    /// The lanes of chunk `c` whose index is in `lo..hi`, as a vector mask.
+    #[inline]
+    #[target_feature(enable = "avx2,popcnt")]
+    fn lanes(c: usize, lo: usize, hi: usize) -> __m256i {
+        let i = indices(c);
+        _mm256_and_si256(
+            _mm256_cmpgt_epi64(i, _mm256_set1_epi64x(lo as i64 - 1)),
+            _mm256_cmpgt_epi64(_mm256_set1_epi64x(hi as i64), i),
+        )
+    }
+
+    /// The node's arrays, chunk by chunk, one chunk more (`+inf`, 0) so
+    /// that every point has a right neighbour; past `len` anything.
+    #[inline]
+    #[target_feature(enable = "avx2,popcnt")]
+    fn load(
+        t: &[f64; CAP],
+        w: &[f64; CAP],
+        len: usize,
+    ) -> ([__m256d; CHUNKS + 1], [__m256d; CHUNKS + 1]) {
+        let mut tv = [_mm256_set1_pd(f64::INFINITY); CHUNKS + 1];
+        let mut wv = [_mm256_setzero_pd(); CHUNKS + 1];
+        for c in 0..len.div_ceil(4) {
+            // SAFETY: every lane is in the node's arrays.
+            unsafe {
+                tv[c] = _mm256_loadu_pd(t.as_ptr().add(4 * c));
+                wv[c] = _mm256_loadu_pd(w.as_ptr().add(4 * c));
+            }
+        }
+        (tv, wv)
+    }
+
+    /// Each lane's previous point (lane 0 from `lo`'s lane 3).
+    #[inline]
+    #[target_feature(enable = "avx2,popcnt")]
+    fn prev(x: __m256d, lo: __m256d) -> __m256d {
+        _mm256_blend_pd::<0b0001>(
+            _mm256_permute4x64_pd::<0b10_01_00_11>(x),
+            _mm256_permute4x64_pd::<0b10_01_00_11>(lo),
+        )
+    }
+
+    /// Each lane's next point (lane 3 from `hi`'s lane 0).
+    #[inline]
+    #[target_feature(enable = "avx2,popcnt")]
+    fn next(x: __m256d, hi: __m256d) -> __m256d {
+        _mm256_blend_pd::<0b1000>(
+            _mm256_permute4x64_pd::<0b00_11_10_01>(x),
+            _mm256_permute4x64_pd::<0b00_11_10_01>(hi),
+        )
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx2,popcnt")]
+    fn bits(mask: __m256d, c: usize) -> u64 {
+        (_mm256_movemask_pd(mask) as u64) << (4 * c)
+    }
+
+    impl Kernel for Avx2 {
+        #[inline]
+        #[target_feature(enable = "avx2,popcnt")]
+        unsafe fn turns(t: &[f64; CAP], w: &[f64; CAP], len: usize, (tp, wp): (f64, f64)) -> u64 {
+            let (t, w) = load(t, w, len);
+            let (tp, wp) = (_mm256_set1_pd(tp), _mm256_set1_pd(wp));
+            let mut slope = [_mm256_set1_pd(f64::NEG_INFINITY); CHUNKS + 1];
+            for c in 0..len.div_ceil(4) {
+                slope[c] = _mm256_div_pd(_mm256_sub_pd(w[c], wp), _mm256_sub_pd(t[c], tp));
+            }
+            let mut turns = 0u64;
+            for c in 0..len.div_ceil(4) {
+                let down = _mm256_cmp_pd::<_CMP_LT_OQ>(next(slope[c], slope[c + 1]), slope[c]);
+                turns |= bits(down, c);
+            }
+            turns
+        }
+
+        #[inline]
+        #[target_feature(enable = "avx2,popcnt")]
+        unsafe fn pop_tests(
+            t: &[f64; CAP],
+            w: &[f64; CAP],
+            len: usize,
+            (tp, wp): (f64, f64),
+        ) -> [u64; 3] {
+            let (t, w) = load(t, w, len);
+            let (tp, wp) = (_mm256_set1_pd(tp), _mm256_set1_pd(wp));
+            let [mut before, mut left, mut right] = [0u64; 3];
+            let zero = _mm256_setzero_pd();
+            for c in 0..len.div_ceil(4) {
+                before |= bits(_mm256_cmp_pd::<_CMP_LT_OQ>(t[c], tp), c);
+                let lo = |x: &[__m256d]| if c == 0 { zero } else { x[c - 1] };
+                let (lt, lw) = (prev(t[c], lo(&t)), prev(w[c], lo(&w)));
+                let l = _mm256_cmp_pd::<_CMP_LE_OQ>(
+                    _mm256_mul_pd(_mm256_sub_pd(w[c], lw), _mm256_sub_pd(tp, lt)),
+                    _mm256_mul_pd(_mm256_sub_pd(wp, lw), _mm256_sub_pd(t[c], lt)),
+                );
+                let (rt, rw) = (next(t[c], t[c + 1]), next(w[c], w[c + 1]));
+                let r = _mm256_cmp_pd::<_CMP_LE_OQ>(
+                    _mm256_mul_pd(_mm256_sub_pd(w[c], wp), _mm256_sub_pd(rt, tp)),
+                    _mm256_mul_pd(_mm256_sub_pd(rw, wp), _mm256_sub_pd(t[c], tp)),
+                );
+                left |= bits(l, c);
+                right |= bits(r, c);
+            }
+            [before, left, right]
+        }
+
+        #[inline]
+        #[target_feature(enable = "avx2,popcnt")]
+        unsafe fn move_tail(
+            t: &mut [f64; CAP],
+            w: &mut [f64; CAP],
+            len: usize,
+            from: usize,
+            to: usize,
+        ) {
+            let by = to as isize - from as isize;
+            // Every chunk is read before any is written.
+            let (tv, wv) = load(t, w, len);
+            for c in from / 4..len.div_ceil(4) {
+                let m = lanes(c, from, len);
+                let at = (4 * c) as isize + by;
+                // SAFETY: the lanes under `m` land on `to..to + len - from`
+                // of the node; the others are not written.
+                unsafe {
+                    _mm256_maskstore_pd(t.as_mut_ptr().wrapping_offset(at), m, tv[c]);
+                    _mm256_maskstore_pd(w.as_mut_ptr().wrapping_offset(at), m, wv[c]);
                 }
             }
         }
@@ -499,12 +647,21 @@ mod tests {
 
     /// A random walk of posts into both stores, with runs that build a
     /// dome (every post on the hull, past `CAP`) and ties in `t`: the same
-    /// hulls, the same tangents, bit for bit.
+    /// hulls, the same tangents, bit for bit, in every kernel the CPU runs.
     #[test]
     fn the_slab_keeps_the_heaps_hulls() {
-        if crate::simd::level() < crate::simd::Level::Avx512 {
-            return;
+        use crate::simd::Level;
+        #[cfg(target_arch = "x86_64")]
+        for level in crate::simd::available() {
+            match level {
+                Level::Avx512 => walk::<Avx512>(),
+                Level::Avx2 => walk::<Avx2>(),
+                Level::Scalar => {}
+            }
         }
+    }
+
+    fn walk<K: Kernel>() {
         let mut state = 0x9e37_79b9_7f4a_7c15u64;
         let mut random = move || {
             state ^= state << 13;
@@ -514,7 +671,7 @@ mod tests {
         };
         const NODES: usize = 4;
         let mut heap = Heap::<Option<u32>>::with_nodes(NODES);
-        let mut slab = Slab::<Option<u32>>::with_nodes(NODES);
+        let mut slab = Slab::<Option<u32>, K>::with_nodes(NODES);
         let mut lens = [(0u32, 0u32); NODES];
         let (mut spilled, mut steps) = (0, (0u64, 0u64));
         for n in 0..20_000u32 {
