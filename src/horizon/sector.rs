@@ -460,40 +460,35 @@ fn tree<T: Tag<u32>>(
     #[cfg(target_arch = "x86_64")]
     {
         use crate::simd::Level;
-        use hulls::{Avx2, Avx512};
-        #[target_feature(enable = "avx512f,avx512vl,avx512dq,popcnt")]
-        unsafe fn in_avx512<T: Tag<u32>>(
-            terrain: &Terrain,
-            sector: (usize, usize),
-            narrow: bool,
-            shared: Shared,
-            out: &mut [f32],
-            distances: Option<&mut [f32]>,
-        ) -> SectorStats {
-            sweep::<T, Slab<T, Avx512>>(terrain, sector, narrow, shared, out, distances)
+        /// `sweep` with the hulls in a slab of `$kernel`, compiled for its
+        /// instructions.
+        macro_rules! in_slab {
+            ($features:literal, $kernel:ty) => {{
+                #[target_feature(enable = $features)]
+                unsafe fn run<T: Tag<u32>>(
+                    terrain: &Terrain,
+                    sector: (usize, usize),
+                    narrow: bool,
+                    shared: Shared,
+                    out: &mut [f32],
+                    distances: Option<&mut [f32]>,
+                ) -> SectorStats {
+                    sweep::<T, Slab<T, $kernel>>(terrain, sector, narrow, shared, out, distances)
+                }
+                run::<T> as unsafe fn(_, _, _, _, _, _) -> _
+            }};
         }
-        #[target_feature(enable = "avx2,popcnt")]
-        unsafe fn in_avx2<T: Tag<u32>>(
-            terrain: &Terrain,
-            sector: (usize, usize),
-            narrow: bool,
-            shared: Shared,
-            out: &mut [f32],
-            distances: Option<&mut [f32]>,
-        ) -> SectorStats {
-            sweep::<T, Slab<T, Avx2>>(terrain, sector, narrow, shared, out, distances)
-        }
-        // SAFETY (both): the CPU runs `level` (the callers ask `simd`).
-        match level {
-            Level::Avx512 => {
-                return unsafe { in_avx512::<T>(terrain, sector, narrow, shared, out, distances) }
+        let run = match level {
+            Level::Avx512 => in_slab!("avx512f,avx512vl,avx512dq,popcnt", hulls::Avx512),
+            Level::Avx2 => in_slab!("avx2,popcnt", hulls::Avx2),
+            Level::Scalar => {
+                return sweep::<T, Heap<T>>(terrain, sector, narrow, shared, out, distances)
             }
-            Level::Avx2 => {
-                return unsafe { in_avx2::<T>(terrain, sector, narrow, shared, out, distances) }
-            }
-            Level::Scalar => {}
-        }
+        };
+        // SAFETY: the CPU runs `level` (the callers ask `simd`).
+        unsafe { run(terrain, sector, narrow, shared, out, distances) }
     }
+    #[cfg(not(target_arch = "x86_64"))]
     sweep::<T, Heap<T>>(terrain, sector, narrow, shared, out, distances)
 }
 

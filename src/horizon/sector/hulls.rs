@@ -662,13 +662,8 @@ mod tests {
     }
 
     fn walk<K: Kernel>() {
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut random = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = crate::synth::SplitMix64(17);
+        let mut random = move || rng.unit();
         const NODES: usize = 4;
         let mut heap = Heap::<Option<u32>>::with_nodes(NODES);
         let mut slab = Slab::<Option<u32>, K>::with_nodes(NODES);
