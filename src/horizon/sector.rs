@@ -49,7 +49,7 @@
 //! gathered beforehand, leaving the stencil and the angles to a pass row
 //! by row: a post's lookups in the sweep's order are cache misses on its
 //! critical path. And the sorts are shared: a sector's processing order is
-//! the previous sector's rank order ([`Ranks`]). Together 1.45x faster at
+//! the previous sector's rank order ([`Ranks`]). Together 1.47x faster at
 //! 64 sectors, the same bits.
 
 mod hulls;
@@ -215,8 +215,8 @@ pub struct SectorStats {
     pub inserts: u64,
 }
 
-/// One sector's posts in order along `b_perp`, ties by `b` (IV-D), as
-/// `(b_perp key, b key, post)`: the sector's ranks in Stewart's tree, and
+/// One sector's posts (their indices among the posts with data) in order
+/// along `b_perp`, ties by `b` (IV-D): the sector's ranks in Stewart's tree, and
 /// the next sector's processing order, whose clockwise boundary is this
 /// sector's counter-clockwise one (the same bits, [`SectorFrame::new`]):
 /// its order along `a_perp` descending is this one along `b_perp`
@@ -392,9 +392,8 @@ pub fn sector_horizons(
     narrow: bool,
     out: &mut [f32],
 ) -> SectorStats {
-    let level = crate::simd::level();
-    let shared = Shared::default();
-    tree::<()>(terrain, (index, count), narrow, level, shared, out, None)
+    let with = (crate::simd::level(), Shared::default());
+    sector_horizons_at(terrain, (index, count), narrow, with, out, None)
 }
 
 /// [`sector_horizons`], also writing each post's distance to the post
@@ -408,17 +407,8 @@ pub fn sector_horizons_with_distances(
     out: &mut [f32],
     distances: &mut [f32],
 ) -> SectorStats {
-    let level = crate::simd::level();
-    let shared = Shared::default();
-    tree::<Option<u32>>(
-        terrain,
-        (index, count),
-        narrow,
-        level,
-        shared,
-        out,
-        Some(distances),
-    )
+    let with = (crate::simd::level(), Shared::default());
+    sector_horizons_at(terrain, (index, count), narrow, with, out, Some(distances))
 }
 
 /// [`sector_horizons`] (or, with `distances`,
