@@ -895,7 +895,8 @@ fn the_sector_tree_equals_brute_force_above_its_buckets() {
 /// on), a spread of 16 and all of 4 (their boundaries on the grid's
 /// diagonals, where posts tie), on a fractal of more than 100,000 posts
 /// with curvature, and on a dome, whose every post is on its hulls, so
-/// that they outgrow the array and move to vectors.
+/// that they outgrow the array and move to vectors. Ranks sorted on
+/// another grid with as many posts are left unused.
 #[test]
 fn the_sector_tree_gives_the_same_bits_in_every_store_and_shared() {
     use terrabake::horizon::sector::{sector_horizons_at, Ranks, Shared};
@@ -951,6 +952,20 @@ fn the_sector_tree_gives_the_same_bits_in_every_store_and_shared() {
                     run(widest, shared) == want,
                     "{name}: sector {index}/{count}: the orders handed on differ"
                 );
+                // Ranks of another grid with as many posts (its rows and
+                // columns swapped) are not used.
+                if index % 8 == 0 {
+                    let other = Terrain::new(z, h, w, dx, dy);
+                    let foreign = Ranks::of(&other, (index, count));
+                    let shared = Shared {
+                        ranks: Some(&foreign),
+                        previous: Some(&foreign),
+                    };
+                    assert!(
+                        run(widest, shared) == want,
+                        "{name}: sector {index}/{count}: another grid's orders were used"
+                    );
+                }
             }
         }
     }

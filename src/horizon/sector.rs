@@ -227,6 +227,8 @@ pub struct SectorStats {
 #[derive(Debug)]
 pub struct Ranks {
     sector: (usize, usize),
+    /// The grid they were sorted on: width, height and spacing's bits.
+    grid: [u64; 4],
     /// The sector's counter-clockwise boundary (the frame's `hi`).
     boundary: (f64, f64),
     /// Indices into the posts with data, in order.
@@ -267,15 +269,17 @@ impl Ranks {
         }
         Self {
             sector,
+            grid: grid(terrain),
             boundary: frame.hi,
             sorted: keyed.into_iter().map(|(_, _, j)| j).collect(),
             ties,
         }
     }
 
-    /// Whether these are sector `sector`'s ranks over `posts` posts.
-    fn fits(&self, sector: (usize, usize), posts: usize) -> bool {
-        self.sector == sector && self.sorted.len() == posts
+    /// Whether these are sector `sector`'s ranks over `terrain`'s `posts`
+    /// posts with data.
+    fn fits(&self, sector: (usize, usize), terrain: &Terrain, posts: usize) -> bool {
+        self.sector == sector && self.grid == grid(terrain) && self.sorted.len() == posts
     }
 
     /// The next sector's processing order: runs of equal `b_perp` keys
@@ -297,6 +301,18 @@ impl Ranks {
 pub struct Shared<'a> {
     pub ranks: Option<&'a Ranks>,
     pub previous: Option<&'a Ranks>,
+}
+
+/// What ranks are checked against before they are used: the grid's size
+/// and spacing (not its rows' scales nor its heights: the caller hands on
+/// ranks sorted on the terrain it passes).
+fn grid(terrain: &Terrain) -> [u64; 4] {
+    [
+        terrain.width as u64,
+        terrain.height as u64,
+        terrain.dx.to_bits(),
+        terrain.dy.to_bits(),
+    ]
 }
 
 /// The posts with data, row-major.
@@ -514,7 +530,7 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
     // elsewhere misses the cache on every comparison).
     let own;
     let ranked = match shared.ranks {
-        Some(r) if r.fits((index, count), n) => r,
+        Some(r) if r.fits((index, count), terrain, n) => r,
         _ => {
             own = Ranks::new(terrain, (index, count), &posts, &frame);
             &own
@@ -526,7 +542,7 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
     }
     let previous = (index + count - 1) % count;
     let processing: Vec<u32> = match shared.previous {
-        Some(p) if p.fits((previous, count), n) && p.boundary == frame.lo => p.following(),
+        Some(p) if p.fits((previous, count), terrain, n) && p.boundary == frame.lo => p.following(),
         _ => {
             // a_perp descending, ties by a descending (IV-D); `!` reverses
             // an order-preserving key.
