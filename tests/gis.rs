@@ -321,8 +321,8 @@ fn every_method_names_a_lone_spike() {
                 &east,
                 opts,
                 [0..h, 0..w],
-                &mut angles,
-                Some(&mut metres),
+                (&mut angles, Some(&mut metres)),
+                Default::default(),
             );
             for col in 0..spike.0 {
                 let want = (spike.0 - col) as f32 * 20.0;

@@ -209,7 +209,14 @@ pub fn band_horizons_rows(
     area: [std::ops::Range<usize>; 2],
 ) -> (Vec<f32>, u64) {
     let mut out = vec![0f32; terrain.z.len()];
-    let work = band_horizons_into(terrain, band, opts, area, &mut out, None);
+    let work = band_horizons_into(
+        terrain,
+        band,
+        opts,
+        area,
+        (&mut out, None),
+        sector::Shared::default(),
+    );
     (out, work)
 }
 
@@ -217,15 +224,16 @@ pub fn band_horizons_rows(
 /// and where `distances` is given (the same shape), each post's horizontal
 /// distance in metres to the point that sets its horizon: exact for
 /// `line`, the arg-max post for `sector`, the steepest sample for
-/// `sampled`; NaN for nodata and where nothing lies ahead. Returns the
-/// count of work done.
+/// `sampled`; NaN for nodata and where nothing lies ahead. Unbounded
+/// `sector` takes its sorted orders from `shared` where they fit
+/// ([`sector::Ranks`]). Returns the count of work done.
 pub fn band_horizons_into(
     terrain: &Terrain,
     band: &Band,
     opts: BandOptions,
     [rows, cols]: [std::ops::Range<usize>; 2],
-    out: &mut [f32],
-    distances: Option<&mut [f32]>,
+    (out, distances): (&mut [f32], Option<&mut [f32]>),
+    shared: sector::Shared,
 ) -> u64 {
     let windowed = terrain.row0 > 0 || terrain.z.len() < terrain.width * terrain.height;
     assert!(
@@ -270,18 +278,16 @@ pub fn band_horizons_into(
             }
         },
         BandKind::Sector { index, count } => {
-            let s = match (opts.max_distance, distances) {
-                (None, None) => {
-                    sector::sector_horizons(terrain, *index, *count, opts.narrow_check, out)
-                }
-                (None, Some(d)) => sector::sector_horizons_with_distances(
+            let s = match opts.max_distance {
+                None => sector::sector_horizons_at(
                     terrain,
                     (*index, *count),
                     opts.narrow_check,
+                    (crate::simd::level(), shared),
                     out,
-                    d,
+                    distances,
                 ),
-                (Some(max), distances) => sector::sector_horizons_within(
+                Some(max) => sector::sector_horizons_within(
                     terrain,
                     (*index, *count),
                     opts.narrow_check,
@@ -896,32 +902,21 @@ impl Stage for HorizonsStage {
                     .map(|(j, band)| {
                         let mut angles = vec![0f32; terrain.z.len()];
                         let mut metres = distances.as_ref().map(|_| vec![0f32; angles.len()]);
-                        if let Some(s) = sector(band) {
-                            let shared = sector::Shared {
-                                ranks: ranks[j].as_ref(),
-                                previous: match j {
-                                    0 => previous.as_ref(),
-                                    _ => ranks[j - 1].as_ref(),
-                                },
-                            };
-                            sector::sector_horizons_at(
-                                &terrain,
-                                s,
-                                opts.narrow_check,
-                                (crate::simd::level(), shared),
-                                &mut angles,
-                                metres.as_deref_mut(),
-                            );
-                        } else {
-                            band_horizons_into(
-                                &terrain,
-                                band,
-                                opts,
-                                [rows.clone(), cols.clone()],
-                                &mut angles,
-                                metres.as_deref_mut(),
-                            );
-                        }
+                        let shared = sector::Shared {
+                            ranks: ranks[j].as_ref(),
+                            previous: match j {
+                                0 => previous.as_ref(),
+                                _ => ranks[j - 1].as_ref(),
+                            },
+                        };
+                        band_horizons_into(
+                            &terrain,
+                            band,
+                            opts,
+                            [rows.clone(), cols.clone()],
+                            (&mut angles, metres.as_deref_mut()),
+                            shared,
+                        );
                         (angles, metres)
                     })
                     .collect();
