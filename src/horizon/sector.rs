@@ -606,12 +606,25 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
         let kf = f64::from(k);
         let mut best = bucket_points[bucket].steepest_above(kf, tp, wp);
         stats.tangent_steps += bucket_points[bucket].rank.len() as u64;
-        let mut v = leaves + bucket;
+        // The path from the leaf to the root, level `l` at `leaf >> l`: a
+        // left child where bit `l` of the bucket is clear, and only left
+        // children hold hulls (a post joins its path's left siblings).
+        // Walking the set and clear bits (not testing each level's, a
+        // branch that goes either way at random) leaves one mispredicted
+        // branch to a loop, not one to a level.
+        let leaf = leaves + bucket;
+        let mut lefts = !bucket & (leaves - 1);
+        while lefts != 0 {
+            let v = leaf >> lefts.trailing_zeros();
+            lefts &= lefts - 1;
+            let len = nodes[v].len;
+            if len > 0 {
+                best = best.steeper(hulls.tangent(v, len, tp, wp, &mut stats.tangent_steps));
+            }
+        }
+        let mut v = leaf;
         while v >= 1 {
             let node = &mut nodes[v];
-            if node.len > 0 {
-                best = best.steeper(hulls.tangent(v, node.len, tp, wp, &mut stats.tangent_steps));
-            }
             node.remaining -= 1;
             if node.remaining == 0 && node.len > 0 {
                 hulls.clear(v, node.len);
@@ -629,14 +642,15 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
         } else {
             bucket_points[bucket] = Bucket::default();
         }
-        let mut v = leaves + bucket;
-        while v > 1 {
-            if v & 1 == 1 && nodes[v - 1].remaining > 0 {
-                let node = &mut nodes[v - 1];
-                node.len = hulls.insert(v - 1, node.len, me);
+        let mut rights = bucket;
+        while rights != 0 {
+            let v = (leaf >> rights.trailing_zeros()) - 1;
+            rights &= rights - 1;
+            let node = &mut nodes[v];
+            if node.remaining > 0 {
+                node.len = hulls.insert(v, node.len, me);
                 stats.inserts += 1;
             }
-            v >>= 1;
         }
     }
     // Stewart's IV-E stencil, then the angles: row by row, in the order of
