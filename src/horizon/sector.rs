@@ -248,7 +248,7 @@ impl Ranks {
         let w = terrain.width;
         // Sorted with their keys in place: sorting indices by keys looked
         // up elsewhere misses the cache on every comparison.
-        let mut keyed: Vec<(u64, u64, u32)> = posts
+        let keyed: Vec<(u64, u64, u32)> = posts
             .iter()
             .enumerate()
             .map(|(j, &i)| {
@@ -258,7 +258,7 @@ impl Ranks {
                 (k[2], k[3], j as u32)
             })
             .collect();
-        keyed.sort_unstable();
+        let keyed = sort_keyed(keyed, unordered);
         let mut ties = Vec::new();
         let mut start = 0;
         for run in keyed.chunk_by(|a, b| a.0 == b.0) {
@@ -397,6 +397,67 @@ fn ordered(v: f64) -> u64 {
     } else {
         bits | (1 << 63)
     }
+}
+
+/// The `f64` whose [`ordered`] is `bits`.
+fn unordered(bits: u64) -> f64 {
+    f64::from_bits(if bits >> 63 == 1 {
+        bits & !(1 << 63)
+    } else {
+        !bits
+    })
+}
+
+/// `keyed` (first key, second key, post) sorted as `sort_unstable` sorts
+/// it, in linear time on grids: a bucket sort by the first key's `value`
+/// (any function of it that never decreases), as many buckets as posts,
+/// then each bucket by the whole triple. A grid's posts are spread evenly
+/// along any direction, so most buckets hold a post or two; where they
+/// do not (a diagonal, along which hundreds of posts share a key), the
+/// bucket's sort is the comparison sort there was. Out of place: a copy
+/// more of the triples while it runs, which the stage's rank phase has
+/// room for (the sweeps' memory is not yet taken).
+fn sort_keyed(mut keyed: Vec<(u64, u64, u32)>, value: impl Fn(u64) -> f64) -> Vec<(u64, u64, u32)> {
+    let n = keyed.len();
+    let (lo, hi) = keyed
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), k| {
+            let v = value(k.0);
+            (lo.min(v), hi.max(v))
+        });
+    // One key for all (or none): nothing to spread.
+    if hi <= lo {
+        keyed.sort_unstable();
+        return keyed;
+    }
+    // Rounding keeps `(v - lo) * scale` from decreasing as `v` grows, so
+    // every key of a bucket lies at or below every key of the next.
+    let scale = (n - 1) as f64 / (hi - lo);
+    let bucket = |k: &(u64, u64, u32)| (((value(k.0) - lo) * scale) as usize).min(n - 1);
+    // Counts, then each bucket's end, then (filled from the back) its start.
+    let mut at = vec![0u32; n + 1];
+    for k in &keyed {
+        at[bucket(k)] += 1;
+    }
+    let mut end = 0;
+    for a in at.iter_mut() {
+        end += *a;
+        *a = end;
+    }
+    let mut sorted = vec![(0, 0, 0); n];
+    for k in keyed.iter().rev() {
+        let a = &mut at[bucket(k)];
+        *a -= 1;
+        sorted[*a as usize] = *k;
+    }
+    drop(keyed);
+    for b in at.windows(2) {
+        let run = &mut sorted[b[0] as usize..b[1] as usize];
+        if run.len() > 1 {
+            run.sort_unstable();
+        }
+    }
+    sorted
 }
 
 /// Sector horizons of sector `index` of `count` at every post, in degrees
@@ -878,6 +939,39 @@ fn elevation_deg(best: f64, c: f64, tp: f64) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The bucket sort gives `sort_unstable`'s order: keys from a grid
+    /// direction (evenly spread), a diagonal (hundreds to a key), one key
+    /// for all, and keys that cross zero and span binades.
+    #[test]
+    fn the_bucket_sort_sorts_as_sort_unstable() {
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut random = move || {
+            state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
+            let mut z = state;
+            z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+            z ^ (z >> 31)
+        };
+        let keys: [&dyn Fn(usize, usize) -> f64; 4] = [
+            &|col, row| 0.3 * col as f64 - 0.95 * row as f64,
+            &|col, row| col as f64 - row as f64,
+            &|_, _| 2.5,
+            &|col, row| (col as f64 - 20.0) * 1e-3 * 10f64.powi(row as i32 % 9),
+        ];
+        for key in keys {
+            let keyed: Vec<(u64, u64, u32)> = (0..40 * 30)
+                .map(|i| {
+                    let (col, row) = (i % 40, i / 40);
+                    (ordered(key(col, row) + 0.0), random() % 4, i as u32)
+                })
+                .collect();
+            let mut expected = keyed.clone();
+            expected.sort_unstable();
+            assert_eq!(sort_keyed(keyed, unordered), expected);
+        }
+        assert!(sort_keyed(Vec::new(), unordered).is_empty());
+    }
 
     #[test]
     fn frames_snap_diagonals() {
