@@ -49,8 +49,10 @@
 //! gathered beforehand, leaving the stencil and the angles to a pass row
 //! by row: a post's lookups in the sweep's order are cache misses on its
 //! critical path. And the sorts are shared: a sector's processing order is
-//! the previous sector's rank order ([`Ranks`]). Together 1.47x faster at
-//! 64 sectors, the same bits.
+//! the previous sector's rank order ([`Ranks`]), sorted by buckets
+//! ([`sort_keyed`]). Together 1.47x faster at 64 sectors, the same bits;
+//! then 1.26x more with the bucket sort and the walk up the tree by the
+//! bucket index's bits (a branch a level no longer mispredicted).
 
 mod hulls;
 
