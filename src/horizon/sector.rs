@@ -231,8 +231,6 @@ pub struct Ranks {
     sector: (usize, usize),
     /// The grid they were sorted on: width, height and spacing's bits.
     grid: [u64; 4],
-    /// The sector's counter-clockwise boundary (the frame's `hi`).
-    boundary: (f64, f64),
     /// Indices into the posts with data, in order.
     sorted: Vec<u32>,
     /// The runs of more than one equal `b_perp` key: start and length.
@@ -247,20 +245,7 @@ impl Ranks {
     }
 
     fn new(terrain: &Terrain, sector: (usize, usize), posts: &[u32], frame: &SectorFrame) -> Self {
-        let w = terrain.width;
-        // Sorted with their keys in place: sorting indices by keys looked
-        // up elsewhere misses the cache on every comparison.
-        let keyed: Vec<(u64, u64, u32)> = posts
-            .iter()
-            .enumerate()
-            .map(|(j, &i)| {
-                let k = frame
-                    .keys(terrain.key_position(i as usize % w, i as usize / w))
-                    .map(ordered);
-                (k[2], k[3], j as u32)
-            })
-            .collect();
-        let keyed = sort_keyed(keyed, unordered);
+        let keyed = sort_keyed(keyed(terrain, posts, frame, |k| (k[2], k[3])), unordered);
         let mut ties = Vec::new();
         let mut start = 0;
         for run in keyed.chunk_by(|a, b| a.0 == b.0) {
@@ -272,7 +257,6 @@ impl Ranks {
         Self {
             sector,
             grid: grid(terrain),
-            boundary: frame.hi,
             sorted: keyed.into_iter().map(|(_, _, j)| j).collect(),
             ties,
         }
@@ -315,6 +299,28 @@ fn grid(terrain: &Terrain) -> [u64; 4] {
         terrain.dx.to_bits(),
         terrain.dy.to_bits(),
     ]
+}
+
+/// Each post's two sorting keys, picked from its four [`SectorFrame::keys`]
+/// made [`ordered`], and its index among `posts`: sorted with their keys
+/// in place, since sorting indices by keys looked up elsewhere misses the
+/// cache on every comparison.
+fn keyed(
+    terrain: &Terrain,
+    posts: &[u32],
+    frame: &SectorFrame,
+    pick: impl Fn([u64; 4]) -> (u64, u64),
+) -> Vec<(u64, u64, u32)> {
+    let w = terrain.width;
+    posts
+        .iter()
+        .enumerate()
+        .map(|(j, &i)| {
+            let k = frame.keys(terrain.key_position(i as usize % w, i as usize / w));
+            let (first, second) = pick(k.map(ordered));
+            (first, second, j as u32)
+        })
+        .collect()
 }
 
 /// The posts with data, row-major.
@@ -603,20 +609,18 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
     for (r, &j) in ranked.sorted.iter().enumerate() {
         rank[j as usize] = r as u32;
     }
+    // The previous sector's counter-clockwise boundary is this one's
+    // clockwise boundary to the bit ([`SectorFrame::new`]), but where the
+    // two come from azimuths a turn apart (sector 0 after the last).
     let previous = (index + count - 1) % count;
+    let adjoins = SectorFrame::new(previous, count, terrain.dx, terrain.dy).hi == frame.lo;
     let processing: Vec<u32> = match shared.previous {
-        Some(p) if p.fits((previous, count), terrain, n) && p.boundary == frame.lo => p.following(),
+        Some(p) if adjoins && p.fits((previous, count), terrain, n) => p.following(),
         _ => {
             // a_perp descending, ties by a descending (IV-D); `!` reverses
-            // an order-preserving key.
-            let mut by_a: Vec<(u64, u64, u32)> = posts
-                .iter()
-                .enumerate()
-                .map(|(j, &i)| {
-                    let k = frame.keys(position(i)).map(ordered);
-                    (!k[0], !k[1], j as u32)
-                })
-                .collect();
+            // an order-preserving key. In place: here the sweep's memory is
+            // taken ([`sort_keyed`] is out of place).
+            let mut by_a = keyed(terrain, &posts, &frame, |k| (!k[0], !k[1]));
             by_a.sort_unstable();
             by_a.into_iter().map(|(_, _, j)| j).collect()
         }

@@ -83,11 +83,25 @@ impl<T: Copy + Default> Hulls<T> for Heap<T> {
     }
 }
 
-/// Whether `(t, w)` lies on or below the segment from `l` to `r` (`l.t <
-/// t < r.t`, or `t` beyond `r` for the pops' tests).
+/// Whether the point `p = (t, w)` lies on or below the segment from `l`
+/// to `r` (`l.t < t < r.t`, or `t` beyond `r` for the pops' tests), with
+/// `sub`, `mul` and `le` of numbers or of vectors of them: one expression,
+/// evaluated in the same order by [`below`] and by the kernels lane by
+/// lane, so that both decide every point alike.
+macro_rules! below {
+    ($sub:expr, $mul:expr, $le:expr; $l:expr, $r:expr, $p:expr) => {{
+        let (l, r, p) = ($l, $r, $p);
+        $le(
+            $mul($sub(p.1, l.1), $sub(r.0, l.0)),
+            $mul($sub(r.1, l.1), $sub(p.0, l.0)),
+        )
+    }};
+}
+
+/// [`below!`] of numbers.
 #[inline(always)]
-fn below(l: (f64, f64), r: (f64, f64), (t, w): (f64, f64)) -> bool {
-    (w - l.1) * (r.0 - l.0) <= (r.1 - l.1) * (t - l.0)
+fn below(l: (f64, f64), r: (f64, f64), p: (f64, f64)) -> bool {
+    below!(|a: f64, b| a - b, |a: f64, b| a * b, |a: f64, b| a <= b; l, r, p)
 }
 
 /// Inserts `p` into an upper hull sorted by `t`.
@@ -434,16 +448,12 @@ mod avx512 {
                 before |= u64::from(_mm512_cmp_pd_mask::<_CMP_LT_OQ>(t[c], tp)) << at;
                 let prev = |x: &[__m512d]| shift::<7>(x[c], if c == 0 { zero } else { x[c - 1] });
                 let next = |x: &[__m512d]| shift::<1>(x[c + 1], x[c]);
-                let (lt, lw) = (prev(&t), prev(&w));
-                let l = _mm512_cmp_pd_mask::<_CMP_LE_OQ>(
-                    _mm512_mul_pd(_mm512_sub_pd(w[c], lw), _mm512_sub_pd(tp, lt)),
-                    _mm512_mul_pd(_mm512_sub_pd(wp, lw), _mm512_sub_pd(t[c], lt)),
-                );
-                let (rt, rw) = (next(&t), next(&w));
-                let r = _mm512_cmp_pd_mask::<_CMP_LE_OQ>(
-                    _mm512_mul_pd(_mm512_sub_pd(w[c], wp), _mm512_sub_pd(rt, tp)),
-                    _mm512_mul_pd(_mm512_sub_pd(rw, wp), _mm512_sub_pd(t[c], tp)),
-                );
+                let below = |l: (__m512d, __m512d), r: (__m512d, __m512d)| {
+                    let le = _mm512_cmp_pd_mask::<_CMP_LE_OQ>;
+                    below!(_mm512_sub_pd, _mm512_mul_pd, le; l, r, (t[c], w[c]))
+                };
+                let l = below((prev(&t), prev(&w)), (tp, wp));
+                let r = below((tp, wp), (next(&t), next(&w)));
                 left |= u64::from(l) << at;
                 right |= u64::from(r) << at;
             }
@@ -583,16 +593,12 @@ mod avx2 {
             for c in 0..len.div_ceil(4) {
                 before |= bits(_mm256_cmp_pd::<_CMP_LT_OQ>(t[c], tp), c);
                 let lo = |x: &[__m256d]| if c == 0 { zero } else { x[c - 1] };
-                let (lt, lw) = (prev(t[c], lo(&t)), prev(w[c], lo(&w)));
-                let l = _mm256_cmp_pd::<_CMP_LE_OQ>(
-                    _mm256_mul_pd(_mm256_sub_pd(w[c], lw), _mm256_sub_pd(tp, lt)),
-                    _mm256_mul_pd(_mm256_sub_pd(wp, lw), _mm256_sub_pd(t[c], lt)),
-                );
-                let (rt, rw) = (next(t[c], t[c + 1]), next(w[c], w[c + 1]));
-                let r = _mm256_cmp_pd::<_CMP_LE_OQ>(
-                    _mm256_mul_pd(_mm256_sub_pd(w[c], wp), _mm256_sub_pd(rt, tp)),
-                    _mm256_mul_pd(_mm256_sub_pd(rw, wp), _mm256_sub_pd(t[c], tp)),
-                );
+                let below = |l: (__m256d, __m256d), r: (__m256d, __m256d)| {
+                    let le = _mm256_cmp_pd::<_CMP_LE_OQ>;
+                    below!(_mm256_sub_pd, _mm256_mul_pd, le; l, r, (t[c], w[c]))
+                };
+                let l = below((prev(t[c], lo(&t)), prev(w[c], lo(&w))), (tp, wp));
+                let r = below((tp, wp), (next(t[c], t[c + 1]), next(w[c], w[c + 1])));
                 left |= bits(l, c);
                 right |= bits(r, c);
             }
