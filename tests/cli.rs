@@ -596,6 +596,11 @@ fn horizons_from_the_command_line_export_shade_and_recipes() {
         (vec!["--sectors", "2"], "--sectors", 2),
         (vec!["--aoi", "10,10,5,5"], "X0 < X1", 2),
         (vec!["--aoi", "0,0,500,10"], "--aoi", 1),
+        (
+            vec!["--sectors", "128", "--direction-tolerance", "4.5"],
+            "half the spacing",
+            1,
+        ),
     ] {
         let mut all = vec!["horizons", s(&aoi), "--force"];
         all.extend(args);

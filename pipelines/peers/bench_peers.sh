@@ -5,7 +5,9 @@
 #
 #   bash pipelines/peers/bench_peers.sh     # DEM=, DIRECTIONS=16, CROP=256, LIMIT=600, WORK=,
 #                                            # PEERS=horayzon,grass (default: every peer;
-#                                            # the charts are redrawn only then)
+#                                            # the charts are redrawn only then),
+#                                            # TOLERANCE=4.5 (also our stage with its line
+#                                            # directions that far from nominal, timed and scored)
 #
 # Installs (as root; once): Debian's gdal-bin, grass-core and saga; a
 # virtual environment target/peers-venv from PyPI with whitebox-workflows,
@@ -25,6 +27,7 @@ CROP=${CROP:-256}
 LIMIT=${LIMIT:-600}
 WORK=${WORK:-/tmp/terrabake-peers}
 PEERS=${PEERS:-}
+TOLERANCE=${TOLERANCE:-}
 VENV=target/peers-venv
 source pipelines/apt.sh
 say() { echo "bench-peers: $*" >&2; }
@@ -79,7 +82,8 @@ fi
 args=()
 for m in "${missing[@]}"; do args+=(--missing "$m"); done
 "$py" pipelines/peers/bench_peers.py --bin "$BIN" --venv "$VENV" --dem "$DEM" --work "$WORK" \
-  --directions "$DIRECTIONS" --crop "$CROP" --limit "$LIMIT" --only "$PEERS" "${args[@]}"
+  --directions "$DIRECTIONS" --crop "$CROP" --limit "$LIMIT" --only "$PEERS" "${args[@]}" \
+  ${TOLERANCE:+--tolerance "$TOLERANCE"}
 # The charts show every peer: a run of some (PEERS=) prints their tables
 # and leaves the charts as the last full run drew them.
 chart=()
@@ -89,4 +93,4 @@ else
   say "PEERS=$PEERS: docs/charts/horizons_*.svg left as they are (they are drawn from a run of every peer)"
 fi
 "$BIN" bench-horizons "$WORK/whole.tbake" --peers "$WORK/peers.json" --crop "$CROP" \
-  --speed none "${chart[@]}"
+  --speed none "${chart[@]}" ${TOLERANCE:+--direction-tolerance "$TOLERANCE"}

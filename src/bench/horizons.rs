@@ -79,6 +79,10 @@ pub fn speed(terrain: &Terrain, runs: &[(Method, usize)]) -> Vec<SpeedRow> {
 pub struct AccuracyRow {
     pub method: String,
     pub bands: usize,
+    /// How far a line direction was let sit from its nominal azimuth
+    /// (`None`: the stage's default, an eighth of the spacing).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub direction_tolerance_deg: Option<f64>,
     pub seconds: f64,
     /// Root mean square and mean (bias) of the horizon angle error, degrees.
     pub horizon_rms_deg: f64,
@@ -86,6 +90,17 @@ pub struct AccuracyRow {
     /// Root mean square and largest error of the sky-view factor.
     pub svf_rms: f64,
     pub svf_max: f64,
+}
+
+impl AccuracyRow {
+    /// The method as the tables name it, with a tolerance that is not the
+    /// default.
+    fn label(&self) -> String {
+        match self.direction_tolerance_deg {
+            Some(t) => format!("{} within {t} deg", self.method),
+            None => self.method.clone(),
+        }
+    }
 }
 
 /// Zakšek's svf at `post` of band-major `values` in the bands of `integrals`.
@@ -181,15 +196,17 @@ pub(super) fn interpolated(azimuths: &[f64], azimuth: f64, at: impl Fn(usize) ->
     a + f * (b - a)
 }
 
-/// Errors of `method` with `count` bands against `reference`, on the posts
-/// of the central half of `terrain`.
+/// Errors of `method` with `count` bands (line directions within
+/// `tolerance` degrees of their nominal azimuths, or the default) against
+/// `reference`, on the posts of the central half of `terrain`.
 pub fn accuracy(
     terrain: &Terrain,
     reference: &Reference,
     method: Method,
     count: usize,
+    tolerance: Option<f64>,
 ) -> AccuracyRow {
-    let bands = plan_bands(method, count, terrain.dx, terrain.dy, None);
+    let bands = plan_bands(method, count, terrain.dx, terrain.dy, tolerance);
     let (values, seconds, _) = all_bands(terrain, &bands, BandOptions::default());
     let azimuths: Vec<f64> = bands.iter().map(|b| b.azimuth).collect();
     let estimate = |post: usize, az: f64| -> f64 {
@@ -209,6 +226,7 @@ pub fn accuracy(
     AccuracyRow {
         method: method.name().into(),
         bands: count,
+        direction_tolerance_deg: tolerance,
         seconds,
         horizon_rms_deg,
         horizon_bias_deg,
@@ -219,7 +237,8 @@ pub fn accuracy(
 
 /// The accuracy study: on a centred `side x side` crop of `whole` (or all
 /// of it when smaller), the reference with `reference` directions and every
-/// method and count against it.
+/// method and count against it; with `line_tolerance`, the line method's
+/// counts again with their directions that far from nominal.
 #[derive(Debug, Serialize)]
 pub struct AccuracyStudy {
     pub crop: usize,
@@ -241,6 +260,7 @@ pub fn accuracy_study(
     reference: usize,
     methods: &[Method],
     counts: &[usize],
+    line_tolerance: Option<f64>,
     peers: &[LoadedPeer],
 ) -> AccuracyStudy {
     let side = crop_side(whole, side);
@@ -251,10 +271,14 @@ pub fn accuracy_study(
     let small = Terrain::new(&cropped, side, side, whole.dx, whole.dy)
         .with_row_scale(whole.row_scale.crop(y0..y0 + side));
     let reference_bands = Reference::new(&small, reference);
-    let rows = methods
-        .iter()
-        .flat_map(|&m| counts.iter().map(move |&k| (m, k)))
-        .map(|(m, k)| accuracy(&small, &reference_bands, m, k))
+    let tolerances = std::iter::once(None).chain(line_tolerance.map(Some));
+    let rows = tolerances
+        .flat_map(|t| methods.iter().map(move |&m| (m, t)))
+        .flat_map(|(m, t)| counts.iter().map(move |&k| (m, k, t)))
+        // Only lines have a tolerance, and the stage refuses one of half
+        // the spacing or more (two directions could take one step).
+        .filter(|&(m, k, t)| t.is_none_or(|t| m == Method::Line && t < 180.0 / k as f64))
+        .map(|(m, k, t)| accuracy(&small, &reference_bands, m, k, t))
         .collect();
     AccuracyStudy {
         crop: side,
@@ -303,7 +327,7 @@ pub fn accuracy_table_markdown(rows: &[AccuracyRow]) -> String {
         ],
         rows.iter().map(|r| {
             vec![
-                r.method.clone(),
+                r.label(),
                 r.bands.to_string(),
                 format!("{:.3}", r.seconds),
                 format!("{:.3}", r.horizon_rms_deg),
@@ -320,25 +344,28 @@ pub fn accuracy_table_markdown(rows: &[AccuracyRow]) -> String {
 pub fn accuracy_charts(prefix: &Path, study: &AccuracyStudy) -> Result<()> {
     let rows = &study.rows;
     let series = |value: &dyn Fn(&AccuracyRow) -> f64| -> Vec<Series> {
-        let mut methods: Vec<&str> = Vec::new();
+        let mut labels: Vec<String> = Vec::new();
         for r in rows {
-            if !methods.contains(&r.method.as_str()) {
-                methods.push(&r.method);
+            if !labels.contains(&r.label()) {
+                labels.push(r.label());
             }
         }
-        methods
+        labels
             .into_iter()
-            .map(|m| Series {
-                name: match m {
-                    "line" => "line (exact sight lines), K = 8 .. 256".into(),
-                    "sector" => "sector (Stewart's wedges), s = 8 .. 256".into(),
-                    _ => "sampled (centre line, nearest post), K = 8 .. 256".into(),
-                },
-                points: rows
-                    .iter()
-                    .filter(|r| r.method == m)
-                    .map(|r| (r.seconds, value(r)))
-                    .collect(),
+            .map(|label| {
+                let of = rows.iter().filter(|r| r.label() == label);
+                let first = of.clone().next().expect("a label names a row");
+                Series {
+                    name: match (first.method.as_str(), first.direction_tolerance_deg) {
+                        ("line", None) => "line (exact sight lines), K = 8 .. 256".into(),
+                        ("line", Some(t)) => {
+                            format!("line, directions within {t} deg of nominal, K = 8 .. 256")
+                        }
+                        ("sector", _) => "sector (Stewart's wedges), s = 8 .. 256".into(),
+                        _ => "sampled (centre line, nearest post), K = 8 .. 256".into(),
+                    },
+                    points: of.map(|r| (r.seconds, value(r))).collect(),
+                }
             })
             .collect()
     };
@@ -487,6 +514,11 @@ pub struct BenchHorizonsArgs {
     /// Side of the centred crop for the accuracy study, posts.
     #[arg(long, default_value_t = 256)]
     pub crop: usize,
+    /// The line method's counts again with their directions this far (degrees) from i * 360 /
+    /// count: what a wider `horizons --direction-tolerance` costs in accuracy (default: only the
+    /// stage's default, an eighth of the spacing).
+    #[arg(long, value_name = "DEG")]
+    pub direction_tolerance: Option<f64>,
     /// Whole-DEM speed runs METHOD:COUNT, comma-separated (none: skip).
     #[arg(
         long,
@@ -548,6 +580,12 @@ impl BenchHorizonsArgs {
             }
             return Ok(());
         }
+        if let Some(t) = self.direction_tolerance {
+            anyhow::ensure!(
+                t > 0.0 && t.is_finite(),
+                "--direction-tolerance {t}: give a positive number of degrees"
+            );
+        }
         let dem = crate::horizon::HeldDem::read(&opened)?;
         let whole = dem.terrain(0.0);
         let (manifest, peers) = match &self.peers {
@@ -580,6 +618,7 @@ impl BenchHorizonsArgs {
             self.reference,
             &self.methods,
             &self.counts,
+            self.direction_tolerance,
             &peers,
         );
         if self.json {
@@ -625,5 +664,56 @@ impl BenchHorizonsArgs {
             ));
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synth::{height, SynthKind};
+
+    /// With a tolerance, the line method's counts come again with it where
+    /// it is under half their spacing, and no other method's.
+    #[test]
+    fn a_wider_tolerance_adds_line_rows_only_where_the_stage_allows_it() {
+        let side = 40;
+        let z: Vec<f32> = (0..side * side)
+            .map(|i| {
+                let (x, y) = ((i % side) as u32, (i / side) as u32);
+                height(SynthKind::Fractal, x, y, side as u32, side as u32, 7) * 100.0
+            })
+            .collect();
+        let t = Terrain::new(&z, side, side, 30.0, 30.0);
+        let study = accuracy_study(
+            &t,
+            side,
+            64,
+            &[Method::Line, Method::Sector],
+            &[8, 16, 64],
+            Some(4.5),
+            &[],
+        );
+        let labels: Vec<(String, usize)> =
+            study.rows.iter().map(|r| (r.label(), r.bands)).collect();
+        let within = |k| ("line within 4.5 deg".to_string(), k);
+        assert!(
+            labels.contains(&within(8)) && labels.contains(&within(16)),
+            "{labels:?}"
+        );
+        assert!(
+            !labels.contains(&within(64)),
+            "64 directions are 5.6 deg apart: {labels:?}"
+        );
+        assert!(
+            !labels.iter().any(|(l, _)| l.starts_with("sector within")),
+            "{labels:?}"
+        );
+        assert_eq!(labels.len(), 2 * 3 + 2);
+        for r in &study.rows {
+            assert!(
+                r.horizon_rms_deg.is_finite() && r.svf_rms.is_finite(),
+                "{r:?}"
+            );
+        }
     }
 }

@@ -101,6 +101,10 @@ pub struct WholeRun {
     pub timed_out: bool,
     #[serde(default)]
     pub notes: Vec<String>,
+    /// One of ours that the table divides every process by, a column each
+    /// (none marked: the first of ours).
+    #[serde(default)]
+    pub ratio: bool,
 }
 
 /// A peer's output read and checked against the crop.
@@ -286,24 +290,33 @@ pub fn notes_markdown(manifest: &PeerManifest) -> String {
         .collect()
 }
 
-/// The whole-DEM runs: each peer's process against our first run, and the
-/// peers that did not run, with the reason.
+/// The whole-DEM runs: each process against each of ours marked `ratio`
+/// (or the first of ours), a column each, and the peers that did not run,
+/// with the reason.
 pub fn whole_table_markdown(manifest: &PeerManifest) -> Result<String> {
-    let ours = manifest
-        .ours
-        .first()
-        .context("the peers manifest has no run of ours")?;
+    let mut bases: Vec<&WholeRun> = manifest.ours.iter().filter(|o| o.ratio).collect();
+    if bases.is_empty() {
+        bases.extend(manifest.ours.first());
+    }
+    ensure!(!bases.is_empty(), "the peers manifest has no run of ours");
+    let ratios = |w: &WholeRun, bound: &str, digits: usize| {
+        bases
+            .iter()
+            .map(|b| format!("{bound}{:.digits$}", w.seconds / b.seconds))
+            .collect::<Vec<_>>()
+    };
     let mut rows: Vec<Vec<String>> = manifest
         .ours
         .iter()
         .map(|o| {
-            vec![
+            let mut row = vec![
                 format!("**{}**", o.label),
                 "-".into(),
                 format!("{:.2}", o.seconds),
                 mib(o.peak_mib),
-                format!("{:.2}", o.seconds / ours.seconds),
-            ]
+            ];
+            row.extend(ratios(o, "", 2));
+            row
         })
         .collect();
     // (A peer with several outputs ran once on the whole DEM: its first
@@ -313,33 +326,35 @@ pub fn whole_table_markdown(manifest: &PeerManifest) -> Result<String> {
             continue;
         };
         let bound = if w.timed_out { "> " } else { "" };
-        rows.push(vec![
+        let mut row = vec![
             w.label.clone(),
             p.version.clone().unwrap_or_default(),
             format!("{bound}{:.2}", w.seconds),
             mib(w.peak_mib),
-            format!("{bound}{:.1}", w.seconds / ours.seconds),
-        ]);
+        ];
+        row.extend(ratios(w, bound, 1));
+        rows.push(row);
     }
     for p in manifest.peers.iter().filter(|p| p.missing.is_some()) {
-        rows.push(vec![
+        let mut row = vec![
             p.name.clone(),
             p.version.clone().unwrap_or_default(),
             format!("not run: {}", p.missing.as_deref().unwrap_or_default()),
-            "-".into(),
-            "-".into(),
-        ]);
+        ];
+        row.extend(std::iter::repeat_n("-".to_string(), 1 + bases.len()));
+        rows.push(row);
     }
-    Ok(markdown_table(
-        &[
-            "whole process",
-            "version",
-            "wall time (s)",
-            "peak RSS (MiB)",
-            &format!("time / ours ({})", ours.label),
-        ],
-        rows,
-    ))
+    let mut header: Vec<String> = [
+        "whole process",
+        "version",
+        "wall time (s)",
+        "peak RSS (MiB)",
+    ]
+    .map(String::from)
+    .into();
+    header.extend(bases.iter().map(|b| format!("time / ours ({})", b.label)));
+    let header: Vec<&str> = header.iter().map(String::as_str).collect();
+    Ok(markdown_table(&header, rows))
 }
 
 #[cfg(test)]
@@ -455,5 +470,50 @@ mod tests {
         );
         let err = manifest(Vec::new()).load(dir.path(), SIDE + 1).unwrap_err();
         assert!(format!("{err:#}").contains("crop"), "{err:#}");
+    }
+
+    /// Every process is divided by each of ours marked `ratio`, a column
+    /// each; a manifest without marks divides by the first of ours.
+    #[test]
+    fn the_whole_table_has_a_ratio_column_per_marked_run_of_ours() {
+        let run = |label: &str, seconds: f64, ratio: bool| WholeRun {
+            label: label.into(),
+            seconds,
+            peak_mib: None,
+            timed_out: false,
+            notes: Vec::new(),
+            ratio,
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let mut m = manifest(Vec::new());
+        let mut slow = peer(dir.path(), "slow", Vec::new(), &[]);
+        slow.whole = Some(run("slow", 12.0, false));
+        m.peers.push(slow);
+        m.ours = vec![
+            run("all", 0.4, true),
+            run("alone", 0.2, true),
+            run("both", 0.5, false),
+        ];
+        let table = whole_table_markdown(&m).unwrap();
+        assert!(
+            table.contains("| time / ours (all) | time / ours (alone) |"),
+            "{table}"
+        );
+        assert!(
+            table.contains("| slow |  | 12.00 | - | 30.0 | 60.0 |"),
+            "{table}"
+        );
+        assert!(
+            table.contains("| **both** | - | 0.50 | - | 1.25 | 2.50 |"),
+            "{table}"
+        );
+        for o in &mut m.ours {
+            o.ratio = false;
+        }
+        let table = whole_table_markdown(&m).unwrap();
+        assert!(
+            table.contains("| slow |  | 12.00 | - | 30.0 |\n"),
+            "{table}"
+        );
     }
 }

@@ -653,7 +653,16 @@ impl Stage for HorizonsStage {
             self.direction_tolerance,
         )?;
         positive(("max_error_deg", "max-error"), Some(self.max_error))?;
-        Ok(())
+        // Two nominal azimuths closer than twice the tolerance could take
+        // the same grid step: bands that repeat one direction.
+        let half = 180.0 / self.sectors as f64;
+        match self.direction_tolerance {
+            Some(t) if self.method == Method::Line && t >= half => bail!(
+                "direction_tolerance = {t} (--direction-tolerance {t}): give less than half the spacing of {} directions, {half} degrees (else two directions can take the same grid step)",
+                self.sectors
+            ),
+            _ => Ok(()),
+        }
     }
 
     fn outputs(&self, _: &terrabake_format::Manifest) -> Vec<String> {
