@@ -355,14 +355,19 @@ pub fn accuracy_charts(prefix: &Path, study: &AccuracyStudy) -> Result<()> {
             .map(|label| {
                 let of = rows.iter().filter(|r| r.label() == label);
                 let first = of.clone().next().expect("a label names a row");
+                let counts = (
+                    of.clone().map(|r| r.bands).min().unwrap_or(0),
+                    of.clone().map(|r| r.bands).max().unwrap_or(0),
+                );
+                let counts = format!("{} .. {}", counts.0, counts.1);
                 Series {
                     name: match (first.method.as_str(), first.direction_tolerance_deg) {
-                        ("line", None) => "line (exact sight lines), K = 8 .. 256".into(),
+                        ("line", None) => format!("line (exact sight lines), K = {counts}"),
                         ("line", Some(t)) => {
-                            format!("line, directions within {t} deg of nominal, K = 8 .. 256")
+                            format!("line, directions within {t} deg of nominal, K = {counts}")
                         }
-                        ("sector", _) => "sector (Stewart's wedges), s = 8 .. 256".into(),
-                        _ => "sampled (centre line, nearest post), K = 8 .. 256".into(),
+                        ("sector", _) => format!("sector (Stewart's wedges), s = {counts}"),
+                        _ => format!("sampled (centre line, nearest post), K = {counts}"),
                     },
                     points: of.map(|r| (r.seconds, value(r))).collect(),
                 }
