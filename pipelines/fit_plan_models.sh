@@ -2,7 +2,7 @@
 # Fits the planner's time models (src/plan.rs). First the line sweeps to the
 # edge (seconds = posts * S^EXPONENT / RATE) to the horizons and sky stages on the bundled tile (the wall time
 # of `terrabake horizons`, which runs both), planned the way the planner
-# bakes (line directions within 0.1 degree, u16), S from 16 to 120, on this
+# bakes (line directions at the stage's default tolerance, u16), S from 16 to 120, on this
 # machine's cores. Prints each run and the least-squares fit of
 # log(seconds / posts) against log(S), its rate then lowered until no run
 # took longer than the model says (the times are no clean power of S, and
@@ -17,8 +17,7 @@ trap 'rm -rf "$WORK"' EXIT
 posts=$((1201 * 1201))
 for s in 16 24 36 48 72 120; do
   start=$(date +%s.%N)
-  "$BIN" horizons "$WORK/srtm.tbake" --sectors "$s" --direction-tolerance 0.1 --encoding u16 \
-    --force -q
+  "$BIN" horizons "$WORK/srtm.tbake" --sectors "$s" --encoding u16 --force -q
   echo "$s $(awk -v a="$start" -v b="$(date +%s.%N)" 'BEGIN {print b - a}')"
 done | tee "$WORK/runs" | awk -v posts="$posts" '
   { x = log($1); y = log($2 / posts); n++; sx += x; sy += y; sxx += x * x; sxy += x * y;
@@ -38,8 +37,8 @@ cell=$("$BIN" info "$WORK/srtm.tbake" --json | tr -d ' \n' | sed -E 's/.*"cell_s
 for d in 1000 3000; do
   for s in 16 48; do
     start=$(date +%s.%N)
-    "$BIN" horizons "$WORK/srtm.tbake" --sectors "$s" --direction-tolerance 0.1 --encoding u16 \
-      --max-distance "$d" --force -q
+    "$BIN" horizons "$WORK/srtm.tbake" --sectors "$s" --encoding u16 --max-distance "$d" \
+      --force -q
     echo "$s $d $(awk -v a="$start" -v b="$(date +%s.%N)" 'BEGIN {print b - a}')"
   done
 done | awk -v posts="$posts" -v cell="$cell" '

@@ -9,13 +9,17 @@
 //! and those of the highest relief), with a seed apart from `check`'s, and
 //! keeps each sight line's horizon cut at every candidate distance too
 //! (from the line's records: where its running maximum rose). For `S` line
-//! directions (a divisor of 720, so that each stored direction is a
-//! reference direction), a distance limit and an encoding, the planner
-//! makes the stored angles the stage would, serves every reference azimuth
-//! from them as the loader does (linear between the two nearest), and
-//! measures the error: the prediction is the error of that very bake at
-//! those posts. The svf and the sun/shade state at the sun positions are
-//! predicted the same way.
+//! directions (a divisor of 720), a distance limit and an encoding, the
+//! pilot measures the very directions the stage would store (its grid
+//! steps at the default tolerance, an eighth of the spacing: seldom
+//! reference directions), the planner makes the stored angles the stage
+//! would, serves every reference azimuth from them as the loader does
+//! (linear between the two nearest), and measures the error: the
+//! prediction is the error of that very bake at those posts. The svf and
+//! the sun/shade state at the sun positions are predicted the same way.
+//! (Until 2026-11-26 the bake stored reference directions, within 0.1
+//! degree of nominal: grid steps of 20 to 120 crossings, the stage 2.9x to
+//! 10x slower at 72 to 16 directions for the same error.)
 //!
 //! **Choice.** Each decision takes a fixed share of the budget, measured
 //! on its own: the directions (interpolation alone, 0.6), the distance
@@ -26,8 +30,8 @@
 //!
 //! **Cost models**, fitted by `pipelines/fit_plan_models.sh` on the bundled
 //! tile (2 cores), each raised until no fit run took longer: unbounded
-//! line sweeps `posts * S^1.49 / 4.71e7` s; bounded lines (a walk of each
-//! post's reach) `posts * S * (2.25e-8 + 6.08e-9 * D / cell)` s; bytes
+//! line sweeps `posts * S^1.66 / 2.85e8` s; bounded lines (a walk of each
+//! post's reach) `posts * S * (5.79e-9 + 5.81e-9 * D / cell)` s; bytes
 //! from the layers' tiles; memory from the
 //! tile row the line stage holds per band. The bake takes the faster of the
 //! two line routes that fits the memory limit.
@@ -48,6 +52,7 @@ use terrabake_format::{Asset, Codec, Mmap};
 
 use crate::budget::{Budget, Need, Needs, Request, SunPosition};
 use crate::horizon::sky::{svf_of_horizons, BandIntegrals};
+use crate::horizon::terrain::Terrain;
 use crate::horizon::{HorizonsStage, Method};
 use crate::progress::Progress;
 use crate::reference::{quantile_unsorted, shade_differs, Pilot, Sampling};
@@ -81,12 +86,12 @@ pub const PILOT_SEED: u64 = 0x504c_414e;
 /// Fitted by pipelines/fit_plan_models.sh (docs/PLANNING.md), 2 cores,
 /// every fit run within the model: unbounded line horizons and the sky
 /// stage, seconds = posts * S^EXPONENT / RATE.
-pub const TIME_EXPONENT: f64 = 1.49;
-pub const TIME_RATE: f64 = 4.71e7;
+pub const TIME_EXPONENT: f64 = 1.66;
+pub const TIME_RATE: f64 = 2.85e8;
 /// Bounded line horizons and the sky stage: seconds = posts * S *
 /// (PER_LINE + PER_CELL * D / cell).
-pub const BOUNDED_PER_LINE: f64 = 2.25e-8;
-pub const BOUNDED_PER_CELL: f64 = 6.08e-9;
+pub const BOUNDED_PER_LINE: f64 = 5.79e-9;
+pub const BOUNDED_PER_CELL: f64 = 5.81e-9;
 /// Seconds per post of the pyramid and of the cone planes at
 /// CONE_SLICES slices, measured on the bundled tile (2 cores, 0.13 s and
 /// 0.46 s; docs/BENCHMARKS.md, cone planes).
@@ -164,6 +169,10 @@ pub struct Scene {
     #[serde(default)]
     pub slope_p90_deg: Option<f64>,
     pub pilot_posts: usize,
+    /// Directions the pilot measured: the reference's and those the
+    /// candidate bakes would store.
+    #[serde(default)]
+    pub pilot_directions: usize,
     pub pilot_seconds: f64,
 }
 
@@ -247,7 +256,9 @@ impl Plan {
             sectors: chosen.sectors,
             method: Method::Line,
             max_distance: chosen.max_distance,
-            direction_tolerance: Some(0.1),
+            // The stage's default tolerance: the directions the pilot
+            // measured for this count ([`stored_bands`]).
+            direction_tolerance: None,
             encoding: Some(chosen.encoding),
             ..Default::default()
         };
@@ -349,20 +360,17 @@ impl Errors {
     }
 }
 
-/// The errors at the pilot's posts of storing, for every `every`-th
-/// reference direction, `stored(post, direction)` degrees, served at every
-/// reference azimuth as the loader serves it (linear between the two
-/// nearest stored directions).
+/// The errors at the pilot's posts of storing, in the measured directions
+/// `stored` (ascending azimuths), `stored(post, direction)` degrees,
+/// served at every reference azimuth as the loader serves it (linear
+/// between the two nearest stored directions).
 fn errors(
     pilot: &Pilot,
-    every: usize,
+    stored: &[usize],
     suns: &[PilotSun],
-    stored: impl Fn(usize, usize) -> f64,
+    value: impl Fn(usize, usize) -> f64,
 ) -> Errors {
-    let sectors = PILOT_DIRECTIONS / every;
-    let azimuths: Vec<f64> = (0..sectors)
-        .map(|i| pilot.reference[i * every].azimuth)
-        .collect();
+    let azimuths: Vec<f64> = stored.iter().map(|&j| pilot.azimuth(j)).collect();
     let integrals = BandIntegrals::of_azimuths(&azimuths);
     let mut e = Errors {
         horizon: Vec::new(),
@@ -379,7 +387,7 @@ fn errors(
         .collect();
     let mut served = vec![0.0; PILOT_DIRECTIONS];
     for (post, exact) in pilot.exact.iter().enumerate() {
-        let kept: Vec<f64> = (0..sectors).map(|i| stored(post, i * every)).collect();
+        let kept: Vec<f64> = stored.iter().map(|&j| value(post, j)).collect();
         for ((&(i, j, f), &truth), out) in around.iter().zip(exact).zip(&mut served) {
             *out = kept[i] + f * (kept[j] - kept[i]);
             if out.is_finite() && truth.is_finite() {
@@ -405,19 +413,25 @@ fn stored_as(encoding: AngleEncoding, deg: f64) -> f64 {
     encoding.decode(encoding.encode(deg)).unwrap_or(f64::NAN)
 }
 
-/// The errors of `sectors` directions cut at `DISTANCES[distance]`, stored
-/// as `encoding`.
+/// The errors of the measured directions `stored` cut at
+/// `DISTANCES[distance]`, stored as `encoding`.
 fn predict(
     pilot: &Pilot,
     suns: &[PilotSun],
-    sectors: usize,
+    stored: &[usize],
     distance: Option<usize>,
     encoding: AngleEncoding,
 ) -> Errors {
-    errors(pilot, PILOT_DIRECTIONS / sectors, suns, |i, j| {
+    errors(pilot, stored, suns, |i, j| {
         let angle = distance.map_or(pilot.exact[i][j], |k| pilot.bounded(i, j, k));
         stored_as(encoding, angle)
     })
+}
+
+/// The bands a bake of `sectors` line directions stores: the horizons
+/// stage's own, at its default tolerance (the plan leaves it unset).
+fn stored_bands(sectors: usize, (dx, dy): (f64, f64)) -> Vec<crate::horizon::Band> {
+    crate::horizon::plan_bands(Method::Line, sectors, dx, dy, None)
 }
 
 /// `x` rounded up at `decimals` decimals: a limit to relax to that,
@@ -488,10 +502,15 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
     let curvature = HorizonsStage::default().curvature_coefficient(asset);
     let (dx, dy) = (m.cell_size.dx, m.cell_size.dy);
     let start = Instant::now();
-    let pilot = if needs.horizons() {
+    let dem = if needs.horizons() {
+        Some(crate::horizon::HeldDem::read(asset)?)
+    } else {
+        None
+    };
+    let mut pilot = if let Some(dem) = &dem {
         Some(Pilot::measure(
             asset,
-            &crate::horizon::HeldDem::read(asset)?,
+            dem,
             curvature,
             [0, 0, w, h],
             &Sampling {
@@ -508,7 +527,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
     let relief_m = m
         .height_range
         .map_or(0.0, |r| f64::from(r.max) - f64::from(r.min));
-    let scene = Scene {
+    let mut scene = Scene {
         width: m.width,
         height: m.height,
         cell_size: (dx, dy),
@@ -528,6 +547,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
             .as_ref()
             .map(|p| quantile_unsorted(&mut p.slope_deg.clone(), 0.9)),
         pilot_posts: pilot.as_ref().map_or(0, |p| p.posts.len()),
+        pilot_directions: pilot.as_ref().map_or(0, Pilot::directions_measured),
         pilot_seconds: start.elapsed().as_secs_f64(),
     };
     let mut sun = request.sun.clone();
@@ -557,7 +577,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
     };
     let (mut chosen, mut safe_distance) = (None, None);
     let (mut choices, mut candidates) = (Vec::new(), Vec::new());
-    if let Some(pilot) = &pilot {
+    if let (Some(pilot), Some(dem)) = (&mut pilot, &dem) {
         let suns: Vec<PilotSun> = sun
             .iter()
             .map(|&[az, el]| PilotSun {
@@ -565,7 +585,11 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
                 elevation: el,
             })
             .collect();
-        let plan = plan_horizons(pilot, &suns, budget, &costs, &scene, curvature)?;
+        let added = Instant::now();
+        let terrain = dem.terrain(curvature);
+        let plan = plan_horizons(pilot, &terrain, &suns, budget, &costs, &scene, curvature)?;
+        scene.pilot_seconds += added.elapsed().as_secs_f64();
+        scene.pilot_directions = pilot.directions_measured();
         candidates = plan.candidates;
         choices = plan.choices;
         chosen = Some(plan.chosen);
@@ -627,7 +651,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
     // direction, the exact horizon (8 bytes) and its cuts (4 bytes each).
     let mut memory_mib = BASE_MIB;
     if let Some(pilot) = &pilot {
-        let per_post = PILOT_DIRECTIONS * (8 + 4 * DISTANCES.len());
+        let per_post = pilot.directions_measured() * (8 + 4 * DISTANCES.len());
         memory_mib += (4 * posts as usize + pilot.posts.len() * per_post) as f64 / 1048576.0;
     }
     if let Some(c) = &chosen {
@@ -774,7 +798,8 @@ struct HorizonPlan {
 /// The horizons: encoding, distance limit, directions and route, each from
 /// its share of the budget (module docs).
 fn plan_horizons(
-    pilot: &Pilot,
+    pilot: &mut Pilot,
+    terrain: &Terrain,
     suns: &[PilotSun],
     budget: &Budget,
     costs: &LineCosts,
@@ -786,6 +811,7 @@ fn plan_horizons(
     // in every direction moves by at most h) in radians, and whose rounding
     // alone flips few enough sun/shade states.
     let share = SHARE_QUANTISATION;
+    let every_reference: Vec<usize> = (0..pilot.reference.len()).collect();
     let encoding = [AngleEncoding::U8, AngleEncoding::U16, AngleEncoding::F32]
         .into_iter()
         .find(|&e| {
@@ -794,8 +820,10 @@ fn plan_horizons(
                     .svf
                     .is_none_or(|s| e.max_error_deg().to_radians() <= share * s)
                 && (budget.shade.is_none()
-                    || errors(pilot, 1, suns, |i, j| stored_as(e, pilot.exact[i][j]))
-                        .within(budget, share))
+                    || errors(pilot, &every_reference, suns, |i, j| {
+                        stored_as(e, pilot.exact[i][j])
+                    })
+                    .within(budget, share))
         })
         .unwrap_or(AngleEncoding::F32);
     // The distance: the shortest beyond which the terrain moves the
@@ -803,7 +831,8 @@ fn plan_horizons(
     let safe_cut = (0..DISTANCES.len())
         .take_while(|&k| DISTANCES[k] < scene.extent_m)
         .find(|&k| {
-            errors(pilot, 1, suns, |i, j| pilot.bounded(i, j, k)).within(budget, SHARE_DISTANCE)
+            errors(pilot, &every_reference, suns, |i, j| pilot.bounded(i, j, k))
+                .within(budget, SHARE_DISTANCE)
         });
     let safe_distance = safe_cut.map(|k| DISTANCES[k]);
     // The directions: the fewest whose error between directions alone
@@ -825,8 +854,13 @@ fn plan_horizons(
     };
     let mut sectors = None;
     let mut deciding = (0.0, 0.0);
+    let mut stored = Vec::new();
     for &s in &CANDIDATES {
-        let mut e = predict(pilot, suns, s, None, AngleEncoding::F32);
+        // The directions the stage would store, measured at the pilot's
+        // posts: at its default tolerance they are seldom reference
+        // directions, and far cheaper to sweep than those would be.
+        stored = pilot.measure_directions(terrain, &stored_bands(s, scene.cell_size), || ());
+        let mut e = predict(pilot, suns, &stored, None, AngleEncoding::F32);
         let (horizon, svf, _) = e.at(DECISION_QUANTILE);
         deciding = (horizon, svf);
         let meets = e.within(budget, SHARE_DIRECTIONS);
@@ -873,7 +907,7 @@ fn plan_horizons(
         sectors,
         bounded,
         encoding,
-        &mut predict(pilot, suns, sectors, bounded_cut, encoding),
+        &mut predict(pilot, suns, &stored, bounded_cut, encoding),
     );
     let fewer = candidates.iter().rev().nth(1);
     let finer = [AngleEncoding::U8, AngleEncoding::U16]
@@ -1008,8 +1042,11 @@ pub fn describe(plan: &Plan) -> String {
         );
     }
     if s.pilot_posts > 0 {
+        // (A plan recorded before the pilot measured the stored
+        // directions too says 0 for them.)
+        let stored = s.pilot_directions.saturating_sub(PILOT_DIRECTIONS);
         out += &format!(
-            "pilot  exact horizons in {PILOT_DIRECTIONS} directions at {} posts ({:.1} s)\n",
+            "pilot  exact horizons in {PILOT_DIRECTIONS} reference directions and {stored} that the candidates store, at {} posts ({:.1} s)\n",
             s.pilot_posts, s.pilot_seconds,
         );
     }

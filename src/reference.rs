@@ -20,7 +20,8 @@ use rayon::prelude::*;
 use terrabake_format::{Asset, Mmap};
 
 use crate::horizon::sky::{svf_of_horizons, BandIntegrals};
-use crate::horizon::{brute, plan_bands, BandKind, HeldDem, Method};
+use crate::horizon::terrain::Terrain;
+use crate::horizon::{brute, plan_bands, Band, BandKind, HeldDem, Method};
 use crate::progress::Progress;
 use crate::synth::SplitMix64;
 
@@ -107,7 +108,9 @@ fn sample_posts(
 
 /// The exact horizons of sampled posts in dense directions, from the heights
 /// alone: what `check` measures a bake against and what the planner
-/// measures a scene with.
+/// measures a scene with. The planner adds the directions a bake would
+/// store ([`Pilot::measure_directions`]): they need not be reference
+/// directions.
 #[derive(Debug)]
 pub struct Pilot {
     /// The posts `(col, row)`: random ones, then those of the highest relief.
@@ -117,13 +120,18 @@ pub struct Pilot {
     /// `i * 360 / directions`), and their bands' integrals for the svf.
     pub reference: Vec<crate::horizon::Band>,
     integrals: Vec<BandIntegrals>,
-    /// Per post, the exact horizon in each reference direction, degrees.
+    /// The grid steps measured and their azimuths: the reference's, then
+    /// any added, each once.
+    steps: Vec<(i64, i64)>,
+    azimuths: Vec<f64>,
+    /// Per post, the exact horizon in each measured direction (the
+    /// reference directions first, in order), degrees.
     pub exact: Vec<Vec<f64>>,
-    /// Per post, the horizon of each reference direction `j` cut off at
-    /// each of the `n` cut distances `k`, at `j * n + k`, degrees (empty
+    /// Per post, the horizon of each measured direction `j` cut off at each
+    /// of the cut distances `k`, at `j * cuts.len() + k`, degrees (empty
     /// without cuts).
     cut: Vec<Vec<f32>>,
-    cuts: usize,
+    cuts: &'static [f64],
     /// Per post, the terrain's slope there, degrees (`Terrain::normal`).
     pub slope_deg: Vec<f64>,
     /// The east-west post spacing on the first and the last row, metres
@@ -167,33 +175,6 @@ impl Pilot {
             .iter()
             .map(|b| BandIntegrals::new(b.lo, b.hi))
             .collect();
-        let bar = progress.bar(posts.len() as u64, "exact horizons", "posts");
-        // Each line's records give its exact horizon (the last) and its
-        // horizon cut off at any distance (the last record within it); only
-        // the cuts asked for are kept, as a bowl's lines are records all
-        // the way out.
-        let cuts = opts.cuts;
-        let lines: Vec<(Vec<f64>, Vec<f32>)> = posts
-            .par_iter()
-            .map(|&post| {
-                let (mut exact, mut cut) = (Vec::new(), Vec::new());
-                for band in &reference {
-                    let BandKind::Line(direction) = &band.kind else {
-                        unreachable!("reference bands are lines")
-                    };
-                    let records = brute::line_horizon_records(&terrain, post, direction.step);
-                    exact.push(f64::from(brute::horizon_within(&records, None)));
-                    cut.extend(
-                        cuts.iter()
-                            .map(|&d| brute::horizon_within(&records, Some(d))),
-                    );
-                }
-                bar.inc(1);
-                (exact, cut)
-            })
-            .collect();
-        bar.finish_and_clear();
-        let (exact, cut) = lines.into_iter().unzip();
         let slope_deg = posts
             .iter()
             .map(|&(c, r)| {
@@ -203,23 +184,95 @@ impl Pilot {
             })
             .collect();
         let dx_range = (terrain.dx_at(0), terrain.dx_at(dem.height - 1));
-        Ok(Self {
+        let mut pilot = Self {
+            exact: vec![Vec::new(); posts.len()],
+            cut: vec![Vec::new(); posts.len()],
             posts,
             relief_posts,
-            reference,
+            reference: Vec::new(),
             integrals,
-            exact,
-            cut,
-            cuts: cuts.len(),
+            steps: Vec::new(),
+            azimuths: Vec::new(),
+            cuts: opts.cuts,
             slope_deg,
             dx_range,
-        })
+        };
+        let bar = progress.bar(pilot.posts.len() as u64, "exact horizons", "posts");
+        pilot.measure_directions(&terrain, &reference, || bar.inc(1));
+        bar.finish_and_clear();
+        pilot.reference = reference;
+        Ok(pilot)
     }
 
-    /// Post `i`'s horizon in reference direction `j` from the terrain no
+    /// The indices (into each post's `exact`) of the line directions of
+    /// `bands`, measuring at every post those not measured yet (by their
+    /// grid step: a direction measured once serves every band on it).
+    /// `terrain` is the one the pilot was measured on; `posted` is called
+    /// once per post measured.
+    pub fn measure_directions(
+        &mut self,
+        terrain: &Terrain,
+        bands: &[Band],
+        posted: impl Fn() + Sync,
+    ) -> Vec<usize> {
+        let step = |band: &Band| match &band.kind {
+            BandKind::Line(direction) => direction.step,
+            _ => unreachable!("the pilot measures lines"),
+        };
+        let mut new: Vec<(i64, i64)> = Vec::new();
+        for b in bands {
+            let s = step(b);
+            if !self.steps.contains(&s) && !new.contains(&s) {
+                new.push(s);
+                self.azimuths.push(b.azimuth);
+            }
+        }
+        if !new.is_empty() {
+            // Each line's records give its exact horizon (the last) and its
+            // horizon cut off at any distance (the last record within it);
+            // only the cuts asked for are kept, as a bowl's lines are
+            // records all the way out.
+            let cuts = self.cuts;
+            self.posts
+                .par_iter()
+                .zip(&mut self.exact)
+                .zip(&mut self.cut)
+                .for_each(|((&post, exact), cut)| {
+                    for &s in &new {
+                        let records = brute::line_horizon_records(terrain, post, s);
+                        exact.push(f64::from(brute::horizon_within(&records, None)));
+                        cut.extend(
+                            cuts.iter()
+                                .map(|&d| brute::horizon_within(&records, Some(d))),
+                        );
+                    }
+                    posted();
+                });
+            self.steps.extend(new);
+        }
+        bands
+            .iter()
+            .map(|b| {
+                let s = step(b);
+                self.steps.iter().position(|&m| m == s).expect("measured")
+            })
+            .collect()
+    }
+
+    /// The azimuth of measured direction `j`, degrees.
+    pub fn azimuth(&self, j: usize) -> f64 {
+        self.azimuths[j]
+    }
+
+    /// Directions measured: the reference's and those added.
+    pub fn directions_measured(&self) -> usize {
+        self.steps.len()
+    }
+
+    /// Post `i`'s horizon in measured direction `j` from the terrain no
     /// farther than cut distance `k` (`Sampling::cuts`), degrees.
     pub fn bounded(&self, i: usize, j: usize, k: usize) -> f64 {
-        f64::from(self.cut[i][j * self.cuts + k])
+        f64::from(self.cut[i][j * self.cuts.len() + k])
     }
 
     /// The reference direction nearest azimuth `az` (degrees, any turn):
@@ -229,9 +282,13 @@ impl Pilot {
         (az.rem_euclid(360.0) * n as f64 / 360.0).round() as usize % n
     }
 
-    /// Zakšek's sky-view factor of a post's reference horizons.
+    /// Zakšek's sky-view factor of a post's reference horizons (the first
+    /// of its `exact`).
     pub fn svf(&self, exact: &[f64]) -> f64 {
-        svf_of_horizons(&self.integrals, exact.iter().copied())
+        svf_of_horizons(
+            &self.integrals,
+            exact[..self.reference.len()].iter().copied(),
+        )
     }
 }
 

@@ -505,3 +505,77 @@ fn a_bytes_limit_picks_zstd_heights_unless_the_recipe_set_the_codec() {
     );
     assert!(message.contains("set codec = \"zstd\""), "{message}");
 }
+
+/// The prediction is the error of the very bake at the pilot's posts only
+/// if the pilot measures the directions the planned stage stores: the
+/// stage's bands (at its default tolerance) and their angles at those
+/// posts are the pilot's, to the sweep's rounding.
+#[test]
+fn the_pilot_measures_the_directions_the_planned_bake_stores() {
+    use terrabake::horizon::{plan_bands, HeldDem, HorizonsStage, Method};
+    use terrabake::reference::{Pilot, Sampling};
+    use terrabake_format::horizons::{AngleEncoding, HorizonMap};
+
+    let dir = tempfile::tempdir().unwrap();
+    let asset = terrain(dir.path(), SynthKind::Fractal, 3);
+    let budget = Budget {
+        horizon: 1.5,
+        ..Default::default()
+    };
+    let plan = planned(&asset, &budget);
+    let mut stage: HorizonsStage = plan.horizons_stage().expect("a horizons stage");
+    stage.encoding = Some(AngleEncoding::F32);
+    stage.max_distance = None;
+    run_stage(&asset, &stage, true, Progress::hidden()).unwrap();
+
+    let opened = Asset::open(&asset).unwrap();
+    let m = opened.manifest();
+    let bands = plan_bands(
+        Method::Line,
+        stage.sectors,
+        m.cell_size.dx,
+        m.cell_size.dy,
+        None,
+    );
+    let map = HorizonMap::open(&opened).unwrap();
+    let stored = &m.layer("horizon", 0).unwrap().band_azimuths;
+    let measured: Vec<f64> = bands.iter().map(|b| b.azimuth).collect();
+    assert_eq!(stored, &measured, "{} directions", stage.sectors);
+
+    let curvature = stage.curvature_coefficient(&opened);
+    let dem = HeldDem::read(&opened).unwrap();
+    let (w, h) = (m.width as usize, m.height as usize);
+    let sampling = Sampling {
+        samples: 40,
+        seed: 5,
+        directions: 720,
+        cuts: &[],
+    };
+    let mut pilot = Pilot::measure(
+        &opened,
+        &dem,
+        curvature,
+        [0, 0, w, h],
+        &sampling,
+        Progress::hidden(),
+    )
+    .unwrap();
+    let at = pilot.measure_directions(&dem.terrain(curvature), &bands, || ());
+    assert!(
+        at.iter().any(|&j| j >= 720),
+        "some stored direction is no reference direction"
+    );
+    for (i, &(col, row)) in pilot.posts.iter().enumerate() {
+        for (b, &j) in at.iter().enumerate() {
+            let baked = map.angle(col as u32, row as u32, b as u32).unwrap();
+            let exact = pilot.exact[i][j];
+            match baked {
+                Some(v) => assert!(
+                    (v - exact).abs() < 1e-3,
+                    "post {col},{row} band {b}: {v} against {exact}"
+                ),
+                None => assert!(exact.is_nan(), "post {col},{row} band {b}"),
+            }
+        }
+    }
+}
