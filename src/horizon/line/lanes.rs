@@ -73,8 +73,8 @@ pub const MIN_DEPTH: usize = 32;
 /// `depth - HEADROOM` vertices takes the scalar sweep. A line whose hull
 /// could outgrow the depth in its next step leaves the lanes (for the
 /// scalar sweep, the same bits), so a long step in lanes costs only those
-/// lines: directions within 0.1 degree (the planner's) are steps of 20 to
-/// 120 vertices, and allowing them all (a quarter of the depth, 32, was
+/// lines: directions within 0.1 degree (the planner's until 2026-11-26)
+/// are steps of 20 to 120 vertices, and allowing them all (a quarter of the depth, 32, was
 /// the limit) bakes the bundled tile 2.0x faster at 16 and 36 directions.
 pub const HEADROOM: usize = 8;
 
