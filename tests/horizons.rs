@@ -970,3 +970,56 @@ fn the_sector_tree_gives_the_same_bits_in_every_store_and_shared() {
         }
     }
 }
+
+/// The walk that stops where the DEM's highest post can no longer rise
+/// above the horizon so far keeps every record of the whole walk, on every
+/// synthetic terrain (holes included), flat and curved, in grid directions
+/// of every kind, and on a geographic grid.
+#[test]
+fn records_stopped_at_the_relief_bound_equal_the_whole_walk() {
+    let (w, h) = (57, 43);
+    let steps = [(0, -1), (1, 0), (1, 1), (2, -5), (-3, 7), (5, 2), (-1, -4)];
+    let (mut compared, mut stops) = (0, 0);
+    for kind in SynthKind::ALL {
+        let z = synth_grid(kind, w, h, 11);
+        let z_max = z
+            .iter()
+            .filter(|v| !v.is_nan())
+            .fold(f64::NEG_INFINITY, |m, &v| m.max(f64::from(v)));
+        let scale = geographic_scale(h, 61.0, 0.01);
+        let flat = Terrain::new(&z, w, h, 30.0, 25.0);
+        let curved = flat.with_curvature(curvature_coefficient(0.13));
+        let geographic = Terrain::new(&z, w, h, 30.0, 25.0)
+            .with_row_scale(RowScale::new(&scale))
+            .with_curvature(curvature_coefficient(0.13));
+        for (i, t) in [&flat, &curved, &geographic].into_iter().enumerate() {
+            for post in [(0, 0), (28, 21), (56, 42), (3, 39), (40, 5)] {
+                for &step in &steps {
+                    let whole = brute::line_horizon_records(t, post, step);
+                    let stopped = brute::line_horizon_records_below(t, post, step, z_max);
+                    assert_eq!(stopped, whole, "{kind:?} post {post:?} step {step:?}");
+                    compared += whole.len();
+                    // Lines whose bound at the DEM's edge is under their
+                    // horizon (uniform grids): the walk stopped before it.
+                    let (Some(last), true) = (whole.last(), i < 2) else {
+                        continue;
+                    };
+                    let exit = |p: usize, d: i64, n: usize| match d.signum() {
+                        1 => (n - 1 - p) as f64 / d as f64,
+                        -1 => p as f64 / -d as f64,
+                        _ => f64::INFINITY,
+                    };
+                    let s = exit(post.0, step.0, w).min(exit(post.1, step.1, h));
+                    let end = s * (step.0 as f64 * 30.0).hypot(step.1 as f64 * 25.0);
+                    let rise = z_max - f64::from(z[post.1 * w + post.0]);
+                    let slope = f64::from(last.angle).to_radians().tan();
+                    if rise / end - t.curvature * end < slope - 1e-6 {
+                        stops += 1;
+                    }
+                }
+            }
+        }
+    }
+    assert!(compared > 1000, "{compared} records compared");
+    assert!(stops > 20, "{stops} lines stop before the edge");
+}

@@ -78,9 +78,26 @@ pub struct HorizonRecord {
 pub fn line_horizon_records(
     t: &Terrain,
     post: (usize, usize),
-    (a, b): (i64, i64),
+    step: (i64, i64),
 ) -> Vec<HorizonRecord> {
-    sight_line_records(t, post, (a as f64, b as f64))
+    line_horizon_records_below(t, post, step, f64::INFINITY)
+}
+
+/// [`line_horizon_records`] on a terrain none of whose heights exceeds
+/// `z_max`: the same records, found sooner. From a post at height `z_p`,
+/// nothing at distance `d` or farther rises above `(z_max - z_p) / d - c d`
+/// (which falls as `d` grows), so the walk stops where that bound falls
+/// below the horizon so far (by a margin of 1e-9 in slope, far above the
+/// rounding of either side): no farther crossing can set a record. On the
+/// bundled tiles most lines stop within a few kilometres of their post
+/// (the planner's pilot and `check`'s reference walk them).
+pub fn line_horizon_records_below(
+    t: &Terrain,
+    post: (usize, usize),
+    (a, b): (i64, i64),
+    z_max: f64,
+) -> Vec<HorizonRecord> {
+    sight_line_records(t, post, (a as f64, b as f64), z_max)
 }
 
 /// [`line_horizon_records`] of the sight line from post `(col, row)` at
@@ -107,14 +124,68 @@ pub fn ray_horizon_records(
             v / major
         }
     };
-    sight_line_records(t, (col, row), (clean(a), clean(b)))
+    sight_line_records(t, (col, row), (clean(a), clean(b)), f64::INFINITY)
 }
 
-/// The records of the line `(col, row) + s (a, b)`, `s > 0` (grid units).
+/// One family of a line's crossings with the grid (`col = i`, `row = j`
+/// or `col + row = k`: where `p + s d` is an integer), ascending in `s`
+/// within `(0, s_max]`.
+struct Crossings {
+    k: i64,
+    last: i64,
+    by: i64,
+    p: f64,
+    d: f64,
+    s_max: f64,
+}
+
+impl Crossings {
+    fn new(p: f64, d: f64, s_max: f64) -> Self {
+        let (lo, hi) = if d > 0.0 {
+            (p, p + d * s_max)
+        } else {
+            (p + d * s_max, p)
+        };
+        // A margin for the exit point, which rounding may put a hair off.
+        let (lo, hi) = ((lo - 1e-6).ceil() as i64, (hi + 1e-6).floor() as i64);
+        let (k, last, by) = match d.partial_cmp(&0.0) {
+            Some(std::cmp::Ordering::Greater) => (lo, hi, 1),
+            Some(std::cmp::Ordering::Less) => (hi, lo, -1),
+            _ => (1, 0, 1),
+        };
+        Self {
+            k,
+            last,
+            by,
+            p,
+            d,
+            s_max,
+        }
+    }
+}
+
+impl Iterator for Crossings {
+    type Item = f64;
+
+    fn next(&mut self) -> Option<f64> {
+        while (self.last - self.k) * self.by >= 0 {
+            let s = (self.k as f64 - self.p) / self.d;
+            self.k += self.by;
+            if s > 0.0 && s <= self.s_max * (1.0 + 1e-12) {
+                return Some(s.min(self.s_max));
+            }
+        }
+        None
+    }
+}
+
+/// The records of the line `(col, row) + s (a, b)`, `s > 0` (grid units),
+/// on a terrain no higher than `z_max` ([`line_horizon_records_below`]).
 fn sight_line_records(
     t: &Terrain,
     (col, row): (usize, usize),
     (a, b): (f64, f64),
+    z_max: f64,
 ) -> Vec<HorizonRecord> {
     let zp = t.at(col, row);
     if zp.is_nan() {
@@ -132,31 +203,20 @@ fn sight_line_records(
         }
     };
     let s_max = exit(pc, a, (t.width - 1) as f64).min(exit(pr, b, (t.height - 1) as f64));
-    let mut crossings = Vec::new();
-    // Every s where p + s (a, b) meets col = i, row = j or col + row = k.
-    for (p, d) in [(pc, a), (pr, b), (pc + pr, a + b)] {
-        if d == 0.0 {
-            continue;
-        }
-        let (lo, hi) = if d > 0.0 {
-            (p, p + d * s_max)
-        } else {
-            (p + d * s_max, p)
-        };
-        // A margin for the exit point, which rounding may put a hair off.
-        let start = crossings.len();
-        for k in (lo - 1e-6).ceil() as i64..=(hi + 1e-6).floor() as i64 {
-            let s = (k as f64 - p) / d;
-            if s > 0.0 && s <= s_max * (1.0 + 1e-12) {
-                crossings.push(s.min(s_max));
-            }
-        }
-        // Each family ascending in s, so that the sort below merges three
-        // runs (linear) rather than sorting from scratch.
-        if d < 0.0 {
-            crossings[start..].reverse();
-        }
-    }
+    // Every s where p + s (a, b) meets col = i, row = j or col + row = k:
+    // three runs, merged as the walk goes (it may stop long before the
+    // edge).
+    let mut families =
+        [(pc, a), (pr, b), (pc + pr, a + b)].map(|(p, d)| Crossings::new(p, d, s_max));
+    let mut heads = families.each_mut().map(|f| f.next());
+    let crossings = std::iter::from_fn(|| {
+        let i = (0..3)
+            .filter(|&i| heads[i].is_some())
+            .min_by(|&i, &j| heads[i].unwrap().total_cmp(&heads[j].unwrap()))?;
+        let s = heads[i];
+        heads[i] = families[i].next();
+        s
+    });
     // Metres from the post to parameter s: whole steps, each with the
     // east-west spacing at its middle row, then the fraction of the next.
     let step_len = |k: f64| {
@@ -167,7 +227,6 @@ fn sight_line_records(
     };
     // Crossings in order, so that the whole steps' metres are summed once
     // along the line rather than again for every crossing.
-    crossings.sort_by(f64::total_cmp);
     let (mut whole_steps, mut metres) = (0i64, 0.0);
     let mut distance = |s: f64| {
         while ((whole_steps + 1) as f64) <= s {
@@ -177,9 +236,14 @@ fn sight_line_records(
         metres + (s - whole_steps as f64) * step_len(whole_steps as f64)
     };
     let (mut best, mut records) = (f64::NEG_INFINITY, Vec::new());
+    let rise = z_max - f64::from(zp);
     for s in crossings {
+        let d = distance(s);
+        // (rise - c d^2) / d < best - margin, without the division.
+        if rise - t.curvature * d * d < (best - 1e-9) * d {
+            break;
+        }
         if let Some(z) = surface_at(t, pc + a * s, pr + b * s) {
-            let d = distance(s);
             let slope = (z - t.curvature * d * d - f64::from(zp)) / d;
             if slope > best {
                 best = slope;
