@@ -62,6 +62,9 @@ impl Cell {
     /// Surface height at `(east, north)` fractions of the cell in [0, 1];
     /// clamped to the bounding heights so that rounding never lifts the
     /// surface above its tallest corner (the pyramids rely on that).
+    /// Inline across crates: the tracers and the exact references call it
+    /// once a step.
+    #[inline]
     pub fn height(&self, east: f64, north: f64) -> f64 {
         let (e, n) = (east.clamp(0.0, 1.0), north.clamp(0.0, 1.0));
         let [nw, ne, sw, se] = [self.nw, self.ne, self.sw, self.se].map(f64::from);

@@ -227,13 +227,14 @@ fn sight_line_records(
     };
     // Crossings in order, so that the whole steps' metres are summed once
     // along the line rather than again for every crossing.
-    let (mut whole_steps, mut metres) = (0i64, 0.0);
+    let (mut whole_steps, mut metres, mut this_step) = (0i64, 0.0, step_len(0.0));
     let mut distance = |s: f64| {
         while ((whole_steps + 1) as f64) <= s {
-            metres += step_len(whole_steps as f64);
+            metres += this_step;
             whole_steps += 1;
+            this_step = step_len(whole_steps as f64);
         }
-        metres + (s - whole_steps as f64) * step_len(whole_steps as f64)
+        metres + (s - whole_steps as f64) * this_step
     };
     let (mut best, mut records) = (f64::NEG_INFINITY, Vec::new());
     let rise = z_max - f64::from(zp);
