@@ -13,9 +13,15 @@ use super::terrain::Terrain;
 /// Surface height at fractional post coordinates `(col, row)` (row grows
 /// south), from any cell with a surface that contains the point.
 fn surface_at(t: &Terrain, col: f64, row: f64) -> Option<f64> {
+    // `v.floor() as i64` without a call: the baseline x86-64 target has no
+    // rounding instruction, and libm's `floor` was a twelfth of a plan.
+    let floor = |v: f64| {
+        let t = v as i64;
+        t - i64::from(v < t as f64)
+    };
     // The cells whose closed square holds v: one, or two on a grid line.
     let around = |v: f64| {
-        let (lo, hi) = ((v - 1e-9).floor() as i64, (v + 1e-9).floor() as i64);
+        let (lo, hi) = (floor(v - 1e-9), floor(v + 1e-9));
         [lo, hi].into_iter().take(if lo == hi { 1 } else { 2 })
     };
     for c in around(col) {
