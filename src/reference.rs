@@ -201,6 +201,8 @@ impl Pilot {
             steps: Vec::new(),
             azimuths: Vec::new(),
             cuts: opts.cuts,
+            // From the heights themselves, not the manifest's range: the
+            // reference rests on nothing but the heights.
             z_max: dem
                 .z
                 .iter()

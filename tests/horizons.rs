@@ -899,7 +899,7 @@ fn the_sector_tree_equals_brute_force_above_its_buckets() {
 /// another grid with as many posts are left unused.
 #[test]
 fn the_sector_tree_gives_the_same_bits_in_every_store_and_shared() {
-    use terrabake::horizon::sector::{sector_horizons_at, Ranks, Shared};
+    use terrabake::horizon::sector::{sector_horizons_at, DataPosts, Ranks, Shared};
     use terrabake::simd::Level;
     let levels = terrabake::simd::available();
     let widest = *levels.last().unwrap();
@@ -922,7 +922,10 @@ fn the_sector_tree_gives_the_same_bits_in_every_store_and_shared() {
         let h = z.len() / w;
         let t = Terrain::new(z, w, h, dx, dy).with_curvature(curvature_coefficient(k));
         for (count, every) in [(64, 2), (16, 3), (4, 1)] {
-            let ranks: Vec<Ranks> = (0..count).map(|i| Ranks::of(&t, (i, count))).collect();
+            let posts = DataPosts::of(&t);
+            let ranks: Vec<Ranks> = (0..count)
+                .map(|i| Ranks::of(&t, &posts, (i, count)))
+                .collect();
             for index in (0..count).step_by(every) {
                 let run = |level, shared| {
                     let (mut angles, mut metres) = (vec![0f32; w * h], vec![0f32; w * h]);
@@ -945,6 +948,7 @@ fn the_sector_tree_gives_the_same_bits_in_every_store_and_shared() {
                     );
                 }
                 let shared = Shared {
+                    posts: Some(&posts),
                     ranks: Some(&ranks[index]),
                     previous: Some(&ranks[(index + count - 1) % count]),
                 };
@@ -956,8 +960,10 @@ fn the_sector_tree_gives_the_same_bits_in_every_store_and_shared() {
                 // columns swapped) are not used.
                 if index % 8 == 0 {
                     let other = Terrain::new(z, h, w, dx, dy);
-                    let foreign = Ranks::of(&other, (index, count));
+                    let other_posts = DataPosts::of(&other);
+                    let foreign = Ranks::of(&other, &other_posts, (index, count));
                     let shared = Shared {
+                        posts: Some(&other_posts),
                         ranks: Some(&foreign),
                         previous: Some(&foreign),
                     };

@@ -275,9 +275,11 @@ pub fn accuracy_study(
     let rows = tolerances
         .flat_map(|t| methods.iter().map(move |&m| (m, t)))
         .flat_map(|(m, t)| counts.iter().map(move |&k| (m, k, t)))
-        // Only lines have a tolerance, and the stage refuses one of half
-        // the spacing or more (two directions could take one step).
-        .filter(|&(m, k, t)| t.is_none_or(|t| m == Method::Line && t < 180.0 / k as f64))
+        // Only lines have a tolerance, and the stage refuses one past
+        // `tolerance_limit`.
+        .filter(|&(m, k, t)| {
+            t.is_none_or(|t| m == Method::Line && t < crate::horizon::line::tolerance_limit(k))
+        })
         .map(|(m, k, t)| accuracy(&small, &reference_bands, m, k, t))
         .collect();
     AccuracyStudy {

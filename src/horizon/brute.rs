@@ -157,6 +157,7 @@ impl Crossings {
         let (k, last, by) = match d.partial_cmp(&0.0) {
             Some(std::cmp::Ordering::Greater) => (lo, hi, 1),
             Some(std::cmp::Ordering::Less) => (hi, lo, -1),
+            // Parallel to the family's lines: none met (an empty run).
             _ => (1, 0, 1),
         };
         Self {

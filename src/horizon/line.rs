@@ -149,6 +149,13 @@ pub fn default_tolerance(count: usize) -> f64 {
     360.0 / count as f64 / 8.0
 }
 
+/// What a tolerance for `count` directions must stay below: half their
+/// spacing. Two nominal azimuths closer than twice the tolerance could take
+/// the same grid step, and the bands would repeat a direction.
+pub fn tolerance_limit(count: usize) -> f64 {
+    180.0 / count as f64
+}
+
 /// One crossing of a step's line with the grid: the surface height there is
 /// `(1 - wb) * z[a] + wb * z[b]` (posts given as offsets from the step's
 /// first post).

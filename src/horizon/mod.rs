@@ -653,9 +653,7 @@ impl Stage for HorizonsStage {
             self.direction_tolerance,
         )?;
         positive(("max_error_deg", "max-error"), Some(self.max_error))?;
-        // Two nominal azimuths closer than twice the tolerance could take
-        // the same grid step: bands that repeat one direction.
-        let half = 180.0 / self.sectors as f64;
+        let half = line::tolerance_limit(self.sectors);
         match self.direction_tolerance {
             Some(t) if self.method == Method::Line && t >= half => bail!(
                 "direction_tolerance = {t} (--direction-tolerance {t}): give less than half the spacing of {} directions, {half} degrees (else two directions can take the same grid step)",
@@ -899,11 +897,18 @@ impl Stage for HorizonsStage {
                 }
                 _ => None,
             };
+            let posts = bands[mine.clone()]
+                .iter()
+                .any(|b| sector(b).is_some())
+                .then(|| sector::DataPosts::of(&terrain));
             let mut previous: Option<sector::Ranks> = None;
             for (b, batch) in bands[mine.clone()].chunks(threads).enumerate() {
                 let ranks: Vec<Option<sector::Ranks>> = batch
                     .par_iter()
-                    .map(|band| sector(band).map(|s| sector::Ranks::of(&terrain, s)))
+                    .map(|band| {
+                        let posts = posts.as_ref()?;
+                        sector(band).map(|s| sector::Ranks::of(&terrain, posts, s))
+                    })
                     .collect();
                 let results: Vec<(Vec<f32>, Option<Vec<f32>>)> = batch
                     .par_iter()
@@ -912,6 +917,7 @@ impl Stage for HorizonsStage {
                         let mut angles = vec![0f32; terrain.z.len()];
                         let mut metres = distances.as_ref().map(|_| vec![0f32; angles.len()]);
                         let shared = sector::Shared {
+                            posts: posts.as_ref(),
                             ranks: ranks[j].as_ref(),
                             previous: match j {
                                 0 => previous.as_ref(),

@@ -238,14 +238,16 @@ pub struct Ranks {
 }
 
 impl Ranks {
-    /// The ranks of sector `index` of `count` over `terrain`'s posts.
-    pub fn of(terrain: &Terrain, (index, count): (usize, usize)) -> Self {
+    /// The ranks of sector `index` of `count` over `terrain`'s posts with
+    /// data (`posts`, [`DataPosts::of`] that terrain).
+    pub fn of(terrain: &Terrain, posts: &DataPosts, (index, count): (usize, usize)) -> Self {
+        assert!(posts.fits(terrain), "the posts of another grid");
         let frame = SectorFrame::new(index, count, terrain.dx, terrain.dy);
-        Self::new(terrain, (index, count), &data_posts(terrain), &frame)
+        Self::new(terrain, (index, count), &posts.indices, &frame)
     }
 
     fn new(terrain: &Terrain, sector: (usize, usize), posts: &[u32], frame: &SectorFrame) -> Self {
-        let keyed = sort_keyed(keyed(terrain, posts, frame, |k| (k[2], k[3])), unordered);
+        let keyed = sort_keyed(keyed(terrain, posts, frame, |k| (k[2], k[3])));
         let mut ties = Vec::new();
         let mut start = 0;
         for run in keyed.chunk_by(|a, b| a.0 == b.0) {
@@ -279,12 +281,14 @@ impl Ranks {
     }
 }
 
-/// What a sector's tree may take from its neighbours' ([`Ranks`]): its own
-/// ranks, and the previous sector's (sector `index - 1`, or the last for
-/// sector 0), each used only where it is the right sector's over the same
-/// posts and, for the previous, its boundary is this sector's to the bit.
+/// What a sector's tree may take from its neighbours' ([`Ranks`]): the
+/// terrain's posts with data, its own ranks, and the previous sector's
+/// (sector `index - 1`, or the last for sector 0), each used only where it
+/// is the right grid's (and the right sector's over the same posts and,
+/// for the previous, its boundary is this sector's to the bit).
 #[derive(Debug, Clone, Copy, Default)]
 pub struct Shared<'a> {
+    pub posts: Option<&'a DataPosts>,
     pub ranks: Option<&'a Ranks>,
     pub previous: Option<&'a Ranks>,
 }
@@ -323,12 +327,30 @@ fn keyed(
         .collect()
 }
 
-/// The posts with data, row-major.
-fn data_posts(terrain: &Terrain) -> Vec<u32> {
-    (0..terrain.width * terrain.height)
-        .filter(|&i| !terrain.z[i].is_nan())
-        .map(|i| i as u32)
-        .collect()
+/// A terrain's posts with data, row-major: every sector's tree starts from
+/// them, so a bake of many sectors finds them once ([`Shared`]).
+#[derive(Debug)]
+pub struct DataPosts {
+    /// The grid they were found on ([`grid`]).
+    grid: [u64; 4],
+    indices: Vec<u32>,
+}
+
+impl DataPosts {
+    pub fn of(terrain: &Terrain) -> Self {
+        Self {
+            grid: grid(terrain),
+            indices: (0..terrain.width * terrain.height)
+                .filter(|&i| !terrain.z[i].is_nan())
+                .map(|i| i as u32)
+                .collect(),
+        }
+    }
+
+    /// Whether these are `terrain`'s (by its grid, as for [`Ranks`]).
+    fn fits(&self, terrain: &Terrain) -> bool {
+        self.grid == grid(terrain)
+    }
 }
 
 /// Ranks per bucket at the foot of the tree.
@@ -417,20 +439,20 @@ fn unordered(bits: u64) -> f64 {
 }
 
 /// `keyed` (first key, second key, post) sorted as `sort_unstable` sorts
-/// it, in linear time on grids: a bucket sort by the first key's `value`
-/// (any function of it that never decreases), as many buckets as posts,
+/// it, in linear time on grids: a bucket sort by the first key's value
+/// ([`unordered`], which never decreases as the key grows), as many buckets as posts,
 /// then each bucket by the whole triple. A grid's posts are spread evenly
 /// along any direction, so most buckets hold a post or two; where they
 /// do not (a diagonal, along which hundreds of posts share a key), the
 /// bucket's sort is the comparison sort there was. Out of place: a copy
 /// more of the triples while it runs, which the stage's rank phase has
 /// room for (the sweeps' memory is not yet taken).
-fn sort_keyed(mut keyed: Vec<(u64, u64, u32)>, value: impl Fn(u64) -> f64) -> Vec<(u64, u64, u32)> {
+fn sort_keyed(mut keyed: Vec<(u64, u64, u32)>) -> Vec<(u64, u64, u32)> {
     let n = keyed.len();
     let (lo, hi) = keyed
         .iter()
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), k| {
-            let v = value(k.0);
+            let v = unordered(k.0);
             (lo.min(v), hi.max(v))
         });
     // One key for all (or none): nothing to spread.
@@ -441,7 +463,7 @@ fn sort_keyed(mut keyed: Vec<(u64, u64, u32)>, value: impl Fn(u64) -> f64) -> Ve
     // Rounding keeps `(v - lo) * scale` from decreasing as `v` grows, so
     // every key of a bucket lies at or below every key of the next.
     let scale = (n - 1) as f64 / (hi - lo);
-    let bucket = |k: &(u64, u64, u32)| (((value(k.0) - lo) * scale) as usize).min(n - 1);
+    let bucket = |k: &(u64, u64, u32)| (((unordered(k.0) - lo) * scale) as usize).min(n - 1);
     // Counts, then each bucket's end, then (filled from the back) its start.
     let mut at = vec![0u32; n + 1];
     for k in &keyed {
@@ -582,13 +604,20 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
     assert!(distances.as_ref().is_none_or(|d| d.len() == out.len()));
     let frame = SectorFrame::new(index, count, terrain.dx, terrain.dy);
     let c = terrain.curvature;
-    let posts = data_posts(terrain);
+    let own_posts;
+    let posts = match shared.posts {
+        Some(p) if p.fits(terrain) => &p.indices,
+        _ => {
+            own_posts = DataPosts::of(terrain);
+            &own_posts.indices
+        }
+    };
     let n = posts.len();
     let position = |i: u32| terrain.key_position(i as usize % w, i as usize / w);
     // Centre-plane coordinates (t, w) per post (NaN where nodata), and the
     // steepest slope the tree finds from it, in the same cache line.
     let mut plane = vec![[f64::NAN; 3]; w * h];
-    for &i in &posts {
+    for &i in posts {
         let t = frame.along(position(i));
         plane[i as usize] = [t, f64::from(terrain.z[i as usize]) - c * t * t, f64::NAN];
     }
@@ -601,7 +630,7 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
     let ranked = match shared.ranks {
         Some(r) if r.fits((index, count), terrain, n) => r,
         _ => {
-            own = Ranks::new(terrain, (index, count), &posts, &frame);
+            own = Ranks::new(terrain, (index, count), posts, &frame);
             &own
         }
     };
@@ -620,7 +649,7 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
             // a_perp descending, ties by a descending (IV-D); `!` reverses
             // an order-preserving key. In place: here the sweep's memory is
             // taken ([`sort_keyed`] is out of place).
-            let mut by_a = keyed(terrain, &posts, &frame, |k| (!k[0], !k[1]));
+            let mut by_a = keyed(terrain, posts, &frame, |k| (!k[0], !k[1]));
             by_a.sort_unstable();
             by_a.into_iter().map(|(_, _, j)| j).collect()
         }
@@ -974,9 +1003,9 @@ mod tests {
                 .collect();
             let mut expected = keyed.clone();
             expected.sort_unstable();
-            assert_eq!(sort_keyed(keyed, unordered), expected);
+            assert_eq!(sort_keyed(keyed), expected);
         }
-        assert!(sort_keyed(Vec::new(), unordered).is_empty());
+        assert!(sort_keyed(Vec::new()).is_empty());
     }
 
     #[test]
