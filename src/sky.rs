@@ -192,6 +192,11 @@ impl Stage for SkyStage {
         // Outside the area of interest every layer holds its fill value
         // (NaN, or no edge for the edge count): only its rows are computed.
         let wanted = share.rows_within(h, ay0..ay1);
+        // Buffers kept from tile row to tile row: fresh ones cost a page
+        // fault a page (a fifth of the stage).
+        let mut z = Vec::new();
+        let mut post_rows: Vec<PostRow> = Vec::new();
+        let mut values = Vec::new();
         for y0 in (0..h).step_by(ts) {
             let rows = ts.min(h - y0);
             if y0 >= wanted.end || y0 + rows <= wanted.start {
@@ -202,25 +207,26 @@ impl Stage for SkyStage {
                 continue;
             }
             let (r0, r1) = (y0.saturating_sub(1), (y0 + rows + 1).min(h));
-            let mut z = vec![0f32; (r1 - r0) * w];
+            z.resize((r1 - r0) * w, 0.0);
             height.read_window(0, 0, r0 as u32, w as u32, (r1 - r0) as u32, &mut z)?;
             let terrain = Terrain::window(&z, (w, h), r0, (dx, dy)).with_row_scale(row_scale);
             // Per row: its posts' normals (once, not once per band) and
             // sums, in columns.
-            let mut post_rows: Vec<PostRow> = (y0..y0 + rows)
-                .into_par_iter()
-                .map(|row| PostRow::new(&terrain, row))
-                .collect();
-            let mut angles = vec![0f32; rows * w];
-            for (b, &azimuth) in azimuths.iter().enumerate() {
-                horizon.read_rows_f32(b as u32, y0 as u32, &mut angles)?;
-                let towards = heading(azimuth);
-                post_rows
-                    .par_iter_mut()
-                    .zip(angles.par_chunks(w))
-                    .enumerate()
-                    .for_each(|(r, (post_row, angles))| {
-                        let row = y0 + r;
+            post_rows.resize_with(rows, || PostRow::with_width(w));
+            post_rows
+                .par_iter_mut()
+                .enumerate()
+                .for_each(|(r, post_row)| post_row.start(&terrain, y0 + r));
+            // Row by row in parallel, each row's bands in order (decoded
+            // by the thread that sums them): one fork a tile row, not one
+            // a band, and no band decoded while the other core waits.
+            let towards: Vec<_> = azimuths.iter().map(|&a| heading(a)).collect();
+            post_rows.par_iter_mut().enumerate().try_for_each_init(
+                || vec![0f32; w],
+                |angles, (r, post_row)| -> terrabake_format::Result<()> {
+                    let row = y0 + r;
+                    for (b, &towards) in towards.iter().enumerate() {
+                        horizon.read_rows_f32(b as u32, row as u32, angles)?;
                         let edge = EdgeTest {
                             z: &terrain.z[(row - r0) * w..][..w],
                             size: (w as u32, h as u32),
@@ -231,8 +237,10 @@ impl Stage for SkyStage {
                             curvature,
                         };
                         post_row.add_band(&integrals[b], angles, &edge);
-                    });
-            }
+                    }
+                    Ok(())
+                },
+            )?;
             for (layer, writer) in &mut writers {
                 if *layer == SkyLayer::HorizonEdge {
                     let edges: Vec<u16> = post_rows
@@ -243,7 +251,8 @@ impl Stage for SkyStage {
                     continue;
                 }
                 // Values inside the area of interest, row by row.
-                let mut values = vec![f32::NAN; rows * w];
+                values.clear();
+                values.resize(rows * w, f32::NAN);
                 values
                     .par_chunks_mut(w)
                     .zip(post_rows.par_iter())
@@ -296,23 +305,29 @@ struct EdgeTest<'a> {
 }
 
 impl PostRow {
-    fn new(terrain: &Terrain, row: usize) -> Self {
-        let w = terrain.width;
-        let mut normal = [vec![f64::NAN; w], vec![f64::NAN; w], vec![f64::NAN; w]];
-        for col in 0..w {
-            if let Some(n) = terrain.normal(col, row) {
-                for (axis, v) in normal.iter_mut().zip(n) {
-                    axis[col] = v;
-                }
-            }
-        }
+    /// A row `w` posts wide, to be [`Self::start`]ed.
+    fn with_width(w: usize) -> Self {
         Self {
-            normal,
+            normal: [vec![0.0; w], vec![0.0; w], vec![0.0; w]],
             sin: vec![0.0; w],
             zenith: vec![0.0; w],
             cosine: vec![0.0; w],
             edges: vec![0; w],
         }
+    }
+
+    /// Row `row` of `terrain` (as wide as this), no band summed yet.
+    fn start(&mut self, terrain: &Terrain, row: usize) {
+        for col in 0..terrain.width {
+            let n = terrain.normal(col, row).unwrap_or([f64::NAN; 3]);
+            for (axis, v) in self.normal.iter_mut().zip(n) {
+                axis[col] = v;
+            }
+        }
+        for sums in [&mut self.sin, &mut self.zenith, &mut self.cosine] {
+            sums.fill(0.0);
+        }
+        self.edges.fill(0);
     }
 
     fn sums(&self, col: usize) -> SkySums {
@@ -443,7 +458,8 @@ mod tests {
             paths.push(("avx2", |p, b, a, e| unsafe { p.add_band_avx2(b, a, e) }));
         }
         for (name, add_band) in paths {
-            let mut post_row = PostRow::new(&terrain, row);
+            let mut post_row = PostRow::with_width(terrain.width);
+            post_row.start(&terrain, row);
             for (b, angles) in angles.iter().enumerate() {
                 add_band(&mut post_row, &integrals[b], angles, &edge_of(b));
             }
