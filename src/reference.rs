@@ -136,15 +136,20 @@ pub struct Pilot {
     /// without cuts).
     cut: Vec<Vec<f32>>,
     cuts: &'static [f64],
-    /// The DEM's highest height: where a sight line can set no more
-    /// records ([`brute::line_horizon_records_below`]).
-    z_max: f64,
+    /// The DEM's highest post in blocks and overall: where a sight line
+    /// can set no more records, and which blocks it can step over
+    /// ([`brute::line_horizon_records_below`]).
+    heights: brute::BlockMax,
     /// Per post, the terrain's slope there, degrees (`Terrain::normal`).
     pub slope_deg: Vec<f64>,
     /// The east-west post spacing on the first and the last row, metres
     /// (they differ on geographic grids).
     pub dx_range: (f64, f64),
 }
+
+/// Cells a side of the blocks whose highest posts bound the pilot's sight
+/// lines ([`brute::BlockMax`]), coarsest first.
+const HEIGHT_BLOCKS: [usize; 2] = [64, 16];
 
 impl Pilot {
     /// Samples the posts of `dem` (`asset`'s heights, read once by the
@@ -203,11 +208,7 @@ impl Pilot {
             cuts: opts.cuts,
             // From the heights themselves, not the manifest's range: the
             // reference rests on nothing but the heights.
-            z_max: dem
-                .z
-                .iter()
-                .filter(|v| !v.is_nan())
-                .fold(f64::NEG_INFINITY, |m, &v| m.max(f64::from(v))),
+            heights: brute::BlockMax::of(&terrain, &HEIGHT_BLOCKS),
             slope_deg,
             dx_range,
         };
@@ -247,14 +248,14 @@ impl Pilot {
             // horizon cut off at any distance (the last record within it);
             // only the cuts asked for are kept, as a bowl's lines are
             // records all the way out.
-            let (cuts, z_max) = (self.cuts, self.z_max);
+            let (cuts, heights) = (self.cuts, &self.heights);
             self.posts
                 .par_iter()
                 .zip(&mut self.exact)
                 .zip(&mut self.cut)
                 .for_each(|((&post, exact), cut)| {
                     for &s in &new {
-                        let records = brute::line_horizon_records_below(terrain, post, s, z_max);
+                        let records = brute::line_horizon_records_below(terrain, post, s, heights);
                         exact.push(f64::from(brute::horizon_within(&records, None)));
                         cut.extend(
                             cuts.iter()

@@ -978,20 +978,20 @@ fn the_sector_tree_gives_the_same_bits_in_every_store_and_shared() {
 }
 
 /// The walk that stops where the DEM's highest post can no longer rise
-/// above the horizon so far keeps every record of the whole walk, on every
-/// synthetic terrain (holes included), flat and curved, in grid directions
-/// of every kind, and on a geographic grid.
+/// above the horizon so far, and steps over the blocks whose highest post
+/// cannot, keeps every record of the whole walk, on every synthetic
+/// terrain (holes included), flat and curved, in grid directions of every
+/// kind, on a geographic grid, with blocks of one size or several (a block
+/// of one cell included) or none; and the blocks spare crossings.
 #[test]
 fn records_stopped_at_the_relief_bound_equal_the_whole_walk() {
     let (w, h) = (57, 43);
     let steps = [(0, -1), (1, 0), (1, 1), (2, -5), (-3, 7), (5, 2), (-1, -4)];
+    let sizes: [&[usize]; 4] = [&[], &[1], &[4], &[16, 4, 2]];
     let (mut compared, mut stops) = (0, 0);
+    let mut walked = [0; 4];
     for kind in SynthKind::ALL {
         let z = synth_grid(kind, w, h, 11);
-        let z_max = z
-            .iter()
-            .filter(|v| !v.is_nan())
-            .fold(f64::NEG_INFINITY, |m, &v| m.max(f64::from(v)));
         let scale = geographic_scale(h, 61.0, 0.01);
         let flat = Terrain::new(&z, w, h, 30.0, 25.0);
         let curved = flat.with_curvature(curvature_coefficient(0.13));
@@ -999,11 +999,20 @@ fn records_stopped_at_the_relief_bound_equal_the_whole_walk() {
             .with_row_scale(RowScale::new(&scale))
             .with_curvature(curvature_coefficient(0.13));
         for (i, t) in [&flat, &curved, &geographic].into_iter().enumerate() {
+            let blocks = sizes.map(|s| brute::BlockMax::of(t, s));
+            let z_max = blocks[0].top;
             for post in [(0, 0), (28, 21), (56, 42), (3, 39), (40, 5)] {
                 for &step in &steps {
                     let whole = brute::line_horizon_records(t, post, step);
-                    let stopped = brute::line_horizon_records_below(t, post, step, z_max);
-                    assert_eq!(stopped, whole, "{kind:?} post {post:?} step {step:?}");
+                    for (k, heights) in blocks.iter().enumerate() {
+                        let stopped = brute::line_horizon_records_below(t, post, step, heights);
+                        assert_eq!(
+                            stopped, whole,
+                            "{kind:?} post {post:?} step {step:?} blocks {:?}",
+                            sizes[k]
+                        );
+                        walked[k] += brute::crossings_walked(t, post, step, heights);
+                    }
                     compared += whole.len();
                     // Lines whose bound at the DEM's edge is under their
                     // horizon (uniform grids): the walk stopped before it.
@@ -1028,4 +1037,8 @@ fn records_stopped_at_the_relief_bound_equal_the_whole_walk() {
     }
     assert!(compared > 1000, "{compared} records compared");
     assert!(stops > 20, "{stops} lines stop before the edge");
+    // Every size of block looks at fewer crossings than the stop alone.
+    for k in 1..4 {
+        assert!(walked[k] < walked[0], "blocks {:?}: {walked:?}", sizes[k]);
+    }
 }

@@ -86,24 +86,134 @@ pub fn line_horizon_records(
     post: (usize, usize),
     step: (i64, i64),
 ) -> Vec<HorizonRecord> {
-    line_horizon_records_below(t, post, step, f64::INFINITY)
+    let (a, b) = step;
+    sight_line_records(t, post, (a as f64, b as f64), None).0
 }
 
-/// [`line_horizon_records`] on a terrain none of whose heights exceeds
-/// `z_max`: the same records, found sooner. From a post at height `z_p`,
-/// nothing at distance `d` or farther rises above `(z_max - z_p) / d - c d`
-/// (which falls as `d` grows), so the walk stops where that bound falls
-/// below the horizon so far (by a margin of 1e-9 in slope, far above the
-/// rounding of either side): no farther crossing can set a record. The
-/// planner's pilot and `check`'s reference walk them so, 2.4x to 2.9x
-/// faster on the bundled tiles (docs/BENCHMARKS.md).
+/// [`line_horizon_records`] with the terrain's heights bounded by
+/// `heights` (of `t`): the same records, found sooner. From a post at
+/// height `z_p`, nothing at distance `d` or farther rises above `(z_max -
+/// z_p) / d - c d` (which falls as `d` grows), so the walk stops where that
+/// bound falls below the horizon so far (by a margin of 1e-9 in slope, far
+/// above the rounding of either side): no farther crossing can set a
+/// record. Within a block of [`BlockMax`] the same bound with the block's
+/// highest post (over the distances the line spends in it) lets the walk
+/// step over the whole block. The planner's pilot and `check`'s reference
+/// walk them so (docs/BENCHMARKS.md).
 pub fn line_horizon_records_below(
     t: &Terrain,
     post: (usize, usize),
     (a, b): (i64, i64),
-    z_max: f64,
+    heights: &BlockMax,
 ) -> Vec<HorizonRecord> {
-    sight_line_records(t, post, (a as f64, b as f64), z_max)
+    sight_line_records(t, post, (a as f64, b as f64), Some(heights)).0
+}
+
+/// How many crossings [`line_horizon_records_below`] looks at (the
+/// surface's height there), for the tests and benchmarks that count what
+/// the bounds save.
+pub fn crossings_walked(
+    t: &Terrain,
+    post: (usize, usize),
+    (a, b): (i64, i64),
+    heights: &BlockMax,
+) -> usize {
+    sight_line_records(t, post, (a as f64, b as f64), Some(heights)).1
+}
+
+/// The highest post of each square block of cells of a terrain, in
+/// blocks of a few sizes, and the highest of all: a max pyramid, as the
+/// hierarchical tracers use (Paglieroni and Petersen, sec. 3), here to step
+/// a sight line over the blocks it crosses too low to set a record. A
+/// block's posts are those on its edges too (a cell's surface lies within
+/// its four posts, a point on a block's edge within that edge's posts).
+#[derive(Debug, Clone)]
+pub struct BlockMax {
+    /// Coarsest first.
+    levels: Vec<Blocks>,
+    /// The highest post of the terrain.
+    pub top: f64,
+}
+
+/// One level of a [`BlockMax`].
+#[derive(Debug, Clone)]
+struct Blocks {
+    size: usize,
+    /// Blocks across and down.
+    cols: usize,
+    rows: usize,
+    /// Row-major; NEG_INFINITY for a block of nodata.
+    max: Vec<f64>,
+}
+
+impl BlockMax {
+    /// Blocks of each of `sizes` cells (coarsest first) over the whole of
+    /// `t` (not a window).
+    pub fn of(t: &Terrain, sizes: &[usize]) -> Self {
+        assert!(t.row0 == 0 && t.z.len() == t.width * t.height);
+        let levels: Vec<Blocks> = sizes.iter().map(|&size| Blocks::of(t, size)).collect();
+        let top =
+            t.z.iter()
+                .filter(|v| !v.is_nan())
+                .fold(f64::NEG_INFINITY, |m, &v| m.max(f64::from(v)));
+        Self { levels, top }
+    }
+}
+
+impl Blocks {
+    fn of(t: &Terrain, size: usize) -> Self {
+        assert!(size >= 1);
+        let cells = |n: usize| n.saturating_sub(1).max(1);
+        let (cols, rows) = (
+            cells(t.width).div_ceil(size),
+            cells(t.height).div_ceil(size),
+        );
+        // The blocks whose posts include post `i` of a row or column: a
+        // post on a block's edge belongs to the blocks on both sides.
+        let blocks =
+            |i: usize, n: usize| (i.saturating_sub(1) / size).min(n - 1)..=(i / size).min(n - 1);
+        let mut max = vec![f64::NEG_INFINITY; cols * rows];
+        for row in 0..t.height {
+            for col in 0..t.width {
+                let z = f64::from(t.at(col, row));
+                if z.is_nan() {
+                    continue;
+                }
+                for br in blocks(row, rows) {
+                    for bc in blocks(col, cols) {
+                        let m = &mut max[br * cols + bc];
+                        *m = m.max(z);
+                    }
+                }
+            }
+        }
+        Self {
+            size,
+            cols,
+            rows,
+            max,
+        }
+    }
+
+    /// The block of the line `p + s (a, b)` just past `s`: its highest
+    /// post and the `s` at which the line leaves it (`None` where rounding
+    /// leaves no room to pass).
+    fn ahead(&self, (pc, pr): (f64, f64), (a, b): (f64, f64), s: f64) -> Option<(f64, f64)> {
+        let size = self.size as f64;
+        // Nudged forwards, so that a point on a block's edge falls into the
+        // block the line goes on through.
+        let block = |p: f64, d: f64, n: usize| {
+            (((p + d * s + d * 1e-7) / size).floor().max(0.0) as usize).min(n - 1)
+        };
+        let (bc, br) = (block(pc, a, self.cols), block(pr, b, self.rows));
+        let leave = |p: f64, d: f64, k: usize| match d.partial_cmp(&0.0) {
+            Some(std::cmp::Ordering::Greater) => ((k + 1) as f64 * size - p) / d,
+            Some(std::cmp::Ordering::Less) => (k as f64 * size - p) / d,
+            _ => f64::INFINITY,
+        };
+        let exit = leave(pc, a, bc).min(leave(pr, b, br));
+        (exit > s).then(|| (self.max[br * self.cols + bc], exit))
+    }
 }
 
 /// [`line_horizon_records`] of the sight line from post `(col, row)` at
@@ -130,7 +240,7 @@ pub fn ray_horizon_records(
             v / major
         }
     };
-    sight_line_records(t, (col, row), (clean(a), clean(b)), f64::INFINITY)
+    sight_line_records(t, (col, row), (clean(a), clean(b)), None).0
 }
 
 /// One family of a line's crossings with the grid (`col = i`, `row = j`
@@ -171,6 +281,18 @@ impl Crossings {
     }
 }
 
+impl Crossings {
+    /// Moves on to the crossings from about `s` on (one before it may
+    /// stay: walking a crossing more is always safe).
+    fn skip_to(&mut self, s: f64) {
+        let at = self.p + self.d * s;
+        self.k = match self.by {
+            1 => self.k.max(at.ceil() as i64 - 1),
+            _ => self.k.min(at.floor() as i64 + 1),
+        };
+    }
+}
+
 impl Iterator for Crossings {
     type Item = f64;
 
@@ -186,17 +308,56 @@ impl Iterator for Crossings {
     }
 }
 
+/// The three families of a line's crossings merged in order of `s`.
+struct Merged {
+    families: [Crossings; 3],
+    heads: [Option<f64>; 3],
+}
+
+impl Merged {
+    fn new(mut families: [Crossings; 3]) -> Self {
+        let heads = families.each_mut().map(|f| f.next());
+        Self { families, heads }
+    }
+
+    /// [`Crossings::skip_to`] in every family.
+    fn skip_to(&mut self, s: f64) {
+        for (f, head) in self.families.iter_mut().zip(&mut self.heads) {
+            if head.is_some_and(|h| h < s) {
+                f.skip_to(s);
+                *head = f.next();
+            }
+        }
+    }
+}
+
+impl Iterator for Merged {
+    type Item = f64;
+
+    fn next(&mut self) -> Option<f64> {
+        let heads = &self.heads;
+        let i = (0..3)
+            .filter(|&i| heads[i].is_some())
+            .min_by(|&i, &j| heads[i].unwrap().total_cmp(&heads[j].unwrap()))?;
+        let s = self.heads[i];
+        self.heads[i] = self.families[i].next();
+        s
+    }
+}
+
 /// The records of the line `(col, row) + s (a, b)`, `s > 0` (grid units),
-/// on a terrain no higher than `z_max` ([`line_horizon_records_below`]).
+/// walked to the DEM's edge, or with `heights` no farther than a record
+/// can be set and over no block too low for one
+/// ([`line_horizon_records_below`]), and how many crossings it looked at.
 fn sight_line_records(
     t: &Terrain,
     (col, row): (usize, usize),
     (a, b): (f64, f64),
-    z_max: f64,
-) -> Vec<HorizonRecord> {
+    heights: Option<&BlockMax>,
+) -> (Vec<HorizonRecord>, usize) {
     let zp = t.at(col, row);
     if zp.is_nan() {
-        return Vec::new();
+        return (Vec::new(), 0);
     }
     let (pc, pr) = (col as f64, row as f64);
     // Largest s that keeps col + a s in [0, W-1] and row + b s in [0, H-1].
@@ -213,17 +374,8 @@ fn sight_line_records(
     // Every s where p + s (a, b) meets col = i, row = j or col + row = k:
     // three runs, merged as the walk goes (it may stop long before the
     // edge).
-    let mut families =
-        [(pc, a), (pr, b), (pc + pr, a + b)].map(|(p, d)| Crossings::new(p, d, s_max));
-    let mut heads = families.each_mut().map(|f| f.next());
-    let crossings = std::iter::from_fn(|| {
-        let i = (0..3)
-            .filter(|&i| heads[i].is_some())
-            .min_by(|&i, &j| heads[i].unwrap().total_cmp(&heads[j].unwrap()))?;
-        let s = heads[i];
-        heads[i] = families[i].next();
-        s
-    });
+    let mut crossings =
+        Merged::new([(pc, a), (pr, b), (pc + pr, a + b)].map(|(p, d)| Crossings::new(p, d, s_max)));
     // Metres from the post to parameter s: whole steps, each with the
     // east-west spacing at its middle row, then the fraction of the next.
     let step_len = |k: f64| {
@@ -244,13 +396,39 @@ fn sight_line_records(
         metres + (s - whole_steps as f64) * this_step
     };
     let (mut best, mut records) = (f64::NEG_INFINITY, Vec::new());
-    let rise = z_max - f64::from(zp);
-    for s in crossings {
+    let zp64 = f64::from(zp);
+    let rise = heights.map_or(f64::INFINITY, |h| h.top - zp64);
+    // The longest a unit of `s` can be, metres, for the far end of a block.
+    let longest = (a * t.dx * t.row_scale.max()).hypot(b * t.dy) * (1.0 + 1e-12);
+    // The block the walk last looked at: crossings before its exit are
+    // walked (it could hold a record).
+    let (mut block_exit, mut walked) = (0.0, 0);
+    while let Some(s) = crossings.next() {
         let d = distance(s);
         // (rise - c d^2) / d < best - margin, without the division.
         if rise - t.curvature * d * d < (best - 1e-9) * d {
             break;
         }
+        // A block entered: over the distances `d..far` it spans, nothing
+        // in it rises above its highest post's bound; below the horizon so
+        // far (the same margin), the walk goes on past it. The largest
+        // block first; where the finest cannot be passed, its crossings
+        // are walked.
+        if let Some(heights) = heights.filter(|_| s >= block_exit) {
+            let passed = heights.levels.iter().find_map(|blocks| {
+                let (high, exit) = blocks.ahead((pc, pr), (a, b), s)?;
+                block_exit = exit;
+                let far = d + (exit - s) * longest;
+                let bound = ((high - zp64) / d).max((high - zp64) / far)
+                    + (-t.curvature * d).max(-t.curvature * far);
+                (bound < best - 1e-9).then_some(exit)
+            });
+            if let Some(exit) = passed {
+                crossings.skip_to(exit);
+                continue;
+            }
+        }
+        walked += 1;
         if let Some(z) = surface_at(t, pc + a * s, pr + b * s) {
             let slope = (z - t.curvature * d * d - f64::from(zp)) / d;
             if slope > best {
@@ -264,7 +442,7 @@ fn sight_line_records(
             }
         }
     }
-    records
+    (records, walked)
 }
 
 /// Stewart's sector horizon of post `(col, row)` in the sector of `frame`,

@@ -52,6 +52,14 @@ impl<'a> RowScale<'a> {
     /// The scale at half row `half` (row `half / 2`), clamped to the DEM's
     /// rows (a line's first step may reach past the edge).
     #[inline]
+    /// The largest scale of any half row (1 when uniform).
+    pub fn max(&self) -> f64 {
+        match self.half_rows {
+            [] => 1.0,
+            rows => rows.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+        }
+    }
+
     pub fn at_half(&self, half: i64) -> f64 {
         match self.half_rows.len() {
             0 => 1.0,
