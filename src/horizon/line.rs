@@ -108,40 +108,92 @@ fn gcd(a: i64, b: i64) -> i64 {
 /// (`max(|a|, |b|)`) among steps within `tolerance` degrees, the closest
 /// among those; the closest of all if none is within tolerance.
 pub fn grid_direction(nominal: f64, dx: f64, dy: f64, tolerance: f64) -> GridDirection {
-    let mut within: Option<(i64, f64, (i64, i64))> = None;
-    let mut closest: Option<(f64, (i64, i64))> = None;
-    for a in -MAX_STEP..=MAX_STEP {
-        for b in -MAX_STEP..=MAX_STEP {
-            if gcd(a.abs(), b.abs()) != 1 {
-                continue;
-            }
-            let err = angle_between(step_azimuth((a, b), dx, dy), nominal);
-            let len = a.abs().max(b.abs());
-            if err <= tolerance && within.is_none_or(|(l, e, _)| (len, err) < (l, e)) {
-                within = Some((len, err, (a, b)));
-            }
-            if closest.is_none_or(|(e, _)| err < e) {
-                closest = Some((err, (a, b)));
-            }
-        }
-    }
-    let step = within
-        .map(|(_, _, s)| s)
-        .or(closest.map(|(_, s)| s))
-        .expect("steps exist");
-    GridDirection {
-        step,
-        azimuth: step_azimuth(step, dx, dy),
-        nominal,
-    }
+    Steps::new(dx, dy).direction(nominal, tolerance)
 }
 
 /// `count` directions for nominal azimuths `i * 360 / count`, each within
 /// `tolerance` degrees where a step up to [`MAX_STEP`] allows.
 pub fn grid_directions(count: usize, dx: f64, dy: f64, tolerance: f64) -> Vec<GridDirection> {
+    let steps = Steps::new(dx, dy);
     (0..count)
-        .map(|i| grid_direction(i as f64 * 360.0 / count as f64, dx, dy, tolerance))
+        .map(|i| steps.direction(i as f64 * 360.0 / count as f64, tolerance))
         .collect()
+}
+
+/// Every primitive grid step up to [`MAX_STEP`] with its azimuth, sorted by
+/// azimuth, so that a direction looks at the steps within its tolerance
+/// only (a plan asks for 720: a scan of all 16,000 steps with an arctangent
+/// each was a tenth of a plan).
+struct Steps {
+    dx: f64,
+    dy: f64,
+    /// Azimuth, posts per step, rank in the order `a`, then `b`,
+    /// ascending (which breaks ties, as a scan in that order would), step.
+    sorted: Vec<(f64, i64, usize, (i64, i64))>,
+}
+
+impl Steps {
+    fn new(dx: f64, dy: f64) -> Self {
+        let mut sorted: Vec<_> = (-MAX_STEP..=MAX_STEP)
+            .flat_map(|a| (-MAX_STEP..=MAX_STEP).map(move |b| (a, b)))
+            .filter(|&(a, b)| gcd(a.abs(), b.abs()) == 1)
+            .enumerate()
+            .map(|(rank, step)| {
+                (
+                    step_azimuth(step, dx, dy),
+                    step.0.abs().max(step.1.abs()),
+                    rank,
+                    step,
+                )
+            })
+            .collect();
+        sorted.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.2.cmp(&y.2)));
+        Self { dx, dy, sorted }
+    }
+
+    /// [`grid_direction`] from these steps.
+    fn direction(&self, nominal: f64, tolerance: f64) -> GridDirection {
+        let err = |az: f64| angle_between(az, nominal);
+        // The steps whose azimuth lies within the tolerance, the circle
+        // cut open at 0 (a hair wider: the test below is the exact one).
+        let reach = tolerance + 1e-9;
+        let (lo, hi) = (nominal - reach, nominal + reach);
+        let from = |az: f64| self.sorted.partition_point(|s| s.0 < az);
+        let to = |az: f64| self.sorted.partition_point(|s| s.0 <= az);
+        let n = self.sorted.len();
+        let ranges = [
+            from(lo.max(0.0))..to(hi.min(360.0)),
+            if lo < 0.0 { from(lo + 360.0)..n } else { n..n },
+            if hi > 360.0 { 0..to(hi - 360.0) } else { 0..0 },
+        ];
+        let within = ranges
+            .into_iter()
+            .flat_map(|r| &self.sorted[r])
+            .map(|&(az, len, rank, step)| (len, err(az), rank, step))
+            .filter(|&(_, e, _, _)| e <= tolerance)
+            .min_by(|x, y| {
+                (x.0, x.1, x.2)
+                    .partial_cmp(&(y.0, y.1, y.2))
+                    .expect("no NaN")
+            });
+        let step = match within {
+            Some((.., step)) => step,
+            // None within: the closest of all.
+            None => {
+                self.sorted
+                    .iter()
+                    .map(|&(az, _, rank, step)| (err(az), rank, step))
+                    .min_by(|x, y| (x.0, x.1).partial_cmp(&(y.0, y.1)).expect("no NaN"))
+                    .expect("steps exist")
+                    .2
+            }
+        };
+        GridDirection {
+            step,
+            azimuth: step_azimuth(step, self.dx, self.dy),
+            nominal,
+        }
+    }
 }
 
 /// The default tolerance for `count` directions: an eighth of their spacing.
@@ -918,5 +970,54 @@ mod tests {
         assert_eq!(north.step, (0, -1));
         let east = grid_direction(90.0, 20.0, 30.0, 1.0);
         assert_eq!(east.step, (1, 0));
+    }
+
+    /// The sorted table picks the step a scan of every step picks (the
+    /// fewest posts within the tolerance, then the closest, then the first
+    /// in `a`, `b` order; the closest of all where none is within), at
+    /// azimuths on and off the axes and the wrap, on square and oblong
+    /// cells, from no tolerance to a wide one.
+    #[test]
+    fn the_step_table_picks_what_a_scan_of_every_step_picks() {
+        let scan = |nominal: f64, dx: f64, dy: f64, tolerance: f64| {
+            let mut within: Option<(i64, f64, (i64, i64))> = None;
+            let mut closest: Option<(f64, (i64, i64))> = None;
+            for a in -MAX_STEP..=MAX_STEP {
+                for b in -MAX_STEP..=MAX_STEP {
+                    if gcd(a.abs(), b.abs()) != 1 {
+                        continue;
+                    }
+                    let err = angle_between(step_azimuth((a, b), dx, dy), nominal);
+                    let len = a.abs().max(b.abs());
+                    if err <= tolerance && within.is_none_or(|(l, e, _)| (len, err) < (l, e)) {
+                        within = Some((len, err, (a, b)));
+                    }
+                    if closest.is_none_or(|(e, _)| err < e) {
+                        closest = Some((err, (a, b)));
+                    }
+                }
+            }
+            within
+                .map(|(_, _, s)| s)
+                .or(closest.map(|(_, s)| s))
+                .unwrap()
+        };
+        for (dx, dy) in [(30.0, 30.0), (20.0, 30.0), (92.6, 61.3)] {
+            let steps = Steps::new(dx, dy);
+            for tolerance in [0.0, 0.01, 0.1, 1.0, 2.8125, 11.25] {
+                let nominals = (0..97)
+                    .map(|i| i as f64 * 360.0 / 97.0)
+                    .chain([0.0, 45.0, 90.0, 180.0, 359.99, 0.004, 359.0]);
+                for nominal in nominals {
+                    let got = steps.direction(nominal, tolerance);
+                    assert_eq!(
+                        got.step,
+                        scan(nominal, dx, dy, tolerance),
+                        "{nominal} within {tolerance} on {dx} x {dy}"
+                    );
+                    assert_eq!(got.azimuth, step_azimuth(got.step, dx, dy));
+                }
+            }
+        }
     }
 }
