@@ -279,9 +279,7 @@ impl Crossings {
             s_max,
         }
     }
-}
 
-impl Crossings {
     /// Moves on to the crossings from about `s` on (one before it may
     /// stay: walking a crossing more is always safe).
     fn skip_to(&mut self, s: f64) {
