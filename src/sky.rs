@@ -197,6 +197,7 @@ impl Stage for SkyStage {
         let mut z = Vec::new();
         let mut post_rows: Vec<PostRow> = Vec::new();
         let mut values = Vec::new();
+        let towards: Vec<_> = azimuths.iter().map(|&a| heading(a)).collect();
         for y0 in (0..h).step_by(ts) {
             let rows = ts.min(h - y0);
             if y0 >= wanted.end || y0 + rows <= wanted.start {
@@ -220,7 +221,6 @@ impl Stage for SkyStage {
             // Row by row in parallel, each row's bands in order (decoded
             // by the thread that sums them): one fork a tile row, not one
             // a band, and no band decoded while the other core waits.
-            let towards: Vec<_> = azimuths.iter().map(|&a| heading(a)).collect();
             post_rows.par_iter_mut().enumerate().try_for_each_init(
                 || vec![0f32; w],
                 |angles, (r, post_row)| -> terrabake_format::Result<()> {

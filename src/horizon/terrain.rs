@@ -49,9 +49,6 @@ impl<'a> RowScale<'a> {
         Self::new(&self.half_rows[2 * rows.start..2 * rows.end - 1])
     }
 
-    /// The scale at half row `half` (row `half / 2`), clamped to the DEM's
-    /// rows (a line's first step may reach past the edge).
-    #[inline]
     /// The largest scale of any half row (1 when uniform).
     pub fn max(&self) -> f64 {
         match self.half_rows {
@@ -60,6 +57,9 @@ impl<'a> RowScale<'a> {
         }
     }
 
+    /// The scale at half row `half` (row `half / 2`), clamped to the DEM's
+    /// rows (a line's first step may reach past the edge).
+    #[inline]
     pub fn at_half(&self, half: i64) -> f64 {
         match self.half_rows.len() {
             0 => 1.0,

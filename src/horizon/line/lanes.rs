@@ -29,14 +29,15 @@
 //! AVX2), the third gathered while its pops go on, so that a pop's next
 //! compare never waits on memory. With four, a push's first pop takes the
 //! fourth up instead of gathering, and a push that follows a pop has room
-//! without sending one down (in AVX-512 a gather or scatter whose lanes are
-//! all masked off costs about what a full one does, so each is skipped
-//! where no lane needs it): 1.04x-1.06x at 36 and 64 directions, none at
-//! 16, where the pops are few; five or six held were slower (spilled
-//! registers). Between rows the held vertices wait in arrays indexed by line, not in the
-//! storage, so that eight neighbouring lines load theirs with plain vector
-//! loads where a row starts (six gathers before, a sixth of the sweep); a
-//! push sends the lowest held vertex down to the storage instead of the new top.
+//! without sending one down (in AVX-512 a gather or scatter whose lanes
+//! are all masked off costs about what a full one does, so each is skipped
+//! where no lane needs it): 1.03x-1.06x at 36 and 64 directions, nothing
+//! at 16, where the pops are few; five or six held were slower (spilled
+//! registers). Between rows the held vertices wait in arrays indexed by
+//! line, not in the storage, so that eight neighbouring lines load theirs
+//! with plain vector loads where a row starts (six gathers before, a sixth
+//! of the sweep); a push sends the lowest held vertex down to the storage
+//! instead of the new top.
 //!
 //! **Two vectors at once.** A pop loop is a chain of dependent steps (the
 //! compare, the moves, the refill gathered for the compare after next), so
