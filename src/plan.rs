@@ -647,12 +647,14 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
     let mut bytes = heights
         .filter(|l| l.codec == Codec::Zstd && l.tile_size as usize == tile)
         .map_or(layer_bytes(w, h, tile, 4, 1), |l| l.file_len);
-    // The pilot holds the DEM (4 bytes a post) and, per post and reference
-    // direction, the exact horizon (8 bytes) and its cuts (4 bytes each).
+    // The pilot holds the DEM (4 bytes a post), its blocks' highest posts
+    // and, per post and reference direction, the exact horizon (8 bytes)
+    // and its cuts (4 bytes each).
     let mut memory_mib = BASE_MIB;
     if let Some(pilot) = &pilot {
         let per_post = pilot.directions_measured() * (8 + 4 * DISTANCES.len());
-        memory_mib += (4 * posts as usize + pilot.posts.len() * per_post) as f64 / 1048576.0;
+        let held = 4 * posts as usize + pilot.bounds_bytes() + pilot.posts.len() * per_post;
+        memory_mib += held as f64 / 1048576.0;
     }
     if let Some(c) = &chosen {
         seconds += c.seconds;

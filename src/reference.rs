@@ -219,6 +219,11 @@ impl Pilot {
         Ok(pilot)
     }
 
+    /// The memory the blocks bounding its sight lines hold, bytes.
+    pub fn bounds_bytes(&self) -> usize {
+        self.heights.bytes()
+    }
+
     /// The indices (into each post's `exact`) of the line directions of
     /// `bands`, measuring at every post those not measured yet (by their
     /// grid step: a direction measured once serves every band on it).

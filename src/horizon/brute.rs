@@ -158,6 +158,11 @@ impl BlockMax {
                 .fold(f64::NEG_INFINITY, |m, &v| m.max(f64::from(v)));
         Self { levels, top }
     }
+
+    /// The memory the blocks hold, bytes.
+    pub fn bytes(&self) -> usize {
+        self.levels.iter().map(|l| 8 * l.max.len()).sum()
+    }
 }
 
 impl Blocks {
