@@ -156,8 +156,8 @@ impl Steps {
         let err = |az: f64| angle_between(az, nominal);
         // The steps whose azimuth lies within the tolerance, the circle
         // cut open at 0 (a hair wider: the test below is the exact one).
-        let reach = tolerance + 1e-9;
-        let (lo, hi) = (nominal - reach, nominal + reach);
+        let (at, reach) = (nominal.rem_euclid(360.0), tolerance + 1e-9);
+        let (lo, hi) = (at - reach, at + reach);
         let from = |az: f64| self.sorted.partition_point(|s| s.0 < az);
         let to = |az: f64| self.sorted.partition_point(|s| s.0 <= az);
         let n = self.sorted.len();
@@ -975,8 +975,8 @@ mod tests {
     /// The sorted table picks the step a scan of every step picks (the
     /// fewest posts within the tolerance, then the closest, then the first
     /// in `a`, `b` order; the closest of all where none is within), at
-    /// azimuths on and off the axes and the wrap, on square and oblong
-    /// cells, from no tolerance to a wide one.
+    /// azimuths on and off the axes and the wrap (and outside 0..360), on
+    /// square and oblong cells, from no tolerance to a wide one.
     #[test]
     fn the_step_table_picks_what_a_scan_of_every_step_picks() {
         let scan = |nominal: f64, dx: f64, dy: f64, tolerance: f64| {
@@ -1007,7 +1007,7 @@ mod tests {
             for tolerance in [0.0, 0.01, 0.1, 1.0, 2.8125, 11.25] {
                 let nominals = (0..97)
                     .map(|i| i as f64 * 360.0 / 97.0)
-                    .chain([0.0, 45.0, 90.0, 180.0, 359.99, 0.004, 359.0]);
+                    .chain([0.0, 45.0, 90.0, 180.0, 359.99, 0.004, 359.0, -30.0, 400.0]);
                 for nominal in nominals {
                     let got = steps.direction(nominal, tolerance);
                     assert_eq!(
