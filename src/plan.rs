@@ -253,14 +253,9 @@ impl Plan {
     pub fn horizons_stage(&self) -> Option<HorizonsStage> {
         let chosen = self.chosen.as_ref()?;
         let mut stage = HorizonsStage {
-            sectors: chosen.sectors,
-            method: Method::Line,
             max_distance: chosen.max_distance,
-            // The stage's default tolerance: the directions the pilot
-            // measured for this count ([`stored_bands`]).
-            direction_tolerance: None,
             encoding: Some(chosen.encoding),
-            ..Default::default()
+            ..line_stage(chosen.sectors)
         };
         if let Some(bytes) = self.working_memory() {
             stage.max_memory = bytes;
@@ -428,10 +423,15 @@ fn predict(
     })
 }
 
-/// The bands a bake of `sectors` line directions stores: the horizons
-/// stage's own, at its default tolerance (the plan leaves it unset).
-fn stored_bands(sectors: usize, (dx, dy): (f64, f64)) -> Vec<crate::horizon::Band> {
-    crate::horizon::plan_bands(Method::Line, sectors, dx, dy, None)
+/// The horizons stage a plan of `sectors` line directions bakes, before
+/// its encoding and distance: at the stage's default tolerance, so that
+/// its bands are those the pilot measures ([`HorizonsStage::bands`]).
+fn line_stage(sectors: usize) -> HorizonsStage {
+    HorizonsStage {
+        sectors,
+        method: Method::Line,
+        ..Default::default()
+    }
 }
 
 /// `x` rounded up at `decimals` decimals: a limit to relax to that,
@@ -861,7 +861,8 @@ fn plan_horizons(
         // The directions the stage would store, measured at the pilot's
         // posts: at its default tolerance they are seldom reference
         // directions, and far cheaper to sweep than those would be.
-        stored = pilot.measure_directions(terrain, &stored_bands(s, scene.cell_size), || ());
+        let (dx, dy) = scene.cell_size;
+        stored = pilot.measure_directions(terrain, &line_stage(s).bands(dx, dy), || ());
         let mut e = predict(pilot, suns, &stored, None, AngleEncoding::F32);
         let (horizon, svf, _) = e.at(DECISION_QUANTILE);
         deciding = (horizon, svf);

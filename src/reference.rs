@@ -12,10 +12,10 @@
 //! the grid, on the two-triangle surface, with the stage's curvature and
 //! refraction, and no distance limit) in `directions` grid directions, each
 //! within 0.1 degree of `i * 360 / directions`. Each line stops where the
-//! DEM's highest post could no longer rise above its horizon so far
-//! (`brute::line_horizon_records_below`: the same records; with the rest
-//! of that change 3.5x to 4.9x faster plans and checks on the bundled
-//! tiles).
+//! DEM's highest post could no longer rise above its horizon so far, and
+//! steps over the blocks of cells whose highest post could not
+//! (`brute::line_horizon_records_below`: the same records;
+//! docs/BENCHMARKS.md has what each saves).
 
 use std::collections::HashSet;
 
@@ -227,9 +227,9 @@ impl Pilot {
     /// The indices (into each post's `exact`) of the line directions of
     /// `bands`, measuring at every post those not measured yet (by their
     /// grid step: a direction measured once serves every band on it).
-    /// `terrain` is the one the pilot was measured on (no higher than its
-    /// highest post); `posted` is called
-    /// once per post measured.
+    /// `terrain` is the one the pilot was measured on (its blocks' highest
+    /// posts bound the sight lines); `posted` is called once per post
+    /// measured.
     pub fn measure_directions(
         &mut self,
         terrain: &Terrain,
@@ -240,6 +240,7 @@ impl Pilot {
             BandKind::Line(direction) => direction.step,
             _ => unreachable!("the pilot measures lines"),
         };
+        assert!(self.heights.fits(terrain), "the pilot's own terrain");
         let mut new: Vec<(i64, i64)> = Vec::new();
         for b in bands {
             let s = step(b);

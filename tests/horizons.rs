@@ -1005,13 +1005,14 @@ fn records_stopped_at_the_relief_bound_equal_the_whole_walk() {
                 for &step in &steps {
                     let whole = brute::line_horizon_records(t, post, step);
                     for (k, heights) in blocks.iter().enumerate() {
-                        let stopped = brute::line_horizon_records_below(t, post, step, heights);
+                        let (stopped, looked) =
+                            brute::line_horizon_records_walked(t, post, step, heights);
                         assert_eq!(
                             stopped, whole,
                             "{kind:?} post {post:?} step {step:?} blocks {:?}",
                             sizes[k]
                         );
-                        walked[k] += brute::crossings_walked(t, post, step, heights);
+                        walked[k] += looked;
                     }
                     compared += whole.len();
                     // Lines whose bound at the DEM's edge is under their

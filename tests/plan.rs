@@ -512,7 +512,7 @@ fn a_bytes_limit_picks_zstd_heights_unless_the_recipe_set_the_codec() {
 /// posts are the pilot's, to the sweep's rounding.
 #[test]
 fn the_pilot_measures_the_directions_the_planned_bake_stores() {
-    use terrabake::horizon::{plan_bands, HeldDem, HorizonsStage, Method};
+    use terrabake::horizon::{HeldDem, HorizonsStage};
     use terrabake::reference::{Pilot, Sampling};
     use terrabake_format::horizons::{AngleEncoding, HorizonMap};
 
@@ -530,13 +530,7 @@ fn the_pilot_measures_the_directions_the_planned_bake_stores() {
 
     let opened = Asset::open(&asset).unwrap();
     let m = opened.manifest();
-    let bands = plan_bands(
-        Method::Line,
-        stage.sectors,
-        m.cell_size.dx,
-        m.cell_size.dy,
-        None,
-    );
+    let bands = stage.bands(m.cell_size.dx, m.cell_size.dy);
     let map = HorizonMap::open(&opened).unwrap();
     let stored = &m.layer("horizon", 0).unwrap().band_azimuths;
     let measured: Vec<f64> = bands.iter().map(|b| b.azimuth).collect();

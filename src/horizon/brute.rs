@@ -109,16 +109,16 @@ pub fn line_horizon_records_below(
     sight_line_records(t, post, (a as f64, b as f64), Some(heights)).0
 }
 
-/// How many crossings [`line_horizon_records_below`] looks at (the
-/// surface's height there), for the tests and benchmarks that count what
-/// the bounds save.
-pub fn crossings_walked(
+/// [`line_horizon_records_below`] and how many crossings it looked at
+/// (the surface's height there), for the tests that count what the bounds
+/// save.
+pub fn line_horizon_records_walked(
     t: &Terrain,
     post: (usize, usize),
     (a, b): (i64, i64),
     heights: &BlockMax,
-) -> usize {
-    sight_line_records(t, post, (a as f64, b as f64), Some(heights)).1
+) -> (Vec<HorizonRecord>, usize) {
+    sight_line_records(t, post, (a as f64, b as f64), Some(heights))
 }
 
 /// The highest post of each square block of cells of a terrain, in
@@ -129,6 +129,8 @@ pub fn crossings_walked(
 /// its four posts, a point on a block's edge within that edge's posts).
 #[derive(Debug, Clone)]
 pub struct BlockMax {
+    /// The terrain's posts across and down.
+    posts: (usize, usize),
     /// Coarsest first.
     levels: Vec<Blocks>,
     /// The highest post of the terrain.
@@ -156,7 +158,16 @@ impl BlockMax {
             t.z.iter()
                 .filter(|v| !v.is_nan())
                 .fold(f64::NEG_INFINITY, |m, &v| m.max(f64::from(v)));
-        Self { levels, top }
+        Self {
+            posts: (t.width, t.height),
+            levels,
+            top,
+        }
+    }
+
+    /// Whether these are blocks of a terrain of `t`'s size.
+    pub fn fits(&self, t: &Terrain) -> bool {
+        self.posts == (t.width, t.height)
     }
 
     /// The memory the blocks hold, bytes.
@@ -433,7 +444,7 @@ fn sight_line_records(
         }
         walked += 1;
         if let Some(z) = surface_at(t, pc + a * s, pr + b * s) {
-            let slope = (z - t.curvature * d * d - f64::from(zp)) / d;
+            let slope = (z - t.curvature * d * d - zp64) / d;
             if slope > best {
                 best = slope;
                 let angle = slope.atan().to_degrees() as f32;

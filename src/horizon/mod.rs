@@ -606,6 +606,12 @@ impl HorizonsStage {
         }
     }
 
+    /// The bands this stage bakes on cells of `dx x dy` metres: its
+    /// directions (line grid steps within its tolerance) or sectors.
+    pub fn bands(&self, dx: f64, dy: f64) -> Vec<Band> {
+        plan_bands(self.method, self.sectors, dx, dy, self.direction_tolerance)
+    }
+
     /// The curvature coefficient `c` of the drop `c d^2` (0 when
     /// curvature is off; on by default for georeferenced DEMs).
     pub fn curvature_coefficient(&self, asset: &Asset<Mmap>) -> f64 {
@@ -736,7 +742,7 @@ impl Stage for HorizonsStage {
         let (dx, dy) = (m.cell_size.dx, m.cell_size.dy);
         let row_scale = crate::geo::row_scale(m.georef.as_ref(), h as u32);
         let row_scale = RowScale::new(&row_scale);
-        let bands = plan_bands(self.method, self.sectors, dx, dy, self.direction_tolerance);
+        let bands = self.bands(dx, dy);
         let enc = self.angle_encoding();
         let method_text = match self.method {
             Method::Line => "line: steepest sight line along the grid direction of the band (exact on the two-triangle surface)",

@@ -90,6 +90,16 @@ pub const HEADROOM: usize = 8;
 /// share of `--max-memory`).
 pub const MAX_BYTES: usize = 32 << 20;
 
+/// Hull vertices a lane of `level` holds in registers, and between rows
+/// in the head arrays (module docs, "State").
+fn held(level: Level) -> usize {
+    if level == Level::Avx512 {
+        4
+    } else {
+        3
+    }
+}
+
 /// Vectors of lines a kernel steps together (module docs, "Two vectors at
 /// once").
 const GROUPS: usize = 2;
@@ -112,9 +122,6 @@ pub(super) struct Lines {
     depth: usize,
     /// What sweeps them.
     level: Level,
-    /// Hull vertices kept in the head arrays between rows: four in AVX-512
-    /// code, three in AVX2.
-    heads: usize,
     /// `t` of each line's last post.
     t: Vec<f64>,
     /// Vertices on each line's hull; -1 for a line swept by the scalar
@@ -147,7 +154,7 @@ impl Lines {
         if depth < MIN_DEPTH || stencil.len() + HEADROOM > depth {
             return None;
         }
-        let heads = if level == Level::Avx512 { 4 } else { 3 };
+        let heads = held(level);
         Some(Self {
             step,
             width,
@@ -157,7 +164,6 @@ impl Lines {
             count,
             depth,
             level,
-            heads,
             t: vec![0.0; count],
             len: vec![0; count],
             head_t: vec![0.0; heads * count],
@@ -177,7 +183,7 @@ impl Lines {
     /// kept: in the head (`true`) or the storage below it, and its index.
     fn slot(&self, i: usize, d: usize) -> (bool, usize) {
         match self.len[i] as usize - 1 - d {
-            k if k < self.heads => (true, k * self.count + i),
+            k if k < held(self.level) => (true, k * self.count + i),
             _ => (false, d * self.count + i),
         }
     }
