@@ -614,13 +614,18 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
     };
     let n = posts.len();
     let position = |i: u32| terrain.key_position(i as usize % w, i as usize / w);
-    // Centre-plane coordinates (t, w) per post (NaN where nodata), and the
-    // steepest slope the tree finds from it, in the same cache line.
-    let mut plane = vec![[f64::NAN; 3]; w * h];
+    // Centre-plane coordinates (t, w) per post (NaN where nodata), each
+    // row-major, so that a row of either is lanes of the IV-E pass
+    // ([`narrow_row`]).
+    let mut ts = vec![f64::NAN; w * h];
+    let mut ws = vec![f64::NAN; w * h];
     for &i in posts {
         let t = frame.along(position(i));
-        plane[i as usize] = [t, f64::from(terrain.z[i as usize]) - c * t * t, f64::NAN];
+        ts[i as usize] = t;
+        ws[i as usize] = f64::from(terrain.z[i as usize]) - c * t * t;
     }
+    // The steepest slope the tree finds from each post, and its tag.
+    let mut slopes = vec![f64::NEG_INFINITY; w * h];
     let mut tags = vec![T::default(); w * h];
     // The ranks along `b_perp`, and the processing order: the previous
     // sector's ranks where the caller has them ([`Ranks`]), else sorted
@@ -661,8 +666,7 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
         .into_iter()
         .map(|j| {
             let post = posts[j as usize];
-            let [t, w, _] = plane[post as usize];
-            (post, rank[j as usize], t, w)
+            (post, rank[j as usize], ts[post as usize], ws[post as usize])
         })
         .collect();
     drop(rank);
@@ -728,7 +732,7 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
             }
             v >>= 1;
         }
-        plane[post][2] = best.slope;
+        slopes[post] = best.slope;
         tags[post] = best.tag;
         // Join the ranks below k: in its own bucket by the scan, above by
         // the hulls of the left siblings along the path (they cover ranks
@@ -751,41 +755,78 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
     }
     // Stewart's IV-E stencil, then the angles: row by row, in the order of
     // memory (in the sweep's order each of the stencil's posts was a cache
-    // miss), the angles of a row in one loop without calls (vector code).
-    let mut slopes = vec![f64::NEG_INFINITY; w];
-    for (row, (plane_row, out_row)) in plane.chunks(w).zip(out.chunks_mut(w)).enumerate() {
-        for (col, &[tp, wp, slope]) in plane_row.iter().enumerate() {
-            let post = row * w + col;
-            let mut best = Steepest {
-                slope,
-                tag: tags[post],
+    // miss), each a loop without calls (vector code).
+    let rows = ts.chunks(w).zip(ws.chunks(w));
+    let outputs = slopes
+        .chunks_mut(w)
+        .zip(tags.chunks_mut(w))
+        .zip(out.chunks_mut(w));
+    for (row, ((tp, wp), ((best, tag), out_row))) in rows.zip(outputs).enumerate() {
+        for &(dc, dr) in stencil.as_ref().map_or(&[][..], |s| &s.offsets[..]) {
+            // The columns whose post `(col + dc, qr)` is in the grid.
+            let qr = row as i64 + dr;
+            let (c0, c1) = ((-dc).max(0), (w as i64 - dc).min(w as i64));
+            if !terrain.contains(0, qr) || c0 >= c1 {
+                continue;
+            }
+            let cols = c0 as usize..c1 as usize;
+            let first = qr as usize * w + (cols.start as i64 + dc) as usize;
+            let q = first..first + cols.len();
+            let lanes = Lanes {
+                p: (&tp[cols.clone()], &wp[cols.clone()]),
+                q: (&ts[q.clone()], &ws[q]),
+                first: first as u32,
             };
-            if let Some(st) = stencil.as_ref().filter(|_| !tp.is_nan()) {
-                let (col, row) = (col as i64, row as i64);
-                for &(dc, dr) in &st.offsets {
-                    if terrain.contains(col + dc, row + dr) {
-                        let q = (row + dr) as usize * w + (col + dc) as usize;
-                        let [tq, wq, _] = plane[q];
-                        if tq > tp {
-                            best.take((wq - wp) / (tq - tp), T::of(q as u32));
-                        }
-                    }
-                }
-            }
-            slopes[col] = best.slope;
-            if let (Some(d), Some(q)) = (distances.as_deref_mut(), best.tag.get()) {
-                d[post] = terrain.key_distance(position(post as u32), position(q)) as f32;
-            }
+            narrow_row(lanes, &mut best[cols.clone()], &mut tag[cols]);
         }
-        for ((v, &slope), &[tp, ..]) in out_row.iter_mut().zip(&slopes).zip(plane_row) {
+        for (col, ((v, &slope), &tp)) in out_row.iter_mut().zip(&*best).zip(tp).enumerate() {
             *v = if tp.is_nan() {
                 f32::NAN
             } else {
                 elevation_deg(slope, c, tp)
             };
+            if let (Some(d), Some(q)) = (distances.as_deref_mut(), tag[col].get()) {
+                let post = row * w + col;
+                d[post] = terrain.key_distance(position(post as u32), position(q)) as f32;
+            }
         }
     }
     stats
+}
+
+/// A row of posts `p` (`t` and `w`) and, for one offset of the IV-E
+/// stencil, the posts `q` at that offset from each, the first of them post
+/// `first` of the grid.
+struct Lanes<'a> {
+    p: (&'a [f64], &'a [f64]),
+    q: (&'a [f64], &'a [f64]),
+    first: u32,
+}
+
+/// Each post's steepest slope `best` (and its `tag`) raised to the slope to
+/// its post `q` where `q` lies in front (`t` beyond it): lane by lane, so
+/// that the loop is vector code; each post meets the stencil's offsets in
+/// the same order as a post-by-post loop, and so keeps the same tag.
+#[inline(always)]
+fn narrow_row<T: Tag<u32>>(lanes: Lanes, best: &mut [f64], tag: &mut [T]) {
+    let Lanes {
+        p: (tp, wp),
+        q: (tq, wq),
+        first,
+    } = lanes;
+    let n = best.len();
+    let (tp, wp, tq, wq, tag) = (&tp[..n], &wp[..n], &tq[..n], &wq[..n], &mut tag[..n]);
+    for i in 0..n {
+        let slope = (wq[i] - wp[i]) / (tq[i] - tp[i]);
+        // A post behind, nodata (NaN) on either side, or no steeper: kept.
+        let steeper = tq[i] > tp[i] && slope > best[i];
+        best[i] = if steeper { slope } else { best[i] };
+        tag[i] = if steeper {
+            T::of(first + i as u32)
+        } else {
+            tag[i]
+        };
+    }
 }
 
 /// Sector horizons looking no farther than `max_distance` metres (the
