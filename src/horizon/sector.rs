@@ -48,11 +48,14 @@
 //! point ([`hulls`]). The sweep reads the posts in its order from a copy
 //! gathered beforehand, leaving the stencil and the angles to a pass row
 //! by row: a post's lookups in the sweep's order are cache misses on its
-//! critical path. And the sorts are shared: a sector's processing order is
+//! critical path. That pass takes each offset of the stencil across a
+//! whole row in vector lanes ([`narrow_row`]), `t` and `w` in arrays of
+//! their own. And the sorts are shared: a sector's processing order is
 //! the previous sector's rank order ([`Ranks`]), sorted by buckets
 //! ([`sort_keyed`]). Together 1.47x faster at 64 sectors, the same bits;
 //! then 1.26x more with the bucket sort and the walk up the tree by the
-//! bucket index's bits (a branch a level no longer mispredicted).
+//! bucket index's bits (a branch a level no longer mispredicted), and
+//! 1.08x with the stencil in lanes.
 
 mod hulls;
 
