@@ -8,7 +8,7 @@
 use terrabake_format::surface::Cell;
 
 use super::sector::{NarrowStencil, SectorFrame};
-use super::terrain::Terrain;
+use super::terrain::{MaxBlocks, Terrain};
 
 /// Surface height at fractional post coordinates `(col, row)` (row grows
 /// south), from any cell with a surface that contains the point.
@@ -121,31 +121,17 @@ pub fn line_horizon_records_walked(
     sight_line_records(t, post, (a as f64, b as f64), Some(heights))
 }
 
-/// The highest post of each square block of cells of a terrain, in
-/// blocks of a few sizes, and the highest of all: a max pyramid, as the
-/// hierarchical tracers use (Paglieroni and Petersen, sec. 3), here to step
-/// a sight line over the blocks it crosses too low to set a record. A
-/// block's posts are those on its edges too (a cell's surface lies within
-/// its four posts, a point on a block's edge within that edge's posts).
+/// The highest post of a terrain in blocks of a few sizes ([`MaxBlocks`],
+/// their edges' posts included), and the highest of all: to step a sight
+/// line over the blocks it crosses too low to set a record.
 #[derive(Debug, Clone)]
 pub struct BlockMax {
     /// The terrain's posts across and down.
     posts: (usize, usize),
     /// Coarsest first.
-    levels: Vec<Blocks>,
+    levels: Vec<MaxBlocks>,
     /// The highest post of the terrain.
     pub top: f64,
-}
-
-/// One level of a [`BlockMax`].
-#[derive(Debug, Clone)]
-struct Blocks {
-    size: usize,
-    /// Blocks across and down.
-    cols: usize,
-    rows: usize,
-    /// Row-major; NEG_INFINITY for a block of nodata.
-    max: Vec<f64>,
 }
 
 impl BlockMax {
@@ -153,7 +139,10 @@ impl BlockMax {
     /// `t` (not a window).
     pub fn of(t: &Terrain, sizes: &[usize]) -> Self {
         assert!(t.row0 == 0 && t.z.len() == t.width * t.height);
-        let levels: Vec<Blocks> = sizes.iter().map(|&size| Blocks::of(t, size)).collect();
+        let levels = sizes
+            .iter()
+            .map(|&size| MaxBlocks::of(t, size, 0))
+            .collect();
         let top =
             t.z.iter()
                 .filter(|v| !v.is_nan())
@@ -172,64 +161,30 @@ impl BlockMax {
 
     /// The memory the blocks hold, bytes.
     pub fn bytes(&self) -> usize {
-        self.levels.iter().map(|l| 8 * l.max.len()).sum()
+        self.levels.iter().map(MaxBlocks::bytes).sum()
     }
 }
 
-impl Blocks {
-    fn of(t: &Terrain, size: usize) -> Self {
-        assert!(size >= 1);
-        let cells = |n: usize| n.saturating_sub(1).max(1);
-        let (cols, rows) = (
-            cells(t.width).div_ceil(size),
-            cells(t.height).div_ceil(size),
-        );
-        // The blocks whose posts include post `i` of a row or column: a
-        // post on a block's edge belongs to the blocks on both sides.
-        let blocks =
-            |i: usize, n: usize| (i.saturating_sub(1) / size).min(n - 1)..=(i / size).min(n - 1);
-        let mut max = vec![f64::NEG_INFINITY; cols * rows];
-        for row in 0..t.height {
-            for col in 0..t.width {
-                let z = f64::from(t.at(col, row));
-                if z.is_nan() {
-                    continue;
-                }
-                for br in blocks(row, rows) {
-                    for bc in blocks(col, cols) {
-                        let m = &mut max[br * cols + bc];
-                        *m = m.max(z);
-                    }
-                }
-            }
-        }
-        Self {
-            size,
-            cols,
-            rows,
-            max,
-        }
-    }
-
-    /// The block of the line `p + s (a, b)` just past `s`: its highest
-    /// post and the `s` at which the line leaves it (`None` where rounding
-    /// leaves no room to pass).
-    fn ahead(&self, (pc, pr): (f64, f64), (a, b): (f64, f64), s: f64) -> Option<(f64, f64)> {
-        let size = self.size as f64;
-        // Nudged forwards, so that a point on a block's edge falls into the
-        // block the line goes on through.
-        let block = |p: f64, d: f64, n: usize| {
-            (((p + d * s + d * 1e-7) / size).floor().max(0.0) as usize).min(n - 1)
-        };
-        let (bc, br) = (block(pc, a, self.cols), block(pr, b, self.rows));
-        let leave = |p: f64, d: f64, k: usize| match d.partial_cmp(&0.0) {
-            Some(std::cmp::Ordering::Greater) => ((k + 1) as f64 * size - p) / d,
-            Some(std::cmp::Ordering::Less) => (k as f64 * size - p) / d,
-            _ => f64::INFINITY,
-        };
-        let exit = leave(pc, a, bc).min(leave(pr, b, br));
-        (exit > s).then(|| (self.max[br * self.cols + bc], exit))
-    }
+/// The block of `blocks` the line `p + s (a, b)` is in just past `s`: its
+/// highest post and the `s` at which the line leaves it (`None` where
+/// rounding leaves no room to pass).
+fn ahead(
+    blocks: &MaxBlocks,
+    (pc, pr): (f64, f64),
+    (a, b): (f64, f64),
+    s: f64,
+) -> Option<(f64, f64)> {
+    let size = blocks.size() as f64;
+    // Nudged forwards, so that a point on a block's edge falls into the
+    // block the line goes on through.
+    let (bc, br) = blocks.block(pc + a * s + a * 1e-7, pr + b * s + b * 1e-7);
+    let leave = |p: f64, d: f64, k: usize| match d.partial_cmp(&0.0) {
+        Some(std::cmp::Ordering::Greater) => ((k + 1) as f64 * size - p) / d,
+        Some(std::cmp::Ordering::Less) => (k as f64 * size - p) / d,
+        _ => f64::INFINITY,
+    };
+    let exit = leave(pc, a, bc).min(leave(pr, b, br));
+    (exit > s).then(|| (blocks.max((bc, br)), exit))
 }
 
 /// [`line_horizon_records`] of the sight line from post `(col, row)` at
@@ -430,7 +385,7 @@ fn sight_line_records(
         // are walked.
         if let Some(heights) = heights.filter(|_| s >= block_exit) {
             let passed = heights.levels.iter().find_map(|blocks| {
-                let (high, exit) = blocks.ahead((pc, pr), (a, b), s)?;
+                let (high, exit) = ahead(blocks, (pc, pr), (a, b), s)?;
                 block_exit = exit;
                 let far = d + (exit - s) * longest;
                 let bound = ((high - zp64) / d).max((high - zp64) / far)

@@ -125,8 +125,6 @@ pub fn grid_directions(count: usize, dx: f64, dy: f64, tolerance: f64) -> Vec<Gr
 /// only (a plan asks for 720: a scan of all 16,000 steps with an arctangent
 /// each was a tenth of a plan).
 struct Steps {
-    dx: f64,
-    dy: f64,
     /// Azimuth, posts per step, rank in the order `a`, then `b`,
     /// ascending (which breaks ties, as a scan in that order would), step.
     sorted: Vec<(f64, i64, usize, (i64, i64))>,
@@ -148,7 +146,7 @@ impl Steps {
             })
             .collect();
         sorted.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.2.cmp(&y.2)));
-        Self { dx, dy, sorted }
+        Self { sorted }
     }
 
     /// [`grid_direction`] from these steps.
@@ -169,20 +167,20 @@ impl Steps {
         let within = ranges
             .into_iter()
             .flat_map(|r| &self.sorted[r])
-            .map(|&(az, len, rank, step)| (len, err(az), rank, step))
+            .map(|&(az, len, rank, step)| (len, err(az), rank, (az, step)))
             .filter(|&(_, e, _, _)| e <= tolerance)
             .min_by(|x, y| {
                 (x.0, x.1, x.2)
                     .partial_cmp(&(y.0, y.1, y.2))
                     .expect("no NaN")
             });
-        let step = match within {
-            Some((.., step)) => step,
+        let (azimuth, step) = match within {
+            Some((.., chosen)) => chosen,
             // None within: the closest of all.
             None => {
                 self.sorted
                     .iter()
-                    .map(|&(az, _, rank, step)| (err(az), rank, step))
+                    .map(|&(az, _, rank, step)| (err(az), rank, (az, step)))
                     .min_by(|x, y| (x.0, x.1).partial_cmp(&(y.0, y.1)).expect("no NaN"))
                     .expect("steps exist")
                     .2
@@ -190,7 +188,7 @@ impl Steps {
         };
         GridDirection {
             step,
-            azimuth: step_azimuth(step, self.dx, self.dy),
+            azimuth,
             nominal,
         }
     }

@@ -239,3 +239,80 @@ pub fn compass(azimuth_deg: f64) -> (f64, f64) {
     let (s, c) = azimuth_deg.to_radians().sin_cos();
     (s, c)
 }
+/// The highest post of each square block of `size` cells (a power of
+/// two) of a whole
+/// terrain: one level of a max pyramid, as the hierarchical tracers use
+/// (Paglieroni and Petersen, sec. 3), for walks that step over the blocks
+/// a line passes too high (a viewshed's sight line) or too low (a horizon's
+/// record) to meet. A block's posts are those on its edges (a cell's
+/// surface lies within its four posts) and `halo` posts around them, for
+/// a walk that may put a point a rounding's width into the wrong block.
+/// NEG_INFINITY for a block without heights.
+#[derive(Debug, Clone)]
+pub struct MaxBlocks {
+    /// `log2` of the cells a side.
+    shift: u32,
+    /// Blocks across and down.
+    cols: usize,
+    rows: usize,
+    /// Row-major.
+    max: Vec<f64>,
+}
+
+impl MaxBlocks {
+    pub fn of(t: &Terrain, size: usize, halo: usize) -> Self {
+        use rayon::prelude::*;
+        assert!(size.is_power_of_two(), "blocks of {size} cells");
+        assert!(
+            t.row0 == 0 && t.z.len() == t.width * t.height,
+            "a whole terrain"
+        );
+        let (w, h) = (t.width, t.height);
+        let cells = |n: usize| n.saturating_sub(1).max(1);
+        let (cols, rows) = (cells(w).div_ceil(size), cells(h).div_ceil(size));
+        // Block `k`'s posts along one axis of `n`.
+        let span = |k: usize, n: usize| {
+            (k * size).saturating_sub(halo)..((k + 1) * size + halo + 1).min(n)
+        };
+        let max = (0..cols * rows)
+            .into_par_iter()
+            .map(|i| {
+                let (cs, rs) = (span(i % cols, w), span(i / cols, h));
+                rs.flat_map(|r| t.z[r * w..][cs.clone()].iter())
+                    .filter(|z| !z.is_nan())
+                    .fold(f64::NEG_INFINITY, |m, &z| m.max(f64::from(z)))
+            })
+            .collect();
+        Self {
+            shift: size.trailing_zeros(),
+            cols,
+            rows,
+            max,
+        }
+    }
+
+    /// Cells a side of a block.
+    pub fn size(&self) -> usize {
+        1 << self.shift
+    }
+
+    /// The block of the point `(col, row)` (post units; outside the grid,
+    /// the nearest block).
+    #[inline]
+    pub fn block(&self, col: f64, row: f64) -> (usize, usize) {
+        // `as` floors a non-negative number and takes a negative one to 0.
+        let at = |p: f64, n: usize| ((p as usize) >> self.shift).min(n - 1);
+        (at(col, self.cols), at(row, self.rows))
+    }
+
+    /// The highest post of block `(bc, br)`.
+    #[inline]
+    pub fn max(&self, (bc, br): (usize, usize)) -> f64 {
+        self.max[br * self.cols + bc]
+    }
+
+    /// The memory the blocks hold, bytes.
+    pub fn bytes(&self) -> usize {
+        8 * self.max.len()
+    }
+}

@@ -30,7 +30,7 @@
 
 use rayon::prelude::*;
 
-use crate::horizon::terrain::Terrain;
+use crate::horizon::terrain::{MaxBlocks, Terrain};
 
 /// Cells per side of the blocks [`observer_viewshed`] skips over.
 pub const BLOCK: usize = 16;
@@ -259,48 +259,9 @@ fn ground_angle(terrain: &Terrain, s: &Sight, target: (usize, usize)) -> f32 {
     (ground - s.eye).atan2(s.length).to_degrees() as f32
 }
 
-/// Highest post of each block of [`BLOCK`] cells, widened by one post on
-/// every side; `-inf` for a block without heights.
-struct BlockMax {
-    cols: usize,
-    max: Vec<f64>,
-}
-
-impl BlockMax {
-    fn new(terrain: &Terrain) -> Self {
-        let (w, h) = (terrain.width, terrain.height);
-        let (cols, rows) = (w.div_ceil(BLOCK), h.div_ceil(BLOCK));
-        let max = (0..rows * cols)
-            .into_par_iter()
-            .map(|i| {
-                let (bc, br) = (i % cols, i / cols);
-                let c0 = (bc * BLOCK).saturating_sub(1);
-                let r0 = (br * BLOCK).saturating_sub(1);
-                let (c1, r1) = (((bc + 1) * BLOCK + 2).min(w), ((br + 1) * BLOCK + 2).min(h));
-                let mut m = f64::NEG_INFINITY;
-                for r in r0..r1 {
-                    for c in c0..c1 {
-                        let z = terrain.at(c, r);
-                        if !z.is_nan() {
-                            m = m.max(f64::from(z));
-                        }
-                    }
-                }
-                m
-            })
-            .collect();
-        Self { cols, max }
-    }
-
-    fn at(&self, u: f64, v: f64) -> f64 {
-        let (bc, br) = ((u as usize) / BLOCK, (v as usize) / BLOCK);
-        self.max[br * self.cols + bc]
-    }
-}
-
 /// Whether the sight line clears the surface, skipping the blocks it passes
 /// high above (see the module docs); `boundaries` is scratch space.
-fn clears(terrain: &Terrain, blocks: &BlockMax, s: &Sight, boundaries: &mut Vec<f64>) -> bool {
+fn clears(terrain: &Terrain, blocks: &MaxBlocks, s: &Sight, boundaries: &mut Vec<f64>) -> bool {
     let (u0, v0) = (s.from.0 as f64, s.from.1 as f64);
     let (du, dv) = ((s.to.0 - s.from.0) as f64, (s.to.1 - s.from.1) as f64);
     boundaries.clear();
@@ -324,7 +285,7 @@ fn clears(terrain: &Terrain, blocks: &BlockMax, s: &Sight, boundaries: &mut Vec<
     let mut ta = 0.0;
     for &tb in boundaries.iter() {
         let tm = 0.5 * (ta + tb);
-        let top = blocks.at(u0 + tm * du, v0 + tm * dv);
+        let top = blocks.max(blocks.block(u0 + tm * du, v0 + tm * dv));
         let near = (ta - 1e-9).max(0.0) * s.length;
         let skip = top - s.curvature * near * near + margin < s.at(ta).min(s.at(tb));
         for (family, (k, end, step)) in Family::ALL.into_iter().zip(next.iter_mut()) {
@@ -353,7 +314,9 @@ fn clears(terrain: &Terrain, blocks: &BlockMax, s: &Sight, boundaries: &mut Vec<
 /// The viewshed of `obs` over the whole of `terrain` (see the module docs).
 pub fn observer_viewshed(terrain: &Terrain, obs: &Observer) -> Viewshed {
     let (w, h) = (terrain.width, terrain.height);
-    let blocks = BlockMax::new(terrain);
+    // One post around each block: a crossing that rounding puts in the
+    // neighbouring block is still bounded (module docs).
+    let blocks = MaxBlocks::of(terrain, BLOCK, 1);
     let mut visible = vec![OUTSIDE; w * h];
     let mut angle = vec![f32::NAN; w * h];
     visible
