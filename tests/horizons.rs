@@ -896,10 +896,11 @@ fn the_sector_tree_equals_brute_force_above_its_buckets() {
 /// diagonals, where posts tie), on a fractal of more than 100,000 posts
 /// with curvature, and on a dome, whose every post is on its hulls, so
 /// that they outgrow the array and move to vectors. Ranks sorted on
-/// another grid with as many posts are left unused.
+/// another grid with as many posts are left unused. The sorts and sweeps
+/// handed on share one room (`Scratch`), whatever the last one left in it.
 #[test]
 fn the_sector_tree_gives_the_same_bits_in_every_store_and_shared() {
-    use terrabake::horizon::sector::{sector_horizons_at, DataPosts, Ranks, Shared};
+    use terrabake::horizon::sector::{sector_horizons_at, DataPosts, Ranks, Scratch, Shared};
     use terrabake::simd::Level;
     let levels = terrabake::simd::available();
     let widest = *levels.last().unwrap();
@@ -918,13 +919,16 @@ fn the_sector_tree_gives_the_same_bits_in_every_store_and_shared() {
         ),
         ("dome 240 x 160", &dome, 240, (30.0, 20.0), 1.0),
     ];
+    // One room for every sort and sweep: each finds what the one before
+    // left, from a larger grid or a smaller.
+    let room = Scratch::default();
     for (name, z, w, (dx, dy), k) in cases {
         let h = z.len() / w;
         let t = Terrain::new(z, w, h, dx, dy).with_curvature(curvature_coefficient(k));
         for (count, every) in [(64, 2), (16, 3), (4, 1)] {
             let posts = DataPosts::of(&t);
             let ranks: Vec<Ranks> = (0..count)
-                .map(|i| Ranks::of(&t, &posts, (i, count)))
+                .map(|i| Ranks::of_in(&t, &posts, (i, count), &room))
                 .collect();
             for index in (0..count).step_by(every) {
                 let run = |level, shared| {
@@ -951,6 +955,7 @@ fn the_sector_tree_gives_the_same_bits_in_every_store_and_shared() {
                     posts: Some(&posts),
                     ranks: Some(&ranks[index]),
                     previous: Some(&ranks[(index + count - 1) % count]),
+                    scratch: Some(&room),
                 };
                 assert!(
                     run(widest, shared) == want,
@@ -966,6 +971,7 @@ fn the_sector_tree_gives_the_same_bits_in_every_store_and_shared() {
                         posts: Some(&other_posts),
                         ranks: Some(&foreign),
                         previous: Some(&foreign),
+                        scratch: None,
                     };
                     assert!(
                         run(widest, shared) == want,

@@ -908,12 +908,16 @@ impl Stage for HorizonsStage {
                 .any(|b| sector(b).is_some())
                 .then(|| sector::DataPosts::of(&terrain));
             let mut previous: Option<sector::Ranks> = None;
+            // Each of a batch's sectors sorts and sweeps in the room the
+            // same place in the batch before left (`sector::Scratch`).
+            let rooms: Vec<sector::Scratch> = (0..threads).map(|_| Default::default()).collect();
             for (b, batch) in bands[mine.clone()].chunks(threads).enumerate() {
                 let ranks: Vec<Option<sector::Ranks>> = batch
                     .par_iter()
-                    .map(|band| {
+                    .zip(&rooms)
+                    .map(|(band, room)| {
                         let posts = posts.as_ref()?;
-                        sector(band).map(|s| sector::Ranks::of(&terrain, posts, s))
+                        sector(band).map(|s| sector::Ranks::of_in(&terrain, posts, s, room))
                     })
                     .collect();
                 let results: Vec<(Vec<f32>, Option<Vec<f32>>)> = batch
@@ -929,6 +933,7 @@ impl Stage for HorizonsStage {
                                 0 => previous.as_ref(),
                                 _ => ranks[j - 1].as_ref(),
                             },
+                            scratch: Some(&rooms[j]),
                         };
                         band_horizons_into(
                             &terrain,
