@@ -452,6 +452,22 @@ struct Bucket<T> {
 }
 
 impl<T: Copy + Default> Bucket<T> {
+    fn with_capacity(n: usize) -> Self {
+        Self {
+            rank: Vec::with_capacity(n),
+            t: Vec::with_capacity(n),
+            w: Vec::with_capacity(n),
+            tag: Vec::with_capacity(n),
+        }
+    }
+
+    fn clear(&mut self) {
+        self.rank.clear();
+        self.t.clear();
+        self.w.clear();
+        self.tag.clear();
+    }
+
     fn push(&mut self, rank: f64, p: Point<T>) {
         self.rank.push(rank);
         self.t.push(p.t);
@@ -768,6 +784,9 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
     let mut hulls = H::with_nodes(2 * leaves);
     let mut nodes = vec![Node::default(); 2 * leaves];
     let mut bucket_points: Vec<Bucket<T>> = vec![Bucket::default(); buckets];
+    // The columns of the buckets emptied so far, for the next to open:
+    // no bucket then grows by doubling but the first ones.
+    let mut spare: Vec<Bucket<T>> = Vec::new();
     for b in 0..buckets {
         let ranks = BUCKET.min(n - b * BUCKET) as u32;
         let mut v = leaves + b;
@@ -829,10 +848,16 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
         // Join the ranks below k: in its own bucket by the scan, above by
         // the hulls of the left siblings along the path (they cover ranks
         // below the bucket, whose posts have p on their b side).
+        let points = &mut bucket_points[bucket];
         if nodes[leaves + bucket].remaining > 0 {
-            bucket_points[bucket].push(kf, me);
-        } else {
-            bucket_points[bucket] = Bucket::default();
+            if points.rank.capacity() == 0 {
+                *points = spare.pop().unwrap_or_else(|| Bucket::with_capacity(BUCKET));
+            }
+            points.push(kf, me);
+        } else if points.rank.capacity() > 0 {
+            let mut done = std::mem::take(points);
+            done.clear();
+            spare.push(done);
         }
         let mut rights = bucket;
         while rights != 0 {
