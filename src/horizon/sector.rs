@@ -508,6 +508,8 @@ impl<T: Copy + Default> Bucket<T> {
 
 #[derive(Debug, Clone, Copy, Default)]
 struct Node {
+    /// A bucket's ranks still to be processed; a node's children not yet
+    /// finished (0: every rank under it is processed).
     remaining: u32,
     len: u32,
 }
@@ -773,8 +775,8 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
     }
     drop(rank);
 
-    // The tree: per node, how many of its ranks are still to be processed
-    // and how many points its hull holds, packed so that a query's walk up
+    // The tree: per node, what is left of it to process ([`Node`]) and
+    // how many points its hull holds, packed so that a query's walk up
     // the tree touches one small array (the hulls themselves are read only
     // where non-empty). The lowest seven levels are replaced by buckets of
     // 128 ranks scanned in order: those levels are where a query's walk
@@ -788,12 +790,13 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
     // no bucket then grows by doubling but the first ones.
     let mut spare: Vec<Bucket<T>> = Vec::new();
     for b in 0..buckets {
-        let ranks = BUCKET.min(n - b * BUCKET) as u32;
-        let mut v = leaves + b;
-        while v >= 1 {
-            nodes[v].remaining += ranks;
-            v >>= 1;
-        }
+        nodes[leaves + b].remaining = BUCKET.min(n - b * BUCKET) as u32;
+    }
+    for v in (1..leaves).rev() {
+        nodes[v].remaining = nodes[2 * v..2 * v + 2]
+            .iter()
+            .filter(|c| c.remaining > 0)
+            .count() as u32;
     }
     let stencil = narrow.then(|| NarrowStencil::new(&frame, count, terrain.dx, terrain.dy));
     let mut stats = SectorStats::default();
@@ -833,15 +836,22 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
                 best = best.steeper(hulls.tangent(v, len, tp, wp, &mut stats.tangent_steps));
             }
         }
+        // A bucket finished finishes its parent if the sibling is, and so
+        // on up: each node finishes once, not a count down at every level
+        // for every post.
+        nodes[leaf].remaining -= 1;
         let mut v = leaf;
-        while v >= 1 {
+        while nodes[v].remaining == 0 {
             let node = &mut nodes[v];
-            node.remaining -= 1;
-            if node.remaining == 0 && node.len > 0 {
+            if node.len > 0 {
                 hulls.clear(v, node.len);
                 node.len = 0;
             }
+            if v == 1 {
+                break;
+            }
             v >>= 1;
+            nodes[v].remaining -= 1;
         }
         slopes[post] = best.slope;
         tags[post] = best.tag;
