@@ -420,9 +420,10 @@ impl HorizonsStage {
 
 /// Memory of unbounded `sector` per post and sector in flight: the tree's
 /// hulls and buckets, the posts' centre-plane coordinates, both orders and
-/// the ranks (77-87 bytes measured at 1 M to 4.2 M posts, with the hulls
-/// in one array, `sector::hulls`, or on the heap in scalar code, and the
-/// ranks handed on, `sector::Ranks`; 65-78 before).
+/// the ranks (75-84 bytes measured at 1 M to 4.2 M posts, with the hulls
+/// in one array, `sector::hulls`, the ranks handed on, `sector::Ranks`,
+/// and a room of arrays each sector takes from the one before,
+/// `sector::Scratch`; 77-87 before the room).
 pub const SECTOR_BYTES_PER_POST: u64 = 96;
 
 impl Default for HorizonsStage {
