@@ -48,8 +48,9 @@ pub(super) trait Hulls<T> {
     /// `v`'s hull (not empty); `steps` counts the points the scalar scan
     /// reads.
     fn tangent(&self, v: usize, len: u32, t: f64, w: f64, steps: &mut u64) -> Steepest<T>;
-    /// Inserts `p` into node `v`'s hull; its new count.
-    fn insert(&mut self, v: usize, len: u32, p: Point<T>) -> u32;
+    /// Inserts `p` into node `v`'s hull: its new count, and whether `p`
+    /// stayed out lying more than `margin` below the hull ([`well_below`]).
+    fn insert(&mut self, v: usize, len: u32, p: Point<T>, margin: f64) -> (u32, bool);
     /// Empties node `v`'s hull (its posts are all processed).
     fn clear(&mut self, v: usize, len: u32);
 }
@@ -72,10 +73,10 @@ impl<T: Copy + Default> Hulls<T> for Heap<T> {
     }
 
     #[inline]
-    fn insert(&mut self, v: usize, _: u32, p: Point<T>) -> u32 {
+    fn insert(&mut self, v: usize, _: u32, p: Point<T>, margin: f64) -> (u32, bool) {
         let hull = &mut self.hulls[v];
-        hull_insert(hull, p);
-        hull.len() as u32
+        let below = hull_insert(hull, p, margin);
+        (hull.len() as u32, below)
     }
 
     fn clear(&mut self, v: usize, _: u32) {
@@ -104,20 +105,38 @@ fn below(l: (f64, f64), r: (f64, f64), p: (f64, f64)) -> bool {
     below!(|a: f64, b| a - b, |a: f64, b| a * b, |a: f64, b| a <= b; l, r, p)
 }
 
-/// Inserts `p` into an upper hull sorted by `t`.
-pub(super) fn hull_insert<T: Copy>(hull: &mut Vec<Point<T>>, p: Point<T>) {
+/// Whether `p` lies more than `margin` below the segment from `l` to `r`
+/// (`l.t < p.t < r.t`, or `p.t` at a point `l == r` of the hull). The
+/// hull's points are posts; a hull over a superset of them lies above
+/// that segment, so `p` is below it too, with `margin` to spare for
+/// rounding: far above the rounding of [`below`] (a few ulps of the `w`
+/// compared), so that the other hull's test finds it below as well.
+#[inline(always)]
+pub(super) fn well_below(l: (f64, f64), r: (f64, f64), p: (f64, f64), margin: f64) -> bool {
+    let over = if r.0 > l.0 {
+        l.1 + (r.1 - l.1) * ((p.0 - l.0) / (r.0 - l.0))
+    } else {
+        l.1
+    };
+    over - p.1 > margin
+}
+
+/// Inserts `p` into an upper hull sorted by `t`; whether it stayed out,
+/// lying more than `margin` below the hull ([`well_below`]).
+pub(super) fn hull_insert<T: Copy>(hull: &mut Vec<Point<T>>, p: Point<T>, margin: f64) -> bool {
     let (t, w) = (p.t, p.w);
     let i = hull.partition_point(|q| q.t < t);
     if i < hull.len() && hull[i].t == t {
         if hull[i].w >= w {
-            return;
+            let q = (hull[i].t, hull[i].w);
+            return well_below(q, q, (t, w), margin);
         }
         hull.remove(i);
     }
     let at = |i: usize| (hull[i].t, hull[i].w);
     // Below the hull edge over `t`: not on the hull.
     if i > 0 && i < hull.len() && below(at(i - 1), at(i), (t, w)) {
-        return;
+        return well_below(at(i - 1), at(i), (t, w), margin);
     }
     hull.insert(i, p);
     let mut i = i;
@@ -129,6 +148,7 @@ pub(super) fn hull_insert<T: Copy>(hull: &mut Vec<Point<T>>, p: Point<T>) {
     while i + 2 < hull.len() && below(at(hull, i), at(hull, i + 2), at(hull, i + 1)) {
         hull.remove(i + 1);
     }
+    false
 }
 
 /// Steepest slope from `(t, w)` (left of every hull point) to the hull.
@@ -234,9 +254,10 @@ impl<T: Tag<u32>, K: Kernel> Slab<T, K> {
     /// (two posts the same distance along the centre line): the higher
     /// stays, as in `hull_insert`.
     #[cold]
-    fn tie(&mut self, v: usize, len: usize, i: usize, p: Point<T>) -> u32 {
-        if self.w[v * CAP + i] >= p.w {
-            return len as u32;
+    fn tie(&mut self, v: usize, len: usize, i: usize, p: Point<T>, margin: f64) -> (u32, bool) {
+        let q = (self.t[v * CAP + i], self.w[v * CAP + i]);
+        if q.1 >= p.w {
+            return (len as u32, well_below(q, q, (p.t, p.w), margin));
         }
         let range = v * CAP + i + 1..v * CAP + len;
         self.t.copy_within(range.clone(), v * CAP + i);
@@ -244,14 +265,15 @@ impl<T: Tag<u32>, K: Kernel> Slab<T, K> {
         if Self::keeps_tags() {
             self.tags.copy_within(range, v * CAP + i);
         }
-        self.insert(v, len as u32 - 1, p)
+        self.insert(v, len as u32 - 1, p, margin)
     }
 
     /// Moves node `v`'s hull to the heap and inserts `p` there.
     #[cold]
-    fn spill(&mut self, v: usize, len: usize, p: Point<T>) -> u32 {
+    fn spill(&mut self, v: usize, len: usize, p: Point<T>) -> (u32, bool) {
         self.heap.hulls[v] = self.points(v, len);
-        self.heap.insert(v, 0, p) | ON_HEAP
+        let (len, below) = self.heap.insert(v, 0, p, f64::INFINITY);
+        (len | ON_HEAP, below)
     }
 }
 
@@ -290,9 +312,10 @@ impl<T: Tag<u32>, K: Kernel> Hulls<T> for Slab<T, K> {
     }
 
     #[inline(always)]
-    fn insert(&mut self, v: usize, len: u32, p: Point<T>) -> u32 {
+    fn insert(&mut self, v: usize, len: u32, p: Point<T>, margin: f64) -> (u32, bool) {
         if len & ON_HEAP != 0 {
-            return self.heap.insert(v, len, p) | ON_HEAP;
+            let (len, below) = self.heap.insert(v, len, p, margin);
+            return (len | ON_HEAP, below);
         }
         let len = len as usize;
         let (ts, ws) = self.node(v);
@@ -300,11 +323,14 @@ impl<T: Tag<u32>, K: Kernel> Hulls<T> for Slab<T, K> {
         let [before, left, right] = unsafe { K::pop_tests(ts, ws, len, (p.t, p.w)) };
         let i = (before & ((1u64 << len) - 1)).count_ones() as usize;
         if i < len && ts[i] == p.t {
-            return self.tie(v, len, i, p);
+            return self.tie(v, len, i, p, margin);
         }
         // Below the hull edge over `t`: not on the hull.
-        if i > 0 && i < len && below((ts[i - 1], ws[i - 1]), (ts[i], ws[i]), (p.t, p.w)) {
-            return len as u32;
+        if i > 0 && i < len {
+            let (l, r) = ((ts[i - 1], ws[i - 1]), (ts[i], ws[i]));
+            if below(l, r, (p.t, p.w)) {
+                return (len as u32, well_below(l, r, (p.t, p.w), margin));
+            }
         }
         let below_i = (1u64 << i) - 1;
         // Left: the pops run down from i - 1 while the bit is set; point 0
@@ -342,7 +368,7 @@ impl<T: Tag<u32>, K: Kernel> Hulls<T> for Slab<T, K> {
         if let Some(post) = p.tag.get() {
             self.tags[r.start + kept] = post;
         }
-        new_len as u32
+        (new_len as u32, false)
     }
 
     fn clear(&mut self, v: usize, len: u32) {
@@ -646,10 +672,55 @@ mod tests {
             (4.0, 1.0),
             (2.0, 4.0),
         ] {
-            hull_insert(&mut hull, Point { t, w, tag: () });
+            hull_insert(&mut hull, Point { t, w, tag: () }, 0.0);
         }
         let points: Vec<[f64; 2]> = hull.iter().map(|p| [p.t, p.w]).collect();
         assert_eq!(points, vec![[1.0, 0.0], [2.0, 5.0], [5.0, 0.0]]);
+    }
+
+    /// What lets a post skip the hulls further up its path: where it lies
+    /// well below the hull of some points, it stays out of the hull of
+    /// any superset of them, whatever order they came in. Random sets on
+    /// a few `t` (ties) and many, curved like the tree's `w`, with the
+    /// stage's margin.
+    #[test]
+    fn well_below_one_hull_is_below_every_hull_over_more_points() {
+        let mut rng = crate::synth::SplitMix64(5);
+        let mut random = move || rng.unit();
+        let (mut skipped, mut tries) = (0, 0);
+        for round in 0..400 {
+            let spread = if round % 2 == 0 { 8.0 } else { 3.0e4 };
+            let point = |random: &mut dyn FnMut() -> f64| {
+                let t = (random() * spread).floor() + 1.0;
+                let w = random() * 1200.0 - 7.8e-8 * t * t;
+                Point { t, w, tag: () }
+            };
+            let small: Vec<Point<()>> = (0..1 + round % 20).map(|_| point(&mut random)).collect();
+            let mut large = small.clone();
+            large.extend((0..round % 50).map(|_| point(&mut random)));
+            // The superset in another order.
+            large.sort_by(|a, b| (a.w * 7.0).sin().total_cmp(&(b.w * 7.0).sin()));
+            let margin = 1e-9 * (1.0 + 1200.0);
+            let build = |points: &[Point<()>]| {
+                let mut hull = Vec::new();
+                for &q in points {
+                    hull_insert(&mut hull, q, margin);
+                }
+                hull
+            };
+            let (a, b) = (build(&small), build(&large));
+            for _ in 0..50 {
+                let p = point(&mut random);
+                tries += 1;
+                if hull_insert(&mut a.clone(), p, margin) {
+                    skipped += 1;
+                    let mut after = b.clone();
+                    hull_insert(&mut after, p, margin);
+                    assert_eq!(after, b, "round {round}: {p:?} changed the larger hull");
+                }
+            }
+        }
+        assert!(skipped > tries / 4, "only {skipped} of {tries} lay well below");
     }
 
     /// A random walk of posts into both stores, with runs that build a
@@ -694,8 +765,10 @@ mod tests {
                 w,
                 tag: Some(n),
             };
-            lens[v].0 = heap.insert(v, lens[v].0, p);
-            lens[v].1 = slab.insert(v, lens[v].1, p);
+            let margin = if n % 2 == 0 { 0.0 } else { 1e-3 };
+            let (a, b) = (heap.insert(v, lens[v].0, p, margin), slab.insert(v, lens[v].1, p, margin));
+            assert_eq!(a.1, b.1, "post {n} into node {v}: whether it lies well below");
+            (lens[v].0, lens[v].1) = (a.0, b.0);
             spilled += usize::from(lens[v].1 & ON_HEAP != 0);
             let slab_points = if lens[v].1 & ON_HEAP != 0 {
                 slab.heap.hulls[v].clone()
