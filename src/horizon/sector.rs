@@ -58,7 +58,10 @@
 //! 1.08x with the stencil in lanes. A thread's sectors sort and sweep in
 //! one room of arrays, each taking it from the one before ([`Scratch`]):
 //! 1.24x at 64 sectors of 1.44 M posts, whose arrays glibc mapped anew
-//! every sector.
+//! every sector. And where Stewart updates each hull on its path on its
+//! own, a post's insertions stop at the first hull it lies well below:
+//! those further up hold supersets of its posts ([`hulls::well_below`];
+//! 1.09x, 42 % fewer insertion attempts at 64 sectors).
 
 mod hulls;
 
