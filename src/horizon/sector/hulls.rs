@@ -720,7 +720,10 @@ mod tests {
                 }
             }
         }
-        assert!(skipped > tries / 4, "only {skipped} of {tries} lay well below");
+        assert!(
+            skipped > tries / 4,
+            "only {skipped} of {tries} lay well below"
+        );
     }
 
     /// A random walk of posts into both stores, with runs that build a
@@ -766,8 +769,14 @@ mod tests {
                 tag: Some(n),
             };
             let margin = if n % 2 == 0 { 0.0 } else { 1e-3 };
-            let (a, b) = (heap.insert(v, lens[v].0, p, margin), slab.insert(v, lens[v].1, p, margin));
-            assert_eq!(a.1, b.1, "post {n} into node {v}: whether it lies well below");
+            let (a, b) = (
+                heap.insert(v, lens[v].0, p, margin),
+                slab.insert(v, lens[v].1, p, margin),
+            );
+            assert_eq!(
+                a.1, b.1,
+                "post {n} into node {v}: whether it lies well below"
+            );
             (lens[v].0, lens[v].1) = (a.0, b.0);
             spilled += usize::from(lens[v].1 & ON_HEAP != 0);
             let slab_points = if lens[v].1 & ON_HEAP != 0 {
