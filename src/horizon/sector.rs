@@ -252,22 +252,29 @@ impl Ranks {
     /// The ranks of sector `index` of `count` over `terrain`'s posts with
     /// data (`posts`, [`DataPosts::of`] that terrain).
     pub fn of(terrain: &Terrain, posts: &DataPosts, sector: (usize, usize)) -> Self {
-        Self::of_in(terrain, posts, sector, &Scratch::default())
+        Self::sorted_in(terrain, posts, sector, None)
     }
 
     /// [`Ranks::of`], sorted in `scratch`'s room where it is free.
     pub fn of_in(
         terrain: &Terrain,
         posts: &DataPosts,
-        (index, count): (usize, usize),
+        sector: (usize, usize),
         scratch: &Scratch,
+    ) -> Self {
+        Self::sorted_in(terrain, posts, sector, Some(scratch))
+    }
+
+    fn sorted_in(
+        terrain: &Terrain,
+        posts: &DataPosts,
+        (index, count): (usize, usize),
+        scratch: Option<&Scratch>,
     ) -> Self {
         assert!(posts.fits(terrain), "the posts of another grid");
         let frame = SectorFrame::new(index, count, terrain.dx, terrain.dy);
-        let mut own = Room::default();
-        let mut held = scratch.take();
-        let room = held.as_deref_mut().unwrap_or(&mut own);
-        Self::new(terrain, (index, count), &posts.indices, &frame, room)
+        let mut room = Scratch::room(scratch);
+        Self::new(terrain, (index, count), &posts.indices, &frame, &mut room)
     }
 
     fn new(
@@ -343,6 +350,38 @@ impl Scratch {
     /// The room, unless another sector holds it.
     fn take(&self) -> Option<MutexGuard<'_, Room>> {
         self.0.try_lock().ok()
+    }
+
+    /// `scratch`'s room where it is free, else a room of the caller's own.
+    fn room(scratch: Option<&Scratch>) -> Lent<'_> {
+        scratch
+            .and_then(Scratch::take)
+            .map_or_else(|| Lent::Own(Room::default()), Lent::Shared)
+    }
+}
+
+/// A room for one sector's sort or sweep ([`Scratch::room`]).
+enum Lent<'a> {
+    Shared(MutexGuard<'a, Room>),
+    Own(Room),
+}
+
+impl std::ops::Deref for Lent<'_> {
+    type Target = Room;
+    fn deref(&self) -> &Room {
+        match self {
+            Lent::Shared(room) => room,
+            Lent::Own(room) => room,
+        }
+    }
+}
+
+impl std::ops::DerefMut for Lent<'_> {
+    fn deref_mut(&mut self) -> &mut Room {
+        match self {
+            Lent::Shared(room) => room,
+            Lent::Own(room) => room,
+        }
     }
 }
 
@@ -712,9 +751,7 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
     let position = |i: u32| terrain.key_position(i as usize % w, i as usize / w);
     // The sector before left its room, where the caller hands it on
     // ([`Scratch`]).
-    let mut own_room = Room::default();
-    let mut held = shared.scratch.and_then(Scratch::take);
-    let room = held.as_deref_mut().unwrap_or(&mut own_room);
+    let mut room = Scratch::room(shared.scratch);
     // The ranks along `b_perp`, and the processing order: the previous
     // sector's ranks where the caller has them ([`Ranks`]), else sorted
     // here, with their keys in place (sorting indices by keys looked up
@@ -723,7 +760,7 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
     let ranked = match shared.ranks {
         Some(r) if r.fits((index, count), terrain, n) => r,
         _ => {
-            own = Ranks::new(terrain, (index, count), posts, &frame, room);
+            own = Ranks::new(terrain, (index, count), posts, &frame, &mut room);
             &own
         }
     };

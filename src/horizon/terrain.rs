@@ -239,12 +239,12 @@ pub fn compass(azimuth_deg: f64) -> (f64, f64) {
     let (s, c) = azimuth_deg.to_radians().sin_cos();
     (s, c)
 }
+
 /// The highest post of each square block of `size` cells (a power of
-/// two) of a whole
-/// terrain: one level of a max pyramid, as the hierarchical tracers use
-/// (Paglieroni and Petersen, sec. 3), for walks that step over the blocks
-/// a line passes too high (a viewshed's sight line) or too low (a horizon's
-/// record) to meet. A block's posts are those on its edges (a cell's
+/// two) of a whole terrain: one level of a max pyramid, as the
+/// hierarchical tracers use (Paglieroni and Petersen, sec. 3), for walks
+/// that step over the blocks a line passes too high (a viewshed's sight
+/// line) or too low (a horizon's record) to meet. A block's posts are those on its edges (a cell's
 /// surface lies within its four posts) and `halo` posts around them, for
 /// a walk that may put a point a rounding's width into the wrong block.
 /// NEG_INFINITY for a block without heights.
