@@ -177,12 +177,14 @@ pub(super) fn hull_tangent<T: Copy + Default>(
 /// points (`t` and `w` the node's whole arrays; past `len` they hold
 /// anything).
 pub(super) trait Kernel {
-    /// Bit `k` set where the slope from `(tp, wp)` to point `k + 1` is
-    /// less than to point `k`, for `k + 1 < len` (higher bits anything).
+    /// The first point `k` of the `len >= 1` where the slope from `(tp,
+    /// wp)` to point `k + 1` is less than to point `k` (the last point
+    /// where none is), and the slope to it: the lane of the vector
+    /// division that found it, the bits a scalar division gives.
     ///
     /// # Safety
     /// The CPU runs the kernel's instructions.
-    unsafe fn turns(t: &[f64; CAP], w: &[f64; CAP], len: usize, p: (f64, f64)) -> u64;
+    unsafe fn tangent(t: &[f64; CAP], w: &[f64; CAP], len: usize, p: (f64, f64)) -> (usize, f64);
 
     /// For a post `p`, bits of the points: `t` less than the post's;
     /// on or below the segment from the point before to the post (`left`,
@@ -190,14 +192,14 @@ pub(super) trait Kernel {
     /// after (`right`, for `k + 1 < len`); each [`below`] lane by lane.
     ///
     /// # Safety
-    /// As [`Kernel::turns`].
+    /// As [`Kernel::tangent`].
     unsafe fn pop_tests(t: &[f64; CAP], w: &[f64; CAP], len: usize, p: (f64, f64)) -> [u64; 3];
 
     /// Moves points `from..len` to start at `to` (`to + len - from <=
     /// CAP`).
     ///
     /// # Safety
-    /// As [`Kernel::turns`].
+    /// As [`Kernel::tangent`].
     unsafe fn move_tail(t: &mut [f64; CAP], w: &mut [f64; CAP], len: usize, from: usize, to: usize);
 }
 
@@ -300,13 +302,10 @@ impl<T: Tag<u32>, K: Kernel> Hulls<T> for Slab<T, K> {
         let len = len as usize;
         let (ts, ws) = self.node(v);
         // SAFETY: a slab is built only where the CPU runs its kernel.
-        let turns = unsafe { K::turns(ts, ws, len, (t, w)) };
-        // The scan stops where the slopes first turn down, at the last
-        // point at the latest.
-        let k = (turns | 1 << (len - 1)).trailing_zeros() as usize;
+        let (k, slope) = unsafe { K::tangent(ts, ws, len, (t, w)) };
         *steps += (k + 2).min(len) as u64;
         Steepest {
-            slope: (ws[k] - w) / (ts[k] - t),
+            slope,
             tag: self.tag(v * CAP + k),
         }
     }
@@ -378,6 +377,22 @@ impl<T: Tag<u32>, K: Kernel> Hulls<T> for Slab<T, K> {
     }
 }
 
+/// Where the slopes from a post first turn down (bit `k` of `turns`: the
+/// slope to point `k + 1` is less than to point `k`), the last of `len`
+/// points at the latest, and the slope there, read from the vectors the
+/// kernel divided: the tangent's slope is not divided again on its own,
+/// a division on the critical path of every level's query.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn first_turn<V: Copy, const N: usize>(turns: u64, len: usize, slope: [V; N]) -> (usize, f64) {
+    let k = (turns | 1 << (len - 1)).trailing_zeros() as usize;
+    debug_assert!(k < CAP && CAP <= N * size_of::<V>() / size_of::<f64>());
+    // SAFETY: `V` is a vector of `f64` lanes, so `[V; N]` is `N * lanes`
+    // of them in order, and `k < len <= CAP` of which lie within.
+    let at_k = unsafe { slope.as_ptr().cast::<f64>().add(k).read() };
+    (k, at_k)
+}
+
 /// [`Kernel`] in AVX-512: eight points to a vector, masks as bits.
 #[cfg(target_arch = "x86_64")]
 #[derive(Debug, Clone, Copy)]
@@ -390,7 +405,7 @@ pub(super) struct Avx2;
 
 #[cfg(target_arch = "x86_64")]
 mod avx512 {
-    use super::{Avx512, Kernel, CAP};
+    use super::{first_turn, Avx512, Kernel, CAP};
     use std::arch::x86_64::*;
 
     const CHUNKS: usize = CAP / 8;
@@ -437,7 +452,12 @@ mod avx512 {
     impl Kernel for Avx512 {
         #[inline]
         #[target_feature(enable = "avx512f,avx512vl,avx512dq,popcnt")]
-        unsafe fn turns(t: &[f64; CAP], w: &[f64; CAP], len: usize, (tp, wp): (f64, f64)) -> u64 {
+        unsafe fn tangent(
+            t: &[f64; CAP],
+            w: &[f64; CAP],
+            len: usize,
+            (tp, wp): (f64, f64),
+        ) -> (usize, f64) {
             let (t, w) = load(t, w, len);
             let (tp, wp) = (_mm512_set1_pd(tp), _mm512_set1_pd(wp));
             let mut slope = [_mm512_set1_pd(f64::NEG_INFINITY); CHUNKS + 1];
@@ -454,7 +474,7 @@ mod avx512 {
                 let next = shift::<1>(slope[c + 1], slope[c]);
                 turns |= u64::from(_mm512_cmp_pd_mask::<_CMP_LT_OQ>(next, slope[c])) << (8 * c);
             }
-            turns
+            first_turn(turns, len, slope)
         }
 
         #[inline]
@@ -515,7 +535,7 @@ mod avx512 {
 
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
-    use super::{Avx2, Kernel, CAP};
+    use super::{first_turn, Avx2, Kernel, CAP};
     use std::arch::x86_64::*;
 
     const CHUNKS: usize = CAP / 4;
@@ -589,7 +609,12 @@ mod avx2 {
     impl Kernel for Avx2 {
         #[inline]
         #[target_feature(enable = "avx2,popcnt")]
-        unsafe fn turns(t: &[f64; CAP], w: &[f64; CAP], len: usize, (tp, wp): (f64, f64)) -> u64 {
+        unsafe fn tangent(
+            t: &[f64; CAP],
+            w: &[f64; CAP],
+            len: usize,
+            (tp, wp): (f64, f64),
+        ) -> (usize, f64) {
             let (t, w) = load(t, w, len);
             let (tp, wp) = (_mm256_set1_pd(tp), _mm256_set1_pd(wp));
             let mut slope = [_mm256_set1_pd(f64::NEG_INFINITY); CHUNKS + 1];
@@ -601,7 +626,7 @@ mod avx2 {
                 let down = _mm256_cmp_pd::<_CMP_LT_OQ>(next(slope[c], slope[c + 1]), slope[c]);
                 turns |= bits(down, c);
             }
-            turns
+            first_turn(turns, len, slope)
         }
 
         #[inline]
