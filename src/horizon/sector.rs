@@ -40,10 +40,11 @@
 //! We depart from Stewart in five ways: the posts are grid posts, so keys
 //! come from `(col, row)` and the IV-E stencil is one list of offsets per
 //! sector rather than a search per point; the tree's lowest seven levels
-//! are buckets of 128 ranks, scanned in order for ranks above the query's
-//! (the same set of posts: the bucket stands for the subtree). The walk up
-//! a tall tree misses the caches at its foot; a bucket is contiguous (1.3x
-//! faster at 1.44 M posts). The hulls of every node live in one array and
+//! are buckets of 128 ranks, scanned for ranks above the query's (the same
+//! set of posts: the bucket stands for the subtree). The walk up a tall
+//! tree misses the caches at its foot; a bucket is contiguous (1.3x faster
+//! at 1.44 M posts), and kept in rank order, so that the ranks above a
+//! query's are its tail and a query divides for those alone ([`Bucket`]). The hulls of every node live in one array and
 //! are searched and updated in AVX-512 or AVX2 code, not walked point by
 //! point ([`hulls`]). The sweep reads the posts in its order from a copy
 //! gathered beforehand, leaving the stencil and the angles to a pass row
@@ -483,11 +484,15 @@ struct Gathered {
     w: f64,
 }
 
-/// The processed posts of one bucket: rank (as f64, exact), centre-plane
-/// `(t, w)` and tag, column by column so that a scan runs in SIMD lanes.
+/// The processed posts of one bucket, sorted by rank: which ranks it
+/// holds, and the posts' centre-plane `(t, w)` and tags, column by column
+/// so that a scan runs in SIMD lanes. The posts ranked above a query's
+/// are then the run at the end, and the query divides for those alone,
+/// where an unsorted bucket divided for every post and masked half out.
 #[derive(Debug, Clone, Default)]
 struct Bucket<T> {
-    rank: Vec<f64>,
+    /// Bit `r` set where the bucket holds its `r`-th rank.
+    held: u128,
     t: Vec<f64>,
     w: Vec<f64>,
     tag: Vec<T>,
@@ -496,7 +501,7 @@ struct Bucket<T> {
 impl<T: Copy + Default> Bucket<T> {
     fn with_capacity(n: usize) -> Self {
         Self {
-            rank: Vec::with_capacity(n),
+            held: 0,
             t: Vec::with_capacity(n),
             w: Vec::with_capacity(n),
             tag: Vec::with_capacity(n),
@@ -504,44 +509,50 @@ impl<T: Copy + Default> Bucket<T> {
     }
 
     fn clear(&mut self) {
-        self.rank.clear();
+        self.held = 0;
         self.t.clear();
         self.w.clear();
         self.tag.clear();
     }
 
-    fn push(&mut self, rank: f64, p: Point<T>) {
-        self.rank.push(rank);
-        self.t.push(p.t);
-        self.w.push(p.w);
-        self.tag.push(p.tag);
+    /// Where the posts ranked above `rank` begin: the count of those below.
+    #[inline(always)]
+    fn above(&self, rank: u32) -> usize {
+        let below = (1u128 << (rank as usize % BUCKET)) - 1;
+        (self.held & below).count_ones() as usize
     }
 
-    /// Steepest slope from `(tp, wp)` to the posts ranked above `rank`:
-    /// every entry, the others masked out (a branch on the rank would go
-    /// either way at random), in four independent lanes.
+    /// Puts a post of `rank` at `at` ([`Self::above`]).
     #[inline(always)]
-    fn steepest_above(&self, rank: f64, tp: f64, wp: f64) -> Steepest<T> {
+    fn insert(&mut self, at: usize, rank: u32, p: Point<T>) {
+        self.held |= 1 << (rank as usize % BUCKET);
+        self.t.insert(at, p.t);
+        self.w.insert(at, p.w);
+        self.tag.insert(at, p.tag);
+    }
+
+    /// Steepest slope from `(tp, wp)` to the posts from `at` on, in four
+    /// independent lanes.
+    #[inline(always)]
+    fn steepest_from(&self, at: usize, tp: f64, wp: f64) -> Steepest<T> {
         const LANES: usize = 4;
         let mut best = [Steepest::default(); LANES];
-        let lane = |best: &mut Steepest<T>, r: f64, t: f64, w: f64, tag: T| {
-            let slope = (w - wp) / (t - tp);
-            best.take(if r > rank { slope } else { f64::NEG_INFINITY }, tag);
+        let lane = |best: &mut Steepest<T>, t: f64, w: f64, tag: T| {
+            best.take((w - wp) / (t - tp), tag);
         };
-        let (r, t, w, tag) = (&self.rank, &self.t, &self.w, &self.tag);
-        let whole = r.len() / LANES * LANES;
-        for (((r, t), w), tag) in r[..whole]
+        let (t, w, tag) = (&self.t[at..], &self.w[at..], &self.tag[at..]);
+        let whole = t.len() / LANES * LANES;
+        for ((t, w), tag) in t[..whole]
             .chunks_exact(LANES)
-            .zip(t[..whole].chunks_exact(LANES))
             .zip(w[..whole].chunks_exact(LANES))
             .zip(tag[..whole].chunks_exact(LANES))
         {
             for l in 0..LANES {
-                lane(&mut best[l], r[l], t[l], w[l], tag[l]);
+                lane(&mut best[l], t[l], w[l], tag[l]);
             }
         }
-        for i in whole..r.len() {
-            lane(&mut best[0], r[i], t[i], w[i], tag[i]);
+        for i in whole..t.len() {
+            lane(&mut best[0], t[i], w[i], tag[i]);
         }
         best.into_iter()
             .fold(Steepest::default(), Steepest::steeper)
@@ -825,8 +836,8 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
     // how many points its hull holds, packed so that a query's walk up
     // the tree touches one small array (the hulls themselves are read only
     // where non-empty). The lowest seven levels are replaced by buckets of
-    // 128 ranks scanned in order: those levels are where a query's walk
-    // misses the caches, and a bucket is contiguous.
+    // 128 ranks, each a run in rank order ([`Bucket`]): those levels are
+    // where a query's walk misses the caches, and a bucket is contiguous.
     let buckets = n.div_ceil(BUCKET).max(1);
     let leaves = buckets.next_power_of_two();
     let mut hulls = H::with_nodes(2 * leaves);
@@ -863,9 +874,9 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
             tag: T::of(post as u32),
         };
         let bucket = k as usize / BUCKET;
-        let kf = f64::from(k);
-        let mut best = bucket_points[bucket].steepest_above(kf, tp, wp);
-        stats.tangent_steps += bucket_points[bucket].rank.len() as u64;
+        let at = bucket_points[bucket].above(k);
+        let mut best = bucket_points[bucket].steepest_from(at, tp, wp);
+        stats.tangent_steps += (bucket_points[bucket].t.len() - at) as u64;
         // The path from the leaf to the root, level `l` at `leaf >> l`: a
         // left child where bit `l` of the bucket is clear, and only left
         // children hold hulls (a post joins its path's left siblings).
@@ -906,11 +917,11 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
         // below the bucket, whose posts have p on their b side).
         let points = &mut bucket_points[bucket];
         if nodes[leaves + bucket].remaining > 0 {
-            if points.rank.capacity() == 0 {
+            if points.t.capacity() == 0 {
                 *points = spare.pop().unwrap_or_else(|| Bucket::with_capacity(BUCKET));
             }
-            points.push(kf, me);
-        } else if points.rank.capacity() > 0 {
+            points.insert(at, k, me);
+        } else if points.t.capacity() > 0 {
             let mut done = std::mem::take(points);
             done.clear();
             spare.push(done);
