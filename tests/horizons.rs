@@ -896,8 +896,9 @@ fn the_sector_tree_equals_brute_force_above_its_buckets() {
 /// diagonals, where posts tie), on a fractal of more than 100,000 posts
 /// with curvature, and on a dome, whose every post is on its hulls, so
 /// that they outgrow the array and move to vectors. Ranks sorted on
-/// another grid with as many posts are left unused. The sorts and sweeps
-/// handed on share one room (`Scratch`), whatever the last one left in it.
+/// another grid with as many posts are left unused; the opposite sector's
+/// ranks read backwards are used. The sorts and sweeps handed on share one
+/// room (`Scratch`), whatever the last one left in it.
 #[test]
 fn the_sector_tree_gives_the_same_bits_in_every_store_and_shared() {
     use terrabake::horizon::sector::{sector_horizons_at, DataPosts, Ranks, Scratch, Shared};
@@ -960,6 +961,19 @@ fn the_sector_tree_gives_the_same_bits_in_every_store_and_shared() {
                 assert!(
                     run(widest, shared) == want,
                     "{name}: sector {index}/{count}: the orders handed on differ"
+                );
+                // And the opposite sectors' ranks read backwards.
+                let opposite = |i: usize| ranks[(i + count / 2) % count].opposite().unwrap();
+                let (mine, before) = (opposite(index), opposite((index + count - 1) % count));
+                let shared = Shared {
+                    posts: Some(&posts),
+                    ranks: Some(&mine),
+                    previous: Some(&before),
+                    scratch: Some(&room),
+                };
+                assert!(
+                    run(widest, shared) == want,
+                    "{name}: sector {index}/{count}: the opposite sector's orders differ"
                 );
                 // Ranks of another grid with as many posts (its rows and
                 // columns swapped) are not used.

@@ -423,7 +423,9 @@ impl HorizonsStage {
 /// the ranks (75-84 bytes measured at 1 M to 4.2 M posts, with the hulls
 /// in one array, `sector::hulls`, the ranks handed on, `sector::Ranks`,
 /// and a room of arrays each sector takes from the one before,
-/// `sector::Scratch`; 77-87 before the room).
+/// `sector::Scratch`; 77-87 before the room; about 5 more at 4.2 M posts
+/// since each thread sweeps a sector and its opposite and holds both
+/// bands' angles, [`opposite_pairs`]).
 pub const SECTOR_BYTES_PER_POST: u64 = 96;
 
 impl Default for HorizonsStage {
@@ -871,7 +873,6 @@ impl Stage for HorizonsStage {
                 .with_row_scale(row_scale)
                 .with_curvature(curvature);
             let threads = rayon::current_num_threads().max(1);
-            let first = mine.start;
             let mut tile_row = vec![0f32; ts * w];
             // A band's values over the window into `writer`, tile row by
             // tile row (NaN outside the window, fill outside the share).
@@ -895,9 +896,11 @@ impl Stage for HorizonsStage {
                 }
                 Ok(())
             };
-            // Unbounded sectors hand their sorted orders on: a batch's
-            // sectors sort their ranks side by side, and each takes its
-            // processing order from the sector before (`sector::Ranks`).
+            // Unbounded sectors hand their sorted orders on: each sweeps
+            // beside its opposite (whose ranks are its own reversed), a
+            // batch's pairs sort their ranks side by side, and each sector
+            // takes its processing order from the sector before
+            // (`sector::Ranks`).
             let sector = |band: &Band| match band.kind {
                 BandKind::Sector { index, count } if opts.max_distance.is_none() => {
                     Some((index, count))
@@ -908,48 +911,69 @@ impl Stage for HorizonsStage {
                 .iter()
                 .any(|b| sector(b).is_some())
                 .then(|| sector::DataPosts::of(&terrain));
-            let mut previous: Option<sector::Ranks> = None;
-            // Each of a batch's sectors sorts and sweeps in the room the
-            // same place in the batch before left (`sector::Scratch`).
+            // The last pair's ranks, for the first pair of the next batch.
+            let mut previous: Vec<sector::Ranks> = Vec::new();
+            // Each of a batch's pairs sorts and sweeps in the room the same
+            // place in the batch before left (`sector::Scratch`).
             let rooms: Vec<sector::Scratch> = (0..threads).map(|_| Default::default()).collect();
-            for (b, batch) in bands[mine.clone()].chunks(threads).enumerate() {
-                let ranks: Vec<Option<sector::Ranks>> = batch
+            for batch in opposite_pairs(&bands, mine.clone()).chunks(threads) {
+                let ranks: Vec<Vec<sector::Ranks>> = batch
                     .par_iter()
                     .zip(&rooms)
-                    .map(|(band, room)| {
-                        let posts = posts.as_ref()?;
-                        sector(band).map(|s| sector::Ranks::of_in(&terrain, posts, s, room))
-                    })
-                    .collect();
-                let results: Vec<(Vec<f32>, Option<Vec<f32>>)> = batch
-                    .par_iter()
-                    .enumerate()
-                    .map(|(j, band)| {
-                        let mut angles = vec![0f32; terrain.z.len()];
-                        let mut metres = distances.as_ref().map(|_| vec![0f32; angles.len()]);
-                        let shared = sector::Shared {
-                            posts: posts.as_ref(),
-                            ranks: ranks[j].as_ref(),
-                            previous: match j {
-                                0 => previous.as_ref(),
-                                _ => ranks[j - 1].as_ref(),
-                            },
-                            scratch: Some(&rooms[j]),
+                    .map(|(pair, room)| {
+                        let Some(posts) = posts.as_ref() else {
+                            return Vec::new();
                         };
-                        band_horizons_into(
-                            &terrain,
-                            band,
-                            opts,
-                            [rows.clone(), cols.clone()],
-                            (&mut angles, metres.as_deref_mut()),
-                            shared,
-                        );
-                        (angles, metres)
+                        let first = sector(&bands[pair[0]])
+                            .map(|s| sector::Ranks::of_in(&terrain, posts, s, room));
+                        let second =
+                            pair.get(1).and_then(|&b| {
+                                let s = sector(&bands[b])?;
+                                let opposite = first.as_ref().and_then(sector::Ranks::opposite);
+                                Some(opposite.unwrap_or_else(|| {
+                                    sector::Ranks::of_in(&terrain, posts, s, room)
+                                }))
+                            });
+                        first.into_iter().chain(second).collect()
                     })
                     .collect();
-                previous = ranks.into_iter().next_back().flatten();
-                for (j, (angles, metres)) in results.into_iter().enumerate() {
-                    let band = first + b * threads + j;
+                let known: Vec<&sector::Ranks> = ranks.iter().flatten().chain(&previous).collect();
+                let find = |s: Option<(usize, usize)>| {
+                    let s = s?;
+                    known.iter().copied().find(|r| r.sector() == s)
+                };
+                type Swept = (usize, Vec<f32>, Option<Vec<f32>>);
+                let results: Vec<Vec<Swept>> = batch
+                    .par_iter()
+                    .zip(&rooms)
+                    .map(|(pair, room)| {
+                        let sweep = |&b: &usize| {
+                            let band = &bands[b];
+                            let mut angles = vec![0f32; terrain.z.len()];
+                            let mut metres = distances.as_ref().map(|_| vec![0f32; angles.len()]);
+                            let s = sector(band);
+                            let shared = sector::Shared {
+                                posts: posts.as_ref(),
+                                ranks: find(s),
+                                previous: find(s.map(|(i, n)| ((i + n - 1) % n, n))),
+                                scratch: Some(room),
+                            };
+                            band_horizons_into(
+                                &terrain,
+                                band,
+                                opts,
+                                [rows.clone(), cols.clone()],
+                                (&mut angles, metres.as_deref_mut()),
+                                shared,
+                            );
+                            (b, angles, metres)
+                        };
+                        pair.iter().map(sweep).collect()
+                    })
+                    .collect();
+                drop(known);
+                previous = ranks.into_iter().next_back().unwrap_or_default();
+                for (band, angles, metres) in results.into_iter().flatten() {
                     write_band(&out, band, &angles)?;
                     if let (Some(d), Some(metres)) = (&distances, metres) {
                         write_band(d, band, &metres)?;
@@ -966,6 +990,36 @@ impl Stage for HorizonsStage {
         }
         Ok(layers)
     }
+}
+
+/// The bands of `mine` in the order an in-core bake sweeps them: each
+/// sector of an even count followed by the opposite one where that is in
+/// `mine` too (its ranks are the first's reversed, `sector::Ranks`), else
+/// alone. Fixed by the bands alone, not the thread count, so that the
+/// file is the same on every machine.
+fn opposite_pairs(bands: &[Band], mine: std::ops::Range<usize>) -> Vec<Vec<usize>> {
+    // Band `i` of sectors is sector `i` ([`plan_bands`]).
+    let opposite = |b: usize| match bands[b].kind {
+        BandKind::Sector { index, count } if count % 2 == 0 && index == b => {
+            Some((index + count / 2) % count).filter(|o| mine.contains(o))
+        }
+        _ => None,
+    };
+    let mut placed = vec![false; bands.len()];
+    let mut pairs = Vec::new();
+    for b in mine.clone() {
+        if placed[b] {
+            continue;
+        }
+        placed[b] = true;
+        let mut pair = vec![b];
+        if let Some(o) = opposite(b).filter(|&o| !placed[o]) {
+            placed[o] = true;
+            pair.push(o);
+        }
+        pairs.push(pair);
+    }
+    pairs
 }
 
 /// Bands swept together out of core (their sweeps are alive at once). Fixed,
@@ -1232,6 +1286,32 @@ pub fn read_horizons(asset: &Asset<Mmap>) -> Result<(Vec<Vec<f32>>, Vec<f64>)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Each sector is swept beside its opposite where the share holds
+    /// both, else alone; other methods' bands and odd counts alone.
+    #[test]
+    fn opposite_sectors_pair_within_a_share() {
+        let pairs = |method, count, mine| {
+            opposite_pairs(&plan_bands(method, count, 30.0, 30.0, None), mine)
+        };
+        assert_eq!(
+            pairs(Method::Sector, 8, 0..8),
+            [[0, 4], [1, 5], [2, 6], [3, 7]]
+        );
+        assert_eq!(
+            pairs(Method::Sector, 8, 2..7),
+            [vec![2, 6], vec![3], vec![4], vec![5]]
+        );
+        assert_eq!(pairs(Method::Sector, 8, 5..8), [[5], [6], [7]]);
+        assert_eq!(
+            pairs(Method::Sector, 7, 0..7),
+            (0..7).map(|b| vec![b]).collect::<Vec<_>>()
+        );
+        assert_eq!(
+            pairs(Method::Line, 8, 0..8),
+            (0..8).map(|b| vec![b]).collect::<Vec<_>>()
+        );
+    }
 
     /// The vector builds of the angle codes give the format crate's codes:
     /// every code's centre and half-steps a hair either side, the ends,

@@ -69,7 +69,7 @@ mod hulls;
 use super::steepest::{Steepest, Tag};
 use super::terrain::{angle_between, Terrain};
 use hulls::{Heap, Hulls, Slab};
-use std::sync::{Mutex, MutexGuard};
+use std::sync::{Arc, Mutex, MutexGuard};
 use zerocopy::{FromBytes, Immutable, IntoBytes, KnownLayout};
 
 /// The geometry of sector `index` of `count`: its boundaries and centre.
@@ -103,6 +103,11 @@ fn snapped(az_deg: f64) -> (f64, f64) {
     }
 }
 
+/// The opposite direction, exactly (and no `-0`).
+fn opposite((e, n): (f64, f64)) -> (f64, f64) {
+    (0.0 - e, 0.0 - n)
+}
+
 impl SectorFrame {
     pub fn new(index: usize, count: usize, dx: f64, dy: f64) -> Self {
         assert!(
@@ -111,10 +116,19 @@ impl SectorFrame {
         );
         let width = 360.0 / count as f64;
         let mid = index as f64 * width;
-        // Boundary `j` lies at `j * width - width / 2`, the same expression
-        // for a sector's `hi` and the next one's `lo`, so that the two are
-        // the same bits ([`Ranks`]).
-        let boundary = |j: usize| snapped(j as f64 * width - width / 2.0);
+        // Boundary `j` lies at `j * width - width / 2`, the same bits for a
+        // sector's `hi` and the next one's `lo` (the last sector's `hi` is
+        // sector 0's `lo`), and for an even count, boundary `j + count / 2`
+        // is boundary `j` negated to the bit: each sector's ranks are then
+        // the next one's processing order and the opposite one's ranks
+        // reversed ([`Ranks`]).
+        let boundary = |j: usize| {
+            let j = j % count;
+            match count % 2 == 0 && j >= count / 2 {
+                true => opposite(snapped((j - count / 2) as f64 * width - width / 2.0)),
+                false => snapped(j as f64 * width - width / 2.0),
+            }
+        };
         // In the key frame a post is (col, -row * dy / dx): metres / dx.
         // A world direction keeps its angle under that uniform scaling.
         Self {
@@ -230,23 +244,32 @@ pub struct SectorStats {
 }
 
 /// One sector's posts (their indices among the posts with data) in order
-/// along `b_perp`, ties by `b` (IV-D): the sector's ranks in Stewart's tree, and
-/// the next sector's processing order, whose clockwise boundary is this
-/// sector's counter-clockwise one (the same bits, [`SectorFrame::new`]):
-/// its order along `a_perp` descending is this one along `b_perp`
-/// ascending, but for ties, which IV-D breaks by `a` descending there and
-/// by `b` ascending here, so each run of equal keys is read backwards. A
-/// bake that hands each sector's ranks on sorts once a sector, not twice
-/// (#17 item 2).
-#[derive(Debug)]
+/// along `b_perp`, ties by `b` (IV-D): the sector's ranks in Stewart's
+/// tree, and the next sector's processing order, whose clockwise boundary
+/// is this sector's counter-clockwise one (the same bits,
+/// [`SectorFrame::new`]): its order along `a_perp` descending is this one
+/// along `b_perp` ascending, but for ties, which IV-D breaks by `a`
+/// descending there and by `b` ascending here, so each run of equal keys
+/// is read backwards. A bake that hands each sector's ranks on sorts once
+/// a sector, not twice (#17 item 2). And the opposite sector's boundaries
+/// are this one's negated to the bit, so its keys are these negated and
+/// its ranks these reversed ([`Ranks::opposite`]): a bake that sweeps
+/// opposite sectors together sorts once for both.
+#[derive(Debug, Clone)]
 pub struct Ranks {
     sector: (usize, usize),
     /// The grid they were sorted on: width, height and spacing's bits.
     grid: [u64; 4],
-    /// Indices into the posts with data, in order.
-    sorted: Vec<u32>,
-    /// The runs of more than one equal `b_perp` key: start and length.
-    ties: Vec<(usize, usize)>,
+    /// Indices into the posts with data, in order (read backwards where
+    /// `reversed`: the opposite sector's ranks share the sorted posts).
+    sorted: Arc<[u32]>,
+    reversed: bool,
+    /// The runs of more than one equal `b_perp` key: start and length (in
+    /// `sorted` as stored).
+    ties: Arc<[(usize, usize)]>,
+    /// Whether no two posts share both keys: then, and only then, is the
+    /// order reversed the order of the keys negated.
+    distinct: bool,
 }
 
 impl Ranks {
@@ -289,10 +312,12 @@ impl Ranks {
         keyed(terrain, posts, frame, |k| (k[2], k[3]), keys);
         sort_keyed(keys, sorted);
         let mut ties = Vec::new();
+        let mut distinct = true;
         let mut start = 0;
         for run in sorted.chunk_by(|a, b| a[0] == b[0]) {
             if run.len() > 1 {
                 ties.push((start, run.len()));
+                distinct &= run.windows(2).all(|p| p[0][1] != p[1][1]);
             }
             start += run.len();
         }
@@ -300,8 +325,27 @@ impl Ranks {
             sector,
             grid: grid(terrain),
             sorted: sorted.iter().map(|&[_, _, j]| j as u32).collect(),
-            ties,
+            reversed: false,
+            ties: ties.into(),
+            distinct,
         }
+    }
+
+    /// The sector they rank.
+    pub fn sector(&self) -> (usize, usize) {
+        self.sector
+    }
+
+    /// The ranks of the opposite sector (`index + count / 2`, the count
+    /// even): these read backwards, with no sort and no copy; `None` where
+    /// two posts share both keys, which a sort orders by post both ways.
+    pub fn opposite(&self) -> Option<Self> {
+        let (index, count) = self.sector;
+        (count % 2 == 0 && self.distinct).then(|| Self {
+            sector: ((index + count / 2) % count, count),
+            reversed: !self.reversed,
+            ..self.clone()
+        })
     }
 
     /// Whether these are sector `sector`'s ranks over `terrain`'s `posts`
@@ -310,11 +354,25 @@ impl Ranks {
         self.sector == sector && self.grid == grid(terrain) && self.sorted.len() == posts
     }
 
+    /// The posts in rank order.
+    fn in_order(&self) -> Vec<u32> {
+        match self.reversed {
+            false => self.sorted.to_vec(),
+            true => self.sorted.iter().rev().copied().collect(),
+        }
+    }
+
     /// The next sector's processing order: runs of equal `b_perp` keys
     /// backwards.
     fn following(&self) -> Vec<u32> {
-        let mut order = self.sorted.clone();
-        for &(start, len) in &self.ties {
+        let mut order = self.in_order();
+        let n = order.len();
+        for &(start, len) in self.ties.iter() {
+            let start = if self.reversed {
+                n - start - len
+            } else {
+                start
+            };
             order[start..start + len].reverse();
         }
         order
@@ -777,15 +835,13 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
     };
     let mut rank = vec![0u32; n];
     for (r, &j) in ranked.sorted.iter().enumerate() {
-        rank[j as usize] = r as u32;
+        rank[j as usize] = if ranked.reversed { n - 1 - r } else { r } as u32;
     }
     // The previous sector's counter-clockwise boundary is this one's
-    // clockwise boundary to the bit ([`SectorFrame::new`]), but where the
-    // two come from azimuths a turn apart (sector 0 after the last).
+    // clockwise boundary to the bit ([`SectorFrame::new`]).
     let previous = (index + count - 1) % count;
-    let adjoins = SectorFrame::new(previous, count, terrain.dx, terrain.dy).hi == frame.lo;
     let processing: Vec<u32> = match shared.previous {
-        Some(p) if adjoins && p.fits((previous, count), terrain, n) => p.following(),
+        Some(p) if p.fits((previous, count), terrain, n) => p.following(),
         _ => {
             // a_perp descending, ties by a descending (IV-D); `!` reverses
             // an order-preserving key.
@@ -1261,6 +1317,55 @@ mod tests {
         drop(held);
         assert_eq!((got.sorted, got.ties), (want.sorted, want.ties));
         assert!(room.take().is_some(), "the room is free again");
+    }
+
+    /// Opposite sectors' boundaries are each other's negated to the bit,
+    /// the last sector's counter-clockwise boundary is sector 0's
+    /// clockwise one, and so a sector's ranks read backwards are the
+    /// opposite sector's as sorted, ties and all: on grids with holes,
+    /// square and not, for counts whose boundaries fall on the diagonals
+    /// (4, 8) and counts whose boundaries do not.
+    #[test]
+    fn opposite_sectors_rank_in_reverse() {
+        let (w, h) = (23, 19);
+        let z: Vec<f32> = (0..w * h)
+            .map(|i| {
+                if i % 17 == 5 {
+                    f32::NAN
+                } else {
+                    ((i * 37) % 101) as f32
+                }
+            })
+            .collect();
+        for (dx, dy) in [(30.0, 30.0), (30.0, 25.0), (21.7, 30.9)] {
+            let t = Terrain::new(&z, w, h, dx, dy);
+            let posts = DataPosts::of(&t);
+            for count in [4, 6, 8, 16, 64, 90] {
+                let frame = |i| SectorFrame::new(i, count, dx, dy);
+                assert_eq!(frame(count - 1).hi, frame(0).lo, "{count} sectors");
+                for index in 0..count {
+                    let (f, o) = (frame(index), frame((index + count / 2) % count));
+                    let bits = |(e, n): (f64, f64)| (e.to_bits(), n.to_bits());
+                    assert_eq!(bits(o.lo), bits(opposite(f.lo)), "{index}/{count}");
+                    assert_eq!(bits(o.hi), bits(opposite(f.hi)), "{index}/{count}");
+                    let want = Ranks::of(&t, &posts, ((index + count / 2) % count, count));
+                    let got = Ranks::of(&t, &posts, (index, count)).opposite().unwrap();
+                    assert_eq!(got.sector(), want.sector());
+                    assert_eq!(got.in_order(), want.in_order(), "{index}/{count} {dx}x{dy}");
+                    assert_eq!(
+                        got.following(),
+                        want.following(),
+                        "{index}/{count} {dx}x{dy}"
+                    );
+                }
+            }
+        }
+        let t = Terrain::new(&z, w, h, 30.0, 30.0);
+        let odd = Ranks::of(&t, &DataPosts::of(&t), (2, 7));
+        assert!(
+            odd.opposite().is_none(),
+            "an odd count has no opposite sectors"
+        );
     }
 
     #[test]
