@@ -1000,7 +1000,7 @@ impl Stage for HorizonsStage {
 fn opposite_pairs(bands: &[Band], mine: std::ops::Range<usize>) -> Vec<Vec<usize>> {
     // Band `i` of sectors is sector `i` ([`plan_bands`]).
     let opposite = |b: usize| match bands[b].kind {
-        BandKind::Sector { index, count } if count % 2 == 0 && index == b => {
+        BandKind::Sector { index, count } if count.is_multiple_of(2) && index == b => {
             Some((index + count / 2) % count).filter(|o| mine.contains(o))
         }
         _ => None,

@@ -124,7 +124,7 @@ impl SectorFrame {
         // reversed ([`Ranks`]).
         let boundary = |j: usize| {
             let j = j % count;
-            match count % 2 == 0 && j >= count / 2 {
+            match count.is_multiple_of(2) && j >= count / 2 {
                 true => opposite(snapped((j - count / 2) as f64 * width - width / 2.0)),
                 false => snapped(j as f64 * width - width / 2.0),
             }
@@ -341,7 +341,7 @@ impl Ranks {
     /// two posts share both keys, which a sort orders by post both ways.
     pub fn opposite(&self) -> Option<Self> {
         let (index, count) = self.sector;
-        (count % 2 == 0 && self.distinct).then(|| Self {
+        (count.is_multiple_of(2) && self.distinct).then(|| Self {
             sector: ((index + count / 2) % count, count),
             reversed: !self.reversed,
             ..self.clone()
