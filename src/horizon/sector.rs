@@ -44,16 +44,17 @@
 //! set of posts: the bucket stands for the subtree). The walk up a tall
 //! tree misses the caches at its foot; a bucket is contiguous (1.3x faster
 //! at 1.44 M posts), and kept in rank order, so that the ranks above a
-//! query's are its tail and a query divides for those alone ([`Bucket`]). The hulls of every node live in one array and
-//! are searched and updated in AVX-512 or AVX2 code, not walked point by
-//! point ([`hulls`]). The sweep reads the posts in its order from a copy
+//! query's are its tail, which a query divides for alone and moves up as
+//! it reads it, to put the post in its place ([`Bucket`]). The hulls of
+//! every node live in one array and are searched and updated in AVX-512 or
+//! AVX2 code, not walked point by point ([`hulls`]). The sweep reads the posts in its order from a copy
 //! gathered beforehand, leaving the stencil and the angles to a pass row
 //! by row: a post's lookups in the sweep's order are cache misses on its
 //! critical path. That pass takes each offset of the stencil across a
 //! whole row in vector lanes ([`narrow_row`]), `t` and `w` in arrays of
 //! their own. And the sorts are shared: a sector's processing order is
-//! the previous sector's rank order ([`Ranks`]), sorted by buckets
-//! ([`sort_keyed`]). Together 1.47x faster at 64 sectors, the same bits;
+//! the previous sector's rank order, and its ranks the opposite sector's
+//! reversed ([`Ranks`]), sorted by buckets ([`sort_keyed`]). Together 1.47x faster at 64 sectors, the same bits;
 //! then 1.26x more with the bucket sort and the walk up the tree by the
 //! bucket index's bits (a branch a level no longer mispredicted), and
 //! 1.08x with the stencil in lanes. A thread's sectors sort and sweep in
@@ -62,7 +63,9 @@
 //! every sector. And where Stewart updates each hull on its path on its
 //! own, a post's insertions stop at the first hull it lies well below:
 //! those further up hold supersets of its posts ([`hulls::well_below`];
-//! 1.09x, 42 % fewer insertion attempts at 64 sectors).
+//! 1.09x, 42 % fewer insertion attempts at 64 sectors). The buckets in
+//! rank order and the opposite sectors' shared sorts: 1.13x more
+//! (docs/BENCHMARKS.md, "Fewer divisions, and one sort for two sectors").
 
 mod hulls;
 
@@ -580,40 +583,29 @@ impl<T: Copy + Default> Bucket<T> {
         (self.held & below).count_ones() as usize
     }
 
-    /// Puts a post of `rank` at `at` ([`Self::above`]).
+    /// The steepest slope from `p` to the posts from `at` on
+    /// ([`Self::above`]), and `p` (of rank `rank`) put at `at`, in `H`'s
+    /// vector code ([`hulls::steepest_shift`]).
     #[inline(always)]
-    fn insert(&mut self, at: usize, rank: u32, p: Point<T>) {
+    fn steepest_then_insert<H: Hulls<T>>(
+        &mut self,
+        at: usize,
+        rank: u32,
+        p: Point<T>,
+    ) -> Steepest<T> {
         self.held |= 1 << (rank as usize % BUCKET);
-        self.t.insert(at, p.t);
-        self.w.insert(at, p.w);
-        self.tag.insert(at, p.tag);
-    }
-
-    /// Steepest slope from `(tp, wp)` to the posts from `at` on, in four
-    /// independent lanes.
-    #[inline(always)]
-    fn steepest_from(&self, at: usize, tp: f64, wp: f64) -> Steepest<T> {
-        const LANES: usize = 4;
-        let mut best = [Steepest::default(); LANES];
-        let lane = |best: &mut Steepest<T>, t: f64, w: f64, tag: T| {
-            best.take((w - wp) / (t - tp), tag);
+        self.t.push(p.t);
+        self.w.push(p.w);
+        let best = H::steepest_shift(&mut self.t[at..], &mut self.w[at..], (p.t, p.w));
+        let tag = match best.found() {
+            true => self.tag[at + best.tag as usize],
+            false => T::default(),
         };
-        let (t, w, tag) = (&self.t[at..], &self.w[at..], &self.tag[at..]);
-        let whole = t.len() / LANES * LANES;
-        for ((t, w), tag) in t[..whole]
-            .chunks_exact(LANES)
-            .zip(w[..whole].chunks_exact(LANES))
-            .zip(tag[..whole].chunks_exact(LANES))
-        {
-            for l in 0..LANES {
-                lane(&mut best[l], t[l], w[l], tag[l]);
-            }
+        self.tag.insert(at, p.tag);
+        Steepest {
+            slope: best.slope,
+            tag,
         }
-        for i in whole..t.len() {
-            lane(&mut best[0], t[i], w[i], tag[i]);
-        }
-        best.into_iter()
-            .fold(Steepest::default(), Steepest::steeper)
     }
 }
 
@@ -930,9 +922,16 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
             tag: T::of(post as u32),
         };
         let bucket = k as usize / BUCKET;
-        let at = bucket_points[bucket].above(k);
-        let mut best = bucket_points[bucket].steepest_from(at, tp, wp);
-        stats.tangent_steps += (bucket_points[bucket].t.len() - at) as u64;
+        // A bucket opens with the columns of one emptied before, where
+        // there is one: no bucket then grows by doubling but the first.
+        let points = &mut bucket_points[bucket];
+        if points.t.capacity() == 0 {
+            *points = spare.pop().unwrap_or_else(|| Bucket::with_capacity(BUCKET));
+        }
+        // The ranks below k in its own bucket, scanned as p joins them.
+        let at = points.above(k);
+        stats.tangent_steps += (points.t.len() - at) as u64;
+        let mut best = points.steepest_then_insert::<H>(at, k, me);
         // The path from the leaf to the root, level `l` at `leaf >> l`: a
         // left child where bit `l` of the bucket is clear, and only left
         // children hold hulls (a post joins its path's left siblings).
@@ -968,21 +967,15 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
         }
         slopes[post] = best.slope;
         tags[post] = best.tag;
-        // Join the ranks below k: in its own bucket by the scan, above by
-        // the hulls of the left siblings along the path (they cover ranks
-        // below the bucket, whose posts have p on their b side).
-        let points = &mut bucket_points[bucket];
-        if nodes[leaves + bucket].remaining > 0 {
-            if points.t.capacity() == 0 {
-                *points = spare.pop().unwrap_or_else(|| Bucket::with_capacity(BUCKET));
-            }
-            points.insert(at, k, me);
-        } else if points.t.capacity() > 0 {
-            let mut done = std::mem::take(points);
+        // A bucket all processed leaves its columns for the next to open.
+        if nodes[leaf].remaining == 0 {
+            let mut done = std::mem::take(&mut bucket_points[bucket]);
             done.clear();
             spare.push(done);
         }
-        //
+        // p joins the ranks below k: in its own bucket above, beyond it
+        // by the hulls of the left siblings along the path (they cover
+        // ranks below the bucket, whose posts have p on their b side).
         // Those hulls, from the foot up, hold the processed posts of ever
         // larger subtrees around p's (each the last one's and its
         // sibling's), so each lies above the last: a post that lies well

@@ -53,6 +53,8 @@ pub(super) trait Hulls<T> {
     fn insert(&mut self, v: usize, len: u32, p: Point<T>, margin: f64) -> (u32, bool);
     /// Empties node `v`'s hull (its posts are all processed).
     fn clear(&mut self, v: usize, len: u32);
+    /// [`steepest_shift`] in the store's vector code.
+    fn steepest_shift(t: &mut [f64], w: &mut [f64], p: (f64, f64)) -> Steepest<u32>;
 }
 
 /// Each hull in a vector of its own, walked point by point.
@@ -82,6 +84,47 @@ impl<T: Copy + Default> Hulls<T> for Heap<T> {
     fn clear(&mut self, v: usize, _: u32) {
         self.hulls[v] = Vec::new();
     }
+
+    #[inline]
+    fn steepest_shift(t: &mut [f64], w: &mut [f64], p: (f64, f64)) -> Steepest<u32> {
+        steepest_shift(t, w, p)
+    }
+}
+
+/// The steepest slope from `p` to points `..n - 1` of `t` and `w` (as long
+/// as each other, `n`) and which of them, those points moved up one and
+/// `p` put first: a bucket's tail as a post joins it ([`super::Bucket`]).
+/// One pass from the end moves each point as it is read, where a scan and
+/// then a `memmove` per column took longer than the moves (a few dozen
+/// points). In independent lanes; every store runs this same code, so
+/// the same point wins a tie in each.
+#[inline(always)]
+pub(super) fn steepest_shift(t: &mut [f64], w: &mut [f64], (tp, wp): (f64, f64)) -> Steepest<u32> {
+    const LANES: usize = 8;
+    let mut best = [Steepest::<u32>::default(); LANES];
+    let w = &mut w[..t.len()];
+    // Points `..end` are still to read and move.
+    let mut end = t.len() - 1;
+    while end >= LANES {
+        let i = end - LANES;
+        let whole = "a chunk of LANES";
+        let tc: [f64; LANES] = t[i..end].try_into().expect(whole);
+        let wc: [f64; LANES] = w[i..end].try_into().expect(whole);
+        for l in 0..LANES {
+            best[l].take((wc[l] - wp) / (tc[l] - tp), (i + l) as u32);
+        }
+        t[i + 1..=end].copy_from_slice(&tc);
+        w[i + 1..=end].copy_from_slice(&wc);
+        end = i;
+    }
+    while end > 0 {
+        end -= 1;
+        best[0].take((w[end] - wp) / (t[end] - tp), end as u32);
+        (t[end + 1], w[end + 1]) = (t[end], w[end]);
+    }
+    (t[0], w[0]) = (tp, wp);
+    best.into_iter()
+        .fold(Steepest::default(), Steepest::steeper)
 }
 
 /// Whether the point `p = (t, w)` lies on or below the segment from `l`
@@ -201,6 +244,13 @@ pub(super) trait Kernel {
     /// # Safety
     /// As [`Kernel::tangent`].
     unsafe fn move_tail(t: &mut [f64; CAP], w: &mut [f64; CAP], len: usize, from: usize, to: usize);
+
+    /// [`steepest_shift`] compiled for the kernel's instructions (out of
+    /// line, it would run in the baseline's two lanes).
+    ///
+    /// # Safety
+    /// As [`Kernel::tangent`].
+    unsafe fn steepest_shift(t: &mut [f64], w: &mut [f64], p: (f64, f64)) -> Steepest<u32>;
 }
 
 /// Up to [`CAP`] points of every node in one array (`[v * CAP + i]`), the
@@ -375,6 +425,12 @@ impl<T: Tag<u32>, K: Kernel> Hulls<T> for Slab<T, K> {
             self.heap.clear(v, len);
         }
     }
+
+    #[inline(always)]
+    fn steepest_shift(t: &mut [f64], w: &mut [f64], p: (f64, f64)) -> Steepest<u32> {
+        // SAFETY: a slab is built only where the CPU runs its kernel.
+        unsafe { K::steepest_shift(t, w, p) }
+    }
 }
 
 /// Where the slopes from a post first turn down (bit `k` of `turns`: the
@@ -406,6 +462,7 @@ pub(super) struct Avx2;
 #[cfg(target_arch = "x86_64")]
 mod avx512 {
     use super::{first_turn, Avx512, Kernel, CAP};
+    use crate::horizon::steepest::Steepest;
     use std::arch::x86_64::*;
 
     const CHUNKS: usize = CAP / 8;
@@ -508,6 +565,12 @@ mod avx512 {
 
         #[inline]
         #[target_feature(enable = "avx512f,avx512vl,avx512dq,popcnt")]
+        unsafe fn steepest_shift(t: &mut [f64], w: &mut [f64], p: (f64, f64)) -> Steepest<u32> {
+            super::steepest_shift(t, w, p)
+        }
+
+        #[inline]
+        #[target_feature(enable = "avx512f,avx512vl,avx512dq,popcnt")]
         unsafe fn move_tail(
             t: &mut [f64; CAP],
             w: &mut [f64; CAP],
@@ -536,6 +599,7 @@ mod avx512 {
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
     use super::{first_turn, Avx2, Kernel, CAP};
+    use crate::horizon::steepest::Steepest;
     use std::arch::x86_64::*;
 
     const CHUNKS: usize = CAP / 4;
@@ -658,6 +722,12 @@ mod avx2 {
 
         #[inline]
         #[target_feature(enable = "avx2,popcnt")]
+        unsafe fn steepest_shift(t: &mut [f64], w: &mut [f64], p: (f64, f64)) -> Steepest<u32> {
+            super::steepest_shift(t, w, p)
+        }
+
+        #[inline]
+        #[target_feature(enable = "avx2,popcnt")]
         unsafe fn move_tail(
             t: &mut [f64; CAP],
             w: &mut [f64; CAP],
@@ -763,6 +833,54 @@ mod tests {
                 Level::Avx512 => walk::<Avx512>(),
                 Level::Avx2 => walk::<Avx2>(),
                 Level::Scalar => {}
+            }
+        }
+    }
+
+    /// A bucket's pass, in every store's code: the steepest slope is the
+    /// largest of the divisions one by one, the point named is one that
+    /// gives it (the same in every store, ties included: the `t` and `w`
+    /// here repeat), and the points come out moved up one after the post.
+    #[test]
+    fn steepest_shift_scans_and_moves_alike_in_every_store() {
+        use crate::simd::Level;
+        let mut rng = crate::synth::SplitMix64(5);
+        let mut random = move || rng.unit();
+        type Shift = fn(&mut [f64], &mut [f64], (f64, f64)) -> Steepest<u32>;
+        let mut stores: Vec<(&str, Shift)> = vec![("heap", Heap::<()>::steepest_shift)];
+        #[cfg(target_arch = "x86_64")]
+        for level in crate::simd::available() {
+            match level {
+                Level::Avx512 => stores.push(("avx512", Slab::<(), Avx512>::steepest_shift)),
+                Level::Avx2 => stores.push(("avx2", Slab::<(), Avx2>::steepest_shift)),
+                Level::Scalar => {}
+            }
+        }
+        for n in 0..300 {
+            let len = n % 41;
+            let p = (-1.0, (random() * 4.0).floor());
+            let t: Vec<f64> = (0..len).map(|_| (random() * 4.0).floor()).collect();
+            let w: Vec<f64> = (0..len).map(|_| (random() * 8.0).floor()).collect();
+            let slopes: Vec<f64> = (0..len).map(|i| (w[i] - p.1) / (t[i] - p.0)).collect();
+            let mut first = None;
+            for &(name, shift) in &stores {
+                let (mut ts, mut ws) = (t.clone(), w.clone());
+                ts.push(f64::NAN);
+                ws.push(f64::NAN);
+                let best = shift(&mut ts, &mut ws, p);
+                let want = slopes.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                assert_eq!(best.slope.to_bits(), want.to_bits(), "{name}, {len} points");
+                if len > 0 {
+                    assert_eq!(
+                        slopes[best.tag as usize].to_bits(),
+                        want.to_bits(),
+                        "{name}"
+                    );
+                }
+                assert_eq!(ts, [&[p.0][..], &t].concat(), "{name}: t moved");
+                assert_eq!(ws, [&[p.1][..], &w].concat(), "{name}: w moved");
+                let named = *first.get_or_insert(best.tag);
+                assert_eq!(best.tag, named, "{name} names another of equal slope");
             }
         }
     }
