@@ -44,28 +44,30 @@
 //! set of posts: the bucket stands for the subtree). The walk up a tall
 //! tree misses the caches at its foot; a bucket is contiguous (1.3x faster
 //! at 1.44 M posts), and kept in rank order, so that the ranks above a
-//! query's are its tail, which a query divides for alone and moves up as
-//! it reads it, to put the post in its place ([`Bucket`]). The hulls of
-//! every node live in one array and are searched and updated in AVX-512 or
-//! AVX2 code, not walked point by point ([`hulls`]). The sweep reads the posts in its order from a copy
-//! gathered beforehand, leaving the stencil and the angles to a pass row
-//! by row: a post's lookups in the sweep's order are cache misses on its
-//! critical path. That pass takes each offset of the stencil across a
-//! whole row in vector lanes ([`narrow_row`]), `t` and `w` in arrays of
-//! their own. And the sorts are shared: a sector's processing order is
-//! the previous sector's rank order, and its ranks the opposite sector's
-//! reversed ([`Ranks`]), sorted by buckets ([`sort_keyed`]). Together 1.47x faster at 64 sectors, the same bits;
+//! query's are its tail, which a query divides for alone and moves up as it
+//! reads it, to put the post in its place ([`Bucket`]). The hulls of every
+//! node live in one array and are searched and updated in AVX-512 or AVX2
+//! code, not walked point by point ([`hulls`]). The sweep reads the posts
+//! in its order from a copy gathered beforehand, leaving the stencil and
+//! the angles to a pass row by row: a post's lookups in the sweep's order
+//! are cache misses on its critical path. That pass takes each offset of
+//! the stencil across a whole row in vector lanes ([`narrow_row`]), `t` and
+//! `w` in arrays of their own. And the sorts are shared: a sector's
+//! processing order is the previous sector's rank order, and its ranks the
+//! opposite sector's reversed ([`Ranks`]), sorted by buckets
+//! ([`sort_keyed`]). Together 1.47x faster at 64 sectors, the same bits;
 //! then 1.26x more with the bucket sort and the walk up the tree by the
-//! bucket index's bits (a branch a level no longer mispredicted), and
-//! 1.08x with the stencil in lanes. A thread's sectors sort and sweep in
-//! one room of arrays, each taking it from the one before ([`Scratch`]):
-//! 1.24x at 64 sectors of 1.44 M posts, whose arrays glibc mapped anew
-//! every sector. And where Stewart updates each hull on its path on its
-//! own, a post's insertions stop at the first hull it lies well below:
-//! those further up hold supersets of its posts ([`hulls::well_below`];
-//! 1.09x, 42 % fewer insertion attempts at 64 sectors). The buckets in
-//! rank order and the opposite sectors' shared sorts: 1.13x more
-//! (docs/BENCHMARKS.md, "Fewer divisions, and one sort for two sectors").
+//! bucket index's bits (a branch a level no longer mispredicted), and 1.08x
+//! with the stencil in lanes. A thread's sectors sort and sweep in one room
+//! of arrays, each taking it from the one before ([`Scratch`]): 1.24x at 64
+//! sectors of 1.44 M posts, whose arrays glibc mapped anew every sector.
+//! And where Stewart updates each hull on its path on its own, a post's
+//! insertions stop at the first hull it lies well below: those further up
+//! hold supersets of its posts ([`hulls::well_below`]; 1.09x, 42 % fewer
+//! insertion attempts at 64 sectors). The buckets in rank order and the
+//! opposite sectors' shared sorts: 1.11x more at 64 sectors of a million
+//! posts, 1.13x at 4.2 M (docs/BENCHMARKS.md, "Fewer divisions, and one
+//! sort for two sectors").
 
 mod hulls;
 
