@@ -924,16 +924,15 @@ impl Stage for HorizonsStage {
                         let Some(posts) = posts.as_ref() else {
                             return Vec::new();
                         };
-                        let first = sector(&bands[pair[0]])
-                            .map(|s| sector::Ranks::of_in(&terrain, posts, s, room));
-                        let second =
-                            pair.get(1).and_then(|&b| {
-                                let s = sector(&bands[b])?;
-                                let opposite = first.as_ref().and_then(sector::Ranks::opposite);
-                                Some(opposite.unwrap_or_else(|| {
-                                    sector::Ranks::of_in(&terrain, posts, s, room)
-                                }))
-                            });
+                        let sort = |s| sector::Ranks::of_in(&terrain, posts, s, room);
+                        let first = sector(&bands[pair[0]]).map(sort);
+                        // The second is the first's opposite ([`opposite_pairs`]).
+                        let second = pair.get(1).and_then(|&b| sector(&bands[b])).map(|s| {
+                            first
+                                .as_ref()
+                                .and_then(sector::Ranks::opposite)
+                                .unwrap_or_else(|| sort(s))
+                        });
                         first.into_iter().chain(second).collect()
                     })
                     .collect();

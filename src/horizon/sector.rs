@@ -127,12 +127,11 @@ impl SectorFrame {
         // is boundary `j` negated to the bit: each sector's ranks are then
         // the next one's processing order and the opposite one's ranks
         // reversed ([`Ranks`]).
-        let boundary = |j: usize| {
-            let j = j % count;
-            match count.is_multiple_of(2) && j >= count / 2 {
-                true => opposite(snapped((j - count / 2) as f64 * width - width / 2.0)),
-                false => snapped(j as f64 * width - width / 2.0),
-            }
+        let at = |j: usize| snapped(j as f64 * width - width / 2.0);
+        let half = count / 2;
+        let boundary = |j: usize| match j % count {
+            j if count.is_multiple_of(2) && j >= half => opposite(at(j - half)),
+            j => at(j),
         };
         // In the key frame a post is (col, -row * dy / dx): metres / dx.
         // A world direction keeps its angle under that uniform scaling.

@@ -244,9 +244,10 @@ pub fn compass(azimuth_deg: f64) -> (f64, f64) {
 /// two) of a whole terrain: one level of a max pyramid, as the
 /// hierarchical tracers use (Paglieroni and Petersen, sec. 3), for walks
 /// that step over the blocks a line passes too high (a viewshed's sight
-/// line) or too low (a horizon's record) to meet. A block's posts are those on its edges (a cell's
-/// surface lies within its four posts) and `halo` posts around them, for
-/// a walk that may put a point a rounding's width into the wrong block.
+/// line) or too low (a horizon's record) to meet. A block's posts are
+/// those on its edges (a cell's surface lies within its four posts) and
+/// `halo` posts around them, for a walk that may put a point a rounding's
+/// width into the wrong block.
 /// NEG_INFINITY for a block without heights.
 #[derive(Debug, Clone)]
 pub struct MaxBlocks {
