@@ -6,7 +6,8 @@
 # machine's cores. Prints each run and the least-squares fit of
 # log(seconds / posts) against log(S), its rate then lowered until no run
 # took longer than the model says (the times are no clean power of S, and
-# a time budget wants the safe side). Eight directions or fewer are axis
+# a time budget wants the safe side; a plan that widens the tolerance
+# sweeps fewer crossings, so the model stays above it). Eight directions or fewer are axis
 # and diagonal lines, nearly free: the model overestimates them.
 #   BIN=target/release/terrabake bash pipelines/fit_plan_models.sh
 set -euo pipefail

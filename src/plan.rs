@@ -26,7 +26,13 @@
 //! limit (the cut alone, 0.05), the encoding (quantisation alone, 0.25);
 //! the rest (0.1) covers the posts the pilot did not see. Each decision is
 //! monotone in the budget, so a looser budget never gives more directions,
-//! a longer reach or a finer encoding: never more bytes or time.
+//! a longer reach or a finer encoding: never more bytes or time. The
+//! directions' tolerance comes after their count, in the same share: the
+//! count is decided at the default tolerance (bytes first), then a fifth,
+//! a quarter and a third of the spacing are measured in turn, each taken
+//! while its grid steps cost fewer crossings a post and its error still
+//! fits (a looser budget never narrows it). The time model is the default
+//! tolerance's, an upper bound for a wider one.
 //!
 //! **Cost models**, fitted by `pipelines/fit_plan_models.sh` on the bundled
 //! tile (2 cores), each raised until no fit run took longer: unbounded
@@ -51,9 +57,10 @@ use terrabake_format::horizons::{bands_around, AngleEncoding};
 use terrabake_format::{Asset, Codec, Mmap};
 
 use crate::budget::{Budget, Need, Needs, Request, SunPosition};
+use crate::horizon::line::{default_tolerance, Stencil};
 use crate::horizon::sky::{svf_of_horizons, BandIntegrals};
 use crate::horizon::terrain::Terrain;
-use crate::horizon::{HorizonsStage, Method};
+use crate::horizon::{Band, BandKind, HorizonsStage, Method};
 use crate::progress::Progress;
 use crate::reference::{quantile_unsorted, shade_differs, Pilot, Sampling};
 use crate::sky::{SkyLayer, SkyStage};
@@ -76,6 +83,10 @@ const DISTANCES: [f64; 18] = [
 const SHARE_DIRECTIONS: f64 = 0.6;
 const SHARE_DISTANCE: f64 = 0.05;
 const SHARE_QUANTISATION: f64 = 0.25;
+/// Tolerances the planner tries beyond the stage's default (an eighth of
+/// the spacing), as divisors of the spacing, narrowest first; up to a
+/// third, short of the half at which two directions could take one step.
+const WIDER_TOLERANCES: [f64; 3] = [5.0, 4.0, 3.0];
 /// The pilot's quantile that decides (the budget's is 0.99): where a lone
 /// spike is seen in about 1 % of the azimuths, the 99th sits on a knife's
 /// edge and a pilot can find it small where a check finds it large.
@@ -127,6 +138,10 @@ pub struct Candidate {
     pub bytes: u64,
     /// Seconds of the horizons and sky stages.
     pub seconds: f64,
+    /// How far (degrees) a stored direction may sit from `i * 360 / S`
+    /// (`None`: the stage's default, an eighth of the spacing).
+    #[serde(default)]
+    pub direction_tolerance: Option<f64>,
 }
 
 impl Candidate {
@@ -255,7 +270,7 @@ impl Plan {
         let mut stage = HorizonsStage {
             max_distance: chosen.max_distance,
             encoding: Some(chosen.encoding),
-            ..line_stage(chosen.sectors)
+            ..line_stage(chosen.sectors, chosen.direction_tolerance)
         };
         if let Some(bytes) = self.working_memory() {
             stage.max_memory = bytes;
@@ -423,15 +438,30 @@ fn predict(
     })
 }
 
-/// The horizons stage a plan of `sectors` line directions bakes, before
-/// its encoding and distance: at the stage's default tolerance, so that
-/// its bands are those the pilot measures ([`HorizonsStage::bands`]).
-fn line_stage(sectors: usize) -> HorizonsStage {
+/// The horizons stage a plan of `sectors` line directions within
+/// `tolerance` (`None`: the stage's default) bakes, before its encoding
+/// and distance: its bands are those the pilot measures
+/// ([`HorizonsStage::bands`]).
+fn line_stage(sectors: usize, tolerance: Option<f64>) -> HorizonsStage {
     HorizonsStage {
         sectors,
         method: Method::Line,
+        direction_tolerance: tolerance,
         ..Default::default()
     }
+}
+
+/// Profile vertices a post costs in the line sweeps of `bands` (the
+/// crossings of each direction's grid step and its next post): the
+/// sweep's work, which a wider tolerance cuts by taking shorter steps.
+fn crossings(bands: &[Band]) -> usize {
+    bands
+        .iter()
+        .map(|band| match &band.kind {
+            BandKind::Line(direction) => Stencil::new(direction.step).len(),
+            _ => 0,
+        })
+        .sum()
 }
 
 /// `x` rounded up at `decimals` decimals: a limit to relax to that,
@@ -852,6 +882,7 @@ fn plan_horizons(
             bytes: costs.layer_bytes(encoding.elem().size(), sectors)
                 + costs.layer_bytes(4, costs.sky_layers),
             seconds: costs.seconds(sectors, distance),
+            direction_tolerance: None,
         }
     };
     let mut sectors = None;
@@ -862,7 +893,7 @@ fn plan_horizons(
         // posts: at its default tolerance they are seldom reference
         // directions, and far cheaper to sweep than those would be.
         let (dx, dy) = scene.cell_size;
-        stored = pilot.measure_directions(terrain, &line_stage(s).bands(dx, dy), || ());
+        stored = pilot.measure_directions(terrain, &line_stage(s, None).bands(dx, dy), || ());
         let mut e = predict(pilot, suns, &stored, None, AngleEncoding::F32);
         let (horizon, svf, _) = e.at(DECISION_QUANTILE);
         deciding = (horizon, svf);
@@ -893,6 +924,33 @@ fn plan_horizons(
             )),
         );
     };
+    // The tolerance: of those directions' grid steps within ever wider
+    // tolerances, the ones a post sweeps in the fewest crossings whose
+    // error between directions stays within the same share (the default
+    // met it). A wider tolerance takes shorter steps, and widens the gaps
+    // the loader interpolates across only a little (module docs).
+    let (dx, dy) = scene.cell_size;
+    let spacing = 360.0 / sectors as f64;
+    let at_default = crossings(&line_stage(sectors, None).bands(dx, dy));
+    let mut tolerance = (default_tolerance(sectors), at_default);
+    let mut too_wide = None;
+    for divisor in WIDER_TOLERANCES {
+        let tol = spacing / divisor;
+        let bands = line_stage(sectors, Some(tol)).bands(dx, dy);
+        let cost = crossings(&bands);
+        if cost >= tolerance.1 {
+            continue;
+        }
+        let measured = pilot.measure_directions(terrain, &bands, || ());
+        let mut e = predict(pilot, suns, &measured, None, AngleEncoding::F32);
+        if e.within(budget, SHARE_DIRECTIONS) {
+            (tolerance, stored) = ((tol, cost), measured);
+        } else {
+            let (horizon, svf, _) = e.at(DECISION_QUANTILE);
+            too_wide = Some((tol, cost, horizon, svf));
+            break;
+        }
+    }
     // The route: bounded lines (walk each post's reach, the DEM in memory)
     // when that is faster and fits the memory limit, else the sweeps to
     // the edge (out of core).
@@ -906,12 +964,15 @@ fn plan_horizons(
         costs.seconds(sectors, d) < costs.seconds(sectors, None) && fits(d)
     });
     let bounded = bounded_cut.map(|k| DISTANCES[k]);
-    let chosen = candidate(
-        sectors,
-        bounded,
-        encoding,
-        &mut predict(pilot, suns, &stored, bounded_cut, encoding),
-    );
+    let chosen = Candidate {
+        direction_tolerance: Some(tolerance.0),
+        ..candidate(
+            sectors,
+            bounded,
+            encoding,
+            &mut predict(pilot, suns, &stored, bounded_cut, encoding),
+        )
+    };
     let fewer = candidates.iter().rev().nth(1);
     let finer = [AngleEncoding::U8, AngleEncoding::U16]
         .into_iter()
@@ -978,6 +1039,26 @@ fn plan_horizons(
                 found.errors_text()
             ),
             rejected: fewer.map(|c| format!("{} directions: {}", c.sectors, c.errors_text())),
+        },
+        Choice {
+            what: "tolerance".into(),
+            chosen: format!("{:.2} deg", tolerance.0),
+            why: if tolerance.1 < at_default {
+                format!(
+                    "the widest up to a third of the spacing whose error between directions stays within {SHARE_DIRECTIONS} of the budget: its grid steps cost {} crossings a post, against {at_default} within {:.2} deg (the default)",
+                    tolerance.1,
+                    default_tolerance(sectors),
+                )
+            } else {
+                format!(
+                    "the stage's default, an eighth of the spacing: {at_default} crossings a post, and no wider tolerance up to a third both costs fewer and stays within {SHARE_DIRECTIONS} of the budget"
+                )
+            },
+            rejected: too_wide.map(|(tol, cost, horizon, svf)| {
+                format!(
+                    "{tol:.2} deg: {cost} crossings a post, but horizon p99 {horizon:.3} deg, svf p99 {svf:.4} between directions (p99.5): over the share"
+                )
+            }),
         },
         Choice {
             what: "encoding".into(),

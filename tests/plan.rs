@@ -103,6 +103,10 @@ fn a_looser_budget_never_costs_more() {
             if let Some(tighter) = &last {
                 let (a, b) = (tighter.chosen.as_ref().unwrap(), p.chosen.as_ref().unwrap());
                 assert!(
+                    b.sectors < a.sectors || b.direction_tolerance >= a.direction_tolerance,
+                    "{kind:?}: {horizon} deg narrows the tolerance: {b:?} against {a:?}"
+                );
+                assert!(
                     b.sectors <= a.sectors
                         && b.bytes <= a.bytes
                         && b.seconds <= a.seconds
@@ -508,7 +512,7 @@ fn a_bytes_limit_picks_zstd_heights_unless_the_recipe_set_the_codec() {
 
 /// The prediction is the error of the very bake at the pilot's posts only
 /// if the pilot measures the directions the planned stage stores: the
-/// stage's bands (at its default tolerance) and their angles at those
+/// stage's bands (at the tolerance the plan chose) and their angles at those
 /// posts are the pilot's, to the sweep's rounding.
 #[test]
 fn the_pilot_measures_the_directions_the_planned_bake_stores() {
@@ -572,4 +576,92 @@ fn the_pilot_measures_the_directions_the_planned_bake_stores() {
             }
         }
     }
+}
+
+/// A plan widens its directions' tolerance (shorter grid steps: fewer
+/// crossings a post to sweep) only as far as the pilot's error between
+/// directions allows, never past a third of their spacing, and the bake
+/// then meets its budget where `check` measures it. Some budget on these
+/// terrains does widen it.
+#[test]
+fn the_tolerance_widens_only_where_the_error_allows() {
+    use terrabake::horizon::line::{default_tolerance, Stencil};
+    use terrabake::horizon::BandKind;
+
+    let mut widened = 0;
+    for kind in [SynthKind::Fractal, SynthKind::Sine, SynthKind::Bowl] {
+        let dir = tempfile::tempdir().unwrap();
+        let asset = terrain(dir.path(), kind, 7);
+        let opened = Asset::open(&asset).unwrap();
+        let (dx, dy) = (
+            opened.manifest().cell_size.dx,
+            opened.manifest().cell_size.dy,
+        );
+        for horizon in [0.5, 1.0, 2.0, 4.0, 8.0] {
+            let budget = Budget {
+                horizon,
+                ..Default::default()
+            };
+            // A budget below what 360 directions leave is refused (tested
+            // above), and proves nothing here.
+            let Ok(p) = plan(&opened, &request(&budget), Progress::hidden()) else {
+                continue;
+            };
+            let chosen = p.chosen.as_ref().unwrap();
+            let stage = p.horizons_stage().unwrap();
+            let crossings = |tolerance: Option<f64>| -> usize {
+                let stage = terrabake::horizon::HorizonsStage {
+                    direction_tolerance: tolerance,
+                    ..stage.clone()
+                };
+                stage
+                    .bands(dx, dy)
+                    .iter()
+                    .map(|b| match &b.kind {
+                        BandKind::Line(d) => Stencil::new(d.step).len(),
+                        other => panic!("a planned bake stores lines, not {other:?}"),
+                    })
+                    .sum()
+            };
+            let s = chosen.sectors;
+            let tolerance = chosen
+                .direction_tolerance
+                .expect("a plan names its tolerance");
+            let spacing = 360.0 / s as f64;
+            assert!(
+                tolerance >= default_tolerance(s) && tolerance <= spacing / 3.0 + 1e-9,
+                "{kind:?} {horizon}: {tolerance} deg for {s} directions"
+            );
+            assert_eq!(stage.direction_tolerance, Some(tolerance));
+            if tolerance > default_tolerance(s) {
+                widened += 1;
+                assert!(
+                    crossings(Some(tolerance)) < crossings(None),
+                    "{kind:?} {horizon}: wider, and no fewer crossings"
+                );
+                assert!(
+                    chosen.horizon_p99_deg <= horizon,
+                    "{kind:?} {horizon}: predicted {chosen:?}"
+                );
+                for stage in p.stages() {
+                    run_stage(&asset, stage.as_ref(), true, Progress::hidden()).unwrap();
+                }
+                let report = check(
+                    &Asset::open(&asset).unwrap(),
+                    &CheckOptions {
+                        samples: 160,
+                        seed: 99,
+                        directions: 720,
+                        cuts: &[],
+                    },
+                    Some(&budget),
+                    &[],
+                    Progress::hidden(),
+                )
+                .unwrap();
+                assert!(report.within_budget(), "{kind:?} {horizon}: {report:?}");
+            }
+        }
+    }
+    assert!(widened > 0, "no budget widened the tolerance");
 }

@@ -22,6 +22,8 @@ pub struct PlanRow {
     pub dem: String,
     pub budget_deg: f64,
     pub sectors: usize,
+    /// How far a stored direction may sit from `i * 360 / S`, degrees.
+    pub direction_tolerance_deg: f64,
     pub encoding: String,
     /// The distance limit baked, km (NaN: to the edge).
     pub max_distance_km: f64,
@@ -46,6 +48,7 @@ impl PlanRow {
             dem: dem.into(),
             budget_deg,
             sectors: 0,
+            direction_tolerance_deg: f64::NAN,
             encoding: String::new(),
             max_distance_km: f64::NAN,
             predicted_p99_deg: f64::NAN,
@@ -141,6 +144,7 @@ impl BenchPlanArgs {
                     dem: dem.clone(),
                     budget_deg: horizon,
                     sectors: chosen.sectors,
+                    direction_tolerance_deg: chosen.direction_tolerance.unwrap_or(f64::NAN),
                     encoding: chosen.encoding.name().into(),
                     max_distance_km: chosen.max_distance.map_or(f64::NAN, |d| d / 1000.0),
                     predicted_p99_deg: chosen.horizon_p99_deg,
@@ -174,6 +178,7 @@ fn table(rows: &[PlanRow]) -> String {
             "DEM",
             "budget (deg)",
             "directions",
+            "within (deg)",
             "encoding",
             "distance (km)",
             "predicted p99",
@@ -191,6 +196,7 @@ fn table(rows: &[PlanRow]) -> String {
                 r.dem.clone(),
                 format!("{}", r.budget_deg),
                 r.sectors.to_string(),
+                format!("{:.2}", r.direction_tolerance_deg),
                 r.encoding.clone(),
                 if r.max_distance_km.is_nan() {
                     "edge".into()
