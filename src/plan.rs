@@ -80,7 +80,7 @@ const DISTANCES: [f64; 18] = [
 /// The shares of the budget: interpolation between directions, the
 /// distance limit, quantisation; the rest (0.1) covers the posts the pilot
 /// did not see.
-const SHARE_DIRECTIONS: f64 = 0.6;
+pub const SHARE_DIRECTIONS: f64 = 0.6;
 const SHARE_DISTANCE: f64 = 0.05;
 const SHARE_QUANTISATION: f64 = 0.25;
 /// Tolerances the planner tries beyond the stage's default (an eighth of
@@ -248,7 +248,9 @@ pub struct Plan {
     #[serde(default)]
     pub memory_mib: f64,
     pub choices: Vec<Choice>,
-    /// Every candidate the planner predicted, fewest directions first.
+    /// Every candidate the planner predicted, fewest directions first
+    /// (each at the default tolerance, then the chosen count's wider
+    /// tolerances in the order tried; f32 and to the edge).
     pub candidates: Vec<Candidate>,
     /// Stages a recipe gave explicitly: they were baked instead of the
     /// plan's, and `check` measures what they achieved.
@@ -929,6 +931,10 @@ fn plan_horizons(
     // error between directions stays within the same share (the default
     // met it). A wider tolerance takes shorter steps, and widens the gaps
     // the loader interpolates across only a little (module docs).
+    let (found, fewer) = (
+        candidates.last().cloned().expect("chosen"),
+        candidates.iter().rev().nth(1).cloned(),
+    );
     let (dx, dy) = scene.cell_size;
     let spacing = 360.0 / sectors as f64;
     let at_default = crossings(&line_stage(sectors, None).bands(dx, dy));
@@ -943,7 +949,12 @@ fn plan_horizons(
         }
         let measured = pilot.measure_directions(terrain, &bands, || ());
         let mut e = predict(pilot, suns, &measured, None, AngleEncoding::F32);
-        if e.within(budget, SHARE_DIRECTIONS) {
+        let meets = e.within(budget, SHARE_DIRECTIONS);
+        candidates.push(Candidate {
+            direction_tolerance: Some(tol),
+            ..candidate(sectors, None, AngleEncoding::F32, &mut e)
+        });
+        if meets {
             (tolerance, stored) = ((tol, cost), measured);
         } else {
             let (horizon, svf, _) = e.at(DECISION_QUANTILE);
@@ -973,7 +984,6 @@ fn plan_horizons(
             &mut predict(pilot, suns, &stored, bounded_cut, encoding),
         )
     };
-    let fewer = candidates.iter().rev().nth(1);
     let finer = [AngleEncoding::U8, AngleEncoding::U16]
         .into_iter()
         .filter(|e| e.max_error_deg() > encoding.max_error_deg())
@@ -985,7 +995,6 @@ fn plan_horizons(
             )
         })
         .collect::<Vec<_>>();
-    let found = candidates.last().expect("chosen");
     // Relief and curvature bound what lies beyond D: no post sees terrain
     // there above atan(relief / D - c D); past sqrt(relief / c) it lies
     // below every post's horizontal plane.
