@@ -599,7 +599,8 @@ fn the_pilot_measures_the_directions_the_planned_bake_stores() {
 /// crossings a post to sweep) only as far as the pilot's error between
 /// directions allows, never past a third of their spacing, and the bake
 /// then meets its budget where `check` measures it. Some budget on these
-/// terrains does widen it.
+/// terrains does widen it, and some wider tolerance is refused for its
+/// error.
 #[test]
 fn the_tolerance_widens_only_where_the_error_allows() {
     use terrabake::horizon::line::{default_tolerance, Stencil};

@@ -387,7 +387,10 @@ pub struct HorizonsStage {
     /// `--no-narrow-check` leaves it out.
     #[arg(long = "no-narrow-check", action = clap::ArgAction::SetFalse)]
     pub narrow_check: bool,
-    /// How far a line direction may sit from i * 360 / S, degrees (default: spacing / 8).
+    /// How far a line direction may sit from i * 360 / S, degrees (default: spacing / 8; less
+    /// than spacing / 2). Wider takes shorter grid steps: at 16 directions on the SRTM tile in UTM,
+    /// 4.5 degrees sweeps in half the time for 5 % more horizon error
+    /// (docs/BENCHMARKS.md). `terrabake bake --budget` picks it from the budget.
     #[arg(long, allow_hyphen_values = true, value_parser = crate::args::parse_positive)]
     pub direction_tolerance: Option<f64>,
     /// Also write `horizon_distance`: per post and band, the horizontal distance in metres to
