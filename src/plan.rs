@@ -872,21 +872,22 @@ fn plan_horizons(
     // The directions: the fewest whose error between directions alone
     // (exact to the edge, f32) is within their share.
     let mut candidates = Vec::new();
-    let candidate = |sectors: usize, distance, encoding, errors: &mut Errors| {
-        let (horizon_p99_deg, svf_p99, shade_share) = errors.at(0.99);
-        Candidate {
-            sectors,
-            encoding,
-            max_distance: distance,
-            horizon_p99_deg,
-            svf_p99,
-            shade_share,
-            bytes: costs.layer_bytes(encoding.elem().size(), sectors)
-                + costs.layer_bytes(4, costs.sky_layers),
-            seconds: costs.seconds(sectors, distance),
-            direction_tolerance: None,
-        }
-    };
+    let candidate =
+        |(sectors, tolerance): (usize, Option<f64>), distance, encoding, errors: &mut Errors| {
+            let (horizon_p99_deg, svf_p99, shade_share) = errors.at(0.99);
+            Candidate {
+                sectors,
+                encoding,
+                max_distance: distance,
+                horizon_p99_deg,
+                svf_p99,
+                shade_share,
+                bytes: costs.layer_bytes(encoding.elem().size(), sectors)
+                    + costs.layer_bytes(4, costs.sky_layers),
+                seconds: costs.seconds(sectors, distance),
+                direction_tolerance: tolerance,
+            }
+        };
     let mut sectors = None;
     let mut deciding = (0.0, 0.0);
     let mut stored = Vec::new();
@@ -900,7 +901,7 @@ fn plan_horizons(
         let (horizon, svf, _) = e.at(DECISION_QUANTILE);
         deciding = (horizon, svf);
         let meets = e.within(budget, SHARE_DIRECTIONS);
-        candidates.push(candidate(s, None, AngleEncoding::F32, &mut e));
+        candidates.push(candidate((s, None), None, AngleEncoding::F32, &mut e));
         if meets {
             sectors = Some(s);
             break;
@@ -950,10 +951,12 @@ fn plan_horizons(
         let measured = pilot.measure_directions(terrain, &bands, || ());
         let mut e = predict(pilot, suns, &measured, None, AngleEncoding::F32);
         let meets = e.within(budget, SHARE_DIRECTIONS);
-        candidates.push(Candidate {
-            direction_tolerance: Some(tol),
-            ..candidate(sectors, None, AngleEncoding::F32, &mut e)
-        });
+        candidates.push(candidate(
+            (sectors, Some(tol)),
+            None,
+            AngleEncoding::F32,
+            &mut e,
+        ));
         if meets {
             (tolerance, stored) = ((tol, cost), measured);
         } else {
@@ -975,15 +978,12 @@ fn plan_horizons(
         costs.seconds(sectors, d) < costs.seconds(sectors, None) && fits(d)
     });
     let bounded = bounded_cut.map(|k| DISTANCES[k]);
-    let chosen = Candidate {
-        direction_tolerance: Some(tolerance.0),
-        ..candidate(
-            sectors,
-            bounded,
-            encoding,
-            &mut predict(pilot, suns, &stored, bounded_cut, encoding),
-        )
-    };
+    let chosen = candidate(
+        (sectors, Some(tolerance.0)),
+        bounded,
+        encoding,
+        &mut predict(pilot, suns, &stored, bounded_cut, encoding),
+    );
     let finer = [AngleEncoding::U8, AngleEncoding::U16]
         .into_iter()
         .filter(|e| e.max_error_deg() > encoding.max_error_deg())
@@ -1065,7 +1065,7 @@ fn plan_horizons(
             },
             rejected: too_wide.map(|(tol, cost, horizon, svf)| {
                 format!(
-                    "{tol:.2} deg: {cost} crossings a post, but horizon p99 {horizon:.3} deg, svf p99 {svf:.4} between directions (p99.5): over the share"
+                    "{tol:.2} deg: {cost} crossings a post, but its error between directions at p99.5, the quantile that decides (horizon {horizon:.3} deg, svf {svf:.4}), is over the share"
                 )
             }),
         },
