@@ -888,6 +888,7 @@ fn plan_horizons(
                 direction_tolerance: tolerance,
             }
         };
+    let (dx, dy) = scene.cell_size;
     let mut sectors = None;
     let mut deciding = (0.0, 0.0);
     let mut stored = Vec::new();
@@ -895,7 +896,6 @@ fn plan_horizons(
         // The directions the stage would store, measured at the pilot's
         // posts: at its default tolerance they are seldom reference
         // directions, and far cheaper to sweep than those would be.
-        let (dx, dy) = scene.cell_size;
         stored = pilot.measure_directions(terrain, &line_stage(s, None).bands(dx, dy), || ());
         let mut e = predict(pilot, suns, &stored, None, AngleEncoding::F32);
         let (horizon, svf, _) = e.at(DECISION_QUANTILE);
@@ -936,7 +936,6 @@ fn plan_horizons(
         candidates.last().cloned().expect("chosen"),
         candidates.iter().rev().nth(1).cloned(),
     );
-    let (dx, dy) = scene.cell_size;
     let spacing = 360.0 / sectors as f64;
     let at_default = crossings(&line_stage(sectors, None).bands(dx, dy));
     let mut tolerance = (default_tolerance(sectors), at_default);
