@@ -5,7 +5,7 @@ BIN := target/release/terrabake
 DEMO_DEM := data/srtm3_n07w006_geographic_int16.tif
 OUT ?= out
 
-.PHONY: all build demo test test-full capi capi-header test-page bake-parts bake-slurm test-slurm fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-visibility bench-plan bench-cog bench-peers bench-reader fixtures fmt lint clean
+.PHONY: all build demo test test-full capi capi-header test-page bake-parts bake-slurm test-slurm fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-visibility bench-plan time-models bench-cog bench-peers bench-reader fixtures fmt lint clean
 
 all: build
 
@@ -163,6 +163,11 @@ bench-cones: build
 bench-plan: build
 	BIN=$(BIN) bash pipelines/bench_plan.sh
 	BIN=$(BIN) bash pipelines/fit_plan_models.sh
+
+## This machine's time models for the planner (docs/PLANNING.md, "A
+## machine's own models"): bake with TERRABAKE_TIME_MODELS=time-models.json.
+time-models: build
+	BIN=$(BIN) OUT=time-models.json bash pipelines/fit_plan_models.sh
 
 ## The peers beside us: HORAYZON, WhiteboxTools, topocalc, RVT, SurtGIS,
 ## GRASS r.horizon and SAGA installed (Debian packages, a venv from PyPI)

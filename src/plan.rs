@@ -37,7 +37,9 @@
 //! **Cost models**, fitted by `pipelines/fit_plan_models.sh` on the bundled
 //! tile (2 cores), each raised until no fit run took longer: unbounded
 //! line sweeps `posts * S^1.66 / 2.85e8` s; bounded lines (a walk of each
-//! post's reach) `posts * S * (5.79e-9 + 5.81e-9 * D / cell)` s; bytes
+//! post's reach) `posts * S * (5.79e-9 + 5.81e-9 * D / cell)` s, upper
+//! bounds on the machine of the fit only (`TERRABAKE_TIME_MODELS` names
+//! another machine's fit, [`TimeModels`]); bytes
 //! from the layers' tiles; memory from the
 //! tile row the line stage holds per band. The bake takes the faster of the
 //! two line routes that fits the memory limit.
@@ -50,7 +52,7 @@
 
 use std::time::Instant;
 
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use serde::{Deserialize, Serialize};
 use terrabake_format::cones::ConeEncoding;
 use terrabake_format::horizons::{bands_around, AngleEncoding};
@@ -94,15 +96,90 @@ const DECISION_QUANTILE: f64 = 0.995;
 /// The pilot's seed: apart from `check`'s default, so that a check of a
 /// planned bake measures posts the plan never saw.
 pub const PILOT_SEED: u64 = 0x504c_414e;
-/// Fitted by pipelines/fit_plan_models.sh (docs/PLANNING.md), 2 cores,
-/// every fit run within the model: unbounded line horizons and the sky
-/// stage, seconds = posts * S^EXPONENT / RATE.
-pub const TIME_EXPONENT: f64 = 1.66;
-pub const TIME_RATE: f64 = 2.85e8;
-/// Bounded line horizons and the sky stage: seconds = posts * S *
-/// (PER_LINE + PER_CELL * D / cell).
-pub const BOUNDED_PER_LINE: f64 = 5.79e-9;
-pub const BOUNDED_PER_CELL: f64 = 5.81e-9;
+/// The environment variable naming a JSON file of [`TimeModels`] fitted on
+/// the machine that bakes (`OUT=FILE pipelines/fit_plan_models.sh` writes
+/// one); unset or empty, the planner takes the defaults.
+pub const TIME_MODELS_VAR: &str = "TERRABAKE_TIME_MODELS";
+
+/// The time models of the horizons and sky stages (docs/PLANNING.md, "Cost
+/// models"): `fixed_seconds` and, for sweeps to the edge, `posts *
+/// S^sweep_exponent / sweep_rate` seconds, for bounded lines `posts * S *
+/// (bounded_per_line + bounded_per_cell * D / cell)`. Each is fitted by
+/// `pipelines/fit_plan_models.sh` and raised until no fit run took longer,
+/// so it is an upper bound on the machine it was fitted on, not on every
+/// machine: the defaults are the Zen 4 machine's (2 cores), whose fit had
+/// no fixed term.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TimeModels {
+    /// What a bake of a few posts takes: starting, opening, writing.
+    pub fixed_seconds: f64,
+    pub sweep_exponent: f64,
+    pub sweep_rate: f64,
+    pub bounded_per_line: f64,
+    pub bounded_per_cell: f64,
+}
+
+impl Default for TimeModels {
+    fn default() -> Self {
+        Self {
+            fixed_seconds: 0.0,
+            sweep_exponent: 1.66,
+            sweep_rate: 2.85e8,
+            bounded_per_line: 5.79e-9,
+            bounded_per_cell: 5.81e-9,
+        }
+    }
+}
+
+impl TimeModels {
+    /// The models [`TIME_MODELS_VAR`] names, else the defaults.
+    pub fn from_env() -> Result<Self> {
+        match std::env::var_os(TIME_MODELS_VAR).filter(|v| !v.is_empty()) {
+            None => Ok(Self::default()),
+            Some(path) => Self::read(std::path::Path::new(&path)),
+        }
+    }
+
+    /// The models in the JSON file `path`: every field given, each a
+    /// positive number (the fixed seconds may be 0).
+    pub fn read(path: &std::path::Path) -> Result<Self> {
+        use std::io::Read;
+        // A file of five numbers; anything larger is not one.
+        const MAX_BYTES: u64 = 64 << 10;
+        let named = || format!("{} ({TIME_MODELS_VAR})", path.display());
+        let file = std::fs::File::open(path)
+            .with_context(|| format!("{}: cannot open the time models", named()))?;
+        let mut text = String::new();
+        file.take(MAX_BYTES + 1)
+            .read_to_string(&mut text)
+            .with_context(|| format!("{}: cannot read the time models", named()))?;
+        if text.len() as u64 > MAX_BYTES {
+            bail!("{}: over {MAX_BYTES} bytes, not time models", named());
+        }
+        let models: Self = serde_json::from_str(&text).with_context(|| {
+            format!(
+                "{}: not time models as fit_plan_models.sh writes them",
+                named()
+            )
+        })?;
+        let m = &models;
+        for (key, value, may_be_zero) in [
+            ("fixed_seconds", m.fixed_seconds, true),
+            ("sweep_exponent", m.sweep_exponent, false),
+            ("sweep_rate", m.sweep_rate, false),
+            ("bounded_per_line", m.bounded_per_line, false),
+            ("bounded_per_cell", m.bounded_per_cell, false),
+        ] {
+            if !(value.is_finite() && (value > 0.0 || may_be_zero && value == 0.0)) {
+                let least = if may_be_zero { "0 or more" } else { "positive" };
+                bail!("{}: {key} is {value}; it must be {least}", named());
+            }
+        }
+        Ok(models)
+    }
+}
+
 /// Seconds per post of the pyramid and of the cone planes at
 /// CONE_SLICES slices, measured on the bundled tile (2 cores, 0.13 s and
 /// 0.46 s; docs/BENCHMARKS.md, cone planes).
@@ -243,6 +320,9 @@ pub struct Plan {
     /// Predicted for the whole bake after ingest.
     #[serde(default)]
     pub seconds: f64,
+    /// The models that predicted the horizons' and sky's seconds.
+    #[serde(default)]
+    pub time_models: TimeModels,
     #[serde(default)]
     pub bytes: u64,
     #[serde(default)]
@@ -490,6 +570,7 @@ struct LineCosts {
     sky_layers: usize,
     /// Mean post spacing, metres.
     cell: f64,
+    models: TimeModels,
 }
 
 impl LineCosts {
@@ -503,11 +584,12 @@ impl LineCosts {
     }
 
     fn seconds(&self, sectors: usize, distance: Option<f64>) -> f64 {
-        let s = sectors as f64;
-        match distance {
-            None => self.posts * s.powf(TIME_EXPONENT) / TIME_RATE,
-            Some(d) => self.posts * s * (BOUNDED_PER_LINE + BOUNDED_PER_CELL * d / self.cell),
-        }
+        let (s, m) = (sectors as f64, &self.models);
+        let work = match distance {
+            None => self.posts * s.powf(m.sweep_exponent) / m.sweep_rate,
+            Some(d) => self.posts * s * (m.bounded_per_line + m.bounded_per_cell * d / self.cell),
+        };
+        m.fixed_seconds + work
     }
 
     fn memory_mib(&self, sectors: usize, distance: Option<f64>) -> f64 {
@@ -524,6 +606,7 @@ impl LineCosts {
 /// Plans what `asset` needs for `request`.
 pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Result<Plan> {
     request.validate().map_err(anyhow::Error::msg)?;
+    let time_models = TimeModels::from_env()?;
     let budget = &request.budget;
     let needs = &request.needs;
     let m = asset.manifest();
@@ -606,6 +689,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
         tile,
         sky_layers: sky_layers.len(),
         cell: (dx + dy) / 2.0,
+        models: time_models,
     };
     let (mut chosen, mut safe_distance) = (None, None);
     let (mut choices, mut candidates) = (Vec::new(), Vec::new());
@@ -812,6 +896,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
         pyramid,
         cones,
         seconds,
+        time_models,
         bytes,
         memory_mib,
         choices,
@@ -1157,7 +1242,11 @@ pub fn describe(plan: &Plan) -> String {
             predicted.push(format!("shade {share:.4}"));
         }
     }
-    predicted.push(format!("time {:.1} s (2 cores)", plan.seconds));
+    predicted.push(if plan.time_models == TimeModels::default() {
+        format!("time {:.1} s (2 cores)", plan.seconds)
+    } else {
+        format!("time {:.1} s (by {TIME_MODELS_VAR}'s models)", plan.seconds)
+    });
     predicted.push(format!("bytes {:.1} MiB", plan.bytes as f64 / 1048576.0));
     predicted.push(format!("memory {:.0} MiB", plan.memory_mib));
     out + "\npredicted  " + &predicted.join("   ") + "\n"
@@ -1213,7 +1302,9 @@ The budget (docs/PLANNING.md): horizon=DEG is the 99th percentile over posts and
 absolute horizon angle error, interpolation between stored directions included; svf=X the 99th \
 percentile over posts of the absolute sky-view factor error; shade=F the share of (post, sun \
 position) pairs whose sun/shade state is wrong; bytes=SIZE, time=SECONDS and memory=MIB limit the \
-bake."
+bake. Its time is predicted by models fitted on a 2-core machine; on another, \
+OUT=models.json pipelines/fit_plan_models.sh fits that machine's, and TERRABAKE_TIME_MODELS=models.json \
+makes the planner use them."
 )]
 pub struct PlanArgs {
     /// A DEM (ingested into a temporary asset to be measured) or an ingested asset.
@@ -1228,6 +1319,8 @@ pub struct PlanArgs {
 impl PlanArgs {
     pub fn run(&self, progress: Progress) -> Result<()> {
         let request = self.request.request().expect("clap requires --budget");
+        // The time models are checked before a source DEM's ingest.
+        TimeModels::from_env()?;
         let plan = if self.src.is_dir() {
             plan(&crate::asset::open(&self.src)?, &request, progress)?
         } else {

@@ -187,6 +187,8 @@ pub fn bake_with(
             .validate()
             .map_err(anyhow::Error::msg)
             .with_context(|| format!("{}: [plan]", recipe.path.display()))?;
+        // The planner's time models, checked before the ingest as the plan is.
+        crate::plan::TimeModels::from_env()?;
     }
     let created = !dir.exists();
     let writer = AssetWriter::create(dir, wait)?;

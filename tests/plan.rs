@@ -12,7 +12,7 @@ use proptest::prelude::*;
 use terrabake::budget::{Budget, Need, Needs, Request, SunPosition};
 use terrabake::check::{check, CheckOptions, CheckReport};
 use terrabake::ingest::IngestOptions;
-use terrabake::plan::{plan, Plan, SHARE_DIRECTIONS};
+use terrabake::plan::{plan, Plan, TimeModels, SHARE_DIRECTIONS, TIME_MODELS_VAR};
 use terrabake::progress::Progress;
 use terrabake::stage::run_stage;
 use terrabake::synth::SynthKind;
@@ -493,6 +493,150 @@ fn fast_tracing_bakes_u16_cone_planes_of_64_slices_that_stay_exact() {
         report.bytes,
         p.bytes
     );
+}
+
+/// A machine's own time models (`TERRABAKE_TIME_MODELS`, the JSON that
+/// `fit_plan_models.sh` writes) change the predicted seconds and nothing
+/// else, so a time budget is judged by the machine that bakes; a file that
+/// is not such models is refused, named.
+#[test]
+fn the_time_models_of_the_machine_that_bakes() {
+    let dir = tempfile::tempdir().unwrap();
+    let (tif, _) = source(dir.path(), SynthKind::Fractal);
+    let plan_with = |models: Option<&Path>, budget: &str| {
+        let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_terrabake"));
+        command.args(["plan", &tif, "--budget", budget, "--json"]);
+        if let Some(models) = models {
+            command.env(TIME_MODELS_VAR, models);
+        }
+        command.output().expect("run terrabake")
+    };
+    let parse = |out: &std::process::Output| -> Plan {
+        assert!(out.status.success(), "{}", stderr(out));
+        serde_json::from_slice(&out.stdout).unwrap()
+    };
+    let ours = parse(&plan_with(None, "horizon=2"));
+    assert_eq!(ours.time_models, TimeModels::default());
+    // A machine ten times slower at every sweep and walk.
+    let d = TimeModels::default();
+    let slow = TimeModels {
+        sweep_rate: d.sweep_rate / 10.0,
+        bounded_per_line: d.bounded_per_line * 10.0,
+        bounded_per_cell: d.bounded_per_cell * 10.0,
+        ..d
+    };
+    let file = dir.path().join("models.json");
+    std::fs::write(&file, serde_json::to_string(&slow).unwrap()).unwrap();
+    let theirs = parse(&plan_with(Some(&file), "horizon=2"));
+    assert_eq!(theirs.time_models, slow);
+    let (a, b) = (ours.chosen.unwrap(), theirs.chosen.unwrap());
+    assert_eq!(
+        (
+            a.sectors,
+            a.encoding,
+            a.max_distance,
+            a.direction_tolerance,
+            a.bytes
+        ),
+        (
+            b.sectors,
+            b.encoding,
+            b.max_distance,
+            b.direction_tolerance,
+            b.bytes
+        )
+    );
+    assert!(
+        (b.seconds / a.seconds - 10.0).abs() < 1e-9,
+        "{} {}",
+        a.seconds,
+        b.seconds
+    );
+    for (x, y) in ours.candidates.iter().zip(&theirs.candidates) {
+        assert!((y.seconds / x.seconds - 10.0).abs() < 1e-9, "{x:?} {y:?}");
+    }
+    assert!((theirs.seconds - ours.seconds - 9.0 * a.seconds).abs() < 1e-9);
+    // A fixed cost a bake: every candidate's seconds and the plan's grow by it.
+    let fixed = TimeModels {
+        fixed_seconds: 100.0,
+        ..d
+    };
+    std::fs::write(&file, serde_json::to_string(&fixed).unwrap()).unwrap();
+    let with_fixed = parse(&plan_with(Some(&file), "horizon=2"));
+    for (x, y) in ours.candidates.iter().zip(&with_fixed.candidates) {
+        assert!((y.seconds - x.seconds - 100.0).abs() < 1e-9, "{x:?} {y:?}");
+    }
+    assert!((with_fixed.seconds - ours.seconds - 100.0).abs() < 1e-9);
+    std::fs::write(&file, serde_json::to_string(&slow).unwrap()).unwrap();
+    // A time limit the fit's machine meets and the slow one does not.
+    let limit = format!("horizon=2,time={}", (3.0 * ours.seconds).max(1e-3));
+    parse(&plan_with(None, &limit));
+    let refused = plan_with(Some(&file), &limit);
+    assert_eq!(refused.status.code(), Some(1), "{}", stderr(&refused));
+    assert!(
+        stderr(&refused).contains("needs time"),
+        "{}",
+        stderr(&refused)
+    );
+    // Files that are not time models.
+    let json = serde_json::to_value(slow).unwrap();
+    let mut typo = json.clone();
+    typo["sweep_rat"] = typo["sweep_rate"].take();
+    typo.as_object_mut().unwrap().remove("sweep_rate");
+    let mut negative = json.clone();
+    negative["bounded_per_cell"] = serde_json::json!(-1.0);
+    let mut below_zero = json.clone();
+    below_zero["fixed_seconds"] = serde_json::json!(-0.5);
+    for (name, text, says) in [
+        ("typo.json", typo.to_string(), "unknown field `sweep_rat`"),
+        (
+            "negative.json",
+            negative.to_string(),
+            "bounded_per_cell is -1",
+        ),
+        (
+            "below_zero.json",
+            below_zero.to_string(),
+            "fixed_seconds is -0.5",
+        ),
+        ("text.json", "fast".to_string(), "not time models"),
+    ] {
+        let path = dir.path().join(name);
+        std::fs::write(&path, text).unwrap();
+        let out = plan_with(Some(&path), "horizon=2");
+        assert_eq!(out.status.code(), Some(1), "{name}: {}", stderr(&out));
+        let message = stderr(&out);
+        assert!(
+            message.contains(name) && message.contains(TIME_MODELS_VAR),
+            "{message}"
+        );
+        assert!(message.contains(says), "{message}");
+    }
+    let missing = plan_with(Some(&dir.path().join("none.json")), "horizon=2");
+    assert_eq!(missing.status.code(), Some(1));
+    assert!(
+        stderr(&missing).contains("none.json"),
+        "{}",
+        stderr(&missing)
+    );
+    // A planned bake refuses them before its ingest: no asset is left.
+    let out = dir.path().join("refused.tbake");
+    let bake = std::process::Command::new(env!("CARGO_BIN_EXE_terrabake"))
+        .args([
+            "bake",
+            &tif,
+            "-o",
+            out.to_str().unwrap(),
+            "--budget",
+            "horizon=2",
+            "-q",
+        ])
+        .env(TIME_MODELS_VAR, dir.path().join("typo.json"))
+        .output()
+        .expect("run terrabake");
+    assert_eq!(bake.status.code(), Some(1), "{}", stderr(&bake));
+    assert!(stderr(&bake).contains("typo.json"), "{}", stderr(&bake));
+    assert!(!out.exists());
 }
 
 #[test]
