@@ -164,6 +164,7 @@ impl BenchPlanArgs {
             println!("{}", serde_json::to_string_pretty(&rows)?);
         } else {
             print!("{}", table(&rows));
+            println!("\n{}", over_time(&rows));
         }
         if let Some(prefix) = &self.chart {
             charts(prefix, &rows)?;
@@ -222,6 +223,38 @@ fn table(rows: &[PlanRow]) -> String {
     )
 }
 
+/// How many bakes took longer than their plan predicted, and the most:
+/// where the time models (`TERRABAKE_TIME_MODELS`) fall short on this
+/// machine.
+fn over_time(rows: &[PlanRow]) -> String {
+    let baked: Vec<&PlanRow> = rows.iter().filter(|r| !r.refused).collect();
+    let over: Vec<&&PlanRow> = baked
+        .iter()
+        .filter(|r| r.bake_seconds > r.predicted_seconds)
+        .collect();
+    let worst = over
+        .iter()
+        .max_by(|a, b| {
+            let ratio = |r: &PlanRow| r.bake_seconds / r.predicted_seconds;
+            ratio(a).total_cmp(&ratio(b))
+        })
+        .map_or(String::new(), |r| {
+            format!(
+                " (the most {:.2}x: {} at {} deg, {:.2} s against {:.2})",
+                r.bake_seconds / r.predicted_seconds,
+                r.dem,
+                r.budget_deg,
+                r.bake_seconds,
+                r.predicted_seconds
+            )
+        });
+    format!(
+        "bakes over their predicted time: {} of {}{worst}",
+        over.len(),
+        baked.len()
+    )
+}
+
 fn charts(prefix: &std::path::Path, rows: &[PlanRow]) -> Result<()> {
     let mut dems: Vec<&str> = rows.iter().map(|r| r.dem.as_str()).collect();
     dems.dedup();
@@ -269,4 +302,33 @@ fn charts(prefix: &std::path::Path, rows: &[PlanRow]) -> Result<()> {
         "asset on disk (MiB)",
         &series(&|r| r.asset_bytes as f64 / 1048576.0),
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn over_time_counts_the_baked_rows_over_their_prediction() {
+        let row = |dem: &str, bake: f64, predicted: f64| PlanRow {
+            bake_seconds: bake,
+            predicted_seconds: predicted,
+            refused: false,
+            ..PlanRow::refused(dem, 1.0)
+        };
+        let rows = [
+            row("a", 1.0, 2.0),
+            row("b", 3.0, 1.5),
+            row("c", 1.1, 1.0),
+            PlanRow::refused("d", 0.25),
+        ];
+        assert_eq!(
+            over_time(&rows),
+            "bakes over their predicted time: 2 of 3 (the most 2.00x: b at 1 deg, 3.00 s against 1.50)"
+        );
+        assert_eq!(
+            over_time(&rows[..1]),
+            "bakes over their predicted time: 0 of 1"
+        );
+    }
 }
