@@ -506,9 +506,10 @@ fn the_time_models_of_the_machine_that_bakes() {
     let plan_with = |models: Option<&Path>, budget: &str| {
         let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_terrabake"));
         command.args(["plan", &tif, "--budget", budget, "--json"]);
-        if let Some(models) = models {
-            command.env(TIME_MODELS_VAR, models);
-        }
+        match models {
+            Some(models) => command.env(TIME_MODELS_VAR, models),
+            None => command.env_remove(TIME_MODELS_VAR),
+        };
         command.output().expect("run terrabake")
     };
     let parse = |out: &std::process::Output| -> Plan {
