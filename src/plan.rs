@@ -133,12 +133,21 @@ impl Default for TimeModels {
 }
 
 impl TimeModels {
-    /// The models [`TIME_MODELS_VAR`] names, else the defaults.
+    /// The models [`TIME_MODELS_VAR`] names, else the defaults; read once a
+    /// process, so that the check before an ingest, the plans after it and
+    /// `bench-plan`'s plans all use the same file's models.
     pub fn from_env() -> Result<Self> {
-        match std::env::var_os(TIME_MODELS_VAR).filter(|v| !v.is_empty()) {
-            None => Ok(Self::default()),
-            Some(path) => Self::read(std::path::Path::new(&path)),
-        }
+        static MODELS: std::sync::OnceLock<Result<TimeModels, String>> = std::sync::OnceLock::new();
+        MODELS
+            .get_or_init(
+                || match std::env::var_os(TIME_MODELS_VAR).filter(|v| !v.is_empty()) {
+                    None => Ok(Self::default()),
+                    Some(path) => Self::read(std::path::Path::new(&path))
+                        .map_err(|e| crate::report::error_chain(&e)),
+                },
+            )
+            .clone()
+            .map_err(anyhow::Error::msg)
     }
 
     /// The models in the JSON file `path`: every field given, each a

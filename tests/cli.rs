@@ -928,12 +928,7 @@ fn vector_caps_change_no_layer() {
     let tif = tmp.path().join("fractal.tif");
     ok(&["synth", "fractal", "--size", "300x200", "-o", s(&tif), "-q"]);
     let run = |cap: Option<&str>, args: &[&str]| {
-        let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_terrabake"));
-        command.args(args);
-        if let Some(cap) = cap {
-            command.env(terrabake::simd::VAR, cap);
-        }
-        command.output().expect("run terrabake")
+        terrabake_with((terrabake::simd::VAR, cap.map(std::ffi::OsStr::new)), args)
     };
     let bake = |cap: Option<&str>| {
         let asset = tmp

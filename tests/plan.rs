@@ -504,13 +504,10 @@ fn the_time_models_of_the_machine_that_bakes() {
     let dir = tempfile::tempdir().unwrap();
     let (tif, _) = source(dir.path(), SynthKind::Fractal);
     let plan_with = |models: Option<&Path>, budget: &str| {
-        let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_terrabake"));
-        command.args(["plan", &tif, "--budget", budget, "--json"]);
-        match models {
-            Some(models) => command.env(TIME_MODELS_VAR, models),
-            None => command.env_remove(TIME_MODELS_VAR),
-        };
-        command.output().expect("run terrabake")
+        terrabake_with(
+            (TIME_MODELS_VAR, models.map(Path::as_os_str)),
+            &["plan", &tif, "--budget", budget, "--json"],
+        )
     };
     let parse = |out: &std::process::Output| -> Plan {
         assert!(out.status.success(), "{}", stderr(out));
@@ -622,8 +619,10 @@ fn the_time_models_of_the_machine_that_bakes() {
     );
     // A planned bake refuses them before its ingest: no asset is left.
     let out = dir.path().join("refused.tbake");
-    let bake = std::process::Command::new(env!("CARGO_BIN_EXE_terrabake"))
-        .args([
+    let typo = dir.path().join("typo.json");
+    let bake = terrabake_with(
+        (TIME_MODELS_VAR, Some(typo.as_os_str())),
+        &[
             "bake",
             &tif,
             "-o",
@@ -631,10 +630,8 @@ fn the_time_models_of_the_machine_that_bakes() {
             "--budget",
             "horizon=2",
             "-q",
-        ])
-        .env(TIME_MODELS_VAR, dir.path().join("typo.json"))
-        .output()
-        .expect("run terrabake");
+        ],
+    );
     assert_eq!(bake.status.code(), Some(1), "{}", stderr(&bake));
     assert!(stderr(&bake).contains("typo.json"), "{}", stderr(&bake));
     assert!(!out.exists());

@@ -228,20 +228,19 @@ fn table(rows: &[PlanRow]) -> String {
 /// machine.
 fn over_time(rows: &[PlanRow]) -> String {
     let baked: Vec<&PlanRow> = rows.iter().filter(|r| !r.refused).collect();
-    let over: Vec<&&PlanRow> = baked
+    let over: Vec<&PlanRow> = baked
         .iter()
+        .copied()
         .filter(|r| r.bake_seconds > r.predicted_seconds)
         .collect();
+    let ratio = |r: &PlanRow| r.bake_seconds / r.predicted_seconds;
     let worst = over
         .iter()
-        .max_by(|a, b| {
-            let ratio = |r: &PlanRow| r.bake_seconds / r.predicted_seconds;
-            ratio(a).total_cmp(&ratio(b))
-        })
+        .max_by(|a, b| ratio(a).total_cmp(&ratio(b)))
         .map_or(String::new(), |r| {
             format!(
                 " (the most {:.2}x: {} at {} deg, {:.2} s against {:.2})",
-                r.bake_seconds / r.predicted_seconds,
+                ratio(r),
                 r.dem,
                 r.budget_deg,
                 r.bake_seconds,

@@ -55,6 +55,17 @@ pub fn terrabake(args: &[&str]) -> Output {
         .expect("run terrabake")
 }
 
+/// Runs the terrabake binary with the environment variable `var` set to
+/// `value`, or removed where `None`.
+pub fn terrabake_with((var, value): (&str, Option<&std::ffi::OsStr>), args: &[&str]) -> Output {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_terrabake"));
+    match value {
+        Some(value) => command.env(var, value),
+        None => command.env_remove(var),
+    };
+    command.args(args).output().expect("run terrabake")
+}
+
 pub fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
