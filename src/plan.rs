@@ -142,8 +142,9 @@ impl TimeModels {
             .get_or_init(
                 || match std::env::var_os(TIME_MODELS_VAR).filter(|v| !v.is_empty()) {
                     None => Ok(Self::default()),
-                    Some(path) => Self::read(std::path::Path::new(&path))
-                        .map_err(|e| crate::report::error_chain(&e)),
+                    Some(path) => {
+                        Self::read(std::path::Path::new(&path)).map_err(|e| format!("{e:#}"))
+                    }
                 },
             )
             .clone()
