@@ -5,7 +5,7 @@ BIN := target/release/terrabake
 DEMO_DEM := data/srtm3_n07w006_geographic_int16.tif
 OUT ?= out
 
-.PHONY: all build demo test test-full capi capi-header test-page bake-parts bake-slurm test-slurm fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-visibility bench-plan time-models bench-cog bench-peers bench-reader fixtures fmt lint clean
+.PHONY: all build demo test test-full capi capi-header test-page bake-parts bake-slurm test-slurm fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-visibility bench-plan time-models bench-cog bench-peers bench-targets bench-reader fixtures fmt lint clean
 
 all: build
 
@@ -176,6 +176,13 @@ time-models: build
 ## and their points on docs/charts/horizons_*.svg.
 bench-peers: build
 	BIN=$(BIN) bash pipelines/peers/bench_peers.sh
+
+## Issue #17's speed targets on this machine, each against its target, in
+## one run (docs/BENCHMARKS.md, "The speed targets of #17"): the sector
+## horizons, the cone planes and parametric tracing measured here; the line
+## horizons' ratio to HORAYZON comes from bench-peers.
+bench-targets: build
+	BIN=$(BIN) bash pipelines/bench_targets.sh
 
 ## COG export: a 1 GiB height layer inside a 256 MiB memory cgroup,
 ## deflate/zstd/none, beside GDAL's COG driver (and OLD=binary alternating).
