@@ -12,6 +12,16 @@ fractal_asset() {
   echo "$asset"
 }
 
+# wall CMD...: runs CMD (its output dropped) and prints the wall seconds
+# it took, to the nanosecond clock's precision (a bake of a few posts takes
+# hundredths of a second, below /usr/bin/time's resolution).
+wall() {
+  local start
+  start=$(date +%s.%N)
+  "$@" >/dev/null
+  awk -v a="$start" -v b="$(date +%s.%N)" 'BEGIN { print b - a }'
+}
+
 # run_in_cgroup LIMIT_MIB LOG CMD...
 # runs CMD under /usr/bin/time -v (output to LOG) inside a cgroup v1 memory
 # limit of LIMIT_MIB, after dropping the page cache so that every page the

@@ -18,15 +18,14 @@ BIN=${BIN:-target/release/terrabake}
 OUT=${OUT:-}
 WORK=$(mktemp -d)
 trap 'rm -rf "$WORK"' EXIT
+source "$(dirname "$0")/bench_common.sh"
 # The fixed cost of a bake (start, open, write): the horizons and sky
 # stages on 64 x 64 posts at 8 directions, the longest of three runs. The
 # fits below are of what each run took beyond it.
 "$BIN" synth flat --size 64x64 -o "$WORK/tiny.tif" -q
 "$BIN" ingest "$WORK/tiny.tif" -o "$WORK/tiny.tbake" -q
 fixed=$(for _ in 1 2 3; do
-  start=$(date +%s.%N)
-  "$BIN" horizons "$WORK/tiny.tbake" --sectors 8 --encoding u16 --force -q
-  awk -v a="$start" -v b="$(date +%s.%N)" 'BEGIN {print b - a}'
+  wall "$BIN" horizons "$WORK/tiny.tbake" --sectors 8 --encoding u16 --force -q
 done | sort -g | tail -1)
 printf 'fixed: %.3f s a bake\n' "$fixed"
 printf '"fixed_seconds": %.4g' "$fixed" > "$WORK/fixed"
@@ -34,9 +33,7 @@ printf '"fixed_seconds": %.4g' "$fixed" > "$WORK/fixed"
 "$BIN" ingest data/srtm3_n07w006_geographic_int16.tif -o "$WORK/srtm.tbake" -q
 posts=$((1201 * 1201))
 for s in 16 24 36 48 72 120; do
-  start=$(date +%s.%N)
-  "$BIN" horizons "$WORK/srtm.tbake" --sectors "$s" --encoding u16 --force -q
-  echo "$s $(awk -v a="$start" -v b="$(date +%s.%N)" 'BEGIN {print b - a}')"
+  echo "$s $(wall "$BIN" horizons "$WORK/srtm.tbake" --sectors "$s" --encoding u16 --force -q)"
 done | tee "$WORK/runs" | awk -v posts="$posts" -v fixed="$fixed" -v fit="$WORK/sweep" '
   { x = log($1); y = log(($2 - fixed) / posts); n++; sx += x; sy += y; sxx += x * x; sxy += x * y;
     xs[n] = x; ys[n] = y; printf "S %4d: %7.2f s\n", $1, $2 }
@@ -55,10 +52,8 @@ done | tee "$WORK/runs" | awk -v posts="$posts" -v fixed="$fixed" -v fit="$WORK/
 cell=$("$BIN" info "$WORK/srtm.tbake" --json | tr -d ' \n' | sed -E 's/.*"cell_size":\{"dx":([0-9.]+),"dy":([0-9.]+).*/\1 \2/' | awk '{print ($1 + $2) / 2}')
 for d in 1000 3000; do
   for s in 16 48; do
-    start=$(date +%s.%N)
-    "$BIN" horizons "$WORK/srtm.tbake" --sectors "$s" --encoding u16 --max-distance "$d" \
-      --force -q
-    echo "$s $d $(awk -v a="$start" -v b="$(date +%s.%N)" 'BEGIN {print b - a}')"
+    echo "$s $d $(wall "$BIN" horizons "$WORK/srtm.tbake" --sectors "$s" --encoding u16 \
+      --max-distance "$d" --force -q)"
   done
 done | awk -v posts="$posts" -v cell="$cell" -v fixed="$fixed" -v fit="$WORK/bounded" '
   { x = $2 / cell; y = ($3 - fixed) / (posts * $1); n++; sx += x; sy += y; sxx += x * x; sxy += x * y;

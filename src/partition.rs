@@ -318,11 +318,7 @@ pub fn bake_part(
 }
 
 fn read_record(path: &Path) -> Result<PartRecord> {
-    use std::io::Read;
-    let mut bytes = Vec::new();
-    terrabake_format::fsio::open_regular(path)?
-        .take(1 << 24)
-        .read_to_end(&mut bytes)
+    let bytes = terrabake_format::fsio::read_regular(path, 1 << 24)
         .with_context(|| format!("{}: cannot read the part's record", path.display()))?;
     serde_json::from_slice(&bytes)
         .with_context(|| format!("{}: not a part record of this terrabake", path.display()))

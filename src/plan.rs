@@ -133,41 +133,35 @@ impl Default for TimeModels {
 }
 
 impl TimeModels {
-    /// The models [`TIME_MODELS_VAR`] names, else the defaults; read once a
-    /// process, so that the check before an ingest, the plans after it and
-    /// `bench-plan`'s plans all use the same file's models.
+    /// The models [`TIME_MODELS_VAR`] names, else the defaults; once read,
+    /// kept for the process, so that the check before an ingest, the plans
+    /// after it and `bench-plan`'s plans all use the same file's models. A
+    /// file that fails is not kept: its error ends the command.
     pub fn from_env() -> Result<Self> {
-        static MODELS: std::sync::OnceLock<Result<TimeModels, String>> = std::sync::OnceLock::new();
-        MODELS
-            .get_or_init(
-                || match std::env::var_os(TIME_MODELS_VAR).filter(|v| !v.is_empty()) {
-                    None => Ok(Self::default()),
-                    Some(path) => {
-                        Self::read(std::path::Path::new(&path)).map_err(|e| format!("{e:#}"))
-                    }
-                },
-            )
-            .clone()
-            .map_err(anyhow::Error::msg)
+        static MODELS: std::sync::OnceLock<TimeModels> = std::sync::OnceLock::new();
+        if let Some(models) = MODELS.get() {
+            return Ok(*models);
+        }
+        let models = match std::env::var_os(TIME_MODELS_VAR).filter(|v| !v.is_empty()) {
+            None => Self::default(),
+            Some(path) => Self::read(std::path::Path::new(&path))?,
+        };
+        Ok(*MODELS.get_or_init(|| models))
     }
 
     /// The models in the JSON file `path`: every field given, each a
     /// positive number (the fixed seconds may be 0).
     pub fn read(path: &std::path::Path) -> Result<Self> {
-        use std::io::Read;
         // A file of five numbers; anything larger is not one.
         const MAX_BYTES: u64 = 64 << 10;
         let named = || format!("{} ({TIME_MODELS_VAR})", path.display());
-        let file = std::fs::File::open(path)
-            .with_context(|| format!("{}: cannot open the time models", named()))?;
-        let mut text = String::new();
-        file.take(MAX_BYTES + 1)
-            .read_to_string(&mut text)
+        // A regular file only: a FIFO there would hang the plan.
+        let bytes = terrabake_format::fsio::read_regular(path, MAX_BYTES + 1)
             .with_context(|| format!("{}: cannot read the time models", named()))?;
-        if text.len() as u64 > MAX_BYTES {
+        if bytes.len() as u64 > MAX_BYTES {
             bail!("{}: over {MAX_BYTES} bytes, not time models", named());
         }
-        let models: Self = serde_json::from_str(&text).with_context(|| {
+        let models: Self = serde_json::from_slice(&bytes).with_context(|| {
             format!(
                 "{}: not time models as fit_plan_models.sh writes them",
                 named()

@@ -610,6 +610,16 @@ fn the_time_models_of_the_machine_that_bakes() {
         );
         assert!(message.contains(says), "{message}");
     }
+    // A FIFO is refused, not waited on.
+    let fifo = dir.path().join("fifo.json");
+    mkfifo(&fifo);
+    let out = plan_with(Some(&fifo), "horizon=2");
+    assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("fifo.json") && stderr(&out).contains("not a regular file"),
+        "{}",
+        stderr(&out)
+    );
     let missing = plan_with(Some(&dir.path().join("none.json")), "horizon=2");
     assert_eq!(missing.status.code(), Some(1));
     assert!(

@@ -402,11 +402,7 @@ fn verify_refuses_inconsistent_manifests() {
 #[test]
 fn the_reader_checks_names_and_opens_only_regular_files() {
     let (dir, asset) = baked();
-    let fifo = |path: &Path| {
-        let c = std::ffi::CString::new(path.to_str().unwrap()).unwrap();
-        // SAFETY: a valid NUL-terminated path.
-        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o644) }, 0);
-    };
+    let fifo = common::mkfifo;
     // A FIFO outside the asset, named by the manifest: refused by name.
     fifo(&dir.path().join("outside.tbl"));
     for name in ["../outside.tbl", "/etc/passwd"] {

@@ -1,7 +1,7 @@
 //! The file-system rules every reader and writer of an asset follows, in one
 //! place, so that no caller can forget one:
 //!
-//! - **Reading** ([`open_regular`]): names are checked before anything is
+//! - **Reading** ([`open_regular`], [`read_regular`]): names are checked before anything is
 //!   opened ([`check_file_name`]); files are opened without following a
 //!   symbolic link (`O_NOFOLLOW`) and without blocking (`O_NONBLOCK`, so a
 //!   FIFO planted under a layer's name cannot hang `info` or a renderer), and
@@ -81,6 +81,22 @@ pub fn open_regular(path: &Path) -> Result<File> {
         ));
     }
     Ok(file)
+}
+
+/// The regular file `path` whole, or its first `limit` bytes where it is
+/// longer, opened as [`open_regular`] opens it: a caller that refuses a
+/// file past some size passes one byte more and checks the length.
+pub fn read_regular(path: &Path, limit: u64) -> Result<Vec<u8>> {
+    use std::io::Read;
+    let mut bytes = Vec::new();
+    open_regular(path)?
+        .take(limit)
+        .read_to_end(&mut bytes)
+        .map_err(|source| Error::Io {
+            at: Location::file(path),
+            source,
+        })?;
+    Ok(bytes)
 }
 
 /// A fresh temporary file beside `target` (same directory, so the final

@@ -781,15 +781,7 @@ pub(crate) fn committed_manifest(dir: &Path) -> Result<Option<Manifest>> {
 /// The manifest file's bytes (small: read, not mapped, so that a writer's
 /// rename can never change them under us).
 fn read_file(path: &Path) -> Result<Vec<u8>> {
-    use std::io::Read;
-    let mut bytes = Vec::new();
-    crate::fsio::open_regular(path)?
-        .read_to_end(&mut bytes)
-        .map_err(|source| Error::Io {
-            at: Location::file(path),
-            source,
-        })?;
-    Ok(bytes)
+    crate::fsio::read_regular(path, u64::MAX)
 }
 
 fn map_file(path: &Path) -> Result<Mmap> {

@@ -66,6 +66,13 @@ pub fn terrabake_with((var, value): (&str, Option<&std::ffi::OsStr>), args: &[&s
     command.args(args).output().expect("run terrabake")
 }
 
+/// Makes a FIFO at `path`: what a reader must refuse rather than wait on.
+pub fn mkfifo(path: &std::path::Path) {
+    let c = std::ffi::CString::new(path.to_str().unwrap()).unwrap();
+    // SAFETY: a valid NUL-terminated path.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o644) }, 0);
+}
+
 pub fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
