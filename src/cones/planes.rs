@@ -25,8 +25,10 @@
 //!   number of distinct heights costs nothing); the column pass is two
 //!   integer sweeps over strips of columns (no parabolas needed for a bit
 //!   plane); the row pass leaves out parabolas too far to narrow any cone of
-//!   the row (farther than its reach from the span of its open cells); the
-//!   top slice runs first so that every row has a finite reach;
+//!   the row (farther than its reach from the span of its open cells), and
+//!   those of plane cells between near neighbours (never the lowest at a
+//!   cell outside the plane: [`Span::hidden_bits`]); the top slice runs
+//!   first so that every row has a finite reach;
 //!   each distance found is kept, in two bytes, as a floor for the slices
 //!   above (whose planes it contains), and a cell whose floor reaches its
 //!   cone's width is left out of the slice (85 % of the evaluations at 2048²);
@@ -310,6 +312,14 @@ fn sliced_planes_with<G: ColumnDistance>(
     for &m in &member {
         apex_of_slice[usize::from(m)] += 1;
     }
+    // The apex slices again in one byte, 255 standing for 255 and above:
+    // `m > k` reads the same for every slice below 255, and the column pass,
+    // which streams them once a slice, is bound by memory.
+    let member_u8: Option<Vec<u8>> = (k_count > 1).then(|| {
+        let mut m8 = pages::with_capacity(cw * ch);
+        m8.par_extend(member.par_iter().map(|&m| m.min(u16::from(u8::MAX)) as u8));
+        m8
+    });
     let mut slope = pages::filled(cw * ch, f32::INFINITY);
     // Per cell, a lower bound on its distance to the plane of the slices
     // still to come (see [`Floor`]).
@@ -347,36 +357,10 @@ fn sliced_planes_with<G: ColumnDistance>(
         stats.transforms += 1;
         let k16 = k as u16;
         // Column pass: cells to the nearest plane cell in the same column.
-        column
-            .par_chunks_mut(ch * STRIP)
-            .enumerate()
-            .for_each(|(s, strip)| {
-                let c0 = s * STRIP;
-                let width = STRIP.min(cw - c0);
-                let mut prev = [G::NONE; STRIP];
-                for r in 0..ch {
-                    // A strip's rows are a row stride apart, with little
-                    // work on each to hide a miss: ask ahead.
-                    let ahead = (r + COLUMN_PREFETCH_ROWS) * cw + c0;
-                    if let Some(m) = member.get(ahead..ahead + width) {
-                        prefetch(m);
-                    }
-                    let m = &member[r * cw + c0..r * cw + c0 + width];
-                    let out = &mut strip[r * STRIP..r * STRIP + width];
-                    for j in 0..width {
-                        out[j] = if m[j] > k16 { G::ZERO } else { prev[j].next() };
-                        prev[j] = out[j];
-                    }
-                }
-                let mut next = [G::NONE; STRIP];
-                for r in (0..ch).rev() {
-                    let out = &mut strip[r * STRIP..r * STRIP + width];
-                    for j in 0..width {
-                        out[j] = out[j].min(next[j].next());
-                        next[j] = out[j];
-                    }
-                }
-            });
+        match &member_u8 {
+            Some(m8) if k < usize::from(u8::MAX) => column_pass(&mut column, m8, k as u8, (cw, ch)),
+            _ => column_pass(&mut column, &member, k16, (cw, ch)),
+        }
         // Row pass: the lower envelope of the columns' parabolas, then the
         // slope update of every cell outside the plane.
         let rise_of = &slices.rise_of(k);
@@ -460,6 +444,47 @@ fn sliced_planes_with<G: ColumnDistance>(
         .zip(&apex)
         .for_each(|(s, &a)| *s = s.min(round_down_f32(Cap::slope(cap, f64::from(a)))));
     Planes { apex, slope, stats }
+}
+
+/// The column pass of slice `k`: per cell of each strip of `column`, the
+/// rows to the nearest cell of the column in the slice's plane (`member >
+/// k`), down then up the strip.
+fn column_pass<G: ColumnDistance, M: Copy + Ord + Sync>(
+    column: &mut [G],
+    member: &[M],
+    k: M,
+    (cw, ch): (usize, usize),
+) {
+    column
+        .par_chunks_mut(ch * STRIP)
+        .enumerate()
+        .for_each(|(s, strip)| {
+            let c0 = s * STRIP;
+            let width = STRIP.min(cw - c0);
+            let mut prev = [G::NONE; STRIP];
+            for r in 0..ch {
+                // A strip's rows are a row stride apart, with little
+                // work on each to hide a miss: ask ahead.
+                let ahead = (r + COLUMN_PREFETCH_ROWS) * cw + c0;
+                if let Some(m) = member.get(ahead..ahead + width) {
+                    prefetch(m);
+                }
+                let m = &member[r * cw + c0..r * cw + c0 + width];
+                let out = &mut strip[r * STRIP..r * STRIP + width];
+                for j in 0..width {
+                    out[j] = if m[j] > k { G::ZERO } else { prev[j].next() };
+                    prev[j] = out[j];
+                }
+            }
+            let mut next = [G::NONE; STRIP];
+            for r in (0..ch).rev() {
+                let out = &mut strip[r * STRIP..r * STRIP + width];
+                for j in 0..width {
+                    out[j] = out[j].min(next[j].next());
+                    next[j] = out[j];
+                }
+            }
+        });
 }
 
 mod lanes;
@@ -567,6 +592,7 @@ fn columns_in_reach<G: ColumnDistance>(
         aspect,
         // (The slack keeps a column that rounding would drop.)
         reach2: reach * reach * (1.0 + 1e-12),
+        hidden: Span::hidden(aspect),
         lanes,
     };
     let mut n = 0;
@@ -588,6 +614,9 @@ struct Span {
     last: u32,
     aspect: f64,
     reach2: f64,
+    /// The largest column distance whose parabola's offset is at most 1
+    /// ([`Span::hidden_bits`]).
+    hidden: u16,
     lanes: Level,
 }
 
@@ -618,20 +647,70 @@ fn keep_in_reach<G: ColumnDistance>(
         (Level::Avx512, Some(g)) => unsafe { lanes::keep_in_reach_avx512(g, c0, test, kept, n) },
         #[cfg(target_arch = "x86_64")]
         (Level::Avx2, Some(g)) => unsafe { lanes::keep_in_reach_avx2(g, c0, test, kept, n) },
-        _ => test.keep_scalar(g, c0, kept, n),
+        _ => {
+            let (plane, near) = test.plane_and_near(g, 0);
+            test.keep_scalar(g, 0, Span::hidden_bits(plane, near), c0, kept, n)
+        }
     }
 }
 
 impl Span {
-    /// [`keep_in_reach`] one column at a time.
+    /// The largest column distance `g` with `(g aspect)^2 <= 1` as the
+    /// offsets round it (`aspect` columns a row): [`Self::hidden`].
+    fn hidden(aspect: f64) -> u16 {
+        let within = |g: u16| {
+            let d = f64::from(g) * aspect;
+            d * d <= 1.0
+        };
+        let mut g = (1.0 / aspect).clamp(0.0, f64::from(u16::MAX - 1)) as u16;
+        while g > 0 && !within(g) {
+            g -= 1;
+        }
+        while g < u16::MAX - 1 && within(g + 1) {
+            g += 1;
+        }
+        g
+    }
+
+    /// Bit `j` for column `j` of a row's share of a strip (at most
+    /// [`STRIP`] columns): whether it is a plane cell (`plane`, distance 0)
+    /// between two columns within [`Self::hidden`] (`near`). Its parabola
+    /// is then never the lowest at a target (a cell outside the plane, so
+    /// not `j`): on either side the neighbour's lies at or below it (`(x -
+    /// j -+ 1)^2 + o <= (x - j)^2` for `o <= 1` and `x` past the
+    /// neighbour), or is itself hidden, or comes no nearer than the reach.
+    /// So it is not pushed: in the low slices, whose rows are mostly plane,
+    /// that is most of the pushes. (The ends of a share, whose neighbours
+    /// lie in other strips, are kept.)
+    fn hidden_bits(plane: u64, near: u64) -> u64 {
+        plane & (near << 1) & (near >> 1)
+    }
+
+    /// The `plane` and `near` bits of [`Self::hidden_bits`] of columns
+    /// `from..` of `g`, one column at a time.
+    fn plane_and_near<G: ColumnDistance>(self, g: &[G], from: usize) -> (u64, u64) {
+        debug_assert!(g.len() <= STRIP);
+        (from..g.len()).fold((0, 0), |(plane, near), j| {
+            (
+                plane | u64::from(g[j] == G::ZERO) << j,
+                near | u64::from(g[j].cells() <= f64::from(self.hidden)) << j,
+            )
+        })
+    }
+
+    /// [`keep_in_reach`] one column at a time, from column `from` of `g`
+    /// (whose first is column `c0`), with `g`'s [`Self::hidden_bits`].
     fn keep_scalar<G: ColumnDistance>(
         self,
         g: &[G],
+        from: usize,
+        hidden: u64,
         c0: u32,
         kept: &mut Kept,
         mut n: usize,
     ) -> usize {
-        for (&g, c) in g.iter().zip(c0..) {
+        for (j, &g) in g.iter().enumerate().skip(from) {
+            let c = c0 + j as u32;
             let along = self
                 .first
                 .saturating_sub(c)
@@ -639,7 +718,9 @@ impl Span {
             let (gd, along) = (g.cells() * self.aspect, f64::from(along));
             kept.columns[n] = c;
             kept.offsets[n] = gd * gd;
-            n += usize::from(g != G::NONE && gd * gd + along * along < self.reach2);
+            n += usize::from(
+                g != G::NONE && gd * gd + along * along < self.reach2 && hidden >> j & 1 == 0,
+            );
         }
         n
     }
@@ -1142,8 +1223,10 @@ mod tests {
 
     /// A row's kept columns are those the definition names (a column
     /// distance, and its parabola within the reach of the targets' span),
-    /// with their offsets, in every kind of `u16` lanes the CPU has and one
-    /// `u32` at a time alike.
+    /// with their offsets, less plane cells whose neighbours in the row
+    /// are within [`Span::hidden`] (some of those kept: the ends of a
+    /// strip), in every kind of `u16` lanes the CPU has and one `u32` at a
+    /// time alike.
     #[test]
     fn columns_in_reach_are_the_definition() {
         let mut next = xorshift(0x9e37_79b9_7f4a_7c15);
@@ -1173,13 +1256,16 @@ mod tests {
                 .zip(kept.offsets[..n].iter().copied())
                 .collect()
         }
+        let mut hidden_left_out = 0;
         for cw in [1, 7, 64, 65, 200, 517] {
             let ch = 3;
-            // Column distances: none, zero, or up to a few hundred cells.
+            // Column distances: none, zero (often in runs, as in a plane),
+            // one, or up to a few hundred cells.
             let g_of: Vec<u64> = (0..cw * ch)
-                .map(|_| match next() % 4 {
+                .map(|_| match next() % 6 {
                     0 => u64::MAX,
-                    1 => 0,
+                    1..=3 => 0,
+                    4 => 1,
                     _ => next() % 300,
                 })
                 .collect();
@@ -1202,27 +1288,45 @@ mod tests {
                     })
                     .collect();
                 let args = ((cw, ch), r, (first, last), reach, aspect);
+                let got = case::<u32>(
+                    &g_of,
+                    args.0,
+                    args.1,
+                    args.2,
+                    args.3,
+                    args.4,
+                    crate::simd::level(),
+                );
+                // Hidden: a plane cell whose neighbours are within the
+                // offset of 1.
+                let hidden = Span::hidden(aspect);
+                let near = |c: usize| g_of[r * cw + c] <= u64::from(hidden);
+                let is_hidden = |c: usize| {
+                    g_of[r * cw + c] == 0 && c > 0 && c + 1 < cw && near(c - 1) && near(c + 1)
+                };
+                let mut kept = got.iter().peekable();
+                for &(c, offset) in &want {
+                    if kept.next_if(|k| **k == (c, offset)).is_none() {
+                        assert!(is_hidden(c as usize), "column {c} left out, {cw} columns");
+                        hidden_left_out += 1;
+                    }
+                }
+                assert!(
+                    kept.next().is_none(),
+                    "a column kept against the definition"
+                );
                 for lanes in crate::simd::available() {
                     assert_eq!(
                         case::<u16>(&g_of, args.0, args.1, args.2, args.3, args.4, lanes),
-                        want,
+                        got,
                         "u16, {lanes:?}, {cw} columns"
                     );
                 }
-                assert_eq!(
-                    case::<u32>(
-                        &g_of,
-                        args.0,
-                        args.1,
-                        args.2,
-                        args.3,
-                        args.4,
-                        crate::simd::level()
-                    ),
-                    want,
-                    "u32, {cw} columns"
-                );
             }
         }
+        assert!(
+            hidden_left_out > 100,
+            "{hidden_left_out} hidden columns left out"
+        );
     }
 }

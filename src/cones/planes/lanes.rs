@@ -254,20 +254,22 @@ pub(super) unsafe fn open_cells_avx512(
         let v = _mm512_mul_pd(s, rise);
         // (inf * 0 is NaN, which is never greater.)
         let open = _mm512_mask_cmp_pd_mask::<_CMP_GT_OQ>(lanes, v, _mm512_mul_pd(f, unit));
-        // Compressed in a register and stored whole (the lanes past the
-        // open ones are overwritten or truncated later): the compressing
-        // store to memory is microcoded on AMD's Zen 4, and took 45 % of the
-        // bake there. SAFETY: `n + 8 <= targets.len()`.
-        unsafe {
-            let index = columns(c0 as u32);
-            _mm256_storeu_si256(
-                targets.as_mut_ptr().add(n).cast(),
-                _mm256_maskz_compress_epi32(open, index),
-            )
-        };
-        n += open.count_ones() as usize;
-        widest = _mm512_mask_max_pd(widest, open, widest, v);
         if open != 0 {
+            // Compressed in a register and stored whole (the lanes past the
+            // open ones are overwritten or truncated later): the compressing
+            // store to memory is microcoded on AMD's Zen 4, and took 45 % of
+            // the bake there. Only where a lane is open: a block with none
+            // would store at the same unaligned place as the last, split
+            // across cache lines. SAFETY: `n + 8 <= targets.len()`.
+            unsafe {
+                let index = columns(c0 as u32);
+                _mm256_storeu_si256(
+                    targets.as_mut_ptr().add(n).cast(),
+                    _mm256_maskz_compress_epi32(open, index),
+                )
+            };
+            n += open.count_ones() as usize;
+            widest = _mm512_mask_max_pd(widest, open, widest, v);
             0
         } else {
             // The wakes, as `Scan::wake` (the reciprocal within 2^-14,
@@ -310,6 +312,18 @@ pub(super) unsafe fn keep_in_reach_avx2(
         _mm256_set1_epi32(test.first as i32),
         _mm256_set1_epi32(test.last as i32),
     );
+    // `Span::hidden_bits` from the plane cells and those within the offset
+    // of 1, eight columns a compare, the rest one at a time.
+    let near_v = _mm_set1_epi16(test.hidden as i16);
+    let bits = |m: __m128i| _mm_movemask_epi8(_mm_packs_epi16(m, _mm_setzero_si128())) as u64;
+    let (mut plane, mut near) = test.plane_and_near(g, whole);
+    for j in (0..whole).step_by(8) {
+        // SAFETY: `j + 8 <= g.len()`.
+        let here = unsafe { _mm_loadu_si128(g.as_ptr().add(j).cast()) };
+        plane |= bits(_mm_cmpeq_epi16(here, _mm_setzero_si128())) << j;
+        near |= bits(_mm_cmpeq_epi16(_mm_min_epu16(here, near_v), here)) << j;
+    }
+    let hidden = Span::hidden_bits(plane, near);
     let mut index = columns(c0);
     for j in (0..whole).step_by(8) {
         // SAFETY: `j + 8 <= g.len()`.
@@ -330,7 +344,7 @@ pub(super) unsafe fn keep_in_reach_avx2(
             _mm256_cmp_pd::<_CMP_LT_OQ>(d2, reach2)
         }));
         let some = !_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(gi, none))) as u8;
-        let keep = near & some;
+        let keep = near & some & !(hidden >> j) as u8;
         let low = (keep & 15).count_ones() as usize;
         // Stored whole, as in `open_cells_avx2`. SAFETY: `n + 8` within both.
         unsafe {
@@ -350,7 +364,7 @@ pub(super) unsafe fn keep_in_reach_avx2(
         n += keep.count_ones() as usize;
         index = _mm256_add_epi32(index, _mm256_set1_epi32(8));
     }
-    test.keep_scalar(&g[whole..], c0 + whole as u32, kept, n)
+    test.keep_scalar(g, whole, hidden, c0, kept, n)
 }
 
 /// [`super::keep_in_reach`] eight columns at a time in AVX-512.
@@ -375,6 +389,18 @@ pub(super) unsafe fn keep_in_reach_avx512(
     } = test;
     let len = g.len();
     assert!(kept.columns.len() >= n + len + 8 && kept.offsets.len() >= n + len + 8);
+    // `Span::hidden_bits` for every column, from the plane cells and
+    // those within the offset of 1, eight columns a compare.
+    let near_v = _mm_set1_epi16(test.hidden as i16);
+    let (mut plane, mut near) = (0u64, 0u64);
+    for j in (0..len).step_by(8) {
+        let lanes = (0xffu32 >> 8u32.saturating_sub((len - j) as u32)) as __mmask8;
+        // SAFETY: lanes past the slice are masked.
+        let here = unsafe { _mm_maskz_loadu_epi16(lanes, g.as_ptr().add(j).cast()) };
+        plane |= u64::from(_mm_mask_cmpeq_epi16_mask(lanes, here, _mm_setzero_si128())) << j;
+        near |= u64::from(_mm_mask_cmple_epu16_mask(lanes, here, near_v)) << j;
+    }
+    let hidden = Span::hidden_bits(plane, near);
     let (aspect, reach2) = (_mm512_set1_pd(aspect), _mm512_set1_pd(reach2));
     let none = _mm256_set1_epi32(i32::from(u16::MAX));
     let (first, last) = (
@@ -404,18 +430,24 @@ pub(super) unsafe fn keep_in_reach_avx512(
         let along = _mm512_cvtepi32_pd(along);
         let d2 = _mm512_add_pd(offset, _mm512_mul_pd(along, along));
         let keep = _mm256_mask_cmpneq_epi32_mask(lanes, gi, none)
-            & _mm512_cmp_pd_mask::<_CMP_LT_OQ>(d2, reach2);
-        // Compressed in registers, as in `open_cells_avx512`. SAFETY:
-        // `n + 8` within both.
-        unsafe {
-            _mm256_storeu_si256(
-                kept.columns.as_mut_ptr().add(n).cast(),
-                _mm256_maskz_compress_epi32(keep, index),
-            );
-            _mm512_storeu_pd(
-                kept.offsets.as_mut_ptr().add(n),
-                _mm512_maskz_compress_pd(keep, offset),
-            );
+            & _mm512_cmp_pd_mask::<_CMP_LT_OQ>(d2, reach2)
+            & !(hidden >> j) as u8;
+        // Compressed in registers, as in `open_cells_avx512`, and not
+        // stored where no lane is kept: runs of hidden plane cells would
+        // store at one unaligned place again and again, each store split
+        // across cache lines (1.2x slower in all). SAFETY: `n + 8` within
+        // both.
+        if keep != 0 {
+            unsafe {
+                _mm256_storeu_si256(
+                    kept.columns.as_mut_ptr().add(n).cast(),
+                    _mm256_maskz_compress_epi32(keep, index),
+                );
+                _mm512_storeu_pd(
+                    kept.offsets.as_mut_ptr().add(n),
+                    _mm512_maskz_compress_pd(keep, offset),
+                );
+            }
         }
         n += keep.count_ones() as usize;
         index = _mm256_add_epi32(index, _mm256_set1_epi32(8));
