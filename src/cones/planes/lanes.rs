@@ -158,21 +158,22 @@ pub(super) unsafe fn open_cells_avx2(
         // (inf * 0 is NaN, which is never greater.)
         let open = [0, 1].map(|h| _mm256_cmp_pd::<_CMP_GT_OQ>(v[h], _mm256_mul_pd(f[h], unit)));
         let bits = mask_bits(open);
-        // Stored whole (the lanes past the open ones are overwritten or
-        // truncated later). SAFETY: `n + 8 <= targets.len()`.
-        unsafe {
-            let index = columns(c0 as u32);
-            _mm256_storeu_si256(
-                targets.as_mut_ptr().add(n).cast(),
-                compress_epi32(index, bits),
-            );
-        }
-        n += bits.count_ones() as usize;
-        for h in 0..2 {
-            let wider = _mm256_max_pd(widest[h], v[h]);
-            widest[h] = _mm256_blendv_pd(widest[h], wider, open[h]);
-        }
         if bits != 0 {
+            // Stored whole (the lanes past the open ones are overwritten
+            // or truncated later), and only where a lane is open, as in
+            // `open_cells_avx512`. SAFETY: `n + 8 <= targets.len()`.
+            unsafe {
+                let index = columns(c0 as u32);
+                _mm256_storeu_si256(
+                    targets.as_mut_ptr().add(n).cast(),
+                    compress_epi32(index, bits),
+                );
+            }
+            n += bits.count_ones() as usize;
+            for h in 0..2 {
+                let wider = _mm256_max_pd(widest[h], v[h]);
+                widest[h] = _mm256_blendv_pd(widest[h], wider, open[h]);
+            }
             return 0;
         }
         // The wakes, as `Scan::wake`, with its division: the same wakes.
@@ -346,20 +347,23 @@ pub(super) unsafe fn keep_in_reach_avx2(
         let some = !_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(gi, none))) as u8;
         let keep = near & some & !(hidden >> j) as u8;
         let low = (keep & 15).count_ones() as usize;
-        // Stored whole, as in `open_cells_avx2`. SAFETY: `n + 8` within both.
-        unsafe {
-            _mm256_storeu_si256(
-                kept.columns.as_mut_ptr().add(n).cast(),
-                compress_epi32(index, keep),
-            );
-            _mm256_storeu_pd(
-                kept.offsets.as_mut_ptr().add(n),
-                compress_pd(offset[0], keep),
-            );
-            _mm256_storeu_pd(
-                kept.offsets.as_mut_ptr().add(n + low),
-                compress_pd(offset[1], keep >> 4),
-            );
+        // Stored whole, and only where a lane is kept, as in
+        // `keep_in_reach_avx512`. SAFETY: `n + 8` within both.
+        if keep != 0 {
+            unsafe {
+                _mm256_storeu_si256(
+                    kept.columns.as_mut_ptr().add(n).cast(),
+                    compress_epi32(index, keep),
+                );
+                _mm256_storeu_pd(
+                    kept.offsets.as_mut_ptr().add(n),
+                    compress_pd(offset[0], keep),
+                );
+                _mm256_storeu_pd(
+                    kept.offsets.as_mut_ptr().add(n + low),
+                    compress_pd(offset[1], keep >> 4),
+                );
+            }
         }
         n += keep.count_ones() as usize;
         index = _mm256_add_epi32(index, _mm256_set1_epi32(8));
