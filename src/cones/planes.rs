@@ -304,7 +304,7 @@ fn sliced_planes_with<G: ColumnDistance>(
         "{k_count} slices"
     );
     // The apex slice of every cell; slice k's bit plane is `member > k`.
-    // The four per-cell arrays the slices sweep, on huge pages: the passes
+    // The per-cell arrays the slices sweep, on huge pages: the passes
     // stride across rows and strips (see `crate::pages`).
     let mut member = pages::with_capacity(cw * ch);
     member.par_extend(nmax.par_iter().map(|&v| slices.member_of(v) as u16));
@@ -315,12 +315,12 @@ fn sliced_planes_with<G: ColumnDistance>(
     // The apex slices again in one byte, 255 standing for 255 and above:
     // `m > k` reads the same for every slice below 255, and the column pass,
     // which streams them once a slice, is bound by memory.
-    let member_u8: Option<Vec<u8>> = (k_count > 1).then(|| {
-        let mut m8 = pages::with_capacity(cw * ch);
-        m8.par_extend(member.par_iter().map(|&m| m.min(u16::from(u8::MAX)) as u8));
-        m8
-    });
+    let mut member_u8 = pages::with_capacity(cw * ch);
+    member_u8.par_extend(member.par_iter().map(|&m| m.min(u16::from(u8::MAX)) as u8));
     let mut slope = pages::filled(cw * ch, f32::INFINITY);
+    // Distances in units of dx: a column distance of g cells is g * dy / dx.
+    let (aspect, dx2) = (dy / dx, dx * dx);
+    let hidden = Span::hidden(aspect);
     // Per cell, a lower bound on its distance to the plane of the slices
     // still to come (see [`Floor`]).
     let floor = Floor::new(dx.min(dy));
@@ -357,8 +357,8 @@ fn sliced_planes_with<G: ColumnDistance>(
         stats.transforms += 1;
         let k16 = k as u16;
         // Column pass: cells to the nearest plane cell in the same column.
-        match &member_u8 {
-            Some(m8) if k < usize::from(u8::MAX) => column_pass(&mut column, m8, k as u8, (cw, ch)),
+        match u8::try_from(k) {
+            Ok(k8) if k8 < u8::MAX => column_pass(&mut column, &member_u8, k8, (cw, ch)),
             _ => column_pass(&mut column, &member, k16, (cw, ch)),
         }
         // Row pass: the lower envelope of the columns' parabolas, then the
@@ -366,8 +366,6 @@ fn sliced_planes_with<G: ColumnDistance>(
         let rise_of = &slices.rise_of(k);
         let column = &column;
         let member = &member;
-        // Distances in units of dx: a column distance of g cells is g * dy / dx.
-        let (aspect, dx2) = (dy / dx, dx * dx);
         let scan = Scan::new(slices, k, floor.unit, rise_of);
         stats.scan_blocks += (blocks * ch) as u64;
         let (read, open) = slope
@@ -402,7 +400,7 @@ fn sliced_planes_with<G: ColumnDistance>(
                     // targets: at high slices, where plane cells are few and
                     // far, that leaves out most of them.
                     let span = (targets[0], targets[targets.len() - 1]);
-                    let scale = (reach / dx, aspect);
+                    let scale = (reach / dx, aspect, hidden);
                     let n = columns_in_reach(column, (cw, ch), r, span, scale, scan.lanes, kept);
                     envelope.clear();
                     for (&c, &offset) in kept.columns[..n].iter().zip(&kept.offsets[..n]) {
@@ -563,7 +561,8 @@ fn each_awake_block(
 /// their parabolas' offsets (squared, in columns), into `kept` in order;
 /// returns their count. A plane cell narrows a cone only within the cone's
 /// width, the row's reach at most (`reach` columns; `aspect` turns column
-/// distances into columns), so a column is needed
+/// distances into columns; `hidden` is [`Span::hidden`] of it), so a
+/// column is needed
 /// only where `g^2 + a^2 < reach^2`, `g` its column distance and `a` its
 /// distance along the row to the targets' span (zero inside it). Columns
 /// farther along than the reach are not read. Parabolas left out come no
@@ -577,7 +576,7 @@ fn columns_in_reach<G: ColumnDistance>(
     (cw, ch): (usize, usize),
     r: usize,
     (first, last): (u32, u32),
-    (reach, aspect): (f64, f64),
+    (reach, aspect, hidden): (f64, f64, u16),
     lanes: Level,
     kept: &mut Kept,
 ) -> usize {
@@ -592,7 +591,7 @@ fn columns_in_reach<G: ColumnDistance>(
         aspect,
         // (The slack keeps a column that rounding would drop.)
         reach2: reach * reach * (1.0 + 1e-12),
-        hidden: Span::hidden(aspect),
+        hidden,
         lanes,
     };
     let mut n = 0;
@@ -656,20 +655,16 @@ fn keep_in_reach<G: ColumnDistance>(
 
 impl Span {
     /// The largest column distance `g` with `(g aspect)^2 <= 1` as the
-    /// offsets round it (`aspect` columns a row): [`Self::hidden`].
+    /// offsets round it (`aspect` columns a row): [`Self::hidden`], once
+    /// a bake. Below the distance that stands for none.
     fn hidden(aspect: f64) -> u16 {
-        let within = |g: u16| {
-            let d = f64::from(g) * aspect;
-            d * d <= 1.0
-        };
-        let mut g = (1.0 / aspect).clamp(0.0, f64::from(u16::MAX - 1)) as u16;
-        while g > 0 && !within(g) {
-            g -= 1;
-        }
-        while g < u16::MAX - 1 && within(g + 1) {
-            g += 1;
-        }
-        g
+        (1..u16::MAX)
+            .take_while(|&g| {
+                let d = f64::from(g) * aspect;
+                d * d <= 1.0
+            })
+            .last()
+            .unwrap_or(0)
     }
 
     /// Bit `j` for column `j` of a row's share of a strip (at most
@@ -1248,7 +1243,7 @@ mod tests {
                     G::try_from(g).unwrap_or(G::NONE);
             }
             let mut kept = Kept::default();
-            let scale = (reach, aspect);
+            let scale = (reach, aspect, Span::hidden(aspect));
             let n = columns_in_reach(&column, (cw, ch), r, span, scale, lanes, &mut kept);
             kept.columns[..n]
                 .iter()
@@ -1297,10 +1292,12 @@ mod tests {
                     args.4,
                     crate::simd::level(),
                 );
-                // Hidden: a plane cell whose neighbours are within the
-                // offset of 1.
-                let hidden = Span::hidden(aspect);
-                let near = |c: usize| g_of[r * cw + c] <= u64::from(hidden);
+                // Hidden: a plane cell whose neighbours' offsets are at
+                // most 1.
+                let near = |c: usize| {
+                    let d = g_of[r * cw + c] as f64 * aspect;
+                    d * d <= 1.0
+                };
                 let is_hidden = |c: usize| {
                     g_of[r * cw + c] == 0 && c > 0 && c + 1 < cw && near(c - 1) && near(c + 1)
                 };
