@@ -334,13 +334,16 @@ fn the_generic_decoder_reads_every_cone_encoding() {
 #[test]
 fn sliced_cones_are_as_wide_as_the_definition_allows() {
     use terrabake::cones::planes::{sliced_planes, Slices};
-    // Unequal spacings; and rows across three strips of the column pass,
-    // whose plane cells between near neighbours are left out of the rows'
-    // envelopes (`Span::hidden_bits`).
+    // Unequal spacings; rows across three shares of 64 columns, whose
+    // plane cells between near neighbours are left out of the rows'
+    // envelopes (`Span::hidden_bits`); and columns across three bands of
+    // rows (32, 32 and 5), whose column distances meet at the bands'
+    // edges, with slices past 255 (two-byte apex slices).
     type Shape = ((usize, usize), (f64, f64), &'static [usize]);
-    let shapes: [Shape; 2] = [
+    let shapes: [Shape; 3] = [
         ((31, 23), (30.0, 20.0), &[1, 2, 5, 16, 200]),
         ((151, 9), (25.0, 25.0), &[3, 16]),
+        ((9, 70), (20.0, 30.0), &[3, 16, 300]),
     ];
     for (kind, ((w, h), (dx, dy), ks)) in [SynthKind::Fractal, SynthKind::Blocks, SynthKind::Holes]
         .into_iter()

@@ -38,8 +38,8 @@ use crate::tiling::push_tile_row;
 use planes::{exact_planes, neighbourhood_max, sliced_planes, Cap, Planes, Slices};
 
 /// Working memory per cell of a window: posts, `nmax`, the apex slices (in
-/// two bytes and in one), one distance plane and its floors, the two planes
-/// and the exact method's pyramid.
+/// two bytes and in one), the floors, the two planes and the exact method's
+/// pyramid (the column distances are a band's at a time, per thread).
 pub const BYTES_PER_CELL: u64 = 32;
 
 /// How many slices: written `K` (a count), `auto` or `exact`, on the

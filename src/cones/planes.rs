@@ -22,9 +22,11 @@
 //!   one distance plane exists at a time. Departures (docs/CONES.md): a
 //!   slice whose bit plane equals the next one is skipped, since the next
 //!   gives tighter bounds from the same distances (so `K` above the data's
-//!   number of distinct heights costs nothing); the column pass is two
-//!   integer sweeps over strips of columns (no parabolas needed for a bit
-//!   plane); the row pass leaves out parabolas too far to narrow any cone of
+//!   number of distinct heights costs nothing); the column distances are
+//!   two integer sweeps (no parabolas needed for a bit plane), run band by
+//!   band of rows just before the band's rows are evaluated, from where the
+//!   bands meet ([`BandCarries`]), so that no plane of them is stored or
+//!   streamed; the row pass leaves out parabolas too far to narrow any cone of
 //!   the row (farther than its reach from the span of its open cells), and
 //!   those of plane cells between near neighbours (never the lowest at a
 //!   cell outside the plane: [`Span::hidden_bits`]); the top slice runs
@@ -222,21 +224,25 @@ pub struct Planes {
 /// covers the rounding of the metre scaling and of the square root.
 const SLOPE_MARGIN: f64 = 1.0 - 1e-12;
 
-/// How many rows ahead the column pass asks for the apex slices it reads.
-const COLUMN_PREFETCH_ROWS: usize = 16;
+/// Columns per share of a row that [`keep_in_reach`] tests at once (one
+/// bit each in a `u64`).
+const SHARE: usize = 64;
 
-/// Columns per strip in the column pass: a strip's rows are contiguous, so
-/// both sweeps stream through memory.
-const STRIP: usize = 64;
+/// Rows per band of the row pass: a band's column distances are found
+/// just before its rows are evaluated, while they are in the cache (see
+/// [`band_columns`]).
+const BAND: usize = 32;
 
 /// A distance in cells along a column; `NONE` when the column has no plane
-/// cell. `u16` halves the memory traffic of the column pass and is used
-/// whenever the grid has fewer rows than `u16::MAX`.
+/// cell. `u16` (whenever the grid has fewer rows than `u16::MAX`) halves
+/// the bands' room and lets [`keep_in_reach`] run in vector lanes.
 trait ColumnDistance: Copy + Send + Sync + Eq + Ord {
     const NONE: Self;
     const ZERO: Self;
     fn next(self) -> Self;
     fn cells(self) -> f64;
+    /// `n` cells (less than the grid's rows, so never `NONE`).
+    fn rows(n: u32) -> Self;
     /// The distances as `u16`, for the AVX-512 lanes of [`keep_in_reach`];
     /// `None` where they are wider.
     fn as_u16(g: &[Self]) -> Option<&[u16]> {
@@ -257,6 +263,10 @@ macro_rules! column_distance {
             #[inline]
             fn cells(self) -> f64 {
                 f64::from(self)
+            }
+            #[inline]
+            fn rows(n: u32) -> Self {
+                <$t>::try_from(n).unwrap_or(Self::NONE)
             }
             $($as_u16)?
         }
@@ -304,8 +314,8 @@ fn sliced_planes_with<G: ColumnDistance>(
         "{k_count} slices"
     );
     // The apex slice of every cell; slice k's bit plane is `member > k`.
-    // The per-cell arrays the slices sweep, on huge pages: the passes
-    // stride across rows and strips (see `crate::pages`).
+    // The per-cell arrays the slices sweep, on huge pages: the open-cell
+    // scan reads scattered blocks of them (see `crate::pages`).
     let mut member = pages::with_capacity(cw * ch);
     member.par_extend(nmax.par_iter().map(|&v| slices.member_of(v) as u16));
     let mut apex_of_slice = vec![0usize; k_count + 1];
@@ -313,8 +323,8 @@ fn sliced_planes_with<G: ColumnDistance>(
         apex_of_slice[usize::from(m)] += 1;
     }
     // The apex slices again in one byte, 255 standing for 255 and above:
-    // `m > k` reads the same for every slice below 255, and the column pass,
-    // which streams them once a slice, is bound by memory.
+    // `m > k` reads the same for every slice below 255, and the column
+    // sweeps, which stream them from memory once a slice, are bound by it.
     let mut member_u8 = pages::with_capacity(cw * ch);
     member_u8.par_extend(member.par_iter().map(|&m| m.min(u16::from(u8::MAX)) as u8));
     let mut slope = pages::filled(cw * ch, f32::INFINITY);
@@ -329,8 +339,6 @@ fn sliced_planes_with<G: ColumnDistance>(
     // (see [`Scan`]); every block is read in the first slice.
     let blocks = cw.div_ceil(BLOCK);
     let mut wakes = vec![0u16; blocks * ch];
-    let strips = cw.div_ceil(STRIP);
-    let mut column = pages::filled(strips * ch * STRIP, G::NONE);
     let mut stats = PlaneStats::default();
     // The top slice first: it bounds every cell below the top at once, so
     // that from then on every row has a finite reach and the row pass can
@@ -338,92 +346,125 @@ fn sliced_planes_with<G: ColumnDistance>(
     // bound tends to come from its first slices: fewer slope updates than
     // top-down, and each distance found is a floor for the slices above
     // (their planes are subsets of this one's).
-    for k in std::iter::once(k_count - 1).chain(0..k_count - 1) {
+    // The slices in the order they run, and those of them that add to the
+    // planes. Slice k's plane equals slice k + 1's when no cell has its
+    // apex at k + 1; then (D_k+1, z_k+2) = (D_k, z_k+2) bounds every cell
+    // more tightly than (D_k, z_k+1), and slice k adds nothing. Nor does a
+    // slice with no cell outside its plane: nothing to bound.
+    let order = || std::iter::once(k_count - 1).chain(0..k_count - 1);
+    let equals_next = |k: usize| k + 1 < k_count && apex_of_slice[k + 1] == 0;
+    let outside: Vec<usize> = apex_of_slice
+        .iter()
+        .scan(0, |sum, &n| {
+            *sum += n;
+            Some(*sum)
+        })
+        .collect();
+    let transforms: Vec<usize> = order()
+        .filter(|&k| !equals_next(k) && outside[k] > 0)
+        .collect();
+    // Where each band of rows meets the column distances of the rows
+    // outside it ([`BandEnds`], [`BandCarries`]): the first slice's ends
+    // here, each later one's by the row pass before it, from the apex
+    // slices it has in the cache.
+    let mut ends = BandEnds::new((cw, ch));
+    let mut carries = BandCarries::<G>::new((cw, ch));
+    if let Some(&k) = transforms.first() {
+        ends.find(Plane::new(&member, &member_u8, k), (cw, ch));
+    }
+    for k in order() {
         let keeps_floor = k + 1 < k_count;
-        // Slice k's plane equals slice k + 1's when no cell has its apex at
-        // k + 1; then (D_k+1, z_k+2) = (D_k, z_k+2) bounds every cell more
-        // tightly than (D_k, z_k+1), and slice k adds nothing.
-        if k + 1 < k_count && apex_of_slice[k + 1] == 0 {
+        if equals_next(k) {
             stats.slices_skipped += 1;
             on_slice();
             continue;
         }
-        // The cells outside the plane: none means nothing to bound.
-        let outside: usize = apex_of_slice[..=k].iter().sum();
-        if outside == 0 {
+        if outside[k] == 0 {
             on_slice();
             continue;
         }
+        let plane = Plane::new(&member, &member_u8, k);
+        let next = transforms
+            .get(stats.transforms + 1)
+            .map(|&k| Plane::new(&member, &member_u8, k));
         stats.transforms += 1;
-        let k16 = k as u16;
-        // Column pass: cells to the nearest plane cell in the same column.
-        match u8::try_from(k) {
-            Ok(k8) if k8 < u8::MAX => column_pass(&mut column, &member_u8, k8, (cw, ch)),
-            _ => column_pass(&mut column, &member, k16, (cw, ch)),
-        }
+        carries.walk(&ends);
+        let carries = &carries;
         // Row pass: the lower envelope of the columns' parabolas, then the
-        // slope update of every cell outside the plane.
+        // slope update of every cell outside the plane; band by band.
         let rise_of = &slices.rise_of(k);
-        let column = &column;
         let member = &member;
         let scan = Scan::new(slices, k, floor.unit, rise_of);
         stats.scan_blocks += (blocks * ch) as u64;
         let (read, open) = slope
-            .par_chunks_mut(cw)
-            .zip(floors.par_chunks_mut(cw))
-            .zip(wakes.par_chunks_mut(blocks))
+            .par_chunks_mut(cw * BAND)
+            .zip(floors.par_chunks_mut(cw * BAND))
+            .zip(wakes.par_chunks_mut(blocks * BAND))
+            .zip(ends.bands_mut())
             .enumerate()
             .map_init(
-                || (Envelope::default(), Vec::<u32>::new(), Kept::default()),
-                |(envelope, room, kept), (r, ((row, row_floor), row_wakes))| {
-                    let m = &member[r * cw..(r + 1) * cw];
-                    // The cells this slice can narrow (outside the plane, with a
-                    // cone still open), and the reach: the widest of them, the
-                    // farthest that a plane cell can be and still narrow a cone
-                    // of this row.
-                    let Open {
-                        targets,
-                        reach,
-                        blocks_read,
-                    } = open_cells(m, row, row_floor, scan, row_wakes, room);
-                    let counts = (blocks_read, targets.len() as u64);
-                    if targets.is_empty() {
-                        return counts;
+                || {
+                    let room = (Envelope::default(), Vec::<u32>::new(), Kept::default());
+                    (room, Vec::<G>::new(), Vec::<G>::new())
+                },
+                |((envelope, room, kept), down, column),
+                 (b, (((slopes, floors), wakes), band_ends))| {
+                    plane.band_columns(b, (cw, ch), carries.of(b), down, column);
+                    if let Some(next) = next {
+                        next.band_ends(b, (cw, ch), band_ends);
                     }
-                    for (s, strip) in column.chunks(ch * STRIP).enumerate() {
-                        if r + 1 < ch {
-                            let width = STRIP.min(cw - s * STRIP);
-                            prefetch(&strip[(r + 1) * STRIP..(r + 1) * STRIP + width]);
+                    let mut counts = (0, 0);
+                    let rows = slopes
+                        .chunks_mut(cw)
+                        .zip(floors.chunks_mut(cw))
+                        .zip(wakes.chunks_mut(blocks))
+                        .zip(column.chunks(cw));
+                    for (i, (((row, row_floor), row_wakes), column)) in rows.enumerate() {
+                        let r = b * BAND + i;
+                        let m = &member[r * cw..(r + 1) * cw];
+                        // The cells this slice can narrow (outside the plane,
+                        // with a cone still open), and the reach: the widest of
+                        // them, the farthest that a plane cell can be and still
+                        // narrow a cone of this row.
+                        let Open {
+                            targets,
+                            reach,
+                            blocks_read,
+                        } = open_cells(m, row, row_floor, scan, row_wakes, room);
+                        counts.0 += blocks_read;
+                        counts.1 += targets.len() as u64;
+                        if targets.is_empty() {
+                            continue;
                         }
-                    }
-                    // Only the parabolas that come within the reach of the
-                    // targets: at high slices, where plane cells are few and
-                    // far, that leaves out most of them.
-                    let span = (targets[0], targets[targets.len() - 1]);
-                    let scale = (reach / dx, aspect, hidden);
-                    let n = columns_in_reach(column, (cw, ch), r, span, scale, scan.lanes, kept);
-                    envelope.clear();
-                    for (&c, &offset) in kept.columns[..n].iter().zip(&kept.offsets[..n]) {
-                        envelope.push(f64::from(c), offset);
-                    }
-                    // (No plane cell in reach: nothing to update.)
-                    if envelope.is_empty() {
-                        return counts;
-                    }
-                    envelope.evaluate_at(targets.iter().map(|&c| c as usize), |c, d2| {
-                        let rise = rise_of[usize::from(m[c])];
-                        // Compare squares; one root only where the slope drops.
-                        let d2 = d2 * dx2;
-                        let bound = f64::from(row[c]) * rise;
-                        if d2 < bound * bound {
-                            row[c] = round_down_f32(d2.sqrt() / rise * SLOPE_MARGIN);
+                        // Only the parabolas that come within the reach of the
+                        // targets: at high slices, where plane cells are few and
+                        // far, that leaves out most of them.
+                        let span = (targets[0], targets[targets.len() - 1]);
+                        let scale = (reach / dx, aspect, hidden);
+                        let n = columns_in_reach(column, span, scale, scan.lanes, kept);
+                        envelope.clear();
+                        for (&c, &offset) in kept.columns[..n].iter().zip(&kept.offsets[..n]) {
+                            envelope.push(f64::from(c), offset);
                         }
-                        // Parabolas left out are `reach` or farther, so the
-                        // envelope is the distance only below it.
-                        if keeps_floor {
-                            row_floor[c] = floor.of(d2.min(reach * reach));
+                        // (No plane cell in reach: nothing to update.)
+                        if envelope.is_empty() {
+                            continue;
                         }
-                    });
+                        envelope.evaluate_at(targets.iter().map(|&c| c as usize), |c, d2| {
+                            let rise = rise_of[usize::from(m[c])];
+                            // Compare squares; one root only where the slope drops.
+                            let d2 = d2 * dx2;
+                            let bound = f64::from(row[c]) * rise;
+                            if d2 < bound * bound {
+                                row[c] = round_down_f32(d2.sqrt() / rise * SLOPE_MARGIN);
+                            }
+                            // Parabolas left out are `reach` or farther, so the
+                            // envelope is the distance only below it.
+                            if keeps_floor {
+                                row_floor[c] = floor.of(d2.min(reach * reach));
+                            }
+                        });
+                    }
                     counts
                 },
             )
@@ -444,55 +485,215 @@ fn sliced_planes_with<G: ColumnDistance>(
     Planes { apex, slope, stats }
 }
 
-/// The column pass of slice `k`: per cell of each strip of `column`, the
-/// rows to the nearest cell of the column in the slice's plane (`member >
-/// k`), down then up the strip.
-fn column_pass<G: ColumnDistance, M: Copy + Ord + Sync>(
-    column: &mut [G],
+/// Slice `k`'s plane, the cells with `member > k`, as the column
+/// distances read it: from the apex slices in one byte below slice 255
+/// (where 255, standing for 255 and above, reads the same), else in two.
+/// The column distances stream them once or twice a slice and are bound
+/// by memory.
+#[derive(Debug, Clone, Copy)]
+enum Plane<'a> {
+    Narrow(&'a [u8], u8),
+    Wide(&'a [u16], u16),
+}
+
+impl<'a> Plane<'a> {
+    fn new(member: &'a [u16], member_u8: &'a [u8], k: usize) -> Self {
+        match u8::try_from(k) {
+            Ok(k8) if k8 < u8::MAX => Plane::Narrow(member_u8, k8),
+            _ => Plane::Wide(member, u16::try_from(k).expect("at most u16::MAX slices")),
+        }
+    }
+
+    /// [`band_ends`] of this plane.
+    fn band_ends(self, b: usize, cells: (usize, usize), ends: &mut [u8]) {
+        match self {
+            Plane::Narrow(member, k) => band_ends(member, k, cells, b, ends),
+            Plane::Wide(member, k) => band_ends(member, k, cells, b, ends),
+        }
+    }
+
+    /// [`band_columns`] of this plane.
+    fn band_columns<G: ColumnDistance>(
+        self,
+        b: usize,
+        cells: (usize, usize),
+        carries: (&[G], &[G]),
+        down: &mut Vec<G>,
+        column: &mut Vec<G>,
+    ) {
+        match self {
+            Plane::Narrow(member, k) => band_columns(member, k, cells, b, carries, down, column),
+            Plane::Wide(member, k) => band_columns(member, k, cells, b, carries, down, column),
+        }
+    }
+}
+
+/// Per band of rows and column, the first and the last row of the band
+/// whose cell is in a slice's plane ([`band_ends`]): `2 cw` bytes a band,
+/// the first rows then the last.
+#[derive(Debug)]
+struct BandEnds {
+    cw: usize,
+    rows: Vec<u8>,
+}
+
+impl BandEnds {
+    fn new((cw, ch): (usize, usize)) -> Self {
+        Self {
+            cw,
+            rows: vec![NO_ROW; ch.div_ceil(BAND) * 2 * cw],
+        }
+    }
+
+    /// The plane's ends, the bands in parallel.
+    fn find(&mut self, plane: Plane, cells: (usize, usize)) {
+        self.bands_mut()
+            .enumerate()
+            .for_each(|(b, ends)| plane.band_ends(b, cells, ends));
+    }
+
+    /// Each band's ends, in parallel.
+    fn bands_mut(&mut self) -> rayon::slice::ChunksMut<'_, u8> {
+        self.rows.par_chunks_mut(2 * self.cw)
+    }
+
+    /// Band `b`'s first rows and last rows.
+    fn of(&self, b: usize) -> (&[u8], &[u8]) {
+        self.rows[b * 2 * self.cw..(b + 1) * 2 * self.cw].split_at(self.cw)
+    }
+}
+
+/// Per column of band `b` (rows `b * BAND..`), the first and last rows
+/// whose cell is in the plane (`member > k`), counted from the band's
+/// first row, into `ends` (the first rows, then the last; `NO_ROW` where
+/// none). One byte each, so that the plain loop runs sixteen columns to a
+/// vector.
+fn band_ends<M: Copy + Ord>(
     member: &[M],
     k: M,
     (cw, ch): (usize, usize),
+    b: usize,
+    ends: &mut [u8],
 ) {
-    column
-        .par_chunks_mut(ch * STRIP)
-        .enumerate()
-        .for_each(|(s, strip)| {
-            let c0 = s * STRIP;
-            let width = STRIP.min(cw - c0);
-            let mut prev = [G::NONE; STRIP];
-            for r in 0..ch {
-                // A strip's rows are a row stride apart, with little
-                // work on each to hide a miss: ask ahead.
-                let ahead = (r + COLUMN_PREFETCH_ROWS) * cw + c0;
-                if let Some(m) = member.get(ahead..ahead + width) {
-                    prefetch(m);
-                }
-                let m = &member[r * cw + c0..r * cw + c0 + width];
-                let out = &mut strip[r * STRIP..r * STRIP + width];
-                for j in 0..width {
-                    out[j] = if m[j] > k { G::ZERO } else { prev[j].next() };
-                    prev[j] = out[j];
-                }
+    ends.fill(NO_ROW);
+    let (first, last) = ends.split_at_mut(cw);
+    for (i, r) in (b * BAND..((b + 1) * BAND).min(ch)).enumerate() {
+        let m = &member[r * cw..(r + 1) * cw];
+        let i = i as u8;
+        for ((f, l), &m) in first.iter_mut().zip(last.iter_mut()).zip(m) {
+            *f = (*f).min(if m > k { i } else { NO_ROW });
+            *l = if m > k { i } else { *l };
+        }
+    }
+}
+
+/// No row of a band ([`band_ends`]).
+const NO_ROW: u8 = u8::MAX;
+const _: () = assert!(BAND < NO_ROW as usize);
+
+/// Where each band of rows meets the column distances outside it, per
+/// band and column: `down`, the distance from the row above the band up to
+/// the nearest plane cell at or above it, and `up`, from the row below the
+/// band down to the nearest at or below it (`NONE` where there is none,
+/// and above the first band and below the last). With them a band finds
+/// its rows' distances from its own rows alone ([`band_columns`]). `2 cw`
+/// a band, `down` then `up`.
+#[derive(Debug)]
+struct BandCarries<G> {
+    cw: usize,
+    ch: usize,
+    rows: Vec<G>,
+}
+
+impl<G: ColumnDistance> BandCarries<G> {
+    fn new((cw, ch): (usize, usize)) -> Self {
+        Self {
+            cw,
+            ch,
+            rows: vec![G::NONE; ch.div_ceil(BAND) * 2 * cw],
+        }
+    }
+
+    /// The carries of a plane from its bands' ends: one walk down the
+    /// bands, one up.
+    fn walk(&mut self, ends: &BandEnds) {
+        let (cw, ch) = (self.cw, self.ch);
+        // The last plane row above the band, then the first below it.
+        let mut seen = vec![u32::MAX; cw];
+        for (b, carries) in self.rows.chunks_mut(2 * cw).enumerate() {
+            let (top, (_, last)) = ((b * BAND) as u32, ends.of(b));
+            for ((d, s), &l) in carries[..cw].iter_mut().zip(&mut seen).zip(last) {
+                *d = if *s == u32::MAX {
+                    G::NONE
+                } else {
+                    G::rows(top - 1 - *s)
+                };
+                *s = if l == NO_ROW { *s } else { top + u32::from(l) };
             }
-            let mut next = [G::NONE; STRIP];
-            for r in (0..ch).rev() {
-                let out = &mut strip[r * STRIP..r * STRIP + width];
-                for j in 0..width {
-                    out[j] = out[j].min(next[j].next());
-                    next[j] = out[j];
-                }
+        }
+        seen.fill(u32::MAX);
+        for (b, carries) in self.rows.chunks_mut(2 * cw).enumerate().rev() {
+            let (top, below) = ((b * BAND) as u32, ((b + 1) * BAND).min(ch) as u32);
+            let (first, _) = ends.of(b);
+            for ((u, s), &f) in carries[cw..].iter_mut().zip(&mut seen).zip(first) {
+                *u = if *s == u32::MAX {
+                    G::NONE
+                } else {
+                    G::rows(*s - below)
+                };
+                *s = if f == NO_ROW { *s } else { top + u32::from(f) };
             }
-        });
+        }
+    }
+
+    /// Band `b`'s `down` and `up`.
+    fn of(&self, b: usize) -> (&[G], &[G]) {
+        self.rows[b * 2 * self.cw..(b + 1) * 2 * self.cw].split_at(self.cw)
+    }
+}
+
+/// The column distances of band `b`'s rows into `column` (row-major, `cw`
+/// a row): up the band from its `up` carry, then down it from its `down`
+/// carry, keeping the nearer; what two sweeps down and up the whole grid
+/// give, without their three passes over a plane of distances (about a
+/// fifth of the bake at 8192², bound by memory). `down` is room for a row.
+fn band_columns<G: ColumnDistance, M: Copy + Ord>(
+    member: &[M],
+    k: M,
+    (cw, ch): (usize, usize),
+    b: usize,
+    (down_in, up_in): (&[G], &[G]),
+    down: &mut Vec<G>,
+    column: &mut Vec<G>,
+) {
+    let first = b * BAND;
+    let n = ((b + 1) * BAND).min(ch) - first;
+    column.resize(n * cw, G::NONE);
+    for i in (0..n).rev() {
+        let m = &member[(first + i) * cw..(first + i + 1) * cw];
+        let (here, below) = column.split_at_mut((i + 1) * cw);
+        let below = if i + 1 < n { &below[..cw] } else { up_in };
+        for ((g, &m), &p) in here[i * cw..].iter_mut().zip(m).zip(below) {
+            *g = if m > k { G::ZERO } else { p.next() };
+        }
+    }
+    down.clear();
+    down.extend_from_slice(down_in);
+    for (i, row) in column.chunks_mut(cw).enumerate() {
+        let m = &member[(first + i) * cw..(first + i + 1) * cw];
+        for ((g, d), &m) in row.iter_mut().zip(down.iter_mut()).zip(m) {
+            *d = if m > k { G::ZERO } else { d.next() };
+            *g = (*g).min(*d);
+        }
+    }
 }
 
 mod lanes;
 use crate::simd::Level;
 
 /// Asks for `values` in the cache ahead of their use, where the hardware
-/// prefetchers fall behind: the row pass reads one stream per strip (128 at
-/// 8192 columns), more than they follow, the column pass one row
-/// stride apart with too little work per row to hide a miss, and the
-/// open-cell scan the scattered blocks that are awake.
+/// prefetchers cannot: the open-cell scan reads the scattered blocks that
+/// are awake.
 #[inline]
 fn prefetch<T>(values: &[T]) {
     #[cfg(not(target_arch = "x86_64"))]
@@ -573,13 +774,12 @@ fn each_awake_block(
 /// only where their own distance is short.
 fn columns_in_reach<G: ColumnDistance>(
     column: &[G],
-    (cw, ch): (usize, usize),
-    r: usize,
     (first, last): (u32, u32),
     (reach, aspect, hidden): (f64, f64, u16),
     lanes: Level,
     kept: &mut Kept,
 ) -> usize {
+    let cw = column.len();
     let within = reach.min(cw as f64) as usize;
     let lo = (first as usize).saturating_sub(within);
     let hi = (last as usize + within + 1).min(cw);
@@ -595,11 +795,10 @@ fn columns_in_reach<G: ColumnDistance>(
         lanes,
     };
     let mut n = 0;
-    for s in lo / STRIP..hi.div_ceil(STRIP) {
-        let c0 = s * STRIP;
-        let (a, b) = (lo.max(c0), hi.min(c0 + STRIP));
-        let g = &column[s * ch * STRIP + r * STRIP..][a - c0..b - c0];
-        n = keep_in_reach(g, a as u32, test, kept, n);
+    for s in lo / SHARE..hi.div_ceil(SHARE) {
+        let c0 = s * SHARE;
+        let (a, b) = (lo.max(c0), hi.min(c0 + SHARE));
+        n = keep_in_reach(&column[a..b], a as u32, test, kept, n);
     }
     n
 }
@@ -627,8 +826,8 @@ struct Kept {
     offsets: Vec<f64>,
 }
 
-/// Appends to `kept` from `n` on the columns `c0..` of a row's share of a
-/// strip, `g`, whose parabolas come within the reach of the targets' span
+/// Appends to `kept` from `n` on the columns `c0..` of a row's share,
+/// `g`, whose parabolas come within the reach of the targets' span
 /// (`test`), with their offsets; returns the new count. `kept` has room
 /// for every column and a vector more. Eight columns at a time in the
 /// test's [`Level`] where the distances are `u16`.
@@ -667,8 +866,8 @@ impl Span {
             .unwrap_or(0)
     }
 
-    /// Bit `j` for column `j` of a row's share of a strip (at most
-    /// [`STRIP`] columns): whether it is a plane cell (`plane`, distance 0)
+    /// Bit `j` for column `j` of a row's share (at most [`SHARE`]
+    /// columns): whether it is a plane cell (`plane`, distance 0)
     /// between two columns within [`Self::hidden`] (`near`). Its parabola
     /// is then never the lowest at a target (a cell outside the plane, so
     /// not `j`): on either side the neighbour's lies at or below it (`(x -
@@ -676,7 +875,7 @@ impl Span {
     /// neighbour), or is itself hidden, or comes no nearer than the reach.
     /// So it is not pushed: in the low slices, whose rows are mostly plane,
     /// that is most of the pushes. (The ends of a share, whose neighbours
-    /// lie in other strips, are kept.)
+    /// lie in other shares, are kept.)
     fn hidden_bits(plane: u64, near: u64) -> u64 {
         plane & (near << 1) & (near >> 1)
     }
@@ -684,7 +883,7 @@ impl Span {
     /// The `plane` and `near` bits of [`Self::hidden_bits`] of columns
     /// `from..` of `g`, one column at a time.
     fn plane_and_near<G: ColumnDistance>(self, g: &[G], from: usize) -> (u64, u64) {
-        debug_assert!(g.len() <= STRIP);
+        debug_assert!(g.len() <= SHARE);
         (from..g.len()).fold((0, 0), |(plane, near), j| {
             (
                 plane | u64::from(g[j] == G::ZERO) << j,
@@ -1216,35 +1415,94 @@ mod tests {
         );
     }
 
+    /// Column distances found band by band (the bands' ends, the carries
+    /// walked from them, then each band's own rows) are each cell's
+    /// distance to the nearest plane cell of its column: on grids of one
+    /// band, of several, and with a last band cut short; for dense and
+    /// sparse planes and none; in both widths and from both kinds of apex
+    /// slices.
+    #[test]
+    fn band_columns_are_the_column_distances() {
+        fn by_bands<G: ColumnDistance>(plane: Plane, (cw, ch): (usize, usize)) -> Vec<f64> {
+            let mut ends = BandEnds::new((cw, ch));
+            ends.find(plane, (cw, ch));
+            let mut carries = BandCarries::<G>::new((cw, ch));
+            carries.walk(&ends);
+            let (mut down, mut column, mut all) = (Vec::new(), Vec::new(), Vec::new());
+            for b in 0..ch.div_ceil(BAND) {
+                plane.band_columns(b, (cw, ch), carries.of(b), &mut down, &mut column);
+                let none = |g: &G| {
+                    if *g == G::NONE {
+                        f64::INFINITY
+                    } else {
+                        g.cells()
+                    }
+                };
+                all.extend(column.iter().map(none));
+            }
+            all
+        }
+        let mut next = xorshift(0x2545_f491_4f6c_dd1d);
+        for (cw, ch) in [(1, 1), (5, 31), (3, 32), (7, 33), (4, 100), (2, 200)] {
+            let member: Vec<u16> = (0..cw * ch).map(|_| (next() % 600) as u16).collect();
+            let member_u8: Vec<u8> = member.iter().map(|&m| m.min(255) as u8).collect();
+            for k in [0, 100, 254, 300, 590, 599] {
+                let want: Vec<f64> = (0..cw * ch)
+                    .map(|i| {
+                        let (r, c) = (i / cw, i % cw);
+                        (0..ch)
+                            .filter(|&q| member[q * cw + c] > k as u16)
+                            .map(|q| r.abs_diff(q) as f64)
+                            .fold(f64::INFINITY, f64::min)
+                    })
+                    .collect();
+                let plane = Plane::new(&member, &member_u8, k);
+                assert_eq!(
+                    by_bands::<u16>(plane, (cw, ch)),
+                    want,
+                    "{cw} x {ch}, k = {k}"
+                );
+                assert_eq!(
+                    by_bands::<u32>(plane, (cw, ch)),
+                    want,
+                    "{cw} x {ch}, k = {k}"
+                );
+                // Below slice 255 also from the two-byte apex slices.
+                let wide = Plane::Wide(&member, k as u16);
+                assert_eq!(
+                    by_bands::<u16>(wide, (cw, ch)),
+                    want,
+                    "{cw} x {ch}, k = {k}"
+                );
+            }
+        }
+    }
+
     /// A row's kept columns are those the definition names (a column
     /// distance, and its parabola within the reach of the targets' span),
     /// with their offsets, less plane cells whose neighbours in the row
     /// are within [`Span::hidden`] (some of those kept: the ends of a
-    /// strip), in every kind of `u16` lanes the CPU has and one `u32` at a
+    /// share), in every kind of `u16` lanes the CPU has and one `u32` at a
     /// time alike.
     #[test]
     fn columns_in_reach_are_the_definition() {
         let mut next = xorshift(0x9e37_79b9_7f4a_7c15);
-        // Strips laid out as the column pass writes them, in both widths
-        // (u16 in lanes, u32 one at a time).
+        // A row's distances in both widths (u16 in lanes, u32 one at a
+        // time).
         fn case<G: ColumnDistance + TryFrom<u64>>(
-            g_of: &[u64],
-            (cw, ch): (usize, usize),
-            r: usize,
+            row: &[u64],
             span: (u32, u32),
             reach: f64,
             aspect: f64,
             lanes: Level,
         ) -> Vec<(u32, f64)> {
-            let mut column = vec![G::NONE; cw.div_ceil(STRIP) * ch * STRIP];
-            for (i, &g) in g_of.iter().enumerate() {
-                let (row, c) = (i / cw, i % cw);
-                column[(c / STRIP) * ch * STRIP + row * STRIP + c % STRIP] =
-                    G::try_from(g).unwrap_or(G::NONE);
-            }
+            let column: Vec<G> = row
+                .iter()
+                .map(|&g| G::try_from(g).unwrap_or(G::NONE))
+                .collect();
             let mut kept = Kept::default();
             let scale = (reach, aspect, Span::hidden(aspect));
-            let n = columns_in_reach(&column, (cw, ch), r, span, scale, lanes, &mut kept);
+            let n = columns_in_reach(&column, span, scale, lanes, &mut kept);
             kept.columns[..n]
                 .iter()
                 .copied()
@@ -1282,16 +1540,9 @@ mod tests {
                             .then_some((c, gd * gd))
                     })
                     .collect();
-                let args = ((cw, ch), r, (first, last), reach, aspect);
-                let got = case::<u32>(
-                    &g_of,
-                    args.0,
-                    args.1,
-                    args.2,
-                    args.3,
-                    args.4,
-                    crate::simd::level(),
-                );
+                let row = &g_of[r * cw..(r + 1) * cw];
+                let args = ((first, last), reach, aspect);
+                let got = case::<u32>(row, args.0, args.1, args.2, crate::simd::level());
                 // Hidden: a plane cell whose neighbours' offsets are at
                 // most 1.
                 let near = |c: usize| {
@@ -1314,7 +1565,7 @@ mod tests {
                 );
                 for lanes in crate::simd::available() {
                     assert_eq!(
-                        case::<u16>(&g_of, args.0, args.1, args.2, args.3, args.4, lanes),
+                        case::<u16>(row, args.0, args.1, args.2, lanes),
                         got,
                         "u16, {lanes:?}, {cw} columns"
                     );
