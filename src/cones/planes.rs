@@ -487,9 +487,9 @@ fn sliced_planes_with<G: ColumnDistance>(
 
 /// Slice `k`'s plane, the cells with `member > k`, as the column
 /// distances read it: from the apex slices in one byte below slice 255
-/// (where 255, standing for 255 and above, reads the same), else in two.
-/// The column distances stream them once or twice a slice and are bound
-/// by memory.
+/// (where 255, standing for 255 and above, reads the same), else in two:
+/// the column sweeps read them from memory once a slice, and are bound by
+/// it.
 #[derive(Debug, Clone, Copy)]
 enum Plane<'a> {
     Narrow(&'a [u8], u8),
