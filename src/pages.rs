@@ -1,9 +1,10 @@
 //! Large working arrays on huge pages.
 //!
-//! The algorithms that sweep a grid across its rows as well as along them
-//! (the cone planes' column pass reads one row stride apart; their row
-//! pass reads strips a megabyte apart) touch a new 4 KiB page on nearly
-//! every access, so their time goes to TLB misses as much as to memory.
+//! The algorithms that read a grid at scattered places rather than along
+//! its rows (the cone planes' open-cell scan reads the blocks of a row
+//! whose cells can open, and each of a cell's apex slice, slope and floor
+//! lies in an array of its own) touch a new 4 KiB page on nearly every
+//! access, so their time goes to TLB misses as much as to memory.
 //! Linux backs an anonymous mapping with 2 MiB pages when it is advised to
 //! (`MADV_HUGEPAGE`), and where transparent huge pages are set to
 //! `madvise`, as on this project's machines, only then. The advice
