@@ -340,17 +340,18 @@ fn sliced_planes_with<G: ColumnDistance>(
     let blocks = cw.div_ceil(BLOCK);
     let mut wakes = vec![0u16; blocks * ch];
     let mut stats = PlaneStats::default();
-    // The top slice first: it bounds every cell below the top at once, so
-    // that from then on every row has a finite reach and the row pass can
-    // leave out far parabolas. Then bottom-up, where a cell's tightest
-    // bound tends to come from its first slices: fewer slope updates than
-    // top-down, and each distance found is a floor for the slices above
-    // (their planes are subsets of this one's).
-    // The slices in the order they run, and those of them that add to the
-    // planes. Slice k's plane equals slice k + 1's when no cell has its
-    // apex at k + 1; then (D_k+1, z_k+2) = (D_k, z_k+2) bounds every cell
-    // more tightly than (D_k, z_k+1), and slice k adds nothing. Nor does a
-    // slice with no cell outside its plane: nothing to bound.
+    // The slices in the order they run. The top slice first: it bounds
+    // every cell below the top at once, so that from then on every row has
+    // a finite reach and the row pass can leave out far parabolas. Then
+    // bottom-up, where a cell's tightest bound tends to come from its first
+    // slices: fewer slope updates than top-down, and each distance found is
+    // a floor for the slices above (their planes are subsets of this
+    // one's). And those of them that add to the planes (`transforms`):
+    // slice k's plane equals slice k + 1's when no cell has its apex at
+    // k + 1; then (D_k+1, z_k+2) = (D_k, z_k+2) bounds every cell more
+    // tightly than (D_k, z_k+1), and slice k adds nothing. Nor does a slice
+    // with no cell outside its plane (`outside`, by slice): nothing to
+    // bound.
     let order = || std::iter::once(k_count - 1).chain(0..k_count - 1);
     let equals_next = |k: usize| k + 1 < k_count && apex_of_slice[k + 1] == 0;
     let outside: Vec<usize> = apex_of_slice
