@@ -368,11 +368,14 @@ fn sliced_planes_with<G: ColumnDistance>(
     // outside it ([`BandEnds`], [`BandCarries`]): the first slice's ends
     // here, each later one's by the row pass before it, from the apex
     // slices it has in the cache.
-    let mut ends = BandEnds::new((cw, ch));
-    let mut carries = BandCarries::<G>::new((cw, ch));
+    let plane_of = |k: usize| Plane::new(&member, &member_u8, k);
+    let mut ends: BandEnds = PerBand::new((cw, ch), NO_ROW);
+    let mut carries: BandCarries<G> = PerBand::new((cw, ch), G::NONE);
     if let Some(&k) = transforms.first() {
-        ends.find(Plane::new(&member, &member_u8, k), (cw, ch));
+        ends.find(plane_of(k));
     }
+    // The slice after each one that adds to the planes.
+    let mut after = transforms.iter().skip(1);
     for k in order() {
         let keeps_floor = k + 1 < k_count;
         if equals_next(k) {
@@ -384,10 +387,7 @@ fn sliced_planes_with<G: ColumnDistance>(
             on_slice();
             continue;
         }
-        let plane = Plane::new(&member, &member_u8, k);
-        let next = transforms
-            .get(stats.transforms + 1)
-            .map(|&k| Plane::new(&member, &member_u8, k));
+        let (plane, next) = (plane_of(k), after.next().map(|&k| plane_of(k)));
         stats.transforms += 1;
         carries.walk(&ends);
         let carries = &carries;
@@ -529,38 +529,45 @@ impl<'a> Plane<'a> {
     }
 }
 
-/// Per band of rows and column, the first and the last row of the band
-/// whose cell is in a slice's plane ([`band_ends`]): `2 cw` bytes a band,
-/// the first rows then the last.
+/// Two values per band of rows and column, `2 cw` a band: the first
+/// `cw`, then the second (`BandEnds`, `BandCarries`).
 #[derive(Debug)]
-struct BandEnds {
-    cw: usize,
-    rows: Vec<u8>,
+struct PerBand<T> {
+    cells: (usize, usize),
+    rows: Vec<T>,
 }
 
-impl BandEnds {
-    fn new((cw, ch): (usize, usize)) -> Self {
+impl<T: Clone + Send> PerBand<T> {
+    fn new(cells: (usize, usize), fill: T) -> Self {
         Self {
-            cw,
-            rows: vec![NO_ROW; ch.div_ceil(BAND) * 2 * cw],
+            cells,
+            rows: vec![fill; cells.1.div_ceil(BAND) * 2 * cells.0],
         }
     }
 
+    /// Each band's values, in parallel.
+    fn bands_mut(&mut self) -> rayon::slice::ChunksMut<'_, T> {
+        self.rows.par_chunks_mut(2 * self.cells.0)
+    }
+
+    /// Band `b`'s first values and second.
+    fn of(&self, b: usize) -> (&[T], &[T]) {
+        let cw = self.cells.0;
+        self.rows[b * 2 * cw..(b + 1) * 2 * cw].split_at(cw)
+    }
+}
+
+/// Per band of rows and column, the first and the last row of the band
+/// whose cell is in a slice's plane ([`band_ends`]).
+type BandEnds = PerBand<u8>;
+
+impl BandEnds {
     /// The plane's ends, the bands in parallel.
-    fn find(&mut self, plane: Plane, cells: (usize, usize)) {
+    fn find(&mut self, plane: Plane) {
+        let cells = self.cells;
         self.bands_mut()
             .enumerate()
             .for_each(|(b, ends)| plane.band_ends(b, cells, ends));
-    }
-
-    /// Each band's ends, in parallel.
-    fn bands_mut(&mut self) -> rayon::slice::ChunksMut<'_, u8> {
-        self.rows.par_chunks_mut(2 * self.cw)
-    }
-
-    /// Band `b`'s first rows and last rows.
-    fn of(&self, b: usize) -> (&[u8], &[u8]) {
-        self.rows[b * 2 * self.cw..(b + 1) * 2 * self.cw].split_at(self.cw)
     }
 }
 
@@ -599,26 +606,13 @@ const _: () = assert!(BAND < NO_ROW as usize);
 /// and above the first band and below the last). With them a band finds
 /// its rows' distances from its own rows alone ([`band_columns`]). `2 cw`
 /// a band, `down` then `up`.
-#[derive(Debug)]
-struct BandCarries<G> {
-    cw: usize,
-    ch: usize,
-    rows: Vec<G>,
-}
+type BandCarries<G> = PerBand<G>;
 
 impl<G: ColumnDistance> BandCarries<G> {
-    fn new((cw, ch): (usize, usize)) -> Self {
-        Self {
-            cw,
-            ch,
-            rows: vec![G::NONE; ch.div_ceil(BAND) * 2 * cw],
-        }
-    }
-
     /// The carries of a plane from its bands' ends: one walk down the
     /// bands, one up.
     fn walk(&mut self, ends: &BandEnds) {
-        let (cw, ch) = (self.cw, self.ch);
+        let (cw, ch) = self.cells;
         // The last plane row above the band, then the first below it.
         let mut seen = vec![u32::MAX; cw];
         for (b, carries) in self.rows.chunks_mut(2 * cw).enumerate() {
@@ -645,11 +639,6 @@ impl<G: ColumnDistance> BandCarries<G> {
                 *s = if f == NO_ROW { *s } else { top + u32::from(f) };
             }
         }
-    }
-
-    /// Band `b`'s `down` and `up`.
-    fn of(&self, b: usize) -> (&[G], &[G]) {
-        self.rows[b * 2 * self.cw..(b + 1) * 2 * self.cw].split_at(self.cw)
     }
 }
 
@@ -1425,20 +1414,20 @@ mod tests {
     #[test]
     fn band_columns_are_the_column_distances() {
         fn by_bands<G: ColumnDistance>(plane: Plane, (cw, ch): (usize, usize)) -> Vec<f64> {
-            let mut ends = BandEnds::new((cw, ch));
-            ends.find(plane, (cw, ch));
-            let mut carries = BandCarries::<G>::new((cw, ch));
+            let mut ends: BandEnds = PerBand::new((cw, ch), NO_ROW);
+            ends.find(plane);
+            let mut carries: BandCarries<G> = PerBand::new((cw, ch), G::NONE);
             carries.walk(&ends);
+            let none = |g: &G| {
+                if *g == G::NONE {
+                    f64::INFINITY
+                } else {
+                    g.cells()
+                }
+            };
             let (mut down, mut column, mut all) = (Vec::new(), Vec::new(), Vec::new());
             for b in 0..ch.div_ceil(BAND) {
                 plane.band_columns(b, (cw, ch), carries.of(b), &mut down, &mut column);
-                let none = |g: &G| {
-                    if *g == G::NONE {
-                        f64::INFINITY
-                    } else {
-                        g.cells()
-                    }
-                };
                 all.extend(column.iter().map(none));
             }
             all
