@@ -161,12 +161,18 @@ impl AngleEncoding {
 /// (0 for NaN, nodata), rounded to the nearest: `round` of a quotient in
 /// [0, n] inline (libm's call was a fifth of encoding), its integer part
 /// plus one from a fraction of a half or more (`x - trunc(x)` is exact).
-/// Branch-free: NaN's quotient is selected away, not tested first.
+/// Branch-free: NaN's quotient is selected away, not tested first. The
+/// code leaves `f64` as the low bits of its sum with 2^52, which vector
+/// code does in lanes: `as u32` saturates, and went lane by lane (7 % of
+/// the line stage's samples, 2.6 % this way).
 #[inline]
 fn quantise(deg: f64, n: f64, step: f64) -> u32 {
+    // 2^52: an integer below it is the low bits of its sum with it.
+    const TWO_52: f64 = 4_503_599_627_370_496.0;
     let x = (deg.clamp(-90.0, 90.0) + 90.0) / step;
-    let whole = x as u32;
-    let code = 1 + (whole + u32::from(x - f64::from(whole) >= 0.5)).min(n as u32);
+    let whole = x.trunc();
+    let up = if x - whole >= 0.5 { 1.0 } else { 0.0 };
+    let code = ((whole + up).min(n) + 1.0 + TWO_52).to_bits() as u32;
     if deg.is_nan() {
         0
     } else {
