@@ -44,7 +44,7 @@ use std::time::Duration;
 use zerocopy::IntoBytes;
 
 use crate::error::{Error, Location, Result};
-use crate::fsio::{crash_point, create_temp, sync_dir, TEMP_SUFFIX};
+use crate::fsio::{crash_point, create_temp, start_writeback, sync_dir, TEMP_SUFFIX};
 use crate::layout::{
     align_up, tiles_for, xxh3, ChunkEntry, Codec, ElemType, LayerFooter, LayerHeader,
     ManifestHeader, FOOTER_MAGIC, FORMAT_VERSION, HEADER_LEN, LAYER_MAGIC, MANIFEST_FILE,
@@ -52,6 +52,11 @@ use crate::layout::{
 };
 use crate::manifest::{LayerEntry, Manifest, Retired};
 use crate::reader::StoredChunk;
+
+/// Bytes a layer file is written between two hand-overs to the disk's
+/// writeback ([`start_writeback`]): the pages stream out while the stage
+/// runs, and its final fsync waits for at most this much.
+const WRITEBACK_STEP: u64 = 8 << 20;
 
 /// What a layer holds; the writer derives the tiling from it.
 #[derive(Debug, Clone)]
@@ -167,6 +172,9 @@ pub struct LayerWriter {
     tmp_path: PathBuf,
     out: Option<BufWriter<File>>,
     pos: u64,
+    /// Bytes before this offset were handed to the disk's writeback
+    /// ([`WRITEBACK_STEP`]).
+    written_back: u64,
     /// Per chunk, its entry once pushed (chunks may come in any order).
     index: Vec<Option<ChunkEntry>>,
     /// Chunks pushed so far.
@@ -216,6 +224,7 @@ impl LayerWriter {
             file_name,
             out: Some(out),
             pos: HEADER_LEN as u64,
+            written_back: 0,
             index: vec![None; spec.chunk_count() as usize],
             pushed: 0,
             constants: HashMap::new(),
@@ -354,6 +363,21 @@ impl LayerWriter {
         };
         self.pos = offset + tile.bytes.len() as u64;
         self.stored_bytes += tile.bytes.len() as u64;
+        if self.pos - self.written_back >= WRITEBACK_STEP {
+            let out = self.out.as_mut().expect("writer used after finish");
+            if let Err(source) = out.flush() {
+                return Err(Error::Io {
+                    at: self.at(),
+                    source,
+                });
+            }
+            start_writeback(
+                out.get_ref(),
+                self.written_back,
+                self.pos - self.written_back,
+            );
+            self.written_back = self.pos;
+        }
         if let Some(bits) = constant {
             self.constants.insert(bits, entry);
             self.constant_chunks += 1;
