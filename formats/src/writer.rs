@@ -16,7 +16,12 @@
 //!   so a crashed writer never blocks the next one.
 //! - **Layers** are written to a uniquely named temporary file
 //!   ([`crate::fsio::create_temp`]), fsynced, and renamed to a name that no
-//!   earlier version used (it carries a generation number).
+//!   earlier version used (it carries a generation number). Every
+//!   [`WRITEBACK_STEP`] bytes the writer asks the kernel to start writing
+//!   what it has written so far ([`crate::fsio::start_writeback`]): the
+//!   final fsync then waits for the last stretch, not for the whole file
+//!   (12 ms to 1.5 ms for the line stage's 23 MB layer). Durability rests
+//!   on that fsync alone.
 //! - **The commit** ([`commit_manifest`]) writes the manifest the same way;
 //!   its rename is the commit point. Files the previous manifest named and
 //!   this one does not are *retired*: listed in the manifest with the time,
