@@ -368,6 +368,11 @@ impl LayerWriter {
         };
         self.pos = offset + tile.bytes.len() as u64;
         self.stored_bytes += tile.bytes.len() as u64;
+        if let Some(bits) = constant {
+            self.constants.insert(bits, entry);
+            self.constant_chunks += 1;
+        }
+        self.index[chunk as usize] = Some(entry);
         if self.pos - self.written_back >= WRITEBACK_STEP {
             let out = self.out.as_mut().expect("writer used after finish");
             if let Err(source) = out.flush() {
@@ -383,11 +388,6 @@ impl LayerWriter {
             );
             self.written_back = self.pos;
         }
-        if let Some(bits) = constant {
-            self.constants.insert(bits, entry);
-            self.constant_chunks += 1;
-        }
-        self.index[chunk as usize] = Some(entry);
         Ok(())
     }
 
