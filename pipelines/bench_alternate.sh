@@ -31,10 +31,6 @@ done
 echo "| binary | median (ms) | min-max (ms) | runs |"
 echo "| --- | --- | --- | --- |"
 for i in "${!bins[@]}"; do
-  awk -v i="$i" '$1 == i { print $2 * 1000 }' "$times" | sort -g | awk -v b="${bins[$i]}" '
-    { v[NR] = $1 }
-    END {
-      m = NR % 2 ? v[(NR + 1) / 2] : (v[NR / 2] + v[NR / 2 + 1]) / 2
-      printf "| %s | %.1f | %.1f-%.1f | %d |\n", b, m, v[1], v[NR], NR
-    }'
+  read -r lo mid hi < <(awk -v i="$i" '$1 == i { print $2 * 1000 }' "$times" | spread %.1f)
+  echo "| ${bins[$i]} | $mid | $lo-$hi | $rounds |"
 done

@@ -12,6 +12,13 @@ fractal_asset() {
   echo "$asset"
 }
 
+# spread [FORMAT]: min, median and max of the numbers on stdin, one a
+# line, each printed with FORMAT (printf's; 3 digits unless given).
+spread() {
+  local f=${1:-%.3g}
+  sort -g | awk -v f="$f" '{ v[NR] = $1 } END { printf f " " f " " f "\n", v[1], (NR % 2 ? v[(NR + 1) / 2] : (v[NR / 2] + v[NR / 2 + 1]) / 2), v[NR] }'
+}
+
 # wall CMD...: runs CMD (its output dropped) and prints the wall seconds
 # it took, to the nanosecond clock's precision (a bake of a few posts takes
 # hundredths of a second, below /usr/bin/time's resolution).

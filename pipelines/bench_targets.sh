@@ -33,10 +33,6 @@ mkdir -p "$WORK"
 source pipelines/bench_common.sh
 say() { echo "bench-targets: $*" >&2; }
 
-# min, median and max of the numbers on stdin, one a line, to 3 digits.
-spread() {
-  sort -g | awk '{ v[NR] = $1 } END { printf "%.3g %.3g %.3g\n", v[1], (NR % 2 ? v[(NR + 1) / 2] : (v[NR / 2] + v[NR / 2 + 1]) / 2), v[NR] }'
-}
 # A table row: work, target, the spread, and whether the median meets the
 # target (`below` for seconds, `above` for ratios).
 row() {

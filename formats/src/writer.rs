@@ -374,18 +374,15 @@ impl LayerWriter {
         }
         self.index[chunk as usize] = Some(entry);
         if self.pos - self.written_back >= WRITEBACK_STEP {
+            let (from, len) = (self.written_back, self.pos - self.written_back);
             let out = self.out.as_mut().expect("writer used after finish");
-            if let Err(source) = out.flush() {
-                return Err(Error::Io {
-                    at: self.at(),
-                    source,
-                });
-            }
-            start_writeback(
-                out.get_ref(),
-                self.written_back,
-                self.pos - self.written_back,
-            );
+            let flushed = out
+                .flush()
+                .map(|()| start_writeback(out.get_ref(), from, len));
+            flushed.map_err(|source| Error::Io {
+                at: self.at(),
+                source,
+            })?;
             self.written_back = self.pos;
         }
         Ok(())

@@ -364,6 +364,7 @@ fn sliced_planes_with<G: ColumnDistance>(
     let transforms: Vec<usize> = order()
         .filter(|&k| !equals_next(k) && outside[k] > 0)
         .collect();
+    stats.transforms = transforms.len();
     // Where each band of rows meets the column distances of the rows
     // outside it ([`BandEnds`], [`BandCarries`]): the first slice's ends
     // here, each later one's by the row pass before it, from the apex
@@ -388,7 +389,6 @@ fn sliced_planes_with<G: ColumnDistance>(
             continue;
         }
         let (plane, next) = (plane_of(k), after.next().map(|&k| plane_of(k)));
-        stats.transforms += 1;
         carries.walk(&ends);
         let carries = &carries;
         // Row pass: the lower envelope of the columns' parabolas, then the
