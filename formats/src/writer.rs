@@ -17,7 +17,7 @@
 //! - **Layers** are written to a uniquely named temporary file
 //!   ([`crate::fsio::create_temp`]), fsynced, and renamed to a name that no
 //!   earlier version used (it carries a generation number). Every
-//!   [`WRITEBACK_STEP`] bytes the writer asks the kernel to start writing
+//!   `WRITEBACK_STEP` bytes the writer asks the kernel to start writing
 //!   what it has written so far ([`crate::fsio::start_writeback`]): the
 //!   final fsync then waits for the last stretch, not for the whole file
 //!   (12 ms to 1.5 ms for the line stage's 23 MB layer). Durability rests
