@@ -812,7 +812,7 @@ fn line_lanes_equal_the_scalar_sweep_bit_for_bit() {
                     dir.step
                 );
                 assert_eq!(sweep.stats.vertices, scalar.stats.vertices);
-                // The lanes count their pops from the hulls' lengths.
+                // And pop exactly the vertices the scalar sweep pops.
                 assert_eq!(sweep.stats.pops, scalar.stats.pops);
                 spilled |= sweep.stats.spilled > 0;
                 for i in 0..w * h {
