@@ -632,7 +632,11 @@ mod avx512 {
                             posts,
                             _mm512_cvtpd_ps(angle),
                         );
-                        _mm512_mask_storeu_epi64(lines.len.as_mut_ptr().add(i0), posts, len(hulls));
+                        _mm512_mask_storeu_epi64(
+                            lines.len.as_mut_ptr().add(i0),
+                            posts,
+                            hull_lengths(hulls),
+                        );
                         for (k, (vt, vw)) in [
                             (hulls.top_t, hulls.top_w),
                             (hulls.sec_t, hulls.sec_w),
@@ -839,7 +843,7 @@ mod avx512 {
     /// of `count`, both far below 2^53).
     #[inline]
     #[target_feature(enable = "avx512f,avx512vl,avx512dq,popcnt")]
-    fn len(hulls: &Hulls) -> __m512i {
+    fn hull_lengths(hulls: &Hulls) -> __m512i {
         let below = _mm512_cvtepi64_pd(_mm512_sub_epi64(hulls.top, hulls.floors[0]));
         let depth = _mm512_div_pd(below, _mm512_cvtepi64_pd(hulls.count));
         _mm512_add_epi64(_mm512_cvtpd_epi64(depth), _mm512_set1_epi64(1))
@@ -1048,12 +1052,12 @@ mod avx2 {
         [line, second, _mm256_add_epi64(second, count)]
     }
 
-    /// `avx512::len` in four lanes: the integers as the low bits of
+    /// `avx512::hull_lengths` in four lanes: the integers as the low bits of
     /// `2^52 + x`, exact below 2^52.
     #[inline]
     #[target_feature(enable = "avx2,popcnt")]
-    fn len(hulls: &Hulls) -> __m256i {
-        let magic = _mm256_set1_pd(4503599627370496.0);
+    fn hull_lengths(hulls: &Hulls) -> __m256i {
+        let magic = _mm256_set1_pd(4_503_599_627_370_496.0); // 2^52
         let to_f64 = |x: __m256i| {
             _mm256_sub_pd(
                 _mm256_castsi256_pd(_mm256_or_si256(x, _mm256_castpd_si256(magic))),
@@ -1192,7 +1196,11 @@ mod avx2 {
                             narrow(posts),
                             _mm256_cvtpd_ps(angle),
                         );
-                        _mm256_maskstore_epi64(lines.len.as_mut_ptr().add(i0), posts, len(hulls));
+                        _mm256_maskstore_epi64(
+                            lines.len.as_mut_ptr().add(i0),
+                            posts,
+                            hull_lengths(hulls),
+                        );
                         for (k, (vt, vw)) in [
                             (hulls.top_t, hulls.top_w),
                             (hulls.sec_t, hulls.sec_w),
