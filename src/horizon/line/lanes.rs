@@ -37,12 +37,13 @@
 //! line, not in the storage, so that eight neighbouring lines load theirs
 //! with plain vector loads where a row starts (six gathers before, a sixth
 //! of the sweep); a push sends the lowest held vertex down to the storage
-//! instead of the new top. In registers a hull's length is only its top's
+//! instead of the new top. A hull's length is kept only as its top's
 //! index in the storage (`top`, which every pop and push moves anyway),
 //! compared with the index a hull of one, two or three vertices would
-//! have (`avx512::floors`) and turned back into a length where the row
-//! ends: one vector operation fewer a pop and a push (1.00-1.04x in
-//! AVX-512, 1.03-1.06x in AVX2, docs/BENCHMARKS.md).
+//! have (`avx512::floors`): one vector operation fewer a pop and a push
+//! (1.00-1.04x in AVX-512, 1.03-1.06x in AVX2, docs/BENCHMARKS.md), and
+//! between rows the lines keep it as it is ([`Lines`]'s `top`), loaded
+//! and stored with the heads, never turned into a length and back.
 //!
 //! **Two vectors at once.** A pop loop is a chain of dependent steps (the
 //! compare, the moves, the refill gathered for the compare after next), so
@@ -105,6 +106,10 @@ fn held(level: Level) -> usize {
     }
 }
 
+/// [`Lines::top`] of a line that left the lanes: below every hull's, so
+/// that no "holds at least" compare takes it.
+const SPILLED: i64 = i64::MIN;
+
 /// Vectors of lines a kernel steps together (module docs, "Two vectors at
 /// once").
 const GROUPS: usize = 2;
@@ -129,9 +134,11 @@ pub(super) struct Lines {
     level: Level,
     /// `t` of each line's last post.
     t: Vec<f64>,
-    /// Vertices on each line's hull; -1 for a line swept by the scalar
-    /// sweep.
-    len: Vec<i64>,
+    /// Each line's hull as the index its top vertex has in the storage,
+    /// `(len - 1) * count + line` for a hull of `len` vertices, as the
+    /// kernels keep it in registers ([`Self::top_of`]); [`SPILLED`] for a
+    /// line swept by the scalar sweep.
+    top: Vec<i64>,
     /// The top three vertices of each hull, `[k * count + line]` for the
     /// vertex `k` below the top: eight neighbouring lines' load with one
     /// vector load where the kernel starts a row.
@@ -170,7 +177,7 @@ impl Lines {
             depth,
             level,
             t: vec![0.0; count],
-            len: vec![0; count],
+            top: (0..count as i64).map(|i| i - count as i64).collect(),
             head_t: vec![0.0; heads * count],
             head_w: vec![0.0; heads * count],
             hull_t: vec![0.0; depth * count],
@@ -184,10 +191,20 @@ impl Lines {
         self.depth * 2 * 8 * self.count
     }
 
-    /// Where vertex `d` of line `i`'s hull (of `self.len[i]` vertices) is
-    /// kept: in the head (`true`) or the storage below it, and its index.
+    /// The `top` of line `i` with a hull of `len` vertices.
+    fn top_of(&self, i: usize, len: usize) -> i64 {
+        (len as i64 - 1) * self.count as i64 + i as i64
+    }
+
+    /// Vertices on line `i`'s hull (a line in the lanes).
+    fn hull_len(&self, i: usize) -> usize {
+        ((self.top[i] - i as i64) / self.count as i64 + 1) as usize
+    }
+
+    /// Where vertex `d` of line `i`'s hull is kept: in the head (`true`) or
+    /// the storage below it, and its index.
     fn slot(&self, i: usize, d: usize) -> (bool, usize) {
-        match self.len[i] as usize - 1 - d {
+        match self.hull_len(i) - 1 - d {
             k if k < held(self.level) => (true, k * self.count + i),
             _ => (false, d * self.count + i),
         }
@@ -227,7 +244,7 @@ impl Lines {
         out: &mut Out,
         stats: &mut SweepStats,
     ) {
-        self.len[i] = -1;
+        self.top[i] = SPILLED;
         stats.spilled += 1;
         let mut lane = lane;
         if sweep.run(&mut lane, band, out, stats) {
@@ -275,7 +292,7 @@ impl Lines {
                     continue;
                 }
                 self.t[i] = lane.t;
-                self.len[i] = lane.hull.len() as i64;
+                self.top[i] = self.top_of(i, lane.hull.len());
                 for (d, &v) in lane.hull.iter().enumerate() {
                     self.set_vertex(i, d, v);
                 }
@@ -285,10 +302,8 @@ impl Lines {
             }
             // Lines whose hull could outgrow the depth in this step.
             for (col, i) in cols.clone().zip(self.indices(cols.clone(), row)) {
-                if self.len[i] > (self.depth - n) as i64 {
-                    let hull = (0..self.len[i] as usize)
-                        .map(|d| self.vertex(i, d))
-                        .collect();
+                if self.top[i] > self.top_of(i, self.depth - n) {
+                    let hull = (0..self.hull_len(i)).map(|d| self.vertex(i, d)).collect();
                     let (col, row) = (col as i64 + a, row as i64 + b);
                     let lane = Lane {
                         hull,
@@ -488,7 +503,7 @@ impl<'s> Kernel<'s> {
 
 #[cfg(target_arch = "x86_64")]
 mod avx512 {
-    use super::{Kernel, Lines, Out, SweepStats, GROUPS};
+    use super::{Kernel, Lines, Out, SweepStats, GROUPS, SPILLED};
     use crate::horizon::terrain::Terrain;
     use std::arch::x86_64::*;
 
@@ -632,11 +647,7 @@ mod avx512 {
                             posts,
                             _mm512_cvtpd_ps(angle),
                         );
-                        _mm512_mask_storeu_epi64(
-                            lines.len.as_mut_ptr().add(i0),
-                            posts,
-                            hull_lengths(hulls),
-                        );
+                        _mm512_mask_storeu_epi64(lines.top.as_mut_ptr().add(i0), posts, hulls.top);
                         for (k, (vt, vw)) in [
                             (hulls.top_t, hulls.top_w),
                             (hulls.sec_t, hulls.sec_w),
@@ -775,23 +786,23 @@ mod avx512 {
     ) -> Group {
         let on_row: __mmask8 = ((1u16 << on) - 1) as u8;
         let lane = _mm512_set_epi64(7, 6, 5, 4, 3, 2, 1, 0);
-        let one = _mm512_set1_epi64(1);
         let count = _mm512_set1_epi64(lines.count as i64);
         debug_assert!(i0 + on <= lines.count);
         // SAFETY: lines `i0..` under `on_row` exist.
-        let (len, t) = unsafe {
+        let (top, t) = unsafe {
             (
-                _mm512_maskz_loadu_epi64(on_row, lines.len.as_ptr().add(i0)),
+                _mm512_maskz_loadu_epi64(on_row, lines.top.as_ptr().add(i0)),
                 _mm512_maskz_loadu_pd(on_row, lines.t.as_ptr().add(i0)),
             )
         };
-        let active = _mm512_mask_cmpge_epi64_mask(on_row, len, _mm512_setzero_si512());
+        let active = _mm512_mask_cmpgt_epi64_mask(on_row, top, _mm512_set1_epi64(SPILLED));
         let line = _mm512_add_epi64(_mm512_set1_epi64(i0 as i64), lane);
-        let top = _mm512_add_epi64(_mm512_mullo_epi64(_mm512_sub_epi64(len, one), count), line);
-        let has1 = _mm512_mask_cmpge_epi64_mask(active, len, one);
-        let has2 = _mm512_mask_cmpge_epi64_mask(active, len, _mm512_set1_epi64(2));
-        let has3 = _mm512_mask_cmpge_epi64_mask(active, len, _mm512_set1_epi64(3));
-        let has4 = _mm512_mask_cmpge_epi64_mask(active, len, _mm512_set1_epi64(4));
+        let floors = floors(line, count);
+        let holds = |floor| _mm512_mask_cmpge_epi64_mask(active, top, floor);
+        let has1 = holds(floors[0]);
+        let has2 = holds(floors[1]);
+        let has3 = holds(floors[2]);
+        let has4 = holds(_mm512_add_epi64(floors[2], count));
         let head = |k: usize, has: __mmask8| {
             let at = k * lines.count + i0;
             // SAFETY: lines `i0..` under `on_row` exist.
@@ -816,7 +827,7 @@ mod avx512 {
                 fourth_w,
                 full: has4,
                 top,
-                floors: floors(line, count),
+                floors,
                 count,
                 active,
                 hull_t: lines.hull_t.as_mut_ptr(),
@@ -837,16 +848,6 @@ mod avx512 {
     fn floors(line: __m512i, count: __m512i) -> [__m512i; 3] {
         let second = _mm512_add_epi64(line, count);
         [line, second, _mm512_add_epi64(second, count)]
-    }
-
-    /// Each hull's length, from `top` (exact: `top - line` is a multiple
-    /// of `count`, both far below 2^53).
-    #[inline]
-    #[target_feature(enable = "avx512f,avx512vl,avx512dq,popcnt")]
-    fn hull_lengths(hulls: &Hulls) -> __m512i {
-        let below = _mm512_cvtepi64_pd(_mm512_sub_epi64(hulls.top, hulls.floors[0]));
-        let depth = _mm512_div_pd(below, _mm512_cvtepi64_pd(hulls.count));
-        _mm512_add_epi64(_mm512_cvtpd_epi64(depth), _mm512_set1_epi64(1))
     }
 
     /// Pops, in every active lane of both groups, the top while it lies on
@@ -1008,7 +1009,7 @@ mod avx512 {
 /// same bits.
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
-    use super::{Kernel, Lines, Out, SweepStats, GROUPS};
+    use super::{Kernel, Lines, Out, SweepStats, GROUPS, SPILLED};
     use crate::horizon::terrain::Terrain;
     use std::arch::x86_64::*;
 
@@ -1029,11 +1030,11 @@ mod avx2 {
         hull_w: *mut f64,
     }
 
-    /// Lanes of `mask` whose `len` is at least `k`.
+    /// Lanes of `mask` whose `top` is not below `floor`.
     #[inline]
     #[target_feature(enable = "avx2,popcnt")]
-    fn at_least(mask: __m256i, len: __m256i, k: i64) -> __m256i {
-        _mm256_and_si256(mask, _mm256_cmpgt_epi64(len, _mm256_set1_epi64x(k - 1)))
+    fn at_least(mask: __m256i, top: __m256i, floor: __m256i) -> __m256i {
+        _mm256_andnot_si256(_mm256_cmpgt_epi64(floor, top), mask)
     }
 
     /// Lanes of `mask` whose hull holds at least `k` vertices (1 to 3):
@@ -1041,7 +1042,7 @@ mod avx2 {
     #[inline]
     #[target_feature(enable = "avx2,popcnt")]
     fn holds(mask: __m256i, hulls: &Hulls, k: usize) -> __m256i {
-        _mm256_andnot_si256(_mm256_cmpgt_epi64(hulls.floors[k - 1], hulls.top), mask)
+        at_least(mask, hulls.top, hulls.floors[k - 1])
     }
 
     /// `avx512::floors` in four lanes.
@@ -1050,26 +1051,6 @@ mod avx2 {
     fn floors(line: __m256i, count: __m256i) -> [__m256i; 3] {
         let second = _mm256_add_epi64(line, count);
         [line, second, _mm256_add_epi64(second, count)]
-    }
-
-    /// `avx512::hull_lengths` in four lanes: the integers as the low bits of
-    /// `2^52 + x`, exact below 2^52.
-    #[inline]
-    #[target_feature(enable = "avx2,popcnt")]
-    fn hull_lengths(hulls: &Hulls) -> __m256i {
-        let magic = _mm256_set1_pd(4_503_599_627_370_496.0); // 2^52
-        let to_f64 = |x: __m256i| {
-            _mm256_sub_pd(
-                _mm256_castsi256_pd(_mm256_or_si256(x, _mm256_castpd_si256(magic))),
-                magic,
-            )
-        };
-        let below = to_f64(_mm256_sub_epi64(hulls.top, hulls.floors[0]));
-        let depth = _mm256_add_pd(_mm256_div_pd(below, to_f64(hulls.count)), magic);
-        _mm256_add_epi64(
-            _mm256_xor_si256(_mm256_castpd_si256(depth), _mm256_castpd_si256(magic)),
-            _mm256_set1_epi64x(1),
-        )
     }
 
     /// One bit per lane of a lane mask.
@@ -1196,11 +1177,7 @@ mod avx2 {
                             narrow(posts),
                             _mm256_cvtpd_ps(angle),
                         );
-                        _mm256_maskstore_epi64(
-                            lines.len.as_mut_ptr().add(i0),
-                            posts,
-                            hull_lengths(hulls),
-                        );
+                        _mm256_maskstore_epi64(lines.top.as_mut_ptr().add(i0), posts, hulls.top);
                         for (k, (vt, vw)) in [
                             (hulls.top_t, hulls.top_w),
                             (hulls.sec_t, hulls.sec_w),
@@ -1335,22 +1312,19 @@ mod avx2 {
         near_out: isize,
     ) -> Group {
         let lane = _mm256_setr_epi64x(0, 1, 2, 3);
-        let one = _mm256_set1_epi64x(1);
         let count = _mm256_set1_epi64x(lines.count as i64);
         let on_row = _mm256_cmpgt_epi64(_mm256_set1_epi64x(on as i64), lane);
         debug_assert!(i0 + on <= lines.count);
         // SAFETY: lines `i0..` under `on_row` exist.
-        let (len, t) = unsafe {
+        let (top, t) = unsafe {
             (
-                _mm256_maskload_epi64(lines.len.as_ptr().add(i0), on_row),
+                _mm256_maskload_epi64(lines.top.as_ptr().add(i0), on_row),
                 _mm256_maskload_pd(lines.t.as_ptr().add(i0), on_row),
             )
         };
-        let active = at_least(on_row, len, 0);
+        let active = _mm256_and_si256(on_row, _mm256_cmpgt_epi64(top, _mm256_set1_epi64x(SPILLED)));
         let line = _mm256_add_epi64(_mm256_set1_epi64x(i0 as i64), lane);
-        // (`len - 1` and the count fit 32 bits: a signed 32-bit multiply
-        // gives the 64-bit product.)
-        let top = _mm256_add_epi64(_mm256_mul_epi32(_mm256_sub_epi64(len, one), count), line);
+        let floors = floors(line, count);
         let head = |k: usize, has: __m256i| {
             let at = k * lines.count + i0;
             // SAFETY: lines `i0..` under `on_row` exist.
@@ -1362,9 +1336,9 @@ mod avx2 {
             }
         };
         let ((top_t, top_w), (sec_t, sec_w), (third_t, third_w)) = (
-            head(0, at_least(active, len, 1)),
-            head(1, at_least(active, len, 2)),
-            head(2, at_least(active, len, 3)),
+            head(0, at_least(active, top, floors[0])),
+            head(1, at_least(active, top, floors[1])),
+            head(2, at_least(active, top, floors[2])),
         );
         Group {
             hulls: Hulls {
@@ -1375,7 +1349,7 @@ mod avx2 {
                 third_t,
                 third_w,
                 top,
-                floors: floors(line, count),
+                floors,
                 count,
                 active,
                 hull_t: lines.hull_t.as_mut_ptr(),
