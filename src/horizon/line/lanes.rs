@@ -177,6 +177,7 @@ impl Lines {
             depth,
             level,
             t: vec![0.0; count],
+            // Every hull empty: `top_of(i, 0)`.
             top: (0..count as i64).map(|i| i - count as i64).collect(),
             head_t: vec![0.0; heads * count],
             head_w: vec![0.0; heads * count],
