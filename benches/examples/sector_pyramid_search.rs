@@ -19,12 +19,11 @@
 use std::f64::consts::PI;
 use terrabake_format::Asset;
 
-struct Search<'a> {
-    z: &'a [f32],
-    w: usize,
+struct Search {
     h: usize,
     dx: f64,
-    /// Level `k`: blocks of `2^k` posts square, `(blocks across, highest)`.
+    /// Level `k`: blocks of `2^k` posts square, `(blocks across, highest)`;
+    /// level 0 is the posts' heights, `w` across.
     /// Not the tracers' `terrain::MaxBlocks`: their blocks of cells hold
     /// their edge posts too, which loosens the bound (34,123 blocks a post
     /// and 4,642 with the answers known, against 26,489 and 3,528 here);
@@ -39,9 +38,9 @@ fn azimuth(e: f64, n: f64) -> f64 {
     e.atan2(n).rem_euclid(2.0 * PI)
 }
 
-impl<'a> Search<'a> {
-    fn new(z: &'a [f32], (w, h): (usize, usize), dx: f64, sectors: usize) -> Self {
-        let mut levels = vec![(w, z.to_vec())];
+impl Search {
+    fn new(z: Vec<f32>, (w, h): (usize, usize), dx: f64, sectors: usize) -> Self {
+        let mut levels = vec![(w, z)];
         let (mut lw, mut lh) = (w, h);
         while lw > 1 || lh > 1 {
             let (nw, nh) = (lw.div_ceil(2), lh.div_ceil(2));
@@ -59,8 +58,6 @@ impl<'a> Search<'a> {
         let width = 2.0 * PI / sectors as f64;
         let centres = (0..sectors).map(|s| (s as f64 * width).sin_cos()).collect();
         Self {
-            z,
-            w,
             h,
             dx,
             levels,
@@ -78,15 +75,16 @@ impl<'a> Search<'a> {
     fn run(&self, p: usize, mut best: Vec<f64>) -> (Vec<f64>, u64, u64) {
         let n = self.centres.len() as i64;
         let half = (PI / n as f64).cos();
-        let (pc, pr) = ((p % self.w) as i64, (p / self.w) as i64);
-        let zp = f64::from(self.z[p]);
+        let (w, z) = (self.levels[0].0, &self.levels[0].1);
+        let (pc, pr) = ((p % w) as i64, (p / w) as i64);
+        let zp = f64::from(z[p]);
         let (mut visits, mut posts) = (0u64, 0u64);
         let mut stack = vec![(self.levels.len() - 1, 0usize, 0usize)];
         while let Some((level, bx, by)) = stack.pop() {
             visits += 1;
             let size = 1i64 << level;
             let (c0, r0) = (bx as i64 * size, by as i64 * size);
-            let c1 = (c0 + size - 1).min(self.w as i64 - 1);
+            let c1 = (c0 + size - 1).min(w as i64 - 1);
             let r1 = (r0 + size - 1).min(self.h as i64 - 1);
             if level == 0 {
                 if (c0, r0) == (pc, pr) {
@@ -96,7 +94,7 @@ impl<'a> Search<'a> {
                 let (e, nn) = ((c0 - pc) as f64, (pr - r0) as f64);
                 let s = self.sector(azimuth(e, nn)).rem_euclid(n) as usize;
                 let (ce, cn) = self.centres[s];
-                let slope = (f64::from(self.z[r0 as usize * self.w + c0 as usize]) - zp)
+                let slope = (f64::from(z[r0 as usize * w + c0 as usize]) - zp)
                     / ((ce * e + cn * nn) * self.dx);
                 best[s] = best[s].max(slope);
                 continue;
@@ -165,7 +163,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut z = vec![0f32; w * h];
     height.read_window(0, 0, 0, w as u32, h as u32, &mut z)?;
     let dx = asset.manifest().cell_size.dx;
-    let search = Search::new(&z, (w, h), dx, sectors);
+    let search = Search::new(z, (w, h), dx, sectors);
     let (mut cold, mut known) = ([0u64; 2], [0u64; 2]);
     let start = std::time::Instant::now();
     let picked: Vec<usize> = (0..w * h).step_by((w * h / samples).max(1)).collect();
