@@ -52,8 +52,7 @@ pub fn parse_sun(s: &str) -> Result<Sun, String> {
     let (az, el) = s
         .split_once(',')
         .ok_or("expected AZIMUTH,ELEVATION in degrees")?;
-    let parse = |v: &str| v.trim().parse::<f64>().map_err(|e| format!("{v:?}: {e}"));
-    let (azimuth, elevation) = (parse(az)?, parse(el)?);
+    let (azimuth, elevation) = (parse_finite(az)?, parse_finite(el)?);
     if !(-90.0..=90.0).contains(&elevation) {
         return Err(format!(
             "sun elevation {elevation} is not between -90 and 90 degrees"
@@ -116,6 +115,24 @@ pub fn parse_sectors(s: &str) -> Result<usize, String> {
     match s.trim().parse::<usize>() {
         Ok(n) if (3..=4096).contains(&n) => Ok(n),
         _ => Err(format!("{s:?}: give 3 to 4096 directions")),
+    }
+}
+
+/// Degrees between azimuths for `terrabake profile`: 0.01 to 360.
+pub fn parse_profile_step(s: &str) -> Result<f64, String> {
+    parse_within(s, 0.01, 360.0, "degrees (at most 36000 azimuths)")
+}
+
+/// Degrees between the directions of `export --for grass`: 0.1 to 360.
+pub fn parse_grass_step(s: &str) -> Result<f64, String> {
+    parse_within(s, 0.1, 360.0, "degrees (at most 3600 files)")
+}
+
+/// A number from `lo` to `hi` (both included), in `unit`.
+fn parse_within(s: &str, lo: f64, hi: f64, unit: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if (lo..=hi).contains(&v) => Ok(v),
+        _ => Err(format!("{s:?}: give {lo} to {hi} {unit}")),
     }
 }
 

@@ -129,12 +129,11 @@ impl AssetWriter {
     }
 }
 
-/// Whether a file name is one a writer puts in an asset directory.
+/// Whether a file name is one a writer puts in an asset directory: the
+/// manifest, the lock, and the names the format's writer gives layers and
+/// temporaries (a user's `lineitem.tbl` is none of them).
 fn is_asset_file(name: &str) -> bool {
-    name == MANIFEST_FILE
-        || name == LOCK_FILE
-        || name.ends_with(".tbl")
-        || name.ends_with(terrabake_format::fsio::TEMP_SUFFIX)
+    name == MANIFEST_FILE || name == LOCK_FILE || terrabake_format::fsio::is_reclaimable_name(name)
 }
 
 /// Opens the asset `path` for reading, with the command line's messages.

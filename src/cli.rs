@@ -4,7 +4,7 @@
 
 use std::path::PathBuf;
 
-use clap::{Parser, Subcommand};
+use clap::{ArgMatches, CommandFactory, FromArgMatches, Parser, Subcommand};
 use terrabake_format::trace::Method;
 
 use crate::args::{parse_point, parse_size, parse_sun};
@@ -349,7 +349,8 @@ A recipe (a shorter pipelines/demo.toml):\n  \
         #[command(flatten)]
         request: crate::plan::RequestArgs,
         /// Cut the bake into this many parts (with --part).
-        #[arg(long, value_name = "N", requires = "part", conflicts_with = "budget")]
+        #[arg(long, value_name = "N", requires = "part", conflicts_with = "budget",
+              value_parser = clap::value_parser!(u32).range(1..=i64::from(crate::partition::MAX_PARTS)))]
         parts: Option<u32>,
         /// Bake only this part, 0 to N - 1 (with --parts).
         #[arg(long, value_name = "I", requires = "parts")]
@@ -374,4 +375,78 @@ A recipe (a shorter pipelines/demo.toml):\n  \
         #[arg(long)]
         json: bool,
     },
+}
+
+impl Cli {
+    /// The process's arguments, parsed as [`Parser::parse`] does, with one
+    /// more rule for every number flag of every command: NaN and the
+    /// infinities are refused (clap's own `f64` parser takes `nan` and
+    /// `inf`), with clap's message and exit status 2.
+    pub fn parse_checked() -> Self {
+        Self::try_parse_checked(std::env::args_os()).unwrap_or_else(|e| e.exit())
+    }
+
+    /// [`Self::parse_checked`] of `args` (the program's name first).
+    pub fn try_parse_checked<I, T>(args: I) -> Result<Self, clap::Error>
+    where
+        I: IntoIterator<Item = T>,
+        T: Into<std::ffi::OsString> + Clone,
+    {
+        let mut cmd = Self::command();
+        let matches = cmd.try_get_matches_from_mut(args)?;
+        refuse_non_finite(&mut cmd, &matches)?;
+        let cli = Self::from_arg_matches(&matches).map_err(|e| e.format(&mut cmd))?;
+        if let Command::Bake {
+            part: Some(i),
+            parts: Some(n),
+            ..
+        } = cli.command
+        {
+            if let Err(e) = crate::partition::Part::new(i, n) {
+                let bake = cmd.find_subcommand_mut("bake").expect("bake is a command");
+                return Err(bake.error(clap::error::ErrorKind::ValueValidation, e));
+            }
+        }
+        Ok(cli)
+    }
+}
+
+/// The first flag of `matches` (or of its subcommands) holding a number
+/// that is not finite, as clap's validation error of that command.
+fn refuse_non_finite(cmd: &mut clap::Command, matches: &ArgMatches) -> Result<(), clap::Error> {
+    for id in matches.ids() {
+        let id = id.as_str();
+        let mut numbers: Vec<f64> = Vec::new();
+        if let Ok(Some(v)) = matches.try_get_many::<f64>(id) {
+            numbers.extend(v.copied());
+        } else if let Ok(Some(v)) = matches.try_get_many::<f32>(id) {
+            numbers.extend(v.map(|&x| f64::from(x)));
+        } else if let Ok(Some(v)) = matches.try_get_many::<(f64, f64)>(id) {
+            numbers.extend(v.flat_map(|&(a, b)| [a, b]));
+        } else if let Ok(Some(v)) = matches.try_get_many::<[f64; 3]>(id) {
+            numbers.extend(v.flatten().copied());
+        }
+        if numbers.iter().any(|v| !v.is_finite()) {
+            let flag = cmd
+                .get_arguments()
+                .find(|a| a.get_id() == id)
+                .and_then(|a| a.get_long().map(|l| format!("--{l}")))
+                .unwrap_or_else(|| id.to_string());
+            let given = matches
+                .get_raw(id)
+                .and_then(|mut raw| raw.next())
+                .map(|v| v.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            return Err(cmd.error(
+                clap::error::ErrorKind::ValueValidation,
+                format!("invalid value '{given}' for '{flag}': not a finite number"),
+            ));
+        }
+    }
+    if let Some((name, sub)) = matches.subcommand() {
+        if let Some(sub_cmd) = cmd.find_subcommand_mut(name) {
+            return refuse_non_finite(sub_cmd, sub);
+        }
+    }
+    Ok(())
 }

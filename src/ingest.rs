@@ -126,8 +126,11 @@ impl Default for IngestOptions {
 }
 
 /// The parameters recorded for ingest: the options plus the source's
-/// identity (path, length, modification time), so that `bake` can tell
-/// whether an existing asset already is this ingest.
+/// identity, so that `bake` can tell whether an existing asset already is
+/// this ingest, and the parts of a partitioned bake that they read one
+/// DEM. The identity is the content (`source_xxh3`, a hash of the whole
+/// file), besides its path, length and modification time: a file replaced
+/// by another of the same length, its time set back, is another source.
 pub fn ingest_params(src: &Path, opts: &IngestOptions) -> Result<serde_json::Value> {
     let meta = fs::metadata(src).with_context(|| format!("{}: cannot read", src.display()))?;
     let mtime = meta
@@ -139,7 +142,64 @@ pub fn ingest_params(src: &Path, opts: &IngestOptions) -> Result<serde_json::Val
     params["source"] = src.display().to_string().into();
     params["source_len"] = meta.len().into();
     params["source_mtime"] = mtime.into();
+    params["source_xxh3"] = source_hash(src, &meta)?.into();
     Ok(params)
+}
+
+/// The fields of [`ingest_params`] that name where the source was, not
+/// what it holds: the same file as `dem.tif` and as `/data/dem.tif`, or
+/// copied with a new time, is the same source.
+pub const SOURCE_LOCATION_FIELDS: [&str; 2] = ["source", "source_mtime"];
+
+/// The xxh3 of the whole file `src`, read once per process and file (a
+/// bake asks for its ingest's parameters several times): one sequential
+/// read, cheaper than the ingest that follows it.
+fn source_hash(src: &Path, meta: &fs::Metadata) -> Result<String> {
+    use std::collections::HashMap;
+    use std::io::Read;
+    use std::os::unix::fs::MetadataExt;
+    use std::sync::Mutex;
+    type Key = (u64, u64, u64, i64, i64, i64, i64);
+    static HASHES: Mutex<Option<HashMap<Key, String>>> = Mutex::new(None);
+    // Any change to the file changes its ctime, `touch -d` included.
+    let key = (
+        meta.dev(),
+        meta.ino(),
+        meta.len(),
+        meta.mtime(),
+        meta.mtime_nsec(),
+        meta.ctime(),
+        meta.ctime_nsec(),
+    );
+    let cached = |h: &Mutex<Option<HashMap<Key, String>>>| {
+        h.lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .as_ref()
+            .and_then(|m| m.get(&key).cloned())
+    };
+    if let Some(hash) = cached(&HASHES) {
+        return Ok(hash);
+    }
+    let mut file = fs::File::open(src)
+        .with_context(|| format!("{}: cannot read the source", src.display()))?;
+    let mut hasher = xxhash_rust::xxh3::Xxh3::new();
+    let mut buf = vec![0u8; 1 << 20];
+    loop {
+        let n = file
+            .read(&mut buf)
+            .with_context(|| format!("{}: cannot read the source", src.display()))?;
+        if n == 0 {
+            break;
+        }
+        hasher.update(&buf[..n]);
+    }
+    let hash = format!("{:016x}", hasher.digest());
+    HASHES
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .get_or_insert_with(HashMap::new)
+        .insert(key, hash.clone());
+    Ok(hash)
 }
 
 /// The ingest stage: `src` read with `options` into a new asset's `height`
@@ -155,9 +215,9 @@ impl Stage for IngestStage {
         "ingest"
     }
 
-    /// The options and the source's identity (path, length, modification
-    /// time), so that `bake` can tell whether an asset already is this
-    /// ingest. ([`Stage::check`] has made sure the source can be read.)
+    /// The options and the source's identity ([`ingest_params`]), so that
+    /// `bake` can tell whether an asset already is this ingest.
+    /// ([`Stage::check`] has made sure the source can be read.)
     fn params(&self) -> serde_json::Value {
         ingest_params(&self.src, &self.options).unwrap_or_default()
     }
@@ -404,7 +464,7 @@ impl HeightStats {
 
     pub fn merge(self, other: Self) -> Self {
         Self {
-            nodata: self.nodata + other.nodata,
+            nodata: self.nodata.saturating_add(other.nodata),
             min: self.min.min(other.min),
             max: self.max.max(other.max),
         }

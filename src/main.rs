@@ -5,7 +5,6 @@ use std::path::Path;
 use std::process::ExitCode;
 
 use anyhow::{bail, Result};
-use clap::Parser;
 use terrabake::asset::{open as open_asset, AssetWriter, Wait};
 use terrabake::cli::{Cli, Command};
 use terrabake::ingest::IngestStage;
@@ -15,7 +14,7 @@ use terrabake::pyramid::PyramidStage;
 use terrabake::recipe::{bake, Recipe};
 use terrabake::render::{builtin_views, render, write_png, Camera, RenderOptions, Shadows};
 use terrabake::report::describe_outcome;
-use terrabake::stage::{run_stage_in, Stage, StageOutcome};
+use terrabake::stage::{run_stage_in, run_stages_in, Stage, StageOutcome};
 use terrabake_format::cones::CONE_APEX;
 use terrabake_format::horizons::HORIZON;
 use terrabake_format::trace::Tracer;
@@ -30,7 +29,7 @@ fn main() -> ExitCode {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
-    let cli = Cli::parse();
+    let cli = Cli::parse_checked();
     terrabake::interrupt::install();
     match run(cli) {
         Ok(code) => code,
@@ -232,11 +231,20 @@ fn run(cli: Cli) -> Result<ExitCode> {
             force,
             json,
         } => {
-            let outcome = run_stage(&asset, &stage, force)?;
+            // One run: the sky layers the new horizons drop are committed
+            // again with them, so no reader finds them missing meanwhile.
+            let sky = terrabake::sky::SkyStage::default();
+            let mut stages: Vec<(&dyn Stage, bool)> = vec![(&stage, force)];
             if !no_sky {
-                let sky = run_stage(&asset, &terrabake::sky::SkyStage::default(), false)?;
-                say(describe_outcome(&sky));
+                stages.push((&sky, false));
             }
+            let outcomes = run_stages_in(
+                &AssetWriter::open(&asset, wait)?,
+                &stages,
+                progress,
+                &mut |_| Ok(()),
+            )?;
+            let outcome = outcomes[0].clone();
             let opened = open_asset(&asset)?;
             let entry = opened.manifest().layer(HORIZON, 0).cloned();
             if json {
@@ -247,6 +255,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             if let Some(e) = entry {
                 say(e.description);
             }
+            outcomes[1..].iter().for_each(|o| say(describe_outcome(o)));
         }
         Command::Bake {
             src,

@@ -4,7 +4,8 @@
 //! through [`write_atomically`]: a fresh, exclusively created temporary
 //! beside the output, renamed over it on success, so a failed write never
 //! leaves a half-written file where a good one stood, and a link planted at
-//! a temporary name is never written through.
+//! a temporary name is never written through. No output goes inside an
+//! asset directory: only the asset's writer writes there, under its lock.
 
 use std::fs::{self, File};
 use std::io::BufWriter;
@@ -20,8 +21,10 @@ pub fn write_atomically(
     path: &Path,
     write: impl FnOnce(&mut BufWriter<File>) -> Result<()>,
 ) -> Result<()> {
+    let parent = path.parent().filter(|p| !p.as_os_str().is_empty());
+    refuse_inside_asset(path, parent.unwrap_or(Path::new(".")))?;
     // A missing directory is made, as the asset writers make theirs.
-    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+    if let Some(parent) = parent {
         fs::create_dir_all(parent)
             .with_context(|| format!("{}: cannot create the directory", parent.display()))?;
     }
@@ -43,4 +46,22 @@ pub fn write_atomically(
         let _ = fs::remove_file(&tmp);
     }
     result
+}
+
+/// Refuses an output whose directory `parent` is an asset (it holds a
+/// manifest or a writer lock): `profile A --at .. -o A/manifest.tba` must
+/// not replace the asset's own files behind its writer's back.
+fn refuse_inside_asset(path: &Path, parent: &Path) -> Result<()> {
+    use terrabake_format::{LOCK_FILE, MANIFEST_FILE};
+    let is_asset = [MANIFEST_FILE, LOCK_FILE]
+        .iter()
+        .any(|f| fs::symlink_metadata(parent.join(f)).is_ok());
+    if is_asset {
+        anyhow::bail!(
+            "{}: is inside the asset directory {}; only the asset's writer writes there. Write the output outside it",
+            path.display(),
+            parent.display()
+        );
+    }
+    Ok(())
 }

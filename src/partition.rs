@@ -55,6 +55,11 @@ use crate::progress::Progress;
 use crate::recipe::Recipe;
 use crate::stage::{run_share_in, run_stage_in, Share, Split, Stage, StageOutcome};
 
+/// The most parts a bake may be cut into: far more than any scheduler's
+/// array runs at once, and few enough that every message naming parts
+/// stays short.
+pub const MAX_PARTS: u32 = 65_536;
+
 /// Part `index` of `count` (0-based).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Part {
@@ -65,8 +70,8 @@ pub struct Part {
 impl Part {
     /// `--part I` of `--parts N`, refused unless `0 <= I < N`.
     pub fn new(index: u32, count: u32) -> Result<Self> {
-        if count == 0 {
-            bail!("--parts 0: give at least one part");
+        if !(1..=MAX_PARTS).contains(&count) {
+            bail!("--parts {count}: give 1 to {MAX_PARTS} parts");
         }
         if index >= count {
             bail!(
@@ -147,8 +152,14 @@ impl Plan {
         Ok(Self { stages })
     }
 
-    /// What the parts must agree on, with the ingest's parameters.
-    fn fingerprint(&self, ingest: serde_json::Value) -> serde_json::Value {
+    /// What the parts must agree on, with the ingest's parameters: the
+    /// source by its content, not by the path or time it had in each part.
+    fn fingerprint(&self, mut ingest: serde_json::Value) -> serde_json::Value {
+        if let Some(fields) = ingest.as_object_mut() {
+            for location in crate::ingest::SOURCE_LOCATION_FIELDS {
+                fields.remove(location);
+            }
+        }
         serde_json::json!({
             "ingest": ingest,
             "stages": self.stages.iter().map(|(s, split)| serde_json::json!({
@@ -295,12 +306,15 @@ pub fn bake_part(
             progress,
         )?);
     }
-    let baked = Asset::open(&dir)?;
-    let own = part.own_rows(m.height as usize, m.tile_size as usize);
-    let mut stats = HeightStats::default();
-    let mut z = vec![0f32; own.len() * m.width as usize];
-    baked.height()?.read_rows_f32(0, own.start as u32, &mut z)?;
-    stats.add(&z);
+    // The part's own asset says which part it is: a directory copied
+    // over another part's is refused at the join, whatever its record says.
+    crate::stage::record_measurement_in(
+        &writer,
+        PART_RECORD,
+        identity(part, &fingerprint),
+        vec![format!("{HEIGHT_LAYER}@0")],
+    )?;
+    let stats = own_height_stats(&Asset::open(&dir)?, part)?;
     drop(writer);
     write_record(
         &record_path,
@@ -315,6 +329,70 @@ pub fn bake_part(
         },
     )?;
     Ok(outcomes)
+}
+
+/// The name of the record, in a part's own manifest, of which part it is.
+const PART_RECORD: &str = "part";
+
+/// What a part's own manifest records of it ([`PART_RECORD`]).
+fn identity(part: Part, fingerprint: &serde_json::Value) -> serde_json::Value {
+    serde_json::json!({ "part": part.index, "parts": part.count, "plan": fingerprint })
+}
+
+/// Nodata posts and the height range over the rows `part` owns, read from
+/// its asset's heights.
+fn own_height_stats(baked: &Asset<Mmap>, part: Part) -> Result<HeightStats> {
+    let m = baked.manifest();
+    let own = part.own_rows(m.height as usize, m.tile_size as usize);
+    let mut stats = HeightStats::default();
+    let height = baked.height()?;
+    let w = m.width as usize;
+    // A band of rows at a time: a part of a large DEM is not held whole.
+    let rows = ((4 << 20) / w.max(1)).clamp(1, own.len().max(1));
+    let mut z = vec![0f32; rows * w];
+    for y0 in own.clone().step_by(rows) {
+        let n = rows.min(own.end - y0) * w;
+        height.read_rows_f32(0, y0 as u32, &mut z[..n])?;
+        stats.add(&z[..n]);
+    }
+    Ok(stats)
+}
+
+/// Where two JSON values differ, as dotted paths (`ingest.source_xxh3`),
+/// for a message that says which setting two parts disagree on.
+fn json_differences(a: &serde_json::Value, b: &serde_json::Value, at: &str) -> Vec<String> {
+    use serde_json::Value;
+    let key = |k: &str| {
+        if at.is_empty() {
+            k.to_string()
+        } else {
+            format!("{at}.{k}")
+        }
+    };
+    match (a, b) {
+        (Value::Object(x), Value::Object(y)) => {
+            let mut keys: Vec<&String> = x.keys().chain(y.keys()).collect();
+            keys.sort();
+            keys.dedup();
+            keys.into_iter()
+                .flat_map(|k| {
+                    let (va, vb) = (x.get(k), y.get(k));
+                    match (va, vb) {
+                        (Some(va), Some(vb)) => json_differences(va, vb, &key(k)),
+                        _ => vec![key(k)],
+                    }
+                })
+                .collect()
+        }
+        (Value::Array(x), Value::Array(y)) if x.len() == y.len() => x
+            .iter()
+            .zip(y)
+            .enumerate()
+            .flat_map(|(i, (va, vb))| json_differences(va, vb, &key(&i.to_string())))
+            .collect(),
+        _ if a == b => Vec::new(),
+        _ => vec![at.to_string()],
+    }
 }
 
 fn read_record(path: &Path) -> Result<PartRecord> {
@@ -381,7 +459,7 @@ fn check_parts(asset: &Path) -> Result<Vec<(PartRecord, Asset<Mmap>)>> {
         let part = Part { index, count: n };
         let record_path = dir.join(format!("{}.json", part.name()));
         if !record_path.exists() {
-            missing.push(index.to_string());
+            missing.push(index);
             continue;
         }
         let record = read_record(&record_path)?;
@@ -396,26 +474,74 @@ fn check_parts(asset: &Path) -> Result<Vec<(PartRecord, Asset<Mmap>)>> {
         }
         let baked = Asset::open(dir.join(part.name()))
             .with_context(|| format!("{}: damaged; bake it again", part.name()))?;
+        let claims = crate::stage::record_of(baked.manifest(), PART_RECORD).map(|r| &r.params);
+        if claims != Some(&identity(part, &record.plan)) {
+            bail!(
+                "{}: its asset is not the {} its record names (a copy of another part, or baked with another plan); bake it again",
+                dir.join(part.name()).display(),
+                part.name()
+            );
+        }
+        // The join commits counts it has read, not what a record claims.
+        let stats = own_height_stats(&baked, part)
+            .with_context(|| format!("{}: damaged; bake it again", part.name()))?;
+        if (stats.nodata, stats.range()) != (record.nodata, record.height_range) {
+            bail!(
+                "{}: records {} nodata posts and heights {:?}, its rows hold {} and {:?}; bake it again",
+                record_path.display(),
+                record.nodata,
+                record.height_range,
+                stats.nodata,
+                stats.range()
+            );
+        }
         parts.push((record, baked));
     }
     if !missing.is_empty() {
+        let missing = index_ranges(&missing);
         bail!(
-            "{}: part {} of {n} missing or unfinished (no record); nothing was assembled. Run `terrabake bake SRC -o {} --recipe R --parts {n} --part I` for I = {}",
+            "{}: part {missing} of {n} missing or unfinished (no record); nothing was assembled. Run `terrabake bake SRC -o {} --recipe R --parts {n} --part I` for I = {missing}",
             dir.display(),
-            missing.join(", "),
             asset.display(),
-            missing.join(", ")
         );
     }
     let plan = &parts[0].0.plan;
     if let Some((record, _)) = parts.iter().find(|(r, _)| &r.plan != plan) {
         bail!(
-            "{}: part-{}-of-{n} was baked with a different recipe or source than part-0-of-{n}; bake it again with the same ones",
+            "{}: part-{}-of-{n} was baked with a different recipe or source than part-0-of-{n} ({} differ); bake it again with the same ones",
             dir.display(),
-            record.part
+            record.part,
+            json_differences(plan, &record.plan, "").join(", ")
         );
     }
     Ok(parts)
+}
+
+/// Sorted indices as runs (`0-3, 7, 9, 10, 12-999999`): a message about a million
+/// missing parts stays one short line.
+fn index_ranges(indices: &[u32]) -> String {
+    let mut runs: Vec<(u32, u32)> = Vec::new();
+    for &i in indices {
+        match runs.last_mut() {
+            Some((_, end)) if *end + 1 == i => *end = i,
+            _ => runs.push((i, i)),
+        }
+    }
+    let shown: Vec<String> = runs
+        .iter()
+        .take(8)
+        .map(|&(a, b)| match b - a {
+            0 => a.to_string(),
+            1 => format!("{a}, {b}"),
+            _ => format!("{a}-{b}"),
+        })
+        .collect();
+    let more = runs.len().saturating_sub(shown.len());
+    if more > 0 {
+        format!("{} and {more} more runs", shown.join(", "))
+    } else {
+        shown.join(", ")
+    }
 }
 
 fn parse_part_name(name: &str) -> Option<Part> {
@@ -428,47 +554,132 @@ fn parse_part_name(name: &str) -> Option<Part> {
 /// adopts each layer's chunks from the part that computed them, commits
 /// one manifest, runs the stages left to the join, and removes the parts
 /// (unless `keep`). Nothing is committed when a part is missing or bad.
+///
+/// Idempotent: everything happens under the asset's writer lock, taken
+/// before the parts are read, and the commit records the join
+/// ([`ASSEMBLE_RECORD`]). Run again, after a success or a kill at any
+/// point, it finishes what is left (the join's stages, the parts' removal)
+/// or says the asset is assembled; a second assemble waiting on the first
+/// finds the join done.
 pub fn assemble(
     asset: &Path,
     keep: bool,
     wait: Wait,
     progress: Progress,
 ) -> Result<Vec<StageOutcome>> {
-    let parts = check_parts(asset)?;
-    let n = parts.len();
-    let first = &parts[0];
-    let recipe = Recipe::parse(
-        &parts_dir(asset).join(format!("part-0-of-{n}.json")),
-        first.0.recipe.clone(),
-    )?;
-    let m = first.1.manifest();
-    let plan = Plan::new(&recipe, m)?;
-    let ingest = crate::stage::record_of(m, "ingest").context("part 0 has no ingest record")?;
-    if plan.fingerprint(ingest.params.clone()) != first.0.plan {
-        bail!(
-            "{}: the parts' records and their assets disagree; bake the parts again",
-            parts_dir(asset).display()
-        );
-    }
     let writer = AssetWriter::create(asset, wait)?;
-    let committed = commit_parts(&writer, &parts, &plan, progress);
-    if committed.is_err() {
+    let joined = joined_plan(asset);
+    let dir = parts_dir(asset);
+    let result = (|| -> Result<Vec<StageOutcome>> {
+        remove_removed_parts(asset)?;
+        if joined.is_some() && !dir.exists() {
+            return Ok(vec![StageOutcome {
+                stage: "assemble".into(),
+                skipped: true,
+                outputs: Vec::new(),
+                seconds: 0.0,
+            }]);
+        }
+        let parts = check_parts(asset)?;
+        let n = parts.len();
+        let first = &parts[0];
+        let recipe = Recipe::parse(
+            &dir.join(format!("part-0-of-{n}.json")),
+            first.0.recipe.clone(),
+        )?;
+        let m = first.1.manifest();
+        let plan = Plan::new(&recipe, m)?;
+        let ingest = crate::stage::record_of(m, "ingest").context("part 0 has no ingest record")?;
+        if plan.fingerprint(ingest.params.clone()) != first.0.plan {
+            bail!(
+                "{}: the parts' records and their assets disagree; bake the parts again",
+                dir.display()
+            );
+        }
+        let identity = joined_identity(n, &first.0.plan);
+        if joined.as_ref() != Some(&identity) {
+            commit_parts(&writer, &parts, &plan, identity, progress)?;
+        }
+        let mut outcomes = Vec::new();
+        for (stage, split) in &plan.stages {
+            if *split == Split::Join {
+                outcomes.push(run_stage_in(&writer, stage.as_ref(), false, progress)?);
+            }
+        }
+        Ok(outcomes)
+    })();
+    if result.is_err() {
         writer.fail();
     }
-    committed?;
-    let mut outcomes = Vec::new();
-    for (stage, split) in &plan.stages {
-        if *split == Split::Join {
-            outcomes.push(run_stage_in(&writer, stage.as_ref(), false, progress)?);
-        }
+    let outcomes = result?;
+    if !keep {
+        remove_parts(asset)?;
     }
     drop(writer);
-    if !keep {
-        let dir = parts_dir(asset);
-        std::fs::remove_dir_all(&dir)
-            .with_context(|| format!("{}: cannot remove", dir.display()))?;
-    }
     Ok(outcomes)
+}
+
+/// The record, in an assembled asset's manifest, of the join that made it.
+const ASSEMBLE_RECORD: &str = "assemble";
+
+/// What [`ASSEMBLE_RECORD`] holds: how many parts, and their plan.
+fn joined_identity(parts: usize, plan: &serde_json::Value) -> serde_json::Value {
+    serde_json::json!({ "parts": parts, "plan": plan })
+}
+
+/// The join the committed asset records, if it was assembled.
+fn joined_plan(asset: &Path) -> Option<serde_json::Value> {
+    let opened = Asset::open(asset).ok()?;
+    crate::stage::record_of(opened.manifest(), ASSEMBLE_RECORD).map(|r| r.params.clone())
+}
+
+/// Where the parts go while they are removed: one rename takes them out
+/// of `ASSET.parts/` at once, so a kill during the removal leaves either
+/// every part or none under that name.
+fn removed_parts_dir(asset: &Path) -> PathBuf {
+    let mut name = parts_dir(asset)
+        .file_name()
+        .unwrap_or_default()
+        .to_os_string();
+    name.push(format!(".removed-{}", std::process::id()));
+    asset.with_file_name(name)
+}
+
+/// Removes `ASSET.parts/`, first renamed out of the way.
+fn remove_parts(asset: &Path) -> Result<()> {
+    let (dir, gone) = (parts_dir(asset), removed_parts_dir(asset));
+    match std::fs::rename(&dir, &gone) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+        renamed => renamed.and_then(|()| std::fs::remove_dir_all(&gone)),
+    }
+    .with_context(|| format!("{}: cannot remove", dir.display()))
+}
+
+/// Removes what a killed removal left (`ASSET.parts.removed-<pid>/`); no
+/// other name is touched.
+fn remove_removed_parts(asset: &Path) -> Result<()> {
+    let parent = match asset.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    let prefix = format!(
+        "{}.removed-",
+        parts_dir(asset)
+            .file_name()
+            .unwrap_or_default()
+            .to_string_lossy()
+    );
+    for entry in std::fs::read_dir(parent).into_iter().flatten().flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let ours = name
+            .strip_prefix(&prefix)
+            .is_some_and(|pid| !pid.is_empty() && pid.bytes().all(|b| b.is_ascii_digit()));
+        if ours && entry.file_type().is_ok_and(|t| t.is_dir()) {
+            std::fs::remove_dir_all(entry.path())
+                .with_context(|| format!("{}: cannot remove", entry.path().display()))?;
+        }
+    }
+    Ok(())
 }
 
 /// Adopts the layers the parts computed into the asset and commits its
@@ -477,6 +688,7 @@ fn commit_parts(
     writer: &AssetWriter,
     parts: &[(PartRecord, Asset<Mmap>)],
     plan: &Plan,
+    identity: serde_json::Value,
     progress: Progress,
 ) -> Result<()> {
     let n = parts.len() as u32;
@@ -529,6 +741,13 @@ fn commit_parts(
                 .iter()
                 .any(|(s, split)| s.name() == r.stage && *split != Split::Join)
     });
+    crate::stage::put_record(
+        &mut manifest,
+        ASSEMBLE_RECORD,
+        identity,
+        Vec::new(),
+        vec![format!("{HEIGHT_LAYER}@0")],
+    );
     terrabake_format::commit_manifest(writer.lock_held(), &manifest)?;
     Ok(())
 }

@@ -51,7 +51,7 @@ pub struct ProfileArgs {
     #[arg(long, value_enum, default_value = "native")]
     pub crs: Crs,
     /// Degrees between azimuths (0.01 to 360), from north (0) clockwise.
-    #[arg(long, default_value_t = 1.0, value_parser = crate::args::parse_positive)]
+    #[arg(long, default_value_t = 1.0, value_parser = crate::args::parse_profile_step)]
     pub step: f64,
     /// csv, json or pvgis.
     #[arg(long, value_enum, default_value = "csv")]

@@ -33,7 +33,7 @@ use serde::Deserialize;
 use crate::asset::{AssetWriter, Wait};
 use crate::ingest::{IngestOptions, IngestStage};
 use crate::progress::Progress;
-use crate::stage::{run_stage_in, Stage, StageOutcome};
+use crate::stage::{run_stage_in, run_stages_in, Stage, StageOutcome};
 
 /// A recipe file.
 #[derive(Debug, Clone, Default, Deserialize)]
@@ -75,8 +75,16 @@ impl Recipe {
 
     /// The recipe `text`, read from `path` (named in messages).
     pub fn parse(path: &Path, text: String) -> Result<Self> {
-        let mut recipe: Recipe =
-            toml::from_str(&text).with_context(|| format!("{}: invalid recipe", path.display()))?;
+        let invalid = || format!("{}: invalid recipe", path.display());
+        let mut recipe: Recipe = toml::from_str(&text).with_context(invalid)?;
+        // TOML has `nan` and `inf`; no parameter of any stage means either.
+        let table: toml::Table = toml::from_str(&text).with_context(invalid)?;
+        if let Some(key) = non_finite_key(&toml::Value::Table(table), "") {
+            bail!(
+                "{}: invalid recipe: `{key}` is not a finite number",
+                path.display()
+            );
+        }
         recipe.path = path.to_path_buf();
         recipe.text = text;
         Ok(recipe)
@@ -107,6 +115,26 @@ impl Recipe {
                 })
             })
             .collect()
+    }
+}
+
+/// The dotted key of the first non-finite float in `value` (`stage.2.refraction`).
+fn non_finite_key(value: &toml::Value, at: &str) -> Option<String> {
+    let key = |k: &dyn std::fmt::Display| {
+        if at.is_empty() {
+            k.to_string()
+        } else {
+            format!("{at}.{k}")
+        }
+    };
+    match value {
+        toml::Value::Float(f) if !f.is_finite() => Some(at.to_string()),
+        toml::Value::Table(t) => t.iter().find_map(|(k, v)| non_finite_key(v, &key(k))),
+        toml::Value::Array(a) => a
+            .iter()
+            .enumerate()
+            .find_map(|(i, v)| non_finite_key(v, &key(&(i + 1)))),
+        _ => None,
     }
 }
 
@@ -167,7 +195,7 @@ pub fn bake(
 }
 
 /// [`bake`], telling `on_stage(outcome, done, total)` as each stage is
-/// committed (ingest is stage 1; `total` counts the planned stages once the
+/// done (ingest is stage 1; `total` counts the planned stages once the
 /// plan is known). An error from it stops the bake there: the stages done
 /// stay committed, and the bake resumes from them when run again.
 pub fn bake_with(
@@ -232,18 +260,25 @@ pub fn bake_with(
     for (i, outcome) in outcomes.iter().enumerate() {
         on_stage(outcome, i + 1, total)?;
     }
-    for stage in &stages {
-        outcomes.push(run_stage_in(&writer, stage.as_ref(), false, progress)?);
-        on_stage(outcomes.last().expect("just pushed"), outcomes.len(), total)?;
-    }
-    drop(writer);
+    let sequence: Vec<(&dyn Stage, bool)> = stages.iter().map(|s| (s.as_ref(), false)).collect();
+    let mut n = outcomes.len();
+    outcomes.extend(run_stages_in(
+        &writer,
+        &sequence,
+        progress,
+        &mut |outcome| {
+            n += 1;
+            on_stage(outcome, n, total)
+        },
+    )?);
     if let Some(mut plan) = plan {
         plan.baked = Some(crate::plan::Baked {
             seconds: start.elapsed().as_secs_f64(),
             peak_memory_mib: crate::resources::peak_memory().unwrap_or(0) as f64 / 1048576.0,
         });
-        crate::stage::record_measurement(
-            dir,
+        // Under the lock the bake holds: `--no-wait` is not waited past.
+        crate::stage::record_measurement_in(
+            &writer,
             "plan",
             serde_json::to_value(&plan)?,
             vec![format!("{}@0", terrabake_format::layers::HEIGHT)],

@@ -245,30 +245,114 @@ pub fn run_share_in(
     force: bool,
     progress: Progress,
 ) -> Result<StageOutcome> {
-    crate::interrupt::doing(Some(format!(
-        "stage '{}' of {}",
-        stage.name(),
-        writer.dir().display()
-    )));
-    let result = write_stage(writer, stage, share, force, progress);
-    crate::interrupt::doing(None);
+    let result = write_stage(writer, stage, share, force, None, progress).and_then(|w| {
+        if let Some(manifest) = &w.manifest {
+            commit_manifest(writer.lock_held(), manifest)?;
+        }
+        Ok(w.outcome)
+    });
     if result.is_err() {
         writer.fail();
     }
     result
 }
 
+/// Runs `stages` in order (each with its `force`) under one writer,
+/// committing after each, with one exception that keeps readers whole: a
+/// stage whose commit would drop layers that a later stage of the list
+/// writes again (the horizons, dropping the sky layers derived from the
+/// old ones) holds its commit until that stage has run, and both commit
+/// at once. A reader never finds `svf` missing during `horizons --force`.
+/// `on_stage` hears of each stage as it is done; an error from a stage or
+/// from it commits what is held (as if each stage had committed alone),
+/// removes the failed stage's files and returns the error.
+pub fn run_stages_in(
+    writer: &AssetWriter,
+    stages: &[(&dyn Stage, bool)],
+    progress: Progress,
+    on_stage: &mut dyn FnMut(&StageOutcome) -> Result<()>,
+) -> Result<Vec<StageOutcome>> {
+    let mut held: Option<terrabake_format::Manifest> = None;
+    let mut outcomes = Vec::new();
+    let mut run = || -> Result<()> {
+        for (i, &(stage, force)) in stages.iter().enumerate() {
+            let written = write_stage(writer, stage, &Share::All, force, held.as_ref(), progress)?;
+            if let Some(manifest) = written.manifest {
+                let rewritten_later = stages[i + 1..].iter().any(|(later, _)| {
+                    later
+                        .outputs(&manifest)
+                        .iter()
+                        .any(|key| written.dropped.contains(key))
+                });
+                if rewritten_later {
+                    held = Some(manifest);
+                } else {
+                    commit_manifest(writer.lock_held(), &manifest)?;
+                    held = None;
+                }
+            }
+            on_stage(&written.outcome)?;
+            outcomes.push(written.outcome);
+        }
+        Ok(())
+    };
+    let result = run();
+    let committed = match held.take() {
+        Some(manifest) => commit_manifest(writer.lock_held(), &manifest).map(drop),
+        None => Ok(()),
+    };
+    if result.is_err() || committed.is_err() {
+        writer.fail();
+    }
+    result?;
+    committed?;
+    Ok(outcomes)
+}
+
+/// What [`write_stage`] did: its outcome, and unless it was skipped the
+/// manifest to commit and the layers that manifest drops (derived from
+/// what the stage rewrote, and not rewritten by it).
+struct Written {
+    outcome: StageOutcome,
+    manifest: Option<terrabake_format::Manifest>,
+    dropped: Vec<String>,
+}
+
+/// Runs `stage` against the committed asset, or against `held`, a
+/// manifest an earlier stage of the same run wrote and has not committed.
 fn write_stage(
     writer: &AssetWriter,
     stage: &dyn Stage,
     share: &Share,
     force: bool,
+    held: Option<&terrabake_format::Manifest>,
     progress: Progress,
-) -> Result<StageOutcome> {
+) -> Result<Written> {
+    crate::interrupt::doing(Some(format!(
+        "stage '{}' of {}",
+        stage.name(),
+        writer.dir().display()
+    )));
+    let result = write_stage_doing(writer, stage, share, force, held, progress);
+    crate::interrupt::doing(None);
+    result
+}
+
+fn write_stage_doing(
+    writer: &AssetWriter,
+    stage: &dyn Stage,
+    share: &Share,
+    force: bool,
+    held: Option<&terrabake_format::Manifest>,
+    progress: Progress,
+) -> Result<Written> {
     let dir = writer.dir();
     let start = std::time::Instant::now();
     stage.check()?;
-    let opened = Asset::open(dir);
+    let opened = match held {
+        Some(m) => Asset::open_uncommitted(dir, m.clone()),
+        None => Asset::open(dir),
+    };
     let params = stage.params();
     if !force {
         let done = opened
@@ -276,11 +360,15 @@ fn write_stage(
             .ok()
             .and_then(|a| already_done(a.manifest(), stage.name(), &params));
         if let Some(outputs) = done {
-            return Ok(StageOutcome {
-                stage: stage.name().into(),
-                skipped: true,
-                outputs,
-                seconds: 0.0,
+            return Ok(Written {
+                outcome: StageOutcome {
+                    stage: stage.name().into(),
+                    skipped: true,
+                    outputs,
+                    seconds: 0.0,
+                },
+                manifest: None,
+                dropped: Vec::new(),
             });
         }
     }
@@ -304,10 +392,15 @@ fn write_stage(
         "stage '{}' wrote {outputs:?}, not the {declared:?} it declares",
         stage.name()
     );
+    let before: Vec<String> = manifest.layers.iter().map(LayerEntry::key).collect();
     drop_dependents(&mut manifest, stage.name(), &outputs);
     for entry in entries {
         manifest.upsert_layer(entry);
     }
+    let dropped = before
+        .into_iter()
+        .filter(|key| !manifest.layers.iter().any(|l| &l.key() == key))
+        .collect();
     put_record(
         &mut manifest,
         stage.name(),
@@ -315,12 +408,15 @@ fn write_stage(
         outputs.clone(),
         stage.inputs(),
     );
-    commit_manifest(writer.lock_held(), &manifest)?;
-    Ok(StageOutcome {
-        stage: stage.name().into(),
-        skipped: false,
-        outputs,
-        seconds: start.elapsed().as_secs_f64(),
+    Ok(Written {
+        outcome: StageOutcome {
+            stage: stage.name().into(),
+            skipped: false,
+            outputs,
+            seconds: start.elapsed().as_secs_f64(),
+        },
+        manifest: Some(manifest),
+        dropped,
     })
 }
 
@@ -354,6 +450,17 @@ pub fn record_measurement(
     inputs: Vec<String>,
 ) -> Result<()> {
     let writer = AssetWriter::open(dir, crate::asset::Wait::Wait)?;
+    record_measurement_in(&writer, name, params, inputs)
+}
+
+/// [`record_measurement`] under a writer the caller holds.
+pub fn record_measurement_in(
+    writer: &AssetWriter,
+    name: &str,
+    params: serde_json::Value,
+    inputs: Vec<String>,
+) -> Result<()> {
+    let dir = writer.dir();
     let asset =
         Asset::open(dir).with_context(|| format!("{}: cannot open asset", dir.display()))?;
     let mut manifest = asset.manifest().clone();
@@ -364,7 +471,7 @@ pub fn record_measurement(
 }
 
 /// Replaces the record of `stage` in `manifest` with one made now.
-fn put_record(
+pub fn put_record(
     manifest: &mut terrabake_format::Manifest,
     stage: &str,
     params: serde_json::Value,

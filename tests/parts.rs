@@ -337,3 +337,154 @@ fn a_bad_set_of_parts_is_refused_by_name_and_nothing_is_committed() {
     ok(assemble());
     assert_ne!(std::fs::read(out.join(MANIFEST_FILE)).unwrap(), manifest);
 }
+
+/// Reliability, third round (docs/RELIABILITY.md 12-14): parts know their
+/// source by its content, not its path or time; a part must be the part it
+/// says (a directory copied over another is refused, and a record's counts
+/// must match its rows); the join is idempotent.
+#[test]
+fn parts_prove_their_source_and_identity_and_the_join_is_idempotent() {
+    let tmp = tempfile::tempdir().unwrap();
+    let src = dem(tmp.path());
+    let recipe = tmp.path().join("r.toml");
+    std::fs::write(&recipe, RECIPES[2]).unwrap();
+    let part = |src: &Path, out: &Path, i: &str| {
+        bake_command(src, out, &recipe)
+            .args(["--parts", "2", "--part", i])
+            .output()
+            .unwrap()
+    };
+    let assemble = |out: &Path| terrabake(&["assemble", path(out), "-q"]);
+    let refused = |o: Output, needle: &str, out: &Path| {
+        assert!(!o.status.success(), "accepted: {}", stderr(&o));
+        assert!(
+            stderr(&o).contains(needle),
+            "{needle:?} not in: {}",
+            stderr(&o)
+        );
+        assert!(!out.join(MANIFEST_FILE).exists(), "committed");
+    };
+
+    // The source replaced between the parts by another DEM of the same
+    // length, its modification time set back.
+    let moving = tmp.path().join("moving.tif");
+    std::fs::copy(&src, &moving).unwrap();
+    let out = tmp.path().join("mixed.tbake");
+    ok(part(&moving, &out, "0"));
+    let time = std::fs::metadata(&moving).unwrap().modified().unwrap();
+    let mut bytes = std::fs::read(&moving).unwrap();
+    let n = bytes.len();
+    // The last strip's bytes: other heights, the same length.
+    for b in &mut bytes[n - 4000..n - 8] {
+        *b = b.wrapping_add(1);
+    }
+    std::fs::write(&moving, &bytes).unwrap();
+    std::fs::File::options()
+        .write(true)
+        .open(&moving)
+        .unwrap()
+        .set_modified(time)
+        .unwrap();
+    ok(part(&moving, &out, "1"));
+    refused(assemble(&out), "ingest.source_xxh3", &out);
+
+    // The same file by two names is one source.
+    let out = tmp.path().join("names.tbake");
+    ok(part(&src, &out, "0"));
+    let relative = Command::new(env!("CARGO_BIN_EXE_terrabake"))
+        .current_dir(tmp.path())
+        .args([
+            "bake",
+            "dem.tif",
+            "-o",
+            path(&out),
+            "--recipe",
+            path(&recipe),
+            "-q",
+        ])
+        .args(["--parts", "2", "--part", "1"])
+        .output()
+        .unwrap();
+    ok(relative);
+    ok(assemble(&out));
+
+    // Idempotent: again after success, and after a kill during the
+    // removal of the parts (their directory renamed, then the kill).
+    let again = ok(terrabake(&["assemble", path(&out)]));
+    assert!(stderr(&again).contains("up to date"), "{}", stderr(&again));
+    let manifest = std::fs::read(out.join(MANIFEST_FILE)).unwrap();
+    ok(part(&src, &out, "0"));
+    ok(part(&src, &out, "1"));
+    let parts = terrabake::partition::parts_dir(&out);
+    let removing = out.with_file_name("names.tbake.parts.removed-999999");
+    std::fs::rename(&parts, &removing).unwrap();
+    ok(assemble(&out));
+    assert!(!removing.exists(), "a killed removal's leftovers stayed");
+    // With the parts back (a kill before the removal began), the join is
+    // recognised as done and only the parts go.
+    ok(part(&src, &out, "0"));
+    ok(part(&src, &out, "1"));
+    ok(assemble(&out));
+    assert!(!parts.exists());
+    assert_eq!(
+        std::fs::read(out.join(MANIFEST_FILE)).unwrap(),
+        manifest,
+        "joined twice"
+    );
+    // Two at once: both succeed, one join.
+    ok(part(&src, &out, "0"));
+    ok(part(&src, &out, "1"));
+    let (a, b) = (
+        Command::new(env!("CARGO_BIN_EXE_terrabake"))
+            .args(["assemble", path(&out), "-q"])
+            .spawn()
+            .unwrap(),
+        Command::new(env!("CARGO_BIN_EXE_terrabake"))
+            .args(["assemble", path(&out), "-q"])
+            .spawn()
+            .unwrap(),
+    );
+    for child in [a, b] {
+        let o = child.wait_with_output().unwrap();
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    ok(terrabake(&["verify", path(&out)]));
+
+    // A part's directory replaced by a copy of another's, checksums intact.
+    let out = tmp.path().join("copied.tbake");
+    ok(part(&src, &out, "0"));
+    ok(part(&src, &out, "1"));
+    let parts = terrabake::partition::parts_dir(&out);
+    std::fs::remove_dir_all(parts.join("part-1-of-2")).unwrap();
+    copy_dir(&parts.join("part-0-of-2"), &parts.join("part-1-of-2"));
+    refused(
+        assemble(&out),
+        "is not the part-1-of-2 its record names",
+        &out,
+    );
+
+    // Records whose counts lie (2^63 nodata posts twice would wrap to 0).
+    ok(part(&src, &out, "1"));
+    for i in 0..2 {
+        let record = parts.join(format!("part-{i}-of-2.json"));
+        let text = std::fs::read_to_string(&record).unwrap();
+        let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        v["nodata"] = (1u64 << 63).into();
+        std::fs::write(&record, serde_json::to_vec(&v).unwrap()).unwrap();
+    }
+    refused(assemble(&out), "nodata posts", &out);
+
+    // A million parts: refused as usage, before any work.
+    let o = bake_command(&src, &out, &recipe)
+        .args(["--parts", "1000000", "--part", "0"])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap().flatten() {
+        std::fs::copy(e.path(), to.join(e.file_name())).unwrap();
+    }
+}

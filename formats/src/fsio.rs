@@ -51,6 +51,50 @@ pub fn check_file_name(name: &str) -> std::result::Result<(), String> {
     }
 }
 
+/// Whether `name` is a layer file name as [`crate::LayerWriter`] gives
+/// them: `NAME.L<level>.g<generation>.tbl`, NAME of letters, digits, `_`
+/// and `-`. A user's `lineitem.tbl` is not one.
+pub fn is_layer_file_name(name: &str) -> bool {
+    let digits = |s: &str| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit());
+    let Some(rest) = name.strip_suffix(".tbl") else {
+        return false;
+    };
+    let mut parts = rest.rsplitn(3, '.');
+    let (Some(generation), Some(level), Some(layer)) = (parts.next(), parts.next(), parts.next())
+    else {
+        return false;
+    };
+    generation.strip_prefix('g').is_some_and(digits)
+        && level.strip_prefix('L').is_some_and(digits)
+        && !layer.is_empty()
+        && layer
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
+}
+
+/// The file a temporary made by [`create_temp`] was to become, when `name`
+/// is such a temporary (`TARGET.<pid>-<counter>-<hex clock>.tmp`); `None`
+/// for any other name, a user's `notes.tmp` among them.
+pub fn temporary_target(name: &str) -> Option<&str> {
+    let rest = name.strip_suffix(TEMP_SUFFIX)?;
+    let (target, unique) = rest.rsplit_once('.')?;
+    let mut fields = unique.splitn(3, '-');
+    let (pid, counter, clock) = (fields.next()?, fields.next()?, fields.next()?);
+    let digits = |s: &str| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit());
+    let hex = clock.len() >= 8 && clock.bytes().all(|b| b.is_ascii_hexdigit());
+    (digits(pid) && digits(counter) && hex && !target.is_empty()).then_some(target)
+}
+
+/// Whether `name` is a file that an asset's writer makes and may reclaim:
+/// a layer file, or a temporary of a layer file or of the manifest. The
+/// manifest and the lock are the asset's own, never reclaimed, and not
+/// counted here. Nothing else in an asset directory is ever removed.
+pub fn is_reclaimable_name(name: &str) -> bool {
+    is_layer_file_name(name)
+        || temporary_target(name)
+            .is_some_and(|t| t == crate::MANIFEST_FILE || is_layer_file_name(t))
+}
+
 /// Opens `path` for reading: no link followed, no blocking on a FIFO or
 /// device, and an error unless it is a regular file.
 pub fn open_regular(path: &Path) -> Result<File> {
@@ -220,6 +264,41 @@ mod tests {
         for good in ["height.L0.g0.tbl", "manifest.tba", "a-b_c.L12.g3.tbl"] {
             assert!(check_file_name(good).is_ok(), "{good:?}");
         }
+    }
+
+    #[test]
+    fn only_the_writers_own_names_are_reclaimable() {
+        for ours in [
+            "height.L0.g0.tbl",
+            "pyramid_max-x.L12.g345.tbl",
+            "height.L0.g7.tbl.4242-3-0badc0de.tmp",
+            "manifest.tba.17-0-12345678.tmp",
+        ] {
+            assert!(is_reclaimable_name(ours), "{ours:?}");
+        }
+        for theirs in [
+            "lineitem.tbl",
+            "notes.tmp",
+            "orders.L0.tbl",
+            "x.Lz.g0.tbl",
+            "x.L0.g.tbl",
+            ".L0.g0.tbl",
+            "a b.L0.g0.tbl",
+            "report.txt.tmp",
+            "lineitem.tbl.1-2-3.tmp",
+            "height.L0.g0.tbl.12-x-0badc0de.tmp",
+            "data.1-2-0badc0de.tmp",
+            "manifest.tba",
+            "writer.lock",
+        ] {
+            assert!(!is_reclaimable_name(theirs), "{theirs:?}");
+        }
+        // What create_temp makes is recognised as its target's temporary.
+        let dir = tempfile::tempdir().unwrap();
+        let (_f, p) = create_temp(&dir.path().join("height.L0.g2.tbl")).unwrap();
+        let name = p.file_name().unwrap().to_str().unwrap();
+        assert_eq!(temporary_target(name), Some("height.L0.g2.tbl"));
+        assert!(is_reclaimable_name(name));
     }
 
     #[test]

@@ -752,6 +752,18 @@ impl Asset<Mmap> {
         }
     }
 
+    /// The asset as `manifest` describes it before it is committed: the
+    /// view a writer gives the next stage of one run, whose layers are
+    /// renamed into place but which readers do not see yet. Validated as a
+    /// committed manifest is.
+    pub fn open_uncommitted(dir: impl AsRef<Path>, manifest: Manifest) -> Result<Self> {
+        let dir = dir.as_ref();
+        manifest
+            .validate()
+            .map_err(|what| Error::malformed(Location::file(dir.join(MANIFEST_FILE)), what))?;
+        Self::map_layers(dir, manifest, DEFAULT_CACHE_BYTES)
+    }
+
     /// Maps the layers of `manifest`, which [`parse_manifest`] has
     /// validated: every name was checked before the first file is opened.
     fn map_layers(dir: &Path, manifest: Manifest, cache_bytes: u64) -> Result<Self> {

@@ -49,7 +49,7 @@ use std::time::Duration;
 use zerocopy::IntoBytes;
 
 use crate::error::{Error, Location, Result};
-use crate::fsio::{crash_point, create_temp, start_writeback, sync_dir, TEMP_SUFFIX};
+use crate::fsio::{crash_point, create_temp, start_writeback, sync_dir};
 use crate::layout::{
     align_up, tiles_for, xxh3, ChunkEntry, Codec, ElemType, LayerFooter, LayerHeader,
     ManifestHeader, FOOTER_MAGIC, FORMAT_VERSION, HEADER_LEN, LAYER_MAGIC, MANIFEST_FILE,
@@ -611,7 +611,9 @@ impl WriteLock {
             let Ok(name) = entry.file_name().into_string() else {
                 continue;
             };
-            let ours = name.ends_with(".tbl") || name.ends_with(TEMP_SUFFIX);
+            // Only names this writer makes: a user's `lineitem.tbl` or
+            // `notes.tmp` is never taken for garbage.
+            let ours = crate::fsio::is_reclaimable_name(&name);
             // Never a directory, whatever its name (remove_file refuses one).
             let is_dir = entry.file_type().is_ok_and(|t| t.is_dir());
             if ours && !is_dir && !keep.contains(name.as_str()) {

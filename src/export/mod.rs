@@ -285,7 +285,7 @@ pub struct ExportArgs {
     pub for_program: Option<ExportFor>,
     /// With --for grass: degrees between directions, 0.1 to 360 (360 / the layer's bands by default);
     /// give `r.sun` the same `horizon_step`.
-    #[arg(long, requires = "for_program")]
+    #[arg(long, requires = "for_program", value_parser = crate::args::parse_grass_step)]
     pub step: Option<f64>,
     /// With a .ktx2 horizon export: the horizons as 2K + 1 Fourier coefficients per post for K
     /// harmonics (at most (bands - 1) / 2), a float array texture, instead of the bands.
