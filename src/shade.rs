@@ -39,17 +39,7 @@ impl std::str::FromStr for Shade {
         let rest = s
             .strip_prefix("sun:")
             .ok_or_else(|| format!("{s:?}: expected sky or sun:AZIMUTH,ELEVATION"))?;
-        let (az, el) = rest
-            .split_once(',')
-            .ok_or_else(|| format!("{s:?}: expected sun:AZIMUTH,ELEVATION"))?;
-        let parse = |v: &str| v.trim().parse::<f64>().map_err(|e| format!("{v:?}: {e}"));
-        let (azimuth, elevation) = (parse(az)?, parse(el)?);
-        if !(-90.0..=90.0).contains(&elevation) {
-            return Err(format!(
-                "sun elevation {elevation} is not between -90 and 90"
-            ));
-        }
-        Ok(Shade::Sun(Sun { azimuth, elevation }))
+        crate::args::parse_sun(rest).map(Shade::Sun)
     }
 }
 

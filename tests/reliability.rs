@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{stderr, terrabake};
+use common::{stderr, stdout, terrabake};
 
 fn s(p: &Path) -> &str {
     p.to_str().unwrap()
@@ -834,4 +834,258 @@ fn an_interrupted_command_removes_its_temporaries_and_resumes() {
     let again = terrabake(&horizons);
     assert!(again.status.success(), "{}", stderr(&again));
     assert!(Asset::open(&asset).unwrap().layer("horizon", 0).is_ok());
+}
+
+/// Third round, failure 12: a directory is reclaimed only of the files the
+/// writer names itself (`NAME.L<n>.g<n>.tbl`, its temporaries): a user's
+/// `lineitem.tbl` and `notes.tmp` make the directory a stranger's, refused,
+/// and both stay. A killed writer's real leftovers are still taken.
+#[test]
+fn a_users_files_are_never_reclaimed() {
+    let dir = tempfile::tempdir().unwrap();
+    let (tif, _) = dem_and_recipe(dir.path());
+    let theirs = dir.path().join("theirs");
+    std::fs::create_dir(&theirs).unwrap();
+    std::fs::write(theirs.join("lineitem.tbl"), b"1|2|3").unwrap();
+    std::fs::write(theirs.join("notes.tmp"), b"draft").unwrap();
+    for command in ["ingest", "bake"] {
+        let mut args = vec![command, s(&tif), "-o", s(&theirs), "-q"];
+        if command == "bake" {
+            args.extend(["--budget", "horizon=1"]);
+        }
+        let o = terrabake(&args);
+        assert!(!o.status.success(), "{command} took a stranger's directory");
+        assert!(stderr(&o).contains("not an asset"), "{}", stderr(&o));
+        assert_eq!(
+            std::fs::read(theirs.join("lineitem.tbl")).unwrap(),
+            b"1|2|3"
+        );
+        assert_eq!(std::fs::read(theirs.join("notes.tmp")).unwrap(), b"draft");
+    }
+    // A killed first ingest's leftovers: the directory is taken, they go.
+    let killed = dir.path().join("killed");
+    std::fs::create_dir(&killed).unwrap();
+    for name in [
+        "height.L0.g0.tbl",
+        "height.L0.g1.tbl.4242-0-0badc0de.tmp",
+        "writer.lock",
+    ] {
+        std::fs::write(killed.join(name), b"x").unwrap();
+    }
+    let o = terrabake(&["ingest", s(&tif), "-o", s(&killed), "-q"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        unnamed_files(&killed).is_empty(),
+        "{:?}",
+        unnamed_files(&killed)
+    );
+}
+
+/// Third round, failure 17: no command writes inside an asset but through
+/// its writer; outputs aimed at an asset's own files are refused, the
+/// asset stays valid.
+#[test]
+fn outputs_are_never_written_inside_an_asset() {
+    let (dir, asset) = baked();
+    let manifest = asset.join(MANIFEST_FILE);
+    let layer = Asset::open(&asset).unwrap().manifest().layers[0]
+        .file
+        .clone();
+    let layer = asset.join(layer);
+    let cases: Vec<Vec<String>> = vec![
+        vec![
+            "profile".into(),
+            s(&asset).into(),
+            "--at".into(),
+            "3,3".into(),
+            "--crs".into(),
+            "grid".into(),
+            "-o".into(),
+            s(&manifest).into(),
+        ],
+        vec![
+            "render".into(),
+            s(&asset).into(),
+            "--shade".into(),
+            "sky".into(),
+            "-o".into(),
+            s(&manifest).into(),
+        ],
+        vec![
+            "viewshed".into(),
+            s(&asset).into(),
+            "--observer".into(),
+            "3,3".into(),
+            "--crs".into(),
+            "grid".into(),
+            "-o".into(),
+            s(&layer).into(),
+        ],
+        vec![
+            "page".into(),
+            s(&asset).into(),
+            "-o".into(),
+            s(&manifest).into(),
+        ],
+        vec![
+            "synth".into(),
+            "fractal".into(),
+            "--size".into(),
+            "32x32".into(),
+            "-o".into(),
+            s(&layer).into(),
+        ],
+        vec![
+            "export".into(),
+            s(&asset).into(),
+            "--layer".into(),
+            "height".into(),
+            "-o".into(),
+            asset.join("h.tif").to_str().unwrap().into(),
+        ],
+    ];
+    let before = std::fs::read(&manifest).unwrap();
+    for args in cases {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let o = terrabake(&args);
+        assert!(!o.status.success(), "{args:?} wrote inside the asset");
+        assert!(
+            stderr(&o).contains("inside the asset"),
+            "{args:?}: {}",
+            stderr(&o)
+        );
+        assert_eq!(std::fs::read(&manifest).unwrap(), before, "{args:?}");
+        let verify = terrabake(&["verify", s(&asset)]);
+        assert!(verify.status.success(), "{args:?}: {}", stdout(&verify));
+        assert!(
+            unnamed_files(&asset).is_empty(),
+            "{args:?}: {:?}",
+            unnamed_files(&asset)
+        );
+    }
+}
+
+/// Third round, failures 18 and 21: a number flag or recipe value that is
+/// NaN or infinite is bad usage (exit 2) in every command, as every other
+/// bad value is; nothing is written.
+#[test]
+fn non_finite_numbers_and_bad_values_are_usage_errors_everywhere() {
+    let (dir, asset) = baked();
+    let a = s(&asset);
+    let out = dir.path().join("o.tif");
+    let o = s(&out);
+    let cases: &[&[&str]] = &[
+        &["horizons", a, "--refraction", "nan"],
+        &["horizons", a, "--refraction", "inf"],
+        &["horizons", a, "--max-distance", "nan"],
+        &[
+            "viewshed",
+            a,
+            "--observer",
+            "3,3",
+            "--crs",
+            "grid",
+            "--refraction",
+            "nan",
+            "-o",
+            o,
+        ],
+        &[
+            "viewshed",
+            a,
+            "--observer",
+            "3,3",
+            "--crs",
+            "grid",
+            "--observer-height",
+            "inf",
+            "-o",
+            o,
+        ],
+        &["total-viewshed", a, "--refraction", "-inf"],
+        &[
+            "profile",
+            a,
+            "--at",
+            "3,3",
+            "--crs",
+            "grid",
+            "--refraction",
+            "nan",
+        ],
+        &["profile", a, "--at", "3,3", "--crs", "grid", "--step", "0"],
+        &[
+            "export", a, "--layer", "horizon", "--for", "grass", "--step", "0", "-o", o,
+        ],
+        &["render", a, "--shade", "sun:nan,10", "-o", o],
+        &[
+            "bake", a, "-o", o, "--recipe", "r.toml", "--parts", "4", "--part", "4",
+        ],
+        &[
+            "bake", a, "-o", o, "--recipe", "r.toml", "--parts", "0", "--part", "0",
+        ],
+        &["ingest", a, "-o", o, "--z-scale", "nan"],
+    ];
+    let before = layer_bytes(&asset);
+    for args in cases {
+        let out = terrabake(args);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {}", stderr(&out));
+        assert!(!stderr(&out).contains("panicked"), "{args:?}");
+    }
+    assert!(
+        layer_bytes(&asset) == before,
+        "a refused command changed the asset"
+    );
+    // The same in a recipe: refused by key before any work.
+    let recipe = write_recipe(dir.path(), "nan.toml", "sectors = 8\nrefraction = nan");
+    let (tif, _) = dem_and_recipe(dir.path());
+    let fresh = dir.path().join("fresh.tbake");
+    let out = bake_cmd(&tif, &fresh, &recipe).output().unwrap();
+    assert!(!out.status.success());
+    assert!(
+        stderr(&out).contains("stage.3.refraction"),
+        "{}",
+        stderr(&out)
+    );
+    assert!(!fresh.exists(), "a refused recipe created the asset");
+}
+
+/// Third round, failure 16: readers never fail during a re-bake. The
+/// horizons and the sky layers derived from them commit together, so a
+/// reader of `svf` looping through repeated `horizons --force` never finds
+/// it missing.
+#[test]
+fn sky_layers_stay_readable_through_a_horizons_rebake() {
+    let (_dir, asset) = baked();
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let reader = {
+        let (asset, stop) = (asset.clone(), stop.clone());
+        std::thread::spawn(move || {
+            let (mut reads, mut failures) = (0u32, Vec::new());
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                match Asset::open(&asset).and_then(|a| {
+                    let svf = a.layer("svf", 0)?;
+                    let mut row = vec![0f32; svf.width() as usize];
+                    svf.read_rows_f32(0, 0, &mut row)
+                }) {
+                    Ok(()) => reads += 1,
+                    Err(e) => failures.push(e.to_string()),
+                }
+            }
+            (reads, failures)
+        })
+    };
+    for _ in 0..12 {
+        let o = terrabake(&["horizons", s(&asset), "--sectors", "8", "--force", "-q"]);
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    let (reads, failures) = reader.join().unwrap();
+    assert!(reads > 12, "the reader read {reads} times");
+    assert!(
+        failures.is_empty(),
+        "{} of {reads} reads failed: {:?}",
+        failures.len(),
+        &failures[..failures.len().min(3)]
+    );
 }
