@@ -197,6 +197,14 @@ impl Stage for PyramidStage {
         crate::stage::Split::Join
     }
 
+    /// A band of post rows one tile high (plus one row), and per level a
+    /// tile row of maxima and minima being filled (the levels' widths add
+    /// up to under twice the cells').
+    fn memory(&self, m: &terrabake_format::Manifest) -> Option<u64> {
+        let (w, ts) = (u64::from(m.width), u64::from(m.tile_size));
+        Some(4 * w * (ts + 1) + 2 * 4 * ts * 2 * w)
+    }
+
     /// Never split (it runs at the join): every chunk, whatever the share.
     fn run(
         &self,

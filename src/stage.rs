@@ -72,6 +72,19 @@ pub trait Stage {
         share: &Share,
         progress: Progress,
     ) -> Result<Vec<LayerEntry>>;
+    /// Bytes the stage holds at once on an asset described by `manifest`
+    /// (its working buffers: a tile row of a very wide DEM can be
+    /// gigabytes), or `None` where it has not said. The runner refuses,
+    /// before the stage allocates, a need over [`Stage::max_memory`], or
+    /// over the memory the machine has available.
+    fn memory(&self, manifest: &terrabake_format::Manifest) -> Option<u64> {
+        let _ = manifest;
+        None
+    }
+    /// The user's memory budget for the stage (`--max-memory`), if it takes one.
+    fn max_memory(&self) -> Option<u64> {
+        None
+    }
     /// Whether the stage creates the asset (ingest) rather than adding to
     /// one: the runner then calls [`Stage::create`], not [`Stage::run`].
     fn creates_asset(&self) -> bool {
@@ -380,6 +393,7 @@ fn write_stage_doing(
         (manifest, entries)
     } else {
         let asset = opened.with_context(|| format!("{}: cannot open asset", dir.display()))?;
+        check_memory(stage, asset.manifest())?;
         let entries = stage
             .run(&asset, dir, share, progress)
             .with_context(failed)?;
@@ -418,6 +432,34 @@ fn write_stage_doing(
         manifest: Some(manifest),
         dropped,
     })
+}
+
+/// Refuses to run `stage` on an asset described by `m` when what it says
+/// it holds at once ([`Stage::memory`]) is over its `--max-memory`, or
+/// over the memory this machine has available: a clear error before any
+/// allocation, not an abort in the middle of one.
+fn check_memory(stage: &dyn Stage, m: &terrabake_format::Manifest) -> Result<()> {
+    let Some(need) = stage.memory(m) else {
+        return Ok(());
+    };
+    let what = format!(
+        "stage '{}' on this {} x {} asset (tiles of {}; a tile row of it is {} MiB)",
+        stage.name(),
+        m.width,
+        m.height,
+        m.tile_size,
+        (u64::from(m.width) * u64::from(m.tile_size) * 4) >> 20
+    );
+    if let Some(budget) = stage.max_memory() {
+        anyhow::ensure!(
+            need <= budget,
+            "{what} holds about {} MiB at once, over --max-memory {} MiB; ingest with a smaller --tile, or raise --max-memory",
+            need >> 20,
+            budget >> 20
+        );
+    }
+    crate::resources::ensure_memory(need, &what)
+        .context("ingest with a smaller --tile, or bake on a machine with more memory")
 }
 
 /// Drops, transitively, every other stage's record that read one of

@@ -687,6 +687,34 @@ impl Stage for HorizonsStage {
     /// (the shortest post spacing, row by row on geographic grids, sets how
     /// many posts that is, plus one for the cell a sight line ends in);
     /// without it, the whole DEM.
+    /// Out of core, the steps in flight (one per thread), each holding
+    /// its window of heights (a tile row, with the rows within the
+    /// maximum distance for bounded sectors) and a tile row of angles (and
+    /// of distances), plus the lanes' hulls (a sixteenth of the budget).
+    /// In core, [`HorizonsStage::in_core_bytes`], checked with the DEM's
+    /// own routes out in `check_dem`.
+    fn memory(&self, m: &terrabake_format::Manifest) -> Option<u64> {
+        if !self.out_of_core() {
+            return None;
+        }
+        let (w, h, ts) = (
+            u64::from(m.width),
+            u64::from(m.height),
+            u64::from(m.tile_size),
+        );
+        let halo = self
+            .max_distance
+            .map_or(0, |d| sector::rows_within(d, m.cell_size.dy) as u64);
+        let window = (ts + 2 * halo).min(h);
+        let threads = rayon::current_num_threads() as u64;
+        let outputs = if self.distance { 2 } else { 1 };
+        Some(threads * 4 * w * (window + outputs * ts) + self.max_memory / 16)
+    }
+
+    fn max_memory(&self) -> Option<u64> {
+        Some(self.max_memory)
+    }
+
     fn reach(&self, m: &terrabake_format::Manifest) -> crate::stage::Reach {
         let Some(d) = self.max_distance else {
             return crate::stage::Reach::Whole;
