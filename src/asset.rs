@@ -53,11 +53,22 @@ impl Wait {
 impl AssetWriter {
     /// Opens the existing asset `dir` for writing (a stage's case).
     pub fn open(dir: &Path, wait: Wait) -> Result<Self> {
-        if !dir.join(MANIFEST_FILE).is_file() {
-            bail!(
+        let manifest = dir.join(MANIFEST_FILE);
+        match fs::symlink_metadata(&manifest) {
+            Ok(meta) if meta.file_type().is_file() => {}
+            Ok(_) => bail!(
+                "{}: cannot open asset: {MANIFEST_FILE} is not a regular file (a link, FIFO, device or directory)",
+                dir.display()
+            ),
+            Err(_) if !dir.is_dir() => bail!(
+                "{}: not an asset directory (a DEM? `terrabake ingest {} -o ASSET` makes one)",
+                dir.display(),
+                dir.display()
+            ),
+            Err(_) => bail!(
                 "{}: cannot open asset: no {MANIFEST_FILE} (not an asset, or never ingested)",
                 dir.display()
-            );
+            ),
         }
         Self::lock(dir, wait, false)
     }

@@ -112,6 +112,7 @@ impl FromStr for Budget {
     fn from_str(s: &str) -> Result<Self, String> {
         let mut budget = Budget::default();
         let mut horizon = None;
+        let mut seen = std::collections::HashSet::new();
         for item in s.split(',').map(str::trim).filter(|i| !i.is_empty()) {
             let (key, value) = item
                 .split_once('=')
@@ -122,7 +123,11 @@ impl FromStr for Budget {
                     .parse::<f64>()
                     .map_err(|_| format!("{key}={value}: expected a number"))
             };
-            match key.trim() {
+            let key = key.trim();
+            if !seen.insert(key) {
+                return Err(format!("{key} is given twice; give each budget key once"));
+            }
+            match key {
                 "horizon" => horizon = Some(number()?),
                 "svf" => budget.svf = Some(number()?),
                 "shade" => budget.shade = Some(number()?),

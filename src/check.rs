@@ -156,6 +156,12 @@ pub fn check(
     } else {
         sun
     };
+    if budget.is_some_and(|b| b.shade.is_some()) && sun.is_empty() {
+        bail!(
+            "{}: a shade budget needs sun positions, and neither --sun nor a recorded plan gives any (--sun AZ,EL;AZ,EL)",
+            dir.display()
+        );
+    }
     // The heights, read once for both references.
     let dem = HeldDem::read(asset)?;
     let horizons = match HorizonMap::open(asset) {

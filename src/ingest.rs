@@ -358,6 +358,15 @@ fn write_heights(
             bar.inc(rows as u64);
         }
         bar.finish_and_clear();
+        if *share == Share::All && stats.range().is_none() {
+            bail!(
+                "{}: every post is nodata once read (nodata {:?}, z_scale {}, z_offset {}): heights past f32's range are nodata too; nothing to bake",
+                src.display(),
+                opts.nodata,
+                opts.z_scale,
+                opts.z_offset
+            );
+        }
         manifest.layers = vec![layer.finish()?];
         manifest.nodata.count = stats.nodata;
         manifest.height_range = stats.range();

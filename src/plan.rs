@@ -1333,6 +1333,7 @@ impl PlanArgs {
             let scratch = tempfile::Builder::new()
                 .prefix("terrabake-plan")
                 .tempdir()?;
+            crate::interrupt::scratch(scratch.path().to_path_buf());
             let dir = scratch.path().join("scene.tbake");
             crate::ingest::ingest(&self.src, &dir, &Default::default(), progress)?;
             plan(&crate::asset::open(&dir)?, &request, progress)?

@@ -1180,3 +1180,88 @@ fn stages_refuse_what_would_not_fit_in_memory() {
         );
     }
 }
+
+/// Third round, failure 20: loose ends. An interrupted `plan SRC` removes
+/// its scratch ingest and promises no resume; a shade budget without sun
+/// positions, a budget key given twice and an ingest that leaves every
+/// post nodata are refused; a stage on a FIFO manifest names the FIFO.
+#[test]
+fn loose_ends_are_refused_or_cleaned_up() {
+    let (dir, asset) = baked();
+    let (tif, _) = dem_and_recipe(dir.path());
+    let demo = common::repo_file("data/srtm3_n07w006_geographic_int16.tif");
+    let scratch = dir.path().join("tmp");
+    std::fs::create_dir(&scratch).unwrap();
+    let mut plan = bin()
+        .env("TMPDIR", &scratch)
+        .args([
+            "plan",
+            s(&demo),
+            "--budget",
+            "horizon=1",
+            "--needs",
+            "horizons,svf",
+            "-q",
+        ])
+        .stderr(Stdio::piped())
+        .stdout(Stdio::null())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    while std::fs::read_dir(&scratch).unwrap().next().is_none()
+        && start.elapsed() < Duration::from_secs(20)
+    {
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    std::thread::sleep(Duration::from_millis(100));
+    // SAFETY: signalling our own child.
+    unsafe { libc::kill(plan.id() as i32, libc::SIGINT) };
+    let out = plan.wait_with_output().unwrap();
+    if out.status.code() == Some(130) {
+        assert!(
+            stderr(&out).contains("nothing was kept"),
+            "{}",
+            stderr(&out)
+        );
+    }
+    let left: Vec<_> = std::fs::read_dir(&scratch)
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name())
+        .collect();
+    assert!(left.is_empty(), "plan left {left:?}");
+
+    let refused = |args: &[&str], needle: &str| {
+        let o = terrabake(args);
+        assert!(!o.status.success(), "{args:?} accepted");
+        assert!(stderr(&o).contains(needle), "{args:?}: {}", stderr(&o));
+        assert!(!stderr(&o).contains("panicked"), "{}", stderr(&o));
+    };
+    refused(
+        &[
+            "check",
+            s(&asset),
+            "--budget",
+            "horizon=1,shade=0.0001",
+            "--no-record",
+        ],
+        "needs sun positions",
+    );
+    refused(
+        &["plan", s(&asset), "--budget", "horizon=1,horizon=2"],
+        "given twice",
+    );
+    let empty = dir.path().join("empty.tbake");
+    refused(
+        &["ingest", s(&tif), "-o", s(&empty), "--z-scale", "1e300"],
+        "every post is nodata",
+    );
+    assert!(!empty.exists(), "a refused ingest left its directory");
+    let fifo_asset = dir.path().join("fifo.tbake");
+    std::fs::create_dir(&fifo_asset).unwrap();
+    let c = std::ffi::CString::new(s(&fifo_asset.join(MANIFEST_FILE))).unwrap();
+    // SAFETY: a valid NUL-terminated path.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o644) }, 0);
+    refused(&["pyramid", s(&fifo_asset)], "not a regular file");
+    refused(&["pyramid", s(&tif)], "terrabake ingest");
+}
