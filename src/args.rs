@@ -136,6 +136,12 @@ fn parse_within(s: &str, lo: f64, hi: f64, unit: &str) -> Result<f64, String> {
     }
 }
 
+/// The flags (and recipe keys) whose NaN means something: `--nodata nan`
+/// says that NaN samples, and no other value, are the source's nodata.
+/// Every other number flag and recipe value refuses NaN and infinities
+/// (`cli::Cli::parse_checked`, `recipe::Recipe::parse`).
+pub const NAN_MEANS_SOMETHING: [&str; 1] = ["nodata"];
+
 /// Any finite number (not NaN, not infinite).
 pub fn parse_finite(s: &str) -> Result<f64, String> {
     match s.trim().parse::<f64>() {

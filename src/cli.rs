@@ -411,10 +411,6 @@ impl Cli {
     }
 }
 
-/// The flags whose NaN means something: `--nodata nan` says that NaN
-/// samples, and no other value, are the source's nodata.
-pub const NAN_MEANS_SOMETHING: [&str; 1] = ["nodata"];
-
 /// The first flag of `matches` (or of its subcommands) holding a number
 /// that is not finite, as clap's validation error of that command.
 fn refuse_non_finite(cmd: &mut clap::Command, matches: &ArgMatches) -> Result<(), clap::Error> {
@@ -430,7 +426,8 @@ fn refuse_non_finite(cmd: &mut clap::Command, matches: &ArgMatches) -> Result<()
         } else if let Ok(Some(v)) = matches.try_get_many::<[f64; 3]>(id) {
             numbers.extend(v.flatten().copied());
         }
-        if numbers.iter().any(|v| !v.is_finite()) && !NAN_MEANS_SOMETHING.contains(&id) {
+        if numbers.iter().any(|v| !v.is_finite()) && !crate::args::NAN_MEANS_SOMETHING.contains(&id)
+        {
             let flag = cmd
                 .get_arguments()
                 .find(|a| a.get_id() == id)

@@ -130,7 +130,7 @@ fn non_finite_key(value: &toml::Value, at: &str) -> Option<String> {
     let means_something = at
         .rsplit('.')
         .next()
-        .is_some_and(|k| crate::cli::NAN_MEANS_SOMETHING.contains(&k));
+        .is_some_and(|k| crate::args::NAN_MEANS_SOMETHING.contains(&k));
     match value {
         toml::Value::Float(f) if !f.is_finite() && !means_something => Some(at.to_string()),
         toml::Value::Table(t) => t.iter().find_map(|(k, v)| non_finite_key(v, &key(k))),

@@ -665,7 +665,23 @@ fn horizons_from_the_command_line_export_shade_and_recipes() {
         assert!(stderr(&refused).contains(says), "{}", stderr(&refused));
     }
     assert!(Asset::open(&big).unwrap().layer(HORIZON, 0).is_err());
-    ok(&[&sector[..], &["--max-distance", "60", "-q"]].concat());
+    // Out of core, bounded sectors hold a tile row's window per thread
+    // (1.3 MiB here, which the stage states and refuses at 1 MiB).
+    let bounded_sector = [
+        "horizons",
+        s(&big),
+        "--method",
+        "sector",
+        "--max-distance",
+        "60",
+    ];
+    let over = terrabake(&[&bounded_sector[..], &["--max-memory", "1"]].concat());
+    assert!(
+        stderr(&over).contains("over --max-memory 1 MiB"),
+        "{}",
+        stderr(&over)
+    );
+    ok(&[&bounded_sector[..], &["--max-memory", "2", "-q"]].concat());
 
     // Bounded sectors, out of core tile row by tile row (32-post tiles,
     // 3 rows of reach): the library's answer on the whole DEM in memory.

@@ -1065,3 +1065,109 @@ fn records_stopped_at_the_relief_bound_equal_the_whole_walk() {
         assert!(walked[k] < walked[0], "blocks {:?}: {walked:?}", sizes[k]);
     }
 }
+
+/// Reliability, third round, failure 16: on a curved earth a flat sea is a
+/// string of hull vertices that never pop, and the sweep's memory grew
+/// with the square of the side. Told the DEM's highest post, each line
+/// drops the far vertices no post to come can see: the hull of a flat
+/// curved sea stays a few vertices, and on random terrains under a strong
+/// curvature (where trims happen every few steps) the angles keep the
+/// untrimmed sweep's bits, scalar and in lanes, in one band and in many.
+#[test]
+fn trimmed_hulls_keep_the_bits_and_bound_a_curved_sea() {
+    use terrabake::horizon::line::{grid_direction, BandedSweep};
+    let plain = RowScale::default();
+    let dirs = |dx: f64, dy: f64| -> Vec<GridDirection> {
+        let mut dirs: Vec<GridDirection> = plan_bands(Method::Line, 16, dx, dy, None)
+            .into_iter()
+            .map(|b| match b.kind {
+                BandKind::Line(d) => d,
+                _ => unreachable!(),
+            })
+            .collect();
+        for step in [(5, -13), (-7, 3), (17, 7)] {
+            let mut d = grid_direction(0.0, dx, dy, 1.0);
+            d.step = step;
+            dirs.push(d);
+        }
+        dirs
+    };
+    // A flat sea 45 km long, 30 m posts, the earth's curvature with
+    // refraction: the hulls keep what lies within sqrt(1 m / c), 3.8 km,
+    // whatever the DEM's size.
+    let (w, h) = (120, 1500);
+    let sea = vec![0f32; w * h];
+    let terrain = Terrain::new(&sea, w, h, 30.0, 30.0).with_curvature(curvature_coefficient(0.13));
+    for step in [(0, -1), (0, 1), (1, -20)] {
+        let mut dir = grid_direction(0.0, 30.0, 30.0, 1.0);
+        dir.step = step;
+        let new = || BandedSweep::new(&dir, (w, h), (30.0, 30.0), plain, false).without_lanes();
+        let (mut kept, mut trimmed) = (new(), new().with_height_bound(0.0));
+        let (mut a, mut b) = (vec![0f32; w * h], vec![0f32; w * h]);
+        kept.sweep(&terrain, 0..h, &mut a);
+        trimmed.sweep(&terrain, 0..h, &mut b);
+        assert!(
+            a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()),
+            "{:?}",
+            dir.step
+        );
+        assert!(
+            kept.stats.longest_hull > 1400,
+            "{:?}: {}",
+            dir.step,
+            kept.stats.longest_hull
+        );
+        assert!(
+            trimmed.stats.longest_hull <= 600,
+            "{:?}: {}",
+            dir.step,
+            trimmed.stats.longest_hull
+        );
+    }
+    // Random terrains, a curvature a million times the earth's: heights of
+    // tens of metres hide what lies past a few hundred metres.
+    let mut trims = 0;
+    for (seed, kind) in [
+        (1, SynthKind::Fractal),
+        (2, SynthKind::Noise),
+        (3, SynthKind::Holes),
+    ] {
+        let (w, h) = (150, 130);
+        let z: Vec<f32> = synth_grid(kind, w, h, seed)
+            .iter()
+            .map(|v| v * 40.0)
+            .collect();
+        let highest = z.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        let (dx, dy) = (7.0, 5.0);
+        let terrain = Terrain::new(&z, w, h, dx, dy).with_curvature(2e-3);
+        let nodata = terrain.has_nodata();
+        for dir in dirs(dx, dy) {
+            let new = || BandedSweep::new(&dir, (w, h), (dx, dy), plain, nodata);
+            let mut want = vec![0f32; w * h];
+            let mut kept = new().without_lanes();
+            kept.sweep(&terrain, 0..h, &mut want);
+            for lanes in [false, true] {
+                for rows in [h, 16, 3] {
+                    let mut sweep = new().with_height_bound(f64::from(highest));
+                    if !lanes {
+                        sweep = sweep.without_lanes();
+                    }
+                    let got = sweep_in_bands(&mut sweep, &terrain, rows);
+                    for i in 0..w * h {
+                        assert!(
+                            common::same_heights(want[i], got[i]),
+                            "{kind:?} {:?} lanes {lanes} bands of {rows}: post {i}: {} vs {}",
+                            dir.step,
+                            want[i],
+                            got[i]
+                        );
+                    }
+                    if sweep.stats.longest_hull < kept.stats.longest_hull {
+                        trims += 1;
+                    }
+                }
+            }
+        }
+    }
+    assert!(trims > 20, "trims shortened only {trims} sweeps' hulls");
+}

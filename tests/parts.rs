@@ -338,7 +338,7 @@ fn a_bad_set_of_parts_is_refused_by_name_and_nothing_is_committed() {
     assert_ne!(std::fs::read(out.join(MANIFEST_FILE)).unwrap(), manifest);
 }
 
-/// Reliability, third round (docs/RELIABILITY.md 12-14): parts know their
+/// Reliability, third round (docs/RELIABILITY.md 13, 14, 20): parts know their
 /// source by its content, not its path or time; a part must be the part it
 /// says (a directory copied over another is refused, and a record's counts
 /// must match its rows); the join is idempotent.
@@ -456,7 +456,7 @@ fn parts_prove_their_source_and_identity_and_the_join_is_idempotent() {
     ok(part(&src, &out, "1"));
     let parts = terrabake::partition::parts_dir(&out);
     std::fs::remove_dir_all(parts.join("part-1-of-2")).unwrap();
-    copy_dir(&parts.join("part-0-of-2"), &parts.join("part-1-of-2"));
+    copy_tree(&parts.join("part-0-of-2"), &parts.join("part-1-of-2"));
     refused(
         assemble(&out),
         "is not the part-1-of-2 its record names",
@@ -482,9 +482,71 @@ fn parts_prove_their_source_and_identity_and_the_join_is_idempotent() {
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
 }
 
-fn copy_dir(from: &Path, to: &Path) {
+/// The join killed at every durable step (each create, chunk write,
+/// fsync, rename and unlink, by `TERRABAKE_CRASH_AT`): after each kill the
+/// asset is absent or opens whole, and `assemble` run again finishes the
+/// join (or only what is left of it) to one machine's asset, parts gone.
+#[test]
+fn an_assemble_killed_at_every_durable_step_resumes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let src = dem(tmp.path());
+    let recipe = tmp.path().join("r.toml");
+    std::fs::write(&recipe, RECIPES[0]).unwrap();
+    let one = tmp.path().join("one.tbake");
+    bake_one(&src, &one, &recipe);
+    let out = tmp.path().join("k.tbake");
+    bake_parts(&src, &out, &recipe, 2);
+    let parts = terrabake::partition::parts_dir(&out);
+    let pristine = tmp.path().join("pristine.parts");
+    copy_tree(&parts, &pristine);
+    let (mut killed, mut at) = (0, 1u32);
+    loop {
+        let _ = std::fs::remove_dir_all(&out);
+        let _ = std::fs::remove_dir_all(&parts);
+        copy_tree(&pristine, &parts);
+        let o = Command::new(env!("CARGO_BIN_EXE_terrabake"))
+            .args(["assemble", path(&out), "-q"])
+            .env("TERRABAKE_CRASH_AT", at.to_string())
+            .output()
+            .unwrap();
+        if o.status.success() {
+            break;
+        }
+        killed += 1;
+        if out.join(MANIFEST_FILE).exists() {
+            Asset::open(&out).unwrap_or_else(|e| panic!("killed at step {at}: {e}"));
+        }
+        let again = terrabake(&["assemble", path(&out), "-q"]);
+        assert!(
+            again.status.success(),
+            "after a kill at step {at}: {}",
+            stderr(&again)
+        );
+        assert!(!parts.exists(), "after a kill at step {at}: parts left");
+        let leftovers: Vec<_> = std::fs::read_dir(tmp.path())
+            .unwrap()
+            .flatten()
+            .filter(|e| e.file_name().to_string_lossy().contains(".parts.removed-"))
+            .collect();
+        assert!(
+            leftovers.is_empty(),
+            "after a kill at step {at}: {leftovers:?}"
+        );
+        assert_same_asset(&one, &out, &format!("killed at step {at}"));
+        // Every step early on, then every third: the join's steps repeat.
+        at += if at < 40 { 1 } else { 3 };
+    }
+    assert!(killed >= 30, "only {killed} kill points");
+    eprintln!("assemble: {killed} kill points, each resumed to one machine's asset");
+}
+
+fn copy_tree(from: &Path, to: &Path) {
     std::fs::create_dir_all(to).unwrap();
     for e in std::fs::read_dir(from).unwrap().flatten() {
-        std::fs::copy(e.path(), to.join(e.file_name())).unwrap();
+        if e.file_type().unwrap().is_dir() {
+            copy_tree(&e.path(), &to.join(e.file_name()));
+        } else {
+            std::fs::copy(e.path(), to.join(e.file_name())).unwrap();
+        }
     }
 }

@@ -881,7 +881,7 @@ fn a_users_files_are_never_reclaimed() {
     );
 }
 
-/// Third round, failure 17: no command writes inside an asset but through
+/// Third round, failure 18: no command writes inside an asset but through
 /// its writer; outputs aimed at an asset's own files are refused, the
 /// asset stays valid.
 #[test]
@@ -965,7 +965,7 @@ fn outputs_are_never_written_inside_an_asset() {
     }
 }
 
-/// Third round, failures 18 and 21: a number flag or recipe value that is
+/// Third round, failures 19 and 22: a number flag or recipe value that is
 /// NaN or infinite is bad usage (exit 2) in every command, as every other
 /// bad value is; nothing is written.
 #[test]
@@ -1050,7 +1050,7 @@ fn non_finite_numbers_and_bad_values_are_usage_errors_everywhere() {
     assert!(!fresh.exists(), "a refused recipe created the asset");
 }
 
-/// Third round, failure 16: readers never fail during a re-bake. The
+/// Third round, failure 17: readers never fail during a re-bake. The
 /// horizons and the sky layers derived from them commit together, so a
 /// reader of `svf` looping through repeated `horizons --force` never finds
 /// it missing.
@@ -1137,7 +1137,7 @@ fn huge_constant_asset(dir: &Path, w: u32, h: u32) -> PathBuf {
     asset
 }
 
-/// Third round, failure 14: stages state their memory before they
+/// Third round, failure 15: stages state their memory before they
 /// allocate. On a 4,000,000 x 4096 asset (a tile row is 62 GiB) `pyramid`
 /// and `horizons --max-memory 256` refuse with the need and the budget,
 /// exit 1, no abort, and leave no temporaries.
@@ -1181,7 +1181,7 @@ fn stages_refuse_what_would_not_fit_in_memory() {
     }
 }
 
-/// Third round, failure 20: loose ends. An interrupted `plan SRC` removes
+/// Third round, failure 21: loose ends. An interrupted `plan SRC` removes
 /// its scratch ingest and promises no resume; a shade budget without sun
 /// positions, a budget key given twice and an ingest that leaves every
 /// post nodata are refused; a stage on a FIFO manifest names the FIFO.

@@ -328,6 +328,9 @@ pub struct SweepStats {
     pub posts: u64,
     /// Lines that left the SIMD lanes for the scalar sweep ([`lanes`]).
     pub spilled: u64,
+    /// The most vertices one line's hull held in the scalar sweep, after
+    /// its trims ([`BandedSweep::with_height_bound`]).
+    pub longest_hull: u64,
 }
 
 impl std::ops::AddAssign for SweepStats {
@@ -336,6 +339,7 @@ impl std::ops::AddAssign for SweepStats {
         self.pops += o.pops;
         self.posts += o.posts;
         self.spilled += o.spilled;
+        self.longest_hull = self.longest_hull.max(o.longest_hull);
     }
 }
 
@@ -463,7 +467,32 @@ struct Lane {
     col: i64,
     row: i64,
     t: f64,
+    /// The hull's length at which its far end is next trimmed
+    /// ([`Sweep::trim`]).
+    trim_at: usize,
 }
+
+impl Lane {
+    fn new(hull: Vec<[f64; 2]>, (col, row): (i64, i64), t: f64) -> Self {
+        Self {
+            hull,
+            col,
+            row,
+            t,
+            trim_at: TRIM_FROM,
+        }
+    }
+}
+
+/// Hull vertices a line holds before its far end is first trimmed; after
+/// each trim, twice what is left (the trims cost `O(1)` a vertex).
+const TRIM_FROM: usize = 64;
+
+/// How far (metres of `w`) below the line through two far hull vertices
+/// every post still to come must stand for the farther to be dropped: far
+/// more than the rounding of the pop test's products, so that no rounding
+/// could have made the dropped vertex a post's horizon.
+const TRIM_MARGIN: f64 = 1.0;
 
 /// Where a sweep writes: rows from `row0` on, of angles and, when asked,
 /// of distances to the horizon.
@@ -479,6 +508,8 @@ struct Sweep<'t> {
     /// [`step_lengths`] of the direction.
     lengths: &'t [f64],
     nodata: bool,
+    /// No post of the DEM is higher (metres; infinite: unknown, no trims).
+    height_bound: f64,
 }
 
 impl Sweep<'_> {
@@ -542,17 +573,52 @@ impl Sweep<'_> {
             // along the line (`t` falls towards the near end).
             d[idx] = q.map_or(f32::NAN, |[tq, _]| (tq - lane.t) as f32);
         }
+        if lane.hull.len() >= lane.trim_at {
+            self.trim(lane);
+        }
+        stats.longest_hull = stats.longest_hull.max(lane.hull.len() as u64);
+    }
+
+    /// Drops the far vertices of the lane's hull that no post still to
+    /// come can have as its horizon. On a curved earth a flat sea is a
+    /// string of hull vertices that never pop (`w = z - c t^2` is concave
+    /// there), so without this a line's hull, and the sweep's memory, grow
+    /// with its length. A post `P` nearer than the hull's vertices reaches
+    /// past vertex `q1` to the farther `q0` only on or above the line
+    /// through them (`w_P >= L(t_P)`); every post still to come has
+    /// `t_P <= t` (the lane's post) and `w_P <= Z - c t_P^2` for the
+    /// DEM's highest post `Z`. So `q0` goes when `L(t') + c t'^2 - Z`, a
+    /// convex quadratic whose least value over `t' <= t` is at
+    /// `min(-s / 2c, t)`, stays above [`TRIM_MARGIN`]. The horizons keep
+    /// their bits; only vertices that could never be one leave.
+    fn trim(&self, lane: &mut Lane) {
+        let (c, z) = (self.placed.t.curvature, self.height_bound);
+        if !(c > 0.0 && z.is_finite()) {
+            lane.trim_at = usize::MAX;
+            return;
+        }
+        let hull = &lane.hull;
+        let mut gone = 0;
+        // The two nearest stay: a post's tangent needs a vertex.
+        while gone + 2 < hull.len() {
+            let ([t0, w0], [t1, w1]) = (hull[gone], hull[gone + 1]);
+            let s = (w0 - w1) / (t0 - t1);
+            let at = (-s / (2.0 * c)).min(lane.t);
+            let below = w1 + s * (at - t1) + c * at * at - z;
+            if below > TRIM_MARGIN + 1e-9 * (w1.abs() + z.abs() + c * at * at) {
+                gone += 1;
+            } else {
+                break;
+            }
+        }
+        lane.hull.drain(..gone);
+        lane.trim_at = (2 * lane.hull.len()).max(TRIM_FROM);
     }
 
     /// Starts the line whose far post is `(col, row)`: the crossings beyond
     /// it that are still on the DEM, then the post.
     fn start(&self, (col, row): (i64, i64), out: &mut Out, stats: &mut SweepStats) -> Lane {
-        let mut lane = Lane {
-            hull: Vec::new(),
-            col,
-            row,
-            t: 0.0,
-        };
+        let mut lane = Lane::new(Vec::new(), (col, row), 0.0);
         self.push_crossings(&mut lane, true, stats);
         self.receive(&mut lane, out, stats);
         lane
@@ -608,6 +674,8 @@ pub struct BandedSweep {
     simd: Option<lanes::Lanes>,
     /// Bands swept so far.
     swept: usize,
+    /// No post of the DEM is higher ([`Self::with_height_bound`]).
+    height_bound: f64,
     pub stats: SweepStats,
 }
 
@@ -635,7 +703,19 @@ impl BandedSweep {
             nodata,
             lanes: Vec::new(),
             swept: 0,
+            height_bound: f64::INFINITY,
             stats: SweepStats::default(),
+        }
+    }
+
+    /// The same sweep told that no post of the DEM is higher than `z`
+    /// metres: with curvature, each line's hull then drops the far vertices
+    /// that no post to come can see ([`Sweep::trim`]), which bounds its
+    /// memory on a curved sea. The same bits.
+    pub fn with_height_bound(self, z: f64) -> Self {
+        Self {
+            height_bound: z,
+            ..self
         }
     }
 
@@ -729,6 +809,7 @@ impl BandedSweep {
             },
             lengths: &self.lengths,
             nodata: self.nodata,
+            height_bound: self.height_bound,
         };
         let stats = &mut self.stats;
         if out.distances.is_some() && self.simd.is_some() {
@@ -860,13 +941,15 @@ pub fn line_horizons_with_distances(
     distances: Option<&mut [f32]>,
 ) -> SweepStats {
     assert_eq!(out.len(), terrain.z.len());
+    let highest = terrain.z.iter().copied().fold(f32::NEG_INFINITY, f32::max);
     let mut sweep = BandedSweep::new(
         dir,
         (terrain.width, terrain.height),
         (terrain.dx, terrain.dy),
         terrain.row_scale,
         terrain.has_nodata(),
-    );
+    )
+    .with_height_bound(f64::from(highest));
     sweep.sweep_with_distances(terrain, 0..terrain.height, out, distances);
     sweep.stats
 }

@@ -589,13 +589,15 @@ impl HorizonsStage {
         spacing: (f64, f64),
         row_scale: RowScale,
         nodata: bool,
+        height_bound: f64,
     ) -> Box<dyn RowBands + Send> {
         match (&band.kind, self.max_distance) {
             // The lanes' hulls of the sweeps in flight take at most a
             // sixteenth of the working memory.
             (BandKind::Line(dir), None) => Box::new(
                 line::BandedSweep::new(dir, dims, spacing, row_scale, nodata)
-                    .with_lane_memory(self.max_memory as usize / 16 / OUT_OF_CORE_BATCH),
+                    .with_lane_memory(self.max_memory as usize / 16 / OUT_OF_CORE_BATCH)
+                    .with_height_bound(height_bound),
             ),
             (&BandKind::Sector { index, count }, Some(max_distance)) => Box::new(BoundedSector {
                 sector: (index, count),
@@ -840,6 +842,8 @@ impl Stage for HorizonsStage {
             narrow_check: self.narrow_check,
         };
         let nodata = m.nodata.count > 0;
+        // No post is higher: what lets a line's hull drop far vertices.
+        let highest = m.height_range.map_or(f64::INFINITY, |r| f64::from(r.max));
         if self.out_of_core() {
             // Bands in batches of a fixed size, each batch's sweeps run tile
             // row by tile row on every core and written in a fixed order
@@ -852,7 +856,8 @@ impl Stage for HorizonsStage {
                 let sweeps: Vec<_> = batch
                     .iter()
                     .map(|band| {
-                        let sweep = self.row_bands(band, (w, h), (dx, dy), row_scale, nodata);
+                        let sweep =
+                            self.row_bands(band, (w, h), (dx, dy), row_scale, nodata, highest);
                         let rows = sweep.bands(ts);
                         (sweep, rows)
                     })

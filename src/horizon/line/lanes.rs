@@ -306,12 +306,7 @@ impl Lines {
                 if self.top[i] > self.top_of(i, self.depth - n) {
                     let hull = (0..self.hull_len(i)).map(|d| self.vertex(i, d)).collect();
                     let (col, row) = (col as i64 + a, row as i64 + b);
-                    let lane = Lane {
-                        hull,
-                        col,
-                        row,
-                        t: self.t[i],
-                    };
+                    let lane = Lane::new(hull, (col, row), self.t[i]);
                     self.spill(i, lane, sweep, &band, out, stats);
                 }
             }
