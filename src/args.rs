@@ -10,7 +10,10 @@ pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
     let (w, h) = s
         .split_once(['x', 'X'])
         .ok_or("expected WIDTHxHEIGHT, e.g. 1024x768")?;
-    let parse = |v: &str| v.trim().parse::<u32>().map_err(|e| format!("{v:?}: {e}"));
+    let parse = |v: &str| match v.trim().parse::<u32>() {
+        Ok(0) => Err(format!("{v:?}: a size of at least 1")),
+        n => n.map_err(|e| format!("{v:?}: {e}")),
+    };
     Ok((parse(w)?, parse(h)?))
 }
 

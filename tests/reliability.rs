@@ -1025,6 +1025,8 @@ fn non_finite_numbers_and_bad_values_are_usage_errors_everywhere() {
             "bake", a, "-o", o, "--recipe", "r.toml", "--parts", "0", "--part", "0",
         ],
         &["ingest", a, "-o", o, "--z-scale", "nan"],
+        &["synth", "fractal", "--size", "0x0", "-o", o],
+        &["render", a, "--size", "0x10", "-o", o],
     ];
     let before = layer_bytes(&asset);
     for args in cases {

@@ -486,13 +486,24 @@ impl Lane {
 
 /// Hull vertices a line holds before its far end is first trimmed; after
 /// each trim, twice what is left (the trims cost `O(1)` a vertex).
-const TRIM_FROM: usize = 64;
+const TRIM_FROM: usize = 16;
 
 /// How far (metres of `w`) below the line through two far hull vertices
-/// every post still to come must stand for the farther to be dropped: far
-/// more than the rounding of the pop test's products, so that no rounding
-/// could have made the dropped vertex a post's horizon.
-const TRIM_MARGIN: f64 = 1.0;
+/// every post still to come must stand for the farther to be dropped,
+/// over what rounding could make of it ([`trim_margin`]).
+const TRIM_MARGIN: f64 = 1e-6;
+
+/// The margin [`Sweep::trim`] asks of a post at `at` below the line
+/// through `[t0, w0]` (farther) and `[t1, w1]`, when no post is higher
+/// than `z`: a post that far below it pops the nearer vertex's rival in a
+/// cross product of `(t0 - t1)` times that height, and the pop test's two
+/// products round by some `1e-16` of `|w| |t|`; `w_P` itself rounds by
+/// `1e-16 |w|`. A thousand times both, and [`TRIM_MARGIN`].
+fn trim_margin([t0, w0]: [f64; 2], [t1, w1]: [f64; 2], at: f64, c: f64, z: f64) -> f64 {
+    let scale_w = w0.abs() + w1.abs() + z.abs() + c * at * at;
+    let scale_t = t0.abs() + at.abs();
+    TRIM_MARGIN + 1e-12 * scale_w * (1.0 + scale_t / (t0 - t1))
+}
 
 /// Where a sweep writes: rows from `row0` on, of angles and, when asked,
 /// of distances to the horizon.
@@ -589,8 +600,9 @@ impl Sweep<'_> {
     /// `t_P <= t` (the lane's post) and `w_P <= Z - c t_P^2` for the
     /// DEM's highest post `Z`. So `q0` goes when `L(t') + c t'^2 - Z`, a
     /// convex quadratic whose least value over `t' <= t` is at
-    /// `min(-s / 2c, t)`, stays above [`TRIM_MARGIN`]. The horizons keep
-    /// their bits; only vertices that could never be one leave.
+    /// `min(-s / 2c, t)`, stays above [`trim_margin`] (and grows faster
+    /// than rounding does away from there). The horizons keep their bits;
+    /// only vertices that could never be one leave.
     fn trim(&self, lane: &mut Lane) {
         let (c, z) = (self.placed.t.curvature, self.height_bound);
         if !(c > 0.0 && z.is_finite()) {
@@ -605,7 +617,7 @@ impl Sweep<'_> {
             let s = (w0 - w1) / (t0 - t1);
             let at = (-s / (2.0 * c)).min(lane.t);
             let below = w1 + s * (at - t1) + c * at * at - z;
-            if below > TRIM_MARGIN + 1e-9 * (w1.abs() + z.abs() + c * at * at) {
+            if below > trim_margin([t0, w0], [t1, w1], at, c, z) {
                 gone += 1;
             } else {
                 break;
@@ -613,6 +625,9 @@ impl Sweep<'_> {
         }
         lane.hull.drain(..gone);
         lane.trim_at = (2 * lane.hull.len()).max(TRIM_FROM);
+        if lane.hull.capacity() > 2 * lane.trim_at {
+            lane.hull.shrink_to(lane.trim_at);
+        }
     }
 
     /// Starts the line whose far post is `(col, row)`: the crossings beyond

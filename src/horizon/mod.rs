@@ -355,7 +355,7 @@ pub type Aoi = [u32; 4];
 #[serde(deny_unknown_fields, default)]
 pub struct HorizonsStage {
     /// Number of azimuths (bands), 3..=4096; band i is centred on i * 360 / S degrees.
-    #[arg(long, default_value_t = 16, value_parser = crate::args::parse_sectors)]
+    #[arg(long, visible_alias = "directions", default_value_t = 16, value_parser = crate::args::parse_sectors)]
     pub sectors: usize,
     /// line (exact sight lines), sector (Stewart's wedges) or sampled (baseline).
     #[arg(long, default_value = "line", value_parser = Method::parser())]
