@@ -153,7 +153,7 @@ fn garbage_is_reclaimed_and_retired_files_kept_for_their_grace() {
     assert_eq!(second.retired.len(), 1);
     assert_eq!(&second.retired[0].file, old);
     // A dead writer's leftovers: a temporary and an orphan layer file.
-    let tmp = dir.path().join("height.L0.g7.tbl.999-0-0.tmp");
+    let tmp = dir.path().join("height.L0.g7.tbl.999-0-0000abcd.tmp");
     let orphan = dir.path().join("height.L0.g7.tbl");
     let foreign = dir.path().join("notes.txt");
     for f in [&tmp, &orphan, &foreign] {
@@ -166,7 +166,7 @@ fn garbage_is_reclaimed_and_retired_files_kept_for_their_grace() {
         removed,
         vec![
             "height.L0.g7.tbl".to_string(),
-            "height.L0.g7.tbl.999-0-0.tmp".to_string()
+            "height.L0.g7.tbl.999-0-0000abcd.tmp".to_string()
         ]
     );
     assert!(foreign.exists(), "a file not ours is never touched");
