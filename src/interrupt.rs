@@ -26,6 +26,24 @@ pub fn doing(what: Option<String>) {
     *DOING.lock().unwrap_or_else(|e| e.into_inner()) = what;
 }
 
+/// Says what the process is doing until the value is dropped.
+#[derive(Debug)]
+#[must_use = "the process is doing it only while this lives"]
+pub struct Doing;
+
+impl Doing {
+    pub fn now(what: String) -> Self {
+        doing(Some(what));
+        Self
+    }
+}
+
+impl Drop for Doing {
+    fn drop(&mut self) {
+        doing(None);
+    }
+}
+
 /// Installs the handler (once, at start).
 pub fn install() {
     let _ = ctrlc::set_handler(|| {

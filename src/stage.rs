@@ -341,25 +341,9 @@ fn write_stage(
     held: Option<&terrabake_format::Manifest>,
     progress: Progress,
 ) -> Result<Written> {
-    crate::interrupt::doing(Some(format!(
-        "stage '{}' of {}",
-        stage.name(),
-        writer.dir().display()
-    )));
-    let result = write_stage_doing(writer, stage, share, force, held, progress);
-    crate::interrupt::doing(None);
-    result
-}
-
-fn write_stage_doing(
-    writer: &AssetWriter,
-    stage: &dyn Stage,
-    share: &Share,
-    force: bool,
-    held: Option<&terrabake_format::Manifest>,
-    progress: Progress,
-) -> Result<Written> {
     let dir = writer.dir();
+    let _doing =
+        crate::interrupt::Doing::now(format!("stage '{}' of {}", stage.name(), dir.display()));
     let start = std::time::Instant::now();
     stage.check()?;
     let opened = match held {

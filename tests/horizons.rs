@@ -651,9 +651,27 @@ fn sweep_in_bands(sweep: &mut line::BandedSweep, whole: &Terrain, rows: usize) -
     out
 }
 
+/// The line directions of 16 azimuths on `dx x dy` cells, and the grid
+/// steps `extra` (long steps, many vertices each).
+fn line_dirs(dx: f64, dy: f64, extra: &[(i64, i64)]) -> Vec<GridDirection> {
+    let mut dirs: Vec<GridDirection> = plan_bands(Method::Line, 16, dx, dy, None)
+        .into_iter()
+        .map(|b| match b.kind {
+            BandKind::Line(d) => d,
+            _ => unreachable!(),
+        })
+        .collect();
+    for &step in extra {
+        let mut d = line::grid_direction(0.0, dx, dy, 1.0);
+        d.step = step;
+        dirs.push(d);
+    }
+    dirs
+}
+
 #[test]
 fn line_sweeps_by_bands_equal_one_band() {
-    use terrabake::horizon::line::{grid_direction, BandedSweep};
+    use terrabake::horizon::line::BandedSweep;
     // Out of core, a direction is swept over bands of rows with each line's
     // hull carried across: the result must not depend on the band height.
     let (w, h) = (41, 37);
@@ -683,18 +701,7 @@ fn line_sweeps_by_bands_equal_one_band() {
         let whole = Terrain::new(z, w, h, dx, dy)
             .with_row_scale(row_scale)
             .with_curvature(curvature);
-        let mut dirs: Vec<GridDirection> = plan_bands(Method::Line, 16, dx, dy, None)
-            .into_iter()
-            .map(|b| match b.kind {
-                BandKind::Line(d) => d,
-                _ => unreachable!(),
-            })
-            .collect();
-        for step in [(5, -13), (-7, 3), (3, 11)] {
-            let mut d = grid_direction(0.0, dx, dy, 1.0);
-            d.step = step;
-            dirs.push(d);
-        }
+        let dirs = line_dirs(dx, dy, &[(5, -13), (-7, 3), (3, 11)]);
         for dir in &dirs {
             let mut one = vec![0f32; w * h];
             line::line_horizons(&whole, dir, &mut one);
@@ -1077,21 +1084,6 @@ fn records_stopped_at_the_relief_bound_equal_the_whole_walk() {
 fn trimmed_hulls_keep_the_bits_and_bound_a_curved_sea() {
     use terrabake::horizon::line::{grid_direction, BandedSweep};
     let plain = RowScale::default();
-    let dirs = |dx: f64, dy: f64| -> Vec<GridDirection> {
-        let mut dirs: Vec<GridDirection> = plan_bands(Method::Line, 16, dx, dy, None)
-            .into_iter()
-            .map(|b| match b.kind {
-                BandKind::Line(d) => d,
-                _ => unreachable!(),
-            })
-            .collect();
-        for step in [(5, -13), (-7, 3), (17, 7)] {
-            let mut d = grid_direction(0.0, dx, dy, 1.0);
-            d.step = step;
-            dirs.push(d);
-        }
-        dirs
-    };
     // A flat sea 45 km long, 30 m posts, the earth's curvature with
     // refraction: each hull keeps a few vertices, whatever the DEM's size.
     let (w, h) = (120, 1500);
@@ -1140,7 +1132,7 @@ fn trimmed_hulls_keep_the_bits_and_bound_a_curved_sea() {
         let (dx, dy) = (7.0, 5.0);
         let terrain = Terrain::new(&z, w, h, dx, dy).with_curvature(2e-3);
         let nodata = terrain.has_nodata();
-        for dir in dirs(dx, dy) {
+        for dir in line_dirs(dx, dy, &[(5, -13), (-7, 3), (17, 7)]) {
             let new = || BandedSweep::new(&dir, (w, h), (dx, dy), plain, nodata);
             let mut want = vec![0f32; w * h];
             let mut kept = new().without_lanes();

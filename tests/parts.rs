@@ -147,6 +147,18 @@ fn bake_parts(src: &Path, out: &Path, recipe: &Path, n: u32) {
     }
 }
 
+/// A temporary directory with the DEM, recipe `RECIPES[r]` and its bake
+/// on one machine (`one.tbake`).
+fn baked_on_one_machine(r: usize) -> (tempfile::TempDir, PathBuf, PathBuf, PathBuf) {
+    let tmp = tempfile::tempdir().unwrap();
+    let src = dem(tmp.path());
+    let recipe = tmp.path().join("r.toml");
+    std::fs::write(&recipe, RECIPES[r]).unwrap();
+    let one = tmp.path().join("one.tbake");
+    bake_one(&src, &one, &recipe);
+    (tmp, src, recipe, one)
+}
+
 /// Every layer of `a` and `b` decodes to the same values, bit for bit.
 fn assert_same_asset(a: &Path, b: &Path, what: &str) {
     let (a, b) = (Asset::open(a).unwrap(), Asset::open(b).unwrap());
@@ -188,12 +200,7 @@ fn assembled_parts_equal_one_machine_for_every_stage_and_n() {
 /// complete, and the join equals one machine.
 #[test]
 fn parts_are_idempotent_and_resume_after_a_kill() {
-    let tmp = tempfile::tempdir().unwrap();
-    let src = dem(tmp.path());
-    let recipe = tmp.path().join("r.toml");
-    std::fs::write(&recipe, RECIPES[0]).unwrap();
-    let one = tmp.path().join("one.tbake");
-    bake_one(&src, &one, &recipe);
+    let (tmp, src, recipe, one) = baked_on_one_machine(0);
     let out = tmp.path().join("p.tbake");
     let part = |i: u32, crash: Option<u32>| {
         let mut cmd = bake_command(&src, &out, &recipe);
@@ -488,12 +495,7 @@ fn parts_prove_their_source_and_identity_and_the_join_is_idempotent() {
 /// join (or only what is left of it) to one machine's asset, parts gone.
 #[test]
 fn an_assemble_killed_at_every_durable_step_resumes() {
-    let tmp = tempfile::tempdir().unwrap();
-    let src = dem(tmp.path());
-    let recipe = tmp.path().join("r.toml");
-    std::fs::write(&recipe, RECIPES[0]).unwrap();
-    let one = tmp.path().join("one.tbake");
-    bake_one(&src, &one, &recipe);
+    let (tmp, src, recipe, one) = baked_on_one_machine(0);
     let out = tmp.path().join("k.tbake");
     bake_parts(&src, &out, &recipe, 2);
     let parts = terrabake::partition::parts_dir(&out);

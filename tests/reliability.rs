@@ -886,7 +886,7 @@ fn a_users_files_are_never_reclaimed() {
 /// asset stays valid.
 #[test]
 fn outputs_are_never_written_inside_an_asset() {
-    let (dir, asset) = baked();
+    let (_dir, asset) = baked();
     let manifest = asset.join(MANIFEST_FILE);
     let layer = Asset::open(&asset).unwrap().manifest().layers[0]
         .file
@@ -1194,7 +1194,7 @@ fn loose_ends_are_refused_or_cleaned_up() {
     let demo = common::repo_file("data/srtm3_n07w006_geographic_int16.tif");
     let scratch = dir.path().join("tmp");
     std::fs::create_dir(&scratch).unwrap();
-    let mut plan = bin()
+    let plan = bin()
         .env("TMPDIR", &scratch)
         .args([
             "plan",

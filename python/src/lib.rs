@@ -386,6 +386,7 @@ fn compute_horizons(
         sectors,
         method,
         max_distance,
+        refraction,
         ..Default::default()
     };
     terrabake::stage::Stage::check(&stage).map_err(|e| PyValueError::new_err(format!("{e:#}")))?;

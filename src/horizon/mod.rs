@@ -662,6 +662,7 @@ impl Stage for HorizonsStage {
             _ => Ok(()),
         };
         positive(("max_distance", "max-distance"), self.max_distance)?;
+        terrain::check_refraction(self.refraction)?;
         positive(
             ("direction_tolerance", "direction-tolerance"),
             self.direction_tolerance,

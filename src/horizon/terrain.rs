@@ -14,6 +14,17 @@ pub fn curvature_coefficient(refraction: f64) -> f64 {
     (1.0 - refraction) / (2.0 * EARTH_RADIUS)
 }
 
+/// Refuses a refraction coefficient that is not a finite number (a NaN
+/// made every horizon -90 and every post seen): what each stage's check
+/// and the Python functions ask before anything bends a sight line.
+pub fn check_refraction(refraction: f64) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        refraction.is_finite(),
+        "refraction = {refraction} (--refraction {refraction}): give a finite coefficient (0.13 is the usual, 0 none)"
+    );
+    Ok(())
+}
+
 /// The east-west post spacing row by row, relative to [`Terrain::dx`].
 ///
 /// On a geographic (latitude/longitude) grid a column step is a fixed

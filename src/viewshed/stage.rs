@@ -94,6 +94,7 @@ impl Stage for ViewshedStage {
         check_height("observer_height (--observer-height)", self.observer_height)?;
         check_height("target_height (--target-height)", self.target_height)?;
         check_distance(self.max_distance)?;
+        crate::horizon::terrain::check_refraction(self.refraction)?;
         Ok(())
     }
 
@@ -281,6 +282,7 @@ impl Stage for TotalViewshedStage {
     fn check(&self) -> Result<()> {
         check_height("observer_height (--observer-height)", self.observer_height)?;
         check_distance(self.max_distance)?;
+        crate::horizon::terrain::check_refraction(self.refraction)?;
         crate::args::parse_sectors(&self.directions.to_string())
             .map_err(|e| anyhow::anyhow!("directions = {} (--directions): {e}", self.directions))?;
         Ok(())
