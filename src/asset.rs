@@ -60,11 +60,8 @@ impl AssetWriter {
                 "{}: cannot open asset: {MANIFEST_FILE} is not a regular file (a link, FIFO, device or directory)",
                 dir.display()
             ),
-            Err(_) if !dir.is_dir() => bail!(
-                "{}: not an asset directory (a DEM? `terrabake ingest {} -o ASSET` makes one)",
-                dir.display(),
-                dir.display()
-            ),
+            Err(_) if !dir.exists() => bail!("{}: no such asset directory", dir.display()),
+            Err(_) if !dir.is_dir() => bail!("{}", not_a_directory(dir)),
             Err(_) => bail!(
                 "{}: cannot open asset: no {MANIFEST_FILE} (not an asset, or never ingested)",
                 dir.display()
@@ -149,9 +146,22 @@ fn is_asset_file(name: &str) -> bool {
 
 /// Opens the asset `path` for reading, with the command line's messages.
 pub fn open(path: &Path) -> Result<terrabake_format::Asset<terrabake_format::Mmap>> {
+    if !path.exists() {
+        bail!("{}: no such asset directory", path.display());
+    }
     if !path.is_dir() {
-        bail!("{}: not an asset directory", path.display());
+        bail!("{}", not_a_directory(path));
     }
     terrabake_format::Asset::open(path)
         .with_context(|| format!("{}: cannot open asset", path.display()))
+}
+
+/// What to say of a file given where an asset directory was expected: a
+/// DEM, most likely, which `ingest` makes an asset of.
+fn not_a_directory(path: &Path) -> String {
+    format!(
+        "{}: not an asset directory (a DEM? `terrabake ingest {} -o ASSET` makes one)",
+        path.display(),
+        path.display()
+    )
 }

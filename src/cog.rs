@@ -186,6 +186,16 @@ impl Cog {
             .with_context(|| format!("{}: cannot create the directory", dir.display()))?;
         let scratch = tempfile::tempfile_in(dir)
             .with_context(|| format!("{}: cannot create a scratch file", dir.display()))?;
+        crate::resources::ensure_memory(
+            self.memory(),
+            &format!(
+                "{}: a {} x {} GeoTIFF in tiles of {} (a tile row per overview level)",
+                path.display(),
+                self.width,
+                self.height,
+                self.tile
+            ),
+        )?;
         let mut tiles = TileSink {
             file: BufWriter::with_capacity(1 << 20, scratch),
             at: 0,
@@ -237,6 +247,22 @@ impl Cog {
             }
             Ok(())
         })
+    }
+
+    /// Bytes [`Self::write`] holds at once: a tile row of f32 per level
+    /// (the levels' widths add up to under twice the image's), and the
+    /// offset and length of every tile of every level and band.
+    pub fn memory(&self) -> u64 {
+        let levels = self.levels();
+        let rows: u64 = levels
+            .iter()
+            .map(|&(w, _)| u64::from(w) * u64::from(self.tile) * 4)
+            .sum();
+        let tiles: u64 = levels
+            .iter()
+            .map(|&(w, h)| (self.tiles_across(w) * self.tiles_across(h)) as u64)
+            .sum();
+        rows + tiles * u64::from(self.bands) * 16
     }
 
     fn tiles_across(&self, len: u32) -> usize {

@@ -442,8 +442,15 @@ fn check_memory(stage: &dyn Stage, m: &terrabake_format::Manifest) -> Result<()>
             budget >> 20
         );
     }
-    crate::resources::ensure_memory(need, &what)
-        .context("ingest with a smaller --tile, or bake on a machine with more memory")
+    if let Some(available) = crate::resources::available_memory() {
+        anyhow::ensure!(
+            need <= available,
+            "{what} holds about {} MiB at once, and {} MiB is available; ingest with a smaller --tile, or bake on a machine with more memory",
+            need >> 20,
+            available >> 20
+        );
+    }
+    Ok(())
 }
 
 /// Drops, transitively, every other stage's record that read one of

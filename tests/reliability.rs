@@ -1163,6 +1163,19 @@ fn stages_refuse_what_would_not_fit_in_memory() {
             "--max-memory 256 MiB",
         ),
         (vec!["horizons", s(&huge), "--sectors", "8"], "MiB"),
+        (
+            vec![
+                "export",
+                s(&huge),
+                "--layer",
+                "height",
+                "--max-memory",
+                "256",
+                "-o",
+                s(&dir.path().join("huge.tif")),
+            ],
+            "--max-memory 256 MiB",
+        ),
     ] {
         let o = terrabake(&args);
         assert_eq!(o.status.code(), Some(1), "{args:?}: {}", stderr(&o));
@@ -1171,6 +1184,7 @@ fn stages_refuse_what_would_not_fit_in_memory() {
             e.contains(needle) && e.contains("4000000 x 4096"),
             "{args:?}: {e}"
         );
+        eprintln!("{args:?}: {e}");
         assert!(
             !e.contains("panicked") && !e.contains("memory allocation"),
             "{e}"

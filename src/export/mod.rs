@@ -122,6 +122,11 @@ pub struct TiffOptions {
     /// counts) or `average` (the default for heights, sky-view factors and areas).
     #[arg(long, value_enum)]
     pub resampling: Option<Resampling>,
+    /// Memory the GeoTIFF writer may hold, MiB (a tile row per overview level: 8 GB for a
+    /// 4,000,000-post-wide layer in tiles of 256); a layer that needs more is refused before
+    /// anything is written (default: the memory available).
+    #[arg(long = "max-memory", value_name = "MIB", value_parser = crate::stage::mib::parse)]
+    pub max_memory: Option<u64>,
 }
 
 impl Default for TiffOptions {
@@ -130,6 +135,7 @@ impl Default for TiffOptions {
             compress: Compression::default(),
             tile: crate::cog::DEFAULT_TILE,
             resampling: None,
+            max_memory: None,
         }
     }
 }
@@ -436,6 +442,16 @@ pub fn export_layer(
     match ExportKind::from_path(out)? {
         ExportKind::GeoTiff => {
             let cog = cog_for_layer(asset, layer, tiff)?;
+            if let Some(budget) = tiff.max_memory {
+                anyhow::ensure!(
+                    cog.memory() <= budget,
+                    "{}: a {w} x {h} GeoTIFF in tiles of {} holds about {} MiB at once (a tile row per overview level), over --max-memory {} MiB; give a smaller --tile or raise --max-memory",
+                    out.display(),
+                    tiff.tile,
+                    cog.memory() >> 20,
+                    budget >> 20
+                );
+            }
             let bar = progress.bar(u64::from(h) * u64::from(bands), "export", "rows");
             cog.write(
                 out,
