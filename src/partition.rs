@@ -226,17 +226,6 @@ impl Plan {
     }
 }
 
-/// The manifest the recipe's ingest of `src` will write, from the source's
-/// header alone.
-fn describe(recipe: &Recipe, src: &Path) -> Result<(Box<dyn Stage>, Manifest)> {
-    let ingest = recipe.ingest_stage(src);
-    ingest.check()?;
-    let opts = &recipe.ingest;
-    let source = crate::source::open(src, opts.raw().as_ref(), opts.tile_size, opts.max_memory)?;
-    let m = crate::ingest::describe(src, source.info(), opts)?;
-    Ok((Box::new(ingest), m))
-}
-
 /// Bakes `part` of `recipe` for `src` into `ASSET.parts/` (never touching
 /// `asset` itself). Returns what each stage did; a part already complete
 /// with this plan does nothing.
@@ -254,7 +243,7 @@ pub fn bake_part(
             recipe.path.display()
         );
     }
-    let (ingest, m) = describe(recipe, src)?;
+    let (ingest, m) = recipe.describe(src)?;
     let plan = Plan::new(recipe, &m)?;
     let fingerprint = plan.fingerprint(ingest.params());
     let parts = parts_dir(asset);
@@ -284,7 +273,7 @@ pub fn bake_part(
     }
     let mut outcomes = vec![run_share_in(
         &writer,
-        ingest.as_ref(),
+        &ingest,
         &Share::Rows(heights),
         false,
         progress,

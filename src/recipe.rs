@@ -98,6 +98,43 @@ impl Recipe {
         }
     }
 
+    /// The recipe's ingest of `src`, checked, and the manifest it will
+    /// write, from the source's header alone.
+    pub fn describe(&self, src: &Path) -> Result<(IngestStage, terrabake_format::Manifest)> {
+        let ingest = self.ingest_stage(src);
+        ingest.check()?;
+        let opts = &self.ingest;
+        let source =
+            crate::source::open(src, opts.raw().as_ref(), opts.tile_size, opts.max_memory)?;
+        let m = crate::ingest::describe(src, source.info(), opts)?;
+        Ok((ingest, m))
+    }
+
+    /// Refuses `stages` (this recipe's, resolved) in an order where one
+    /// reads a layer that a later one writes (`sky` before `horizons`):
+    /// the bake would ingest and then fail. `m` describes the DEM.
+    pub fn check_order(
+        &self,
+        stages: &[Box<dyn Stage>],
+        m: &terrabake_format::Manifest,
+    ) -> Result<()> {
+        for (i, reader) in stages.iter().enumerate() {
+            for writer in &stages[i + 1..] {
+                let outputs = writer.outputs(m);
+                if let Some(layer) = reader.inputs().into_iter().find(|l| outputs.contains(l)) {
+                    bail!(
+                        "{}: stage '{}' reads {layer}, which stage '{}' writes after it; put '{}' first",
+                        self.path.display(),
+                        reader.name(),
+                        writer.name(),
+                        writer.name()
+                    );
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// Every stage of the recipe, resolved before any work so that a typo
     /// fails in a second; errors name the file, the step and the key.
     pub fn resolve_stages(&self) -> Result<Vec<Box<dyn Stage>>> {
@@ -210,10 +247,10 @@ pub fn bake_with(
     progress: Progress,
     on_stage: &mut dyn FnMut(&StageOutcome, usize, usize) -> Result<()>,
 ) -> Result<Vec<StageOutcome>> {
-    let ingest = recipe.ingest_stage(src);
-    ingest.check()?;
-    let mut explicit: Vec<Option<Box<dyn Stage>>> =
-        recipe.resolve_stages()?.into_iter().map(Some).collect();
+    let (ingest, described) = recipe.describe(src)?;
+    let resolved = recipe.resolve_stages()?;
+    recipe.check_order(&resolved, &described)?;
+    let mut explicit: Vec<Option<Box<dyn Stage>>> = resolved.into_iter().map(Some).collect();
     if let Some(request) = &recipe.plan {
         request
             .validate()

@@ -1199,8 +1199,9 @@ fn stages_refuse_what_would_not_fit_in_memory() {
 
 /// Third round, failure 21: loose ends. An interrupted `plan SRC` removes
 /// its scratch ingest and promises no resume; a shade budget without sun
-/// positions, a budget key given twice and an ingest that leaves every
-/// post nodata are refused; a stage on a FIFO manifest names the FIFO.
+/// positions, a budget key given twice, an ingest that leaves every post
+/// nodata and a recipe whose stages come out of order are refused; a
+/// stage on a FIFO manifest names the FIFO.
 #[test]
 fn loose_ends_are_refused_or_cleaned_up() {
     let (dir, asset) = baked();
@@ -1273,6 +1274,19 @@ fn loose_ends_are_refused_or_cleaned_up() {
         "every post is nodata",
     );
     assert!(!empty.exists(), "a refused ingest left its directory");
+    // Stages out of order: refused before the ingest, nothing created.
+    let backwards = dir.path().join("backwards.toml");
+    std::fs::write(
+        &backwards,
+        "[ingest]\ntile = 16\n[[stage]]\nname = \"sky\"\n[[stage]]\nname = \"horizons\"\nsectors = 8\n",
+    )
+    .unwrap();
+    let never = dir.path().join("never.tbake");
+    refused(
+        &["bake", s(&tif), "-o", s(&never), "--recipe", s(&backwards)],
+        "put 'horizons' first",
+    );
+    assert!(!never.exists(), "a refused recipe created the asset");
     let fifo_asset = dir.path().join("fifo.tbake");
     std::fs::create_dir(&fifo_asset).unwrap();
     let c = std::ffi::CString::new(s(&fifo_asset.join(MANIFEST_FILE))).unwrap();
