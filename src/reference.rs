@@ -25,7 +25,7 @@ use terrabake_format::{Asset, Mmap};
 
 use crate::horizon::sky::{svf_of_horizons, BandIntegrals};
 use crate::horizon::terrain::Terrain;
-use crate::horizon::{brute, plan_bands, Band, BandKind, HeldDem, Method};
+use crate::horizon::{brute, distinct_line_bands, plan_bands, Band, BandKind, HeldDem, Method};
 use crate::progress::Progress;
 use crate::synth::SplitMix64;
 
@@ -176,13 +176,15 @@ impl Pilot {
                 dir.display()
             );
         }
-        let reference = plan_bands(
+        // Each grid step once: on non-square cells some asked azimuths
+        // share one, and every index into the reference is one direction.
+        let reference = distinct_line_bands(plan_bands(
             Method::Line,
             opts.directions,
             m.cell_size.dx,
             m.cell_size.dy,
             Some(0.1),
-        );
+        ));
         let integrals = reference
             .iter()
             .map(|b| BandIntegrals::new(b.lo, b.hi))
@@ -300,8 +302,13 @@ impl Pilot {
     /// The reference direction nearest azimuth `az` (degrees, any turn):
     /// where a sun at `az` is compared.
     pub fn nearest_direction(&self, az: f64) -> usize {
-        let n = self.reference.len();
-        (az.rem_euclid(360.0) * n as f64 / 360.0).round() as usize % n
+        let gap = |b: &Band| {
+            let d = (b.azimuth - az).rem_euclid(360.0);
+            d.min(360.0 - d)
+        };
+        (0..self.reference.len())
+            .min_by(|&i, &j| gap(&self.reference[i]).total_cmp(&gap(&self.reference[j])))
+            .unwrap_or(0)
     }
 
     /// Zakšek's sky-view factor of a post's reference horizons (the first

@@ -836,3 +836,69 @@ fn the_tolerance_widens_only_where_the_error_allows() {
         "the error check never bound: {widened} widened, {refused} refused"
     );
 }
+
+/// Issue #55, item 1: the planner and `check` panicked on an SRTM tile at
+/// 57 N (cells of about 50 x 93 m): near the axes, neighbouring reference
+/// azimuths share a grid step, and the reference held fewer directions
+/// than its indices assumed. A crop of the bundled tile with its
+/// georeferencing moved to 57-80 N plans, bakes to a budget and checks,
+/// with every exit status a documented one.
+#[test]
+fn the_planner_and_check_work_at_high_latitudes() {
+    use terrabake::cog::{write_f32, GeoTags};
+    let dir = tempfile::tempdir().unwrap();
+    let srtm = dir.path().join("srtm.tbake");
+    terrabake::ingest::ingest(
+        &repo_file("data/srtm3_n07w006_geographic_int16.tif"),
+        &srtm,
+        &IngestOptions::default(),
+        Progress::hidden(),
+    )
+    .unwrap();
+    let (crop, _, _) = srtm_crop((500, 400), (160, 120));
+    let georef = Asset::open(&srtm)
+        .unwrap()
+        .manifest()
+        .georef
+        .clone()
+        .unwrap();
+    for north in [58.0, 80.0] {
+        let mut g = georef.clone();
+        g.geotransform[3] = north;
+        let tif = dir.path().join(format!("n{north}.tif"));
+        let tags = GeoTags {
+            georef: Some(g),
+            nodata: None,
+        };
+        write_f32(&tif, (160, 120), &tags, |r0, rows| {
+            rows.copy_from_slice(&crop[r0 as usize * 160..][..rows.len()]);
+            Ok(())
+        })
+        .unwrap();
+        let (t, a) = (path_str(&tif), dir.path().join(format!("n{north}.tbake")));
+        let a = path_str(&a);
+        let plan = terrabake(&[
+            "plan",
+            &t,
+            "--budget",
+            "horizon=1",
+            "--needs",
+            "horizons,svf",
+        ]);
+        assert!(plan.status.success(), "{north} N plan: {}", stderr(&plan));
+        let bake = terrabake(&["bake", &t, "-o", &a, "--budget", "horizon=1", "-q"]);
+        assert!(bake.status.success(), "{north} N bake: {}", stderr(&bake));
+        let check = terrabake(&["check", &a, "--samples", "60"]);
+        let code = check.status.code();
+        assert!(
+            matches!(code, Some(0 | 4)),
+            "{north} N check {code:?}: {}",
+            stderr(&check)
+        );
+        assert!(!stderr(&check).contains("panicked"), "{}", stderr(&check));
+    }
+}
+
+fn path_str(p: &Path) -> String {
+    p.to_str().unwrap().to_string()
+}

@@ -172,6 +172,29 @@ pub fn plan_bands(
         .collect()
 }
 
+/// `bands` (line bands, in azimuth order) with each grid step once: where
+/// the grid cannot give every asked azimuth a step of its own within the
+/// tolerance (cells of 50 x 93 m at 57 N, near the axes), neighbouring
+/// azimuths fall back to one step, and a band per step, bounded half way
+/// to its distinct neighbours, is what a reference over them can index.
+pub fn distinct_line_bands(bands: Vec<Band>) -> Vec<Band> {
+    let step = |b: &Band| match &b.kind {
+        BandKind::Line(d) => Some(d.step),
+        _ => None,
+    };
+    let mut kept: Vec<Band> = Vec::with_capacity(bands.len());
+    for band in bands {
+        if !kept.iter().any(|k| step(k) == step(&band)) {
+            kept.push(band);
+        }
+    }
+    let azimuths: Vec<f64> = kept.iter().map(|b| b.azimuth).collect();
+    for (band, (lo, hi)) in kept.iter_mut().zip(band_bounds(&azimuths)) {
+        (band.lo, band.hi) = (lo, hi);
+    }
+    kept
+}
+
 /// Options that change every band's values; the default is exact: the
 /// whole DEM, with Stewart's narrow-sector check.
 #[derive(Debug, Clone, Copy)]
