@@ -149,9 +149,23 @@ impl ProfileArgs {
                     .map(|p| (p.azimuth_deg - 180.0, p.horizon_deg))
                     .collect();
                 rows.sort_by(|a, b| a.0.total_cmp(&b.0));
+                // Where the point is, as PV tools are given it: longitude
+                // and latitude on a geographic grid, else the DEM's CRS.
+                let at = match &m.georef {
+                    Some(g) => {
+                        let (x, y) = g.post_to_world(post.0 as f64, post.1 as f64);
+                        match (g.crs_kind, g.epsg) {
+                            (terrabake_format::manifest::CrsKind::Geographic, _) => {
+                                format!("longitude {x:.6}, latitude {y:.6}")
+                            }
+                            (_, Some(epsg)) => format!("x {x:.2}, y {y:.2} (EPSG:{epsg})"),
+                            (_, None) => format!("x {x:.2}, y {y:.2}"),
+                        }
+                    }
+                    None => format!("post {},{}", post.0, post.1),
+                };
                 let mut t = format!(
-                    "# terrabake horizon at post {},{}: A_hor from south (west positive), H_hor degrees\n",
-                    post.0, post.1
+                    "# terrabake horizon at {at}: A_hor from south (west positive), H_hor degrees\n"
                 );
                 for (a, h) in rows {
                     t += &format!("{a} {h:.2}\n");

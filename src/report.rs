@@ -12,7 +12,8 @@ pub fn describe_outcome(o: &StageOutcome) -> String {
     } else {
         format!("{:.2} s", o.seconds)
     };
-    format!("{:<10} {what:>12}  {}", o.stage, o.outputs.join(", "))
+    // As wide as the longest stage name (`total_viewshed`): the columns line up.
+    format!("{:<14} {what:>12}  {}", o.stage, o.outputs.join(", "))
 }
 
 /// Human-readable summary of a manifest.

@@ -864,6 +864,100 @@ fn ingest_info_and_render_guide_a_new_user() {
     assert!(png.is_file());
 }
 
+/// Issue #55, item 7 (in part): the messages a new user meets say what to
+/// run: `info` on a DEM points to `ingest`; exporting a layer not baked
+/// names the stage that makes it; `horizons --directions` is `--sectors`;
+/// the PVGIS header says where the point is (longitude and latitude), the
+/// GeoTIFF's azimuth convention is a whole sentence, and stage lines align
+/// whatever the stage's name.
+#[test]
+fn messages_tell_a_new_user_what_to_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let dem = common::repo_file("data/srtm3_n07w006_geographic_int16.tif");
+    let info = terrabake(&["info", s(&dem)]);
+    assert!(
+        stderr(&info).contains("terrabake ingest"),
+        "{}",
+        stderr(&info)
+    );
+    let asset = dir.path().join("a.tbake");
+    ok(&["ingest", s(&dem), "-o", s(&asset), "-q"]);
+    let out = dir.path().join("c.tif");
+    let cones = terrabake(&["export", s(&asset), "--layer", "cone_slope", "-o", s(&out)]);
+    assert!(
+        stderr(&cones).contains("`terrabake cones"),
+        "{}",
+        stderr(&cones)
+    );
+    let horizons = terrabake(&[
+        "horizons",
+        s(&asset),
+        "--directions",
+        "8",
+        "--aoi",
+        "0,0,64,64",
+    ]);
+    assert!(horizons.status.success(), "{}", stderr(&horizons));
+    let said = stderr(&horizons);
+    let lines: Vec<&str> = said.lines().collect();
+    let horizon_line = lines.iter().position(|l| l.starts_with("horizons "));
+    let sky_line = lines.iter().position(|l| l.starts_with("sky "));
+    assert!(horizon_line < sky_line && sky_line.is_some(), "{lines:?}");
+    let pvgis = ok(&[
+        "profile",
+        s(&asset),
+        "--at",
+        "-5.5,7.5",
+        "--crs",
+        "lonlat",
+        "--format",
+        "pvgis",
+    ]);
+    assert!(
+        pvgis.starts_with("# terrabake horizon at longitude -5.50"),
+        "{pvgis}"
+    );
+    assert!(
+        pvgis.lines().next().unwrap().contains("latitude 7.50"),
+        "{pvgis}"
+    );
+    let tif = dir.path().join("h.tif");
+    ok(&[
+        "export",
+        s(&asset),
+        "--layer",
+        "horizon",
+        "-o",
+        s(&tif),
+        "-q",
+    ]);
+    let bytes = std::fs::read(&tif).unwrap();
+    let text = String::from_utf8_lossy(&bytes);
+    assert!(
+        text.contains("each band's AZIMUTH item gives its direction"),
+        "convention cut"
+    );
+    let total = terrabake(&[
+        "total-viewshed",
+        s(&asset),
+        "--max-distance",
+        "300",
+        "--directions",
+        "8",
+    ]);
+    let line = stderr(&total)
+        .lines()
+        .last()
+        .unwrap_or_default()
+        .to_string();
+    let sky = lines[sky_line.unwrap()];
+    assert_eq!(
+        line.find(" s  "),
+        sky.find(" s  "),
+        "{line:?} against {sky:?}"
+    );
+}
+
 /// Sizes that the disk or the memory cannot serve are refused at once,
 /// saying what they need and what there is, and nothing is left behind.
 #[test]

@@ -21,6 +21,20 @@ use crate::legend::{Legend, Ramp, Stretch};
 use crate::output::write_atomically;
 use crate::progress::Progress;
 
+/// The command that makes layer `name`, for a message about its absence.
+fn stage_making(name: &str) -> Option<&'static str> {
+    use terrabake_format::layers as l;
+    Some(match name {
+        l::PYRAMID_MAX | l::PYRAMID_MIN => "pyramid",
+        l::CONE_APEX | l::CONE_SLOPE => "cones",
+        l::HORIZON | l::HORIZON_DISTANCE => "horizons",
+        l::SVF | l::SVF_COSINE | l::OPENNESS | l::HORIZON_EDGE => "sky",
+        l::VIEWSHED | l::VIEWSHED_ANGLE => "viewshed",
+        l::TOTAL_VIEWSHED => "total-viewshed",
+        _ => return None,
+    })
+}
+
 /// Output kinds, by file extension.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ExportKind {
@@ -220,7 +234,8 @@ pub fn cog_for_layer(asset: &Asset<Mmap>, layer: &Layer<Mmap>, tiff: &TiffOption
     if !entry.band_azimuths.is_empty() {
         dataset.push((
             "AZIMUTH_CONVENTION".into(),
-            "compass: degrees clockwise from north; band AZIMUTH items give each band's".into(),
+            "compass: degrees clockwise from north; each band's AZIMUTH item gives its direction"
+                .into(),
         ));
         if !method.is_empty() {
             dataset.push(("METHOD".into(), method.to_string()));
@@ -341,7 +356,16 @@ impl ExportArgs {
         if let Some(harmonics) = self.fourier {
             return self.run_fourier(&asset, harmonics, say);
         }
-        let layer = asset.layer(&self.layer, self.level)?;
+        let layer =
+            asset
+                .layer(&self.layer, self.level)
+                .map_err(|e| match stage_making(&self.layer) {
+                    Some(stage) => anyhow::anyhow!(
+                        "{e}; `terrabake {stage} {}` makes it",
+                        self.asset.display()
+                    ),
+                    None => e.into(),
+                })?;
         export_layer(
             &asset,
             layer,

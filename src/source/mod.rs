@@ -74,12 +74,22 @@ impl HeightMapping {
 }
 
 /// Parses GDAL's textual nodata ("-32767", "nan", "-3.4028234663852886e+38").
+/// A value within the rounding of a 7-digit spelling of +-FLT_MAX (one part
+/// in a million) is +-FLT_MAX: lidar products write `-3.402823e+38` for
+/// holes of exactly -FLT_MAX, which as written is 23 f32 steps from it, and
+/// GDAL masks those holes.
 pub fn parse_nodata(text: &str) -> Option<f64> {
     let t = text.trim().trim_end_matches('\0');
     if t.eq_ignore_ascii_case("nan") {
         return Some(f64::NAN);
     }
-    t.parse::<f64>().ok()
+    let v = t.parse::<f64>().ok()?;
+    let float_max = f64::from(f32::MAX);
+    Some(if (v.abs() / float_max - 1.0).abs() <= 1e-6 {
+        float_max.copysign(v)
+    } else {
+        v
+    })
 }
 
 /// Opens `path` by its content (TIFF magic) or extension. Every reader
@@ -216,6 +226,19 @@ mod tests {
             offset: 0.0,
         };
         assert!(min.height(f64::from(f32::MIN), true).is_nan());
+        // Rounded spellings of -FLT_MAX (lidar DSMs) are -FLT_MAX, for f32
+        // and f64 samples alike; a value merely near it is not.
+        for tag in ["-3.402823e+38", "-3.4028235e38", "-3.4028234663852886e+38"] {
+            let rounded = HeightMapping {
+                nodata: parse_nodata(tag),
+                scale: 1.0,
+                offset: 0.0,
+            };
+            assert!(rounded.height(f64::from(f32::MIN), true).is_nan(), "{tag}");
+            assert!(rounded.height(f64::from(f32::MIN), false).is_nan(), "{tag}");
+            assert_eq!(rounded.height(131.1, true), 131.1, "{tag}");
+        }
+        assert_eq!(parse_nodata("-3.3e38"), Some(-3.3e38));
         // A value that overflows f32 after scaling is nodata, not infinity.
         let big = HeightMapping {
             nodata: None,
