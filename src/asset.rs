@@ -53,15 +53,13 @@ impl Wait {
 impl AssetWriter {
     /// Opens the existing asset `dir` for writing (a stage's case).
     pub fn open(dir: &Path, wait: Wait) -> Result<Self> {
-        let manifest = dir.join(MANIFEST_FILE);
-        match fs::symlink_metadata(&manifest) {
+        expect_directory(dir)?;
+        match fs::symlink_metadata(dir.join(MANIFEST_FILE)) {
             Ok(meta) if meta.file_type().is_file() => {}
             Ok(_) => bail!(
                 "{}: cannot open asset: {MANIFEST_FILE} is not a regular file (a link, FIFO, device or directory)",
                 dir.display()
             ),
-            Err(_) if !dir.exists() => bail!("{}: no such asset directory", dir.display()),
-            Err(_) if !dir.is_dir() => bail!("{}", not_a_directory(dir)),
             Err(_) => bail!(
                 "{}: cannot open asset: no {MANIFEST_FILE} (not an asset, or never ingested)",
                 dir.display()
@@ -146,22 +144,23 @@ fn is_asset_file(name: &str) -> bool {
 
 /// Opens the asset `path` for reading, with the command line's messages.
 pub fn open(path: &Path) -> Result<terrabake_format::Asset<terrabake_format::Mmap>> {
-    if !path.exists() {
-        bail!("{}: no such asset directory", path.display());
-    }
-    if !path.is_dir() {
-        bail!("{}", not_a_directory(path));
-    }
+    expect_directory(path)?;
     terrabake_format::Asset::open(path)
         .with_context(|| format!("{}: cannot open asset", path.display()))
 }
 
-/// What to say of a file given where an asset directory was expected: a
-/// DEM, most likely, which `ingest` makes an asset of.
-fn not_a_directory(path: &Path) -> String {
-    format!(
-        "{}: not an asset directory (a DEM? `terrabake ingest {} -o ASSET` makes one)",
-        path.display(),
-        path.display()
-    )
+/// Refuses `path` unless it is a directory: missing, or a file (a DEM,
+/// most likely, which `ingest` makes an asset of), each said plainly.
+fn expect_directory(path: &Path) -> Result<()> {
+    if !path.exists() {
+        bail!("{}: no such asset directory", path.display());
+    }
+    if !path.is_dir() {
+        bail!(
+            "{}: not an asset directory (a DEM? `terrabake ingest {} -o ASSET` makes one)",
+            path.display(),
+            path.display()
+        );
+    }
+    Ok(())
 }
