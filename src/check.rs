@@ -11,6 +11,14 @@
 //! percentile of its absolute value over posts and azimuths: too few bands,
 //! a distance limit, quantisation and interpolation all count.
 //!
+//! **The DEM's edge.** Where the reference or one of the two bands serving
+//! an azimuth has nothing of the DEM ahead (the post faces out over the
+//! edge), the true horizon jumps from a real angle to none at an azimuth
+//! no band records; no stored sampling can know where. Those samples are
+//! counted and their largest error reported apart; the headline figures
+//! and the budget's verdicts are over the rest, what the asset claims to
+//! know.
+//!
 //! **Sky-view factor reference.** Zakšek's factor from the reference
 //! horizons (each direction's band its share of the circle); the error is
 //! the stored `svf` minus it, its statistic the 99th percentile over posts.
@@ -21,7 +29,7 @@ use anyhow::{bail, Result};
 use rayon::prelude::*;
 use serde::Serialize;
 use terrabake_format::cones::ConePlanes;
-use terrabake_format::horizons::HorizonMap;
+use terrabake_format::horizons::{HorizonMap, NOTHING_AHEAD};
 use terrabake_format::layers::{HEIGHT, HORIZON, SVF};
 use terrabake_format::trace::{Method as TraceMethod, Ray, Tracer};
 use terrabake_format::{Asset, Mmap};
@@ -55,6 +63,14 @@ pub struct HorizonCheck {
     pub horizon_max_deg: f64,
     /// Mean signed error (stored minus reference), degrees.
     pub horizon_bias_deg: f64,
+    /// (post, azimuth) samples in the figures above.
+    pub samples: usize,
+    /// Samples at the DEM's edge (the reference or a serving band has
+    /// nothing ahead), left out of the figures above; the posts they fall
+    /// on, and their largest error (degrees, `None` when there are none).
+    pub edge_samples: usize,
+    pub edge_posts: usize,
+    pub edge_max_deg: Option<f64>,
     /// Absolute sky-view factor error over posts (`None`: no svf layer).
     pub svf_p99: Option<f64>,
     pub svf_max: Option<f64>,
@@ -233,20 +249,26 @@ fn check_horizons(
         .iter()
         .map(|&[az, el]| (pilot.nearest_direction(az), el))
         .collect();
-    // Per post: the signed horizon errors at every reference azimuth, the
-    // svf error, and the wrong sun/shade states.
-    type PostErrors = (Vec<f64>, Option<f64>, usize);
+    // Per post: the signed horizon errors at every reference azimuth (those
+    // at the DEM's edge apart), the svf error, and the wrong sun/shade
+    // states.
+    type PostErrors = (Vec<f64>, Vec<f64>, Option<f64>, usize);
     let per_post: Vec<Result<PostErrors>> = pilot
         .posts
         .par_iter()
         .zip(&pilot.exact)
         .map(|(&(c, r), exact)| {
-            let mut errors = Vec::with_capacity(exact.len());
+            let (mut errors, mut at_edge) = (Vec::with_capacity(exact.len()), Vec::new());
             let mut served = vec![None; exact.len()];
             for ((band, &truth), out) in pilot.reference.iter().zip(exact).zip(&mut served) {
-                *out = map.horizon_at(c as u32, r as u32, band.azimuth)?;
-                if let Some(stored) = *out {
-                    errors.push(stored - truth);
+                let Some(s) = map.served_at(c as u32, r as u32, band.azimuth)? else {
+                    continue;
+                };
+                *out = Some(s.angle);
+                if s.at_edge || truth == NOTHING_AHEAD {
+                    at_edge.push(s.angle - truth);
+                } else {
+                    errors.push(s.angle - truth);
                 }
             }
             let wrong = suns
@@ -260,13 +282,20 @@ fn check_horizons(
                 }
                 None => None,
             };
-            Ok((errors, svf_error, wrong))
+            Ok((errors, at_edge, svf_error, wrong))
         })
         .collect();
     let (mut horizon, mut svf, mut wrong) = (Vec::new(), Vec::new(), 0);
+    let (mut edge_samples, mut edge_posts, mut edge_max) = (0, 0, None::<f64>);
     for post in per_post {
-        let (errors, svf_error, w) = post?;
+        let (errors, at_edge, svf_error, w) = post?;
         horizon.extend(errors);
+        if !at_edge.is_empty() {
+            edge_samples += at_edge.len();
+            edge_posts += 1;
+            let largest = at_edge.iter().fold(0.0f64, |m, e| m.max(e.abs()));
+            edge_max = Some(edge_max.map_or(largest, |m| m.max(largest)));
+        }
         svf.extend(svf_error.map(f64::abs));
         wrong += w;
     }
@@ -287,6 +316,10 @@ fn check_horizons(
         horizon_p99_deg: percentile(&horizon, 99),
         horizon_max_deg: horizon.last().copied().unwrap_or(0.0),
         horizon_bias_deg: bias,
+        samples: horizon.len(),
+        edge_samples,
+        edge_posts,
+        edge_max_deg: edge_max,
         svf_p99: (!svf.is_empty()).then(|| percentile(&svf, 99)),
         svf_max: svf.last().copied(),
         shade_share: (!suns.is_empty())
@@ -531,9 +564,16 @@ pub fn describe(report: &CheckReport) -> String {
                 .map_or(String::new(), |d| format!(", max distance {d} m")),
         );
         out += &format!(
-            "horizon error (deg)   p50 {:.3}   p99 {:.3}   max {:.3}   bias {:+.3}\n",
-            h.horizon_p50_deg, h.horizon_p99_deg, h.horizon_max_deg, h.horizon_bias_deg
+            "horizon error (deg)   p50 {:.3}   p99 {:.3}   max {:.3}   bias {:+.3}   ({} post-azimuth samples)\n",
+            h.horizon_p50_deg, h.horizon_p99_deg, h.horizon_max_deg, h.horizon_bias_deg, h.samples
         );
+        if let Some(max) = h.edge_max_deg {
+            out += &format!(
+                "at the DEM's edge     {} samples at {} posts look out over the edge (nothing ahead on one side \
+                 of the azimuth): max {max:.3}, left out of the figures above\n",
+                h.edge_samples, h.edge_posts
+            );
+        }
         if let (Some(p99), Some(max)) = (h.svf_p99, h.svf_max) {
             out += &format!("svf error             p99 {p99:.4}   max {max:.4}\n");
         }

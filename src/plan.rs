@@ -55,7 +55,7 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use serde::{Deserialize, Serialize};
 use terrabake_format::cones::ConeEncoding;
-use terrabake_format::horizons::{bands_around, AngleEncoding};
+use terrabake_format::horizons::{bands_around, between, AngleEncoding};
 use terrabake_format::{Asset, Codec, Mmap};
 
 use crate::budget::{Budget, Need, Needs, Request, SunPosition};
@@ -269,6 +269,11 @@ pub struct Scene {
     /// candidate bakes would store.
     #[serde(default)]
     pub pilot_directions: usize,
+    /// The reference's distinct directions (fewer than the 720 asked for
+    /// where non-square cells put two on one grid step; 0 in plans
+    /// recorded before this was).
+    #[serde(default)]
+    pub pilot_reference_directions: usize,
     pub pilot_seconds: f64,
 }
 
@@ -485,7 +490,7 @@ fn errors(
     for (post, exact) in pilot.exact.iter().enumerate() {
         let kept: Vec<f64> = stored.iter().map(|&j| value(post, j)).collect();
         for ((&(i, j, f), &truth), out) in around.iter().zip(exact).zip(&mut served) {
-            *out = kept[i] + f * (kept[j] - kept[i]);
+            *out = between(kept[i], kept[j], f);
             if out.is_finite() && truth.is_finite() {
                 e.horizon.push((*out - truth).abs());
             }
@@ -667,6 +672,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
             .map(|p| quantile_unsorted(&mut p.slope_deg.clone(), 0.9)),
         pilot_posts: pilot.as_ref().map_or(0, |p| p.posts.len()),
         pilot_directions: pilot.as_ref().map_or(0, Pilot::directions_measured),
+        pilot_reference_directions: pilot.as_ref().map_or(0, |p| p.reference.len()),
         pilot_seconds: start.elapsed().as_secs_f64(),
     };
     let mut sun = request.sun.clone();
@@ -1225,9 +1231,13 @@ pub fn describe(plan: &Plan) -> String {
     if s.pilot_posts > 0 {
         // (A plan recorded before the pilot measured the stored
         // directions too says 0 for them.)
-        let stored = s.pilot_directions.saturating_sub(PILOT_DIRECTIONS);
+        let reference = match s.pilot_reference_directions {
+            0 => PILOT_DIRECTIONS,
+            n => n,
+        };
+        let stored = s.pilot_directions.saturating_sub(reference);
         out += &format!(
-            "pilot  exact horizons in {PILOT_DIRECTIONS} reference directions and {stored} that the candidates store, at {} posts ({:.1} s)\n",
+            "pilot  exact horizons in {reference} reference directions and {stored} that the candidates store, at {} posts ({:.1} s)\n",
             s.pilot_posts, s.pilot_seconds,
         );
     }

@@ -14,7 +14,7 @@ use std::path::Path;
 
 use anyhow::Result;
 use rayon::prelude::*;
-use terrabake_format::horizons::{bands_around, disc_fraction_above};
+use terrabake_format::horizons::{bands_around, between, disc_fraction_above};
 use terrabake_format::{Asset, Mmap};
 
 use crate::horizon::sky::{radiosity, sun_glow, SkyTable};
@@ -87,7 +87,7 @@ pub fn shade_posts(asset: &Asset<Mmap>, shade: Shade) -> Result<(Vec<f32>, usize
         // The light on a surface with unit `normal`, horizon `horizon` and
         // cosine sky-view factor `svf_cosine`.
         let light = |normal: [f64; 3], horizon: &[f32], svf_cosine: f64| {
-            let hz = f64::from(horizon[a]) + f * f64::from(horizon[b] - horizon[a]);
+            let hz = between(f64::from(horizon[a]), f64::from(horizon[b]), f);
             let lit = disc_fraction_above(sun.elevation, hz, SUN_RADIUS);
             let direct = lit * (normal[0] * s[0] + normal[1] * s[1] + normal[2] * s[2]).max(0.0);
             radiosity(

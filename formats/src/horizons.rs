@@ -4,8 +4,12 @@
 //! post, the elevation angle of the horizon seen from that post in direction
 //! `band_azimuths[i]` (compass degrees, clockwise from north; the manifest
 //! lists them). Angles are degrees in `[-90, 90]`: negative means the
-//! terrain ahead stays below the horizontal, and `-90` means nothing of the
-//! DEM lies ahead at all (the post is on the DEM's edge, facing out). Bands
+//! terrain ahead stays below the horizontal, and `-90` ([`NOTHING_AHEAD`])
+//! means nothing of the DEM lies ahead at all within the distance searched
+//! (the post is on the DEM's edge, facing out). That is a marker, not an
+//! angle: between a band holding it and a band holding a real angle the
+//! reader serves the real angle, never a blend of the two (which would put
+//! a horizon tens of degrees below anything on the ground). Bands
 //! are chunked band-major (sector-major), so one sector is a contiguous run
 //! of tiles that a GPU uploads as one texture-array slice.
 //!
@@ -33,6 +37,22 @@ use crate::reader::{Asset, Layer};
 use crate::ElemType;
 
 pub use crate::layers::{HORIZON, HORIZON_EDGE, OPENNESS, SVF, SVF_COSINE};
+
+/// The angle stored where nothing of the DEM lies ahead (degrees): every
+/// encoding holds it exactly (code 1 of `u8` and `u16`).
+pub const NOTHING_AHEAD: f64 = -90.0;
+
+/// A horizon as the reader serves it between two bands.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Served {
+    /// Degrees: linear between the two nearest bands, or the one band
+    /// holding a real angle where the other holds [`NOTHING_AHEAD`].
+    pub angle: f64,
+    /// One of the two bands has nothing ahead: the azimuth looks past the
+    /// DEM's edge on one side, and the horizon there jumps (from a real
+    /// angle to none) at an azimuth the bands do not record.
+    pub at_edge: bool,
+}
 
 /// How horizon angles are stored.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
@@ -209,6 +229,20 @@ pub fn bands_around(azimuths: &[f64], azimuth: f64) -> (usize, usize, f64) {
     (i, j, f)
 }
 
+/// The horizon a fraction `f` of the way from band angle `h0` to `h1`
+/// (degrees): linear, except that [`NOTHING_AHEAD`] is a marker and not an
+/// angle, so between it and a real angle the real one is served.
+#[inline]
+pub fn between(h0: f64, h1: f64, f: f64) -> f64 {
+    if h0 == NOTHING_AHEAD && h1 != NOTHING_AHEAD {
+        h1
+    } else if h1 == NOTHING_AHEAD && h0 != NOTHING_AHEAD {
+        h0
+    } else {
+        h0 + f * (h1 - h0)
+    }
+}
+
 /// Distance in metres from post `(x, y)` to the DEM's edge, going in the
 /// compass direction `azimuth` on a `width x height` grid of `dx x dy`
 /// metres: how far the DEM can see. A horizon whose terrain could rise past
@@ -317,14 +351,23 @@ impl<'a, D: AsRef<[u8]>> HorizonMap<'a, D> {
     }
 
     /// The horizon at `azimuth` (compass degrees), linear between the two
-    /// nearest band azimuths (cyclically).
+    /// nearest band azimuths (cyclically), or the one real angle where the
+    /// other band has nothing ahead; `None` for nodata.
     pub fn horizon_at(&self, x: u32, y: u32, azimuth: f64) -> Result<Option<f64>> {
+        Ok(self.served_at(x, y, azimuth)?.map(|s| s.angle))
+    }
+
+    /// [`Self::horizon_at`], saying whether one band had nothing ahead.
+    pub fn served_at(&self, x: u32, y: u32, azimuth: f64) -> Result<Option<Served>> {
         let (i, j, f) = bands_around(&self.azimuths, azimuth);
         let (Some(h0), Some(h1)) = (self.angle(x, y, i as u32)?, self.angle(x, y, j as u32)?)
         else {
             return Ok(None);
         };
-        Ok(Some(h0 + f * (h1 - h0)))
+        Ok(Some(Served {
+            angle: between(h0, h1, f),
+            at_edge: h0 == NOTHING_AHEAD || h1 == NOTHING_AHEAD,
+        }))
     }
 
     /// Fraction of the sun's disc (centre at `sun_azimuth`, `sun_elevation`,
@@ -403,6 +446,18 @@ mod tests {
             .map(|i| disc_fraction_above(9.73 + i as f64 * 0.027, 10.0, 0.27))
             .collect();
         assert!(f.windows(2).all(|w| w[0] <= w[1]));
+    }
+
+    /// "Nothing ahead" is never blended with a real angle.
+    #[test]
+    fn the_edge_marker_is_not_an_angle() {
+        assert_eq!(between(10.0, 20.0, 0.25), 12.5);
+        assert_eq!(between(NOTHING_AHEAD, 20.0, 0.25), 20.0);
+        assert_eq!(between(20.0, NOTHING_AHEAD, 0.75), 20.0);
+        assert_eq!(between(NOTHING_AHEAD, NOTHING_AHEAD, 0.5), NOTHING_AHEAD);
+        for enc in [AngleEncoding::U8, AngleEncoding::U16, AngleEncoding::F32] {
+            assert_eq!(enc.decode(enc.encode(NOTHING_AHEAD)), Some(NOTHING_AHEAD));
+        }
     }
 
     #[test]

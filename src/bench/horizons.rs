@@ -17,7 +17,7 @@ use std::time::Instant;
 use anyhow::Result;
 use rayon::prelude::*;
 use serde::Serialize;
-use terrabake_format::horizons::bands_around;
+use terrabake_format::horizons::{bands_around, between};
 
 use super::chart::{log_log_svg, log_log_svg_with_marks, Series};
 use super::markdown_table;
@@ -192,8 +192,7 @@ pub(super) fn svf_errors(
 /// `lit_fraction` does.
 pub(super) fn interpolated(azimuths: &[f64], azimuth: f64, at: impl Fn(usize) -> f64) -> f64 {
     let (i, j, f) = bands_around(azimuths, azimuth);
-    let (a, b) = (at(i), at(j));
-    a + f * (b - a)
+    between(at(i), at(j), f)
 }
 
 /// Errors of `method` with `count` bands (line directions within

@@ -23,7 +23,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
-use terrabake_format::horizons::{bands_around, HORIZON};
+use terrabake_format::horizons::{bands_around, between, HORIZON};
 use terrabake_format::{Asset, Mmap};
 
 use super::{cog_for_layer, TiffOptions};
@@ -116,6 +116,12 @@ pub fn export_horizons(
         );
         let mut dataset = base.metadata.dataset.clone();
         dataset.retain(|(k, _)| k.starts_with("TERRABAKE_"));
+        // The layer's description says degrees; this file holds radians.
+        for (k, v) in &mut dataset {
+            if k == "TERRABAKE_DESCRIPTION" {
+                *v = format!("{description}; from the layer: {v}");
+            }
+        }
         dataset.push((
             "GRASS_ANGLE".into(),
             "degrees counter-clockwise from east (r.horizon, r.sun)".into(),
@@ -149,7 +155,7 @@ pub fn export_horizons(
                     other.resize(rows.len(), 0.0);
                     layer.read_rows_f32(j as u32, y0, &mut other)?;
                     for (a, b) in rows.iter_mut().zip(&other) {
-                        *a += (t as f32) * (*b - *a);
+                        *a = between(f64::from(*a), f64::from(*b), t) as f32;
                     }
                 }
                 rows.iter_mut().for_each(|v| *v = v.to_radians());
