@@ -324,6 +324,8 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
     /// scheduler to run the N parts anywhere (Slurm array tasks, Kubernetes indexed jobs,
     /// make -j); `terrabake assemble OUTPUT` then joins them. The result is the same, bit for
     /// bit, as one bake (docs/SCALE.md says which stage splits how).
+    // One of the two is required: clap's error then names both.
+    #[command(group = clap::ArgGroup::new("recipe_or_budget").required(true).args(["recipe", "budget"]))]
     #[command(
         after_help = "Examples:\n  terrabake bake dem.tif -o dem.tbake --recipe pipelines/demo.toml\n  \
 for i in 0 1 2 3; do terrabake bake dem.tif -o dem.tbake --recipe pipelines/demo.toml --parts 4 --part $i; done\n  \
@@ -341,7 +343,7 @@ A recipe (a shorter pipelines/demo.toml):\n  \
         #[arg(short, long)]
         output: PathBuf,
         /// A recipe from pipelines/ (TOML): ingest options and stages.
-        #[arg(long, required_unless_present = "budget", conflicts_with = "budget")]
+        #[arg(long, conflicts_with = "budget")]
         recipe: Option<PathBuf>,
         /// Instead of a recipe, an error budget and what the scene needs (--budget, --needs,
         /// --sun, --sun-day): ingests, bakes the stages `terrabake plan` chooses, and records the

@@ -222,9 +222,10 @@ pub fn stage_from_recipe(step: &RecipeStage) -> Result<Box<dyn Stage>> {
 /// Ingest (unless the asset already is this ingest) and every recipe stage,
 /// all under one hold of the writer lock. A recipe with a `[plan]` is
 /// planned after ingest (a budget the scene cannot meet is refused before
-/// anything is baked from the heights, and an asset this call created is
-/// removed again); the plan, with what the bake measured of itself, is
-/// recorded in the manifest for `check`.
+/// anything is baked from the heights); the plan, with what the bake
+/// measured of itself, is recorded in the manifest for `check`. A planned
+/// bake that fails removes the asset if this call created it: what it
+/// would leave is an asset that meets no budget.
 pub fn bake(
     src: &Path,
     dir: &Path,
@@ -238,7 +239,8 @@ pub fn bake(
 /// [`bake`], telling `on_stage(outcome, done, total)` as each stage is
 /// done (ingest is stage 1; `total` counts the planned stages once the
 /// plan is known). An error from it stops the bake there: the stages done
-/// stay committed, and the bake resumes from them when run again.
+/// stay committed (a planned bake's too), and the bake resumes from them
+/// when run again.
 pub fn bake_with(
     src: &Path,
     dir: &Path,
@@ -303,15 +305,27 @@ pub fn bake_with(
     }
     let sequence: Vec<(&dyn Stage, bool)> = stages.iter().map(|s| (s.as_ref(), false)).collect();
     let mut n = outcomes.len();
-    outcomes.extend(run_stages_in(
-        &writer,
-        &sequence,
-        progress,
-        &mut |outcome| {
-            n += 1;
-            on_stage(outcome, n, total)
-        },
-    )?);
+    let mut stopped_by_caller = false;
+    let ran = run_stages_in(&writer, &sequence, progress, &mut |outcome| {
+        n += 1;
+        let told = on_stage(outcome, n, total);
+        stopped_by_caller = told.is_err();
+        told
+    });
+    match ran {
+        Ok(ran) => outcomes.extend(ran),
+        Err(e) => {
+            if created && plan.is_some() && !stopped_by_caller {
+                drop(writer);
+                let _ = std::fs::remove_dir_all(dir);
+                return Err(e.context(format!(
+                    "{}: removed the asset this planned bake created",
+                    dir.display()
+                )));
+            }
+            return Err(e);
+        }
+    }
     if let Some(mut plan) = plan {
         plan.baked = Some(crate::plan::Baked {
             seconds: start.elapsed().as_secs_f64(),

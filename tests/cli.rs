@@ -956,6 +956,85 @@ fn messages_tell_a_new_user_what_to_run() {
         sky.find(" s  "),
         "{line:?} against {sky:?}"
     );
+    // `bake` without a recipe names both ways to say what to bake.
+    let bake = terrabake(&["bake", s(&dem), "-o", s(&dir.path().join("b.tbake"))]);
+    assert_eq!(bake.status.code(), Some(2));
+    assert!(
+        stderr(&bake).contains("--recipe") && stderr(&bake).contains("--budget"),
+        "{}",
+        stderr(&bake)
+    );
+    // The cone planes' description says its slice count once.
+    ok(&["cones", s(&asset), "--slices", "16", "-q"]);
+    let info = ok(&["info", s(&asset), "--json"]);
+    let apex = info
+        .split("cone apex")
+        .nth(1)
+        .unwrap_or_default()
+        .split('"')
+        .next()
+        .unwrap_or_default()
+        .to_string();
+    assert!(apex.contains("(16 slices as asked)"), "{apex}");
+    assert_eq!(apex.matches("slices").count(), 1, "{apex}");
+    // GRASS's files hold radians, and their description says so.
+    let grass = dir.path().join("grass");
+    ok(&[
+        "export",
+        s(&asset),
+        "--layer",
+        "horizon",
+        "--for",
+        "grass",
+        "-o",
+        s(&grass),
+        "-q",
+    ]);
+    let first = std::fs::read_dir(&grass)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.extension().is_some_and(|e| e == "tif"))
+        .unwrap();
+    let bytes = std::fs::read(first).unwrap();
+    let text = String::from_utf8_lossy(&bytes);
+    let described = text
+        .split("<Item name=\"TERRABAKE_DESCRIPTION\">")
+        .nth(1)
+        .unwrap_or_default()
+        .split("</Item>")
+        .next()
+        .unwrap_or_default()
+        .to_string();
+    assert!(
+        described.starts_with("horizon angle, radians"),
+        "{described}"
+    );
+}
+
+/// A planned bake whose stage fails removes the asset it created: what it
+/// would leave (the heights alone, a lock) meets no budget. An asset that
+/// was there before is left as it was.
+#[test]
+fn a_failed_planned_bake_removes_the_asset_it_created() {
+    let dir = tempfile::tempdir().unwrap();
+    let (dem, asset) = (dir.path().join("d.tif"), dir.path().join("a.tbake"));
+    ok(&["synth", "fractal", "--size", "400x300", "-o", s(&dem), "-q"]);
+    let recipe = dir.path().join("r.toml");
+    std::fs::write(
+        &recipe,
+        "[plan]\nneeds = [\"horizons\"]\nbudget = { horizon = 1 }\n\n\
+         [[stage]]\nname = \"horizons\"\nmax_memory_mib = 1\n",
+    )
+    .unwrap();
+    let o = terrabake(&["bake", s(&dem), "-o", s(&asset), "--recipe", s(&recipe)]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("removed the asset"), "{}", stderr(&o));
+    assert!(!asset.exists());
+    // Over an asset that was there, the failure keeps what was committed.
+    ok(&["ingest", s(&dem), "-o", s(&asset), "-q"]);
+    let o = terrabake(&["bake", s(&dem), "-o", s(&asset), "--recipe", s(&recipe)]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    ok(&["verify", s(&asset)]);
 }
 
 /// Sizes that the disk or the memory cannot serve are refused at once,

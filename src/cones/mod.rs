@@ -445,8 +445,9 @@ impl Stage for ConesStage {
             dir,
             spec(
                 CONE_APEX,
+                // The reason names the slice count (or "exact") itself.
                 format!(
-                    "cone apex z_p over each cell, metres, {} rounded up ({how}; {})",
+                    "cone apex z_p over each cell, metres, {} rounded up ({})",
                     enc.name(),
                     plan.reason
                 ),
