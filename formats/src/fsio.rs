@@ -16,8 +16,10 @@
 //!   (create, write, fsync, rename, unlink) passes one. When the
 //!   environment variable `TERRABAKE_CRASH_AT=N` is set, the process aborts
 //!   at the N-th step, which is how the kill-at-every-write test reaches
-//!   every point where a real crash could land. Unset, a crash point costs
-//!   one relaxed atomic increment.
+//!   every point where a real crash could land. `TERRABAKE_PANIC_AT=N`
+//!   panics there instead, which is how the tests reach the code that
+//!   turns a bug's panic into an error (the Python boundary). Unset, a
+//!   crash point costs one relaxed atomic increment.
 
 use std::fs::{File, OpenOptions};
 use std::os::unix::fs::OpenOptionsExt;
@@ -228,17 +230,19 @@ pub fn start_writeback(file: &File, offset: u64, len: u64) {
 /// One durable step of a writer; see the module docs.
 #[inline]
 pub fn crash_point() {
-    static AT: OnceLock<Option<u64>> = OnceLock::new();
+    static AT: OnceLock<(Option<u64>, Option<u64>)> = OnceLock::new();
     static STEPS: AtomicU64 = AtomicU64::new(0);
-    let at = AT.get_or_init(|| {
-        std::env::var("TERRABAKE_CRASH_AT")
-            .ok()
-            .and_then(|v| v.parse().ok())
-    });
-    if let Some(at) = *at {
-        if STEPS.fetch_add(1, Ordering::Relaxed) + 1 == at {
+    let step = |name: &str| std::env::var(name).ok().and_then(|v| v.parse().ok());
+    let (crash, panic) =
+        *AT.get_or_init(|| (step("TERRABAKE_CRASH_AT"), step("TERRABAKE_PANIC_AT")));
+    if crash.is_some() || panic.is_some() {
+        let n = STEPS.fetch_add(1, Ordering::Relaxed) + 1;
+        if crash == Some(n) {
             // As a kill would: no unwinding, no destructors, no cleanup.
             std::process::abort();
+        }
+        if panic == Some(n) {
+            panic!("TERRABAKE_PANIC_AT={n}: a panic injected at a durable step");
         }
     }
 }

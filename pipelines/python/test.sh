@@ -4,7 +4,10 @@
 # then its tests (python/tests, pytest). The environment sees the system's
 # packages, so that Debian's GDAL bindings (python3-gdal), when present,
 # check the COG exports with GDAL's own validator; as root, the script
-# installs python3-venv and python3-gdal when they are missing.
+# installs python3-venv and python3-gdal when they are missing. Besides the
+# package's own tests, python/tests/test_real_dems.py runs every command on
+# GDAL-made variants of the bundled SRTM tile (latitudes, projections,
+# south-up, sample types, nodata conventions).
 #
 #   bash pipelines/python/test.sh            # what `make test` runs
 set -euo pipefail
@@ -29,6 +32,14 @@ rm -rf "$venv"
 "$py" -m venv --system-site-packages "$venv"
 "$venv/bin/pip" install -q --disable-pip-version-check pytest
 "$venv/bin/python" -c "import numpy" 2>/dev/null || "$venv/bin/pip" install -q --disable-pip-version-check numpy
+# rioxarray (with rasterio and pyproj) for to_xarray's round trip, at the
+# versions that work with the numpy and xarray already here: pinned to them,
+# so that pip never swaps Debian's compiled numpy for another.
+if "$venv/bin/python" -c "import xarray" 2>/dev/null; then
+  "$venv/bin/python" -c "import numpy, xarray; print(f'numpy=={numpy.__version__}'); print(f'xarray=={xarray.__version__}')" >"$venv/pinned.txt"
+  "$venv/bin/pip" install -q --disable-pip-version-check -c "$venv/pinned.txt" rioxarray ||
+    echo "python/test.sh: no rioxarray: the xarray round trip will be skipped" >&2
+fi
 start=$(date +%s.%N)
 "$venv/bin/pip" install -q --disable-pip-version-check ./python
 echo "python/test.sh: pip install ./python took $(awk -v a="$start" -v b="$(date +%s.%N)" 'BEGIN { printf "%.1f", b - a }') s"

@@ -6,8 +6,14 @@
 //! What this file adds is the boundary: numpy arrays checked before any
 //! work (dtype, shape, contiguity, size, all-NaN: `ValueError` naming the
 //! problem), the GIL released while Rust works, a progress callback called
-//! between batches of bands, and errors raised as `terrabake.TerrabakeError` with the
-//! CLI's message. The Python side (`terrabake/__init__.py`) adds xarray.
+//! between batches of bands, and errors raised as `terrabake.Error` with the
+//! CLI's message. A Rust panic is a bug, but it never reaches Python as
+//! pyo3's `PanicException` (a `BaseException` that `except Exception`
+//! misses): every entry point runs under [`guarded`], which raises it as
+//! `terrabake.Error`, and a `bake` that panicked removes the asset it
+//! created. The Python side (`terrabake/__init__.py`) adds the numpy and
+//! xarray conventions: dtypes, masks, a scalar cell size, the curvature
+//! rule, rioxarray's georeferencing.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -28,13 +34,30 @@ use terrabake_format::{ElemType, Mmap, Tile};
 
 pyo3::create_exception!(
     _native,
-    TerrabakeError,
+    Error,
     PyException,
     "A terrabake operation failed; the message is the command line's."
 );
 
 fn raise(e: anyhow::Error) -> PyErr {
-    TerrabakeError::new_err(terrabake::report::error_chain(&e))
+    Error::new_err(terrabake::report::error_chain(&e))
+}
+
+/// Runs `f`, turning a panic into `terrabake.Error` naming `what`.
+fn guarded<T>(what: &str, f: impl FnOnce() -> PyResult<T>) -> PyResult<T> {
+    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)) {
+        Ok(result) => result,
+        Err(payload) => {
+            let message = payload
+                .downcast_ref::<&str>()
+                .map(|s| (*s).to_string())
+                .or_else(|| payload.downcast_ref::<String>().cloned())
+                .unwrap_or_default();
+            Err(Error::new_err(format!(
+                "{what}: an internal error, a bug in terrabake (please report it): {message}"
+            )))
+        }
+    }
 }
 
 fn raise_format(e: terrabake_format::Error) -> PyErr {
@@ -96,33 +119,49 @@ impl Asset {
     }
 
     /// Layer `name` at `level`, every band, decoded to float32 (quantised
-    /// codes to degrees, nodata to NaN): shape (bands, height, width).
+    /// codes to degrees, nodata to NaN): shape (bands, height, width), or
+    /// (height, width) for a layer of one band.
     #[pyo3(signature = (name, level = 0))]
     fn read<'py>(
         &self,
         py: Python<'py>,
         name: &str,
         level: u32,
-    ) -> PyResult<Bound<'py, PyArray3<f32>>> {
-        let inner = self.inner.clone();
-        let name = name.to_string();
-        let values = py
-            .detach(move || -> anyhow::Result<Array3<f32>> {
-                let layer = inner.layer(&name, level)?;
-                let (w, h, b) = (
-                    layer.width() as usize,
-                    layer.height() as usize,
-                    layer.bands(),
-                );
-                let mut all = Array3::<f32>::zeros((b as usize, h, w));
-                for (band, mut plane) in all.outer_iter_mut().enumerate() {
-                    let out = plane.as_slice_mut().expect("a fresh array is contiguous");
-                    layer.read_rows_f32(band as u32, 0, out)?;
-                }
-                Ok(all)
-            })
-            .map_err(raise)?;
-        Ok(values.into_pyarray(py))
+    ) -> PyResult<Bound<'py, PyUntypedArray>> {
+        guarded("read", || {
+            let inner = self.inner.clone();
+            let name = name.to_string();
+            let values = py
+                .detach(move || -> anyhow::Result<Array3<f32>> {
+                    let layer = inner.layer(&name, level)?;
+                    let (w, h, b) = (
+                        layer.width() as usize,
+                        layer.height() as usize,
+                        layer.bands(),
+                    );
+                    let mut all = Array3::<f32>::zeros((b as usize, h, w));
+                    for (band, mut plane) in all.outer_iter_mut().enumerate() {
+                        let out = plane.as_slice_mut().expect("a fresh array is contiguous");
+                        layer.read_rows_f32(band as u32, 0, out)?;
+                    }
+                    Ok(all)
+                })
+                .map_err(raise)?;
+            if values.shape()[0] == 1 {
+                let (h, w) = (values.shape()[1], values.shape()[2]);
+                let plane = values
+                    .into_shape_with_order((h, w))
+                    .expect("one band is h x w values");
+                return Ok(plane
+                    .into_pyarray(py)
+                    .into_any()
+                    .cast_into::<PyUntypedArray>()?);
+            }
+            Ok(values
+                .into_pyarray(py)
+                .into_any()
+                .cast_into::<PyUntypedArray>()?)
+        })
     }
 
     /// Tile `(tx, ty)` of band `band` of layer `name` at `level`, as stored
@@ -233,8 +272,9 @@ impl Asset {
         level: u32,
     ) -> PyResult<Bound<'py, PyDict>> {
         let layer = self.inner.layer(name, level).map_err(raise_format)?;
-        let cog = terrabake::export::cog_for_layer(&self.inner, layer, &Default::default())
-            .map_err(raise)?;
+        let cog = guarded("attributes", || {
+            terrabake::export::cog_for_layer(&self.inner, layer, &Default::default()).map_err(raise)
+        })?;
         let d = PyDict::new(py);
         for (k, v) in &cog.metadata.dataset {
             d.set_item(k.to_lowercase(), v)?;
@@ -281,9 +321,11 @@ impl Asset {
 /// Opens an asset directory (validated, memory-mapped).
 #[pyfunction]
 fn open(path: PathBuf) -> PyResult<Asset> {
-    let inner = terrabake::asset::open(&path).map_err(raise)?;
-    Ok(Asset {
-        inner: Arc::new(inner),
+    guarded("open", || {
+        let inner = terrabake::asset::open(&path).map_err(raise)?;
+        Ok(Asset {
+            inner: Arc::new(inner),
+        })
     })
 }
 
@@ -460,17 +502,19 @@ fn horizons<'py>(
     refraction: f64,
     progress: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<AnglesAndAzimuths<'py>> {
-    let hz = compute_horizons(
-        py,
-        dem,
-        cell_size,
-        sectors,
-        method,
-        max_distance,
-        curvature,
-        refraction,
-        progress,
-    )?;
+    let hz = guarded("horizons", || {
+        compute_horizons(
+            py,
+            dem,
+            cell_size,
+            sectors,
+            method,
+            max_distance,
+            curvature,
+            refraction,
+            progress,
+        )
+    })?;
     let (s, h, w) = (hz.angles.len(), hz.h, hz.w);
     let flat: Vec<f32> = hz.angles.into_iter().flatten().collect();
     let angles = Array3::from_shape_vec((s, h, w), flat).expect("S x H x W values");
@@ -493,35 +537,40 @@ fn sky_view_factor<'py>(
     refraction: f64,
     progress: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyArray2<f32>>> {
-    let hz = compute_horizons(
-        py,
-        dem,
-        cell_size,
-        sectors,
-        method,
-        max_distance,
-        curvature,
-        refraction,
-        progress,
-    )?;
-    let svf = py.detach(|| {
-        let integrals: Vec<BandIntegrals> = band_bounds(&hz.azimuths)
-            .into_iter()
-            .map(|(lo, hi)| BandIntegrals::new(lo, hi))
-            .collect();
-        // The svf of a post is its horizons' alone (the sky stage's
-        // normals enter only svf_cosine); nodata posts stay NaN.
-        let values: Vec<f32> = (0..hz.w * hz.h)
-            .into_par_iter()
-            .map(|i| {
-                if hz.z[i].is_nan() {
-                    return f32::NAN;
-                }
-                svf_of_horizons(&integrals, hz.angles.iter().map(|band| f64::from(band[i]))) as f32
-            })
-            .collect();
-        Array2::from_shape_vec((hz.h, hz.w), values).expect("H x W values")
-    });
+    let hz = guarded("sky_view_factor", || {
+        compute_horizons(
+            py,
+            dem,
+            cell_size,
+            sectors,
+            method,
+            max_distance,
+            curvature,
+            refraction,
+            progress,
+        )
+    })?;
+    let svf = guarded("sky_view_factor", || {
+        Ok(py.detach(|| {
+            let integrals: Vec<BandIntegrals> = band_bounds(&hz.azimuths)
+                .into_iter()
+                .map(|(lo, hi)| BandIntegrals::new(lo, hi))
+                .collect();
+            // The svf of a post is its horizons' alone (the sky stage's
+            // normals enter only svf_cosine); nodata posts stay NaN.
+            let values: Vec<f32> = (0..hz.w * hz.h)
+                .into_par_iter()
+                .map(|i| {
+                    if hz.z[i].is_nan() {
+                        return f32::NAN;
+                    }
+                    svf_of_horizons(&integrals, hz.angles.iter().map(|band| f64::from(band[i])))
+                        as f32
+                })
+                .collect();
+            Array2::from_shape_vec((hz.h, hz.w), values).expect("H x W values")
+        }))
+    })?;
     Ok(svf.into_pyarray(py))
 }
 
@@ -530,7 +579,9 @@ fn sky_view_factor<'py>(
 /// the CLI's --budget syntax) and needs (`"horizons,svf"`).
 /// `progress(stage, done, total)` is called as each stage is committed; an
 /// exception it raises stops the bake there (what is committed stays, and
-/// the same call resumes from it).
+/// the same call resumes from it). A bake that panics (a bug) raises
+/// `terrabake.Error` and removes the asset if this call created it, as a
+/// failed planned bake does.
 #[pyfunction]
 #[pyo3(signature = (src, out, recipe = None, budget = None, needs = None, progress = None))]
 fn bake(
@@ -577,30 +628,38 @@ fn bake(
     };
     // The callback's exception, kept to be raised as itself.
     let mut raised: Option<PyErr> = None;
-    let result = py.detach(|| {
-        terrabake::recipe::bake_with(
-            &src,
-            &out,
-            &recipe,
-            terrabake::asset::Wait::unless(false),
-            terrabake::progress::Progress::new(true),
-            &mut |outcome, done, total| {
-                let Some(cb) = &progress else { return Ok(()) };
-                Python::attach(|py| {
-                    let called = py
-                        .check_signals()
-                        .and_then(|()| cb.call1(py, (outcome.stage.as_str(), done, total)));
-                    match called {
-                        Ok(_) => Ok(()),
-                        Err(e) => {
-                            raised = Some(e);
-                            anyhow::bail!("stopped by the progress callback")
+    let created = !out.exists();
+    let result = guarded("bake", || {
+        Ok(py.detach(|| {
+            terrabake::recipe::bake_with(
+                &src,
+                &out,
+                &recipe,
+                terrabake::asset::Wait::unless(false),
+                terrabake::progress::Progress::new(true),
+                &mut |outcome, done, total| {
+                    let Some(cb) = &progress else { return Ok(()) };
+                    Python::attach(|py| {
+                        let called = py
+                            .check_signals()
+                            .and_then(|()| cb.call1(py, (outcome.stage.as_str(), done, total)));
+                        match called {
+                            Ok(_) => Ok(()),
+                            Err(e) => {
+                                raised = Some(e);
+                                anyhow::bail!("stopped by the progress callback")
+                            }
                         }
-                    }
-                })
-            },
-        )
+                    })
+                },
+            )
+        }))
     });
+    if result.is_err() && created {
+        // Only a panic gets here; the bake's own errors are in Ok(Err(_)).
+        let _ = std::fs::remove_dir_all(&out);
+    }
+    let result = result?;
     if let Some(e) = raised {
         return Err(e);
     }
@@ -615,7 +674,9 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(horizons, m)?)?;
     m.add_function(wrap_pyfunction!(sky_view_factor, m)?)?;
     m.add_function(wrap_pyfunction!(bake, m)?)?;
-    m.add("TerrabakeError", m.py().get_type::<TerrabakeError>())?;
+    m.add("Error", m.py().get_type::<Error>())?;
+    // The exception's first name, kept: `except terrabake.TerrabakeError` works.
+    m.add("TerrabakeError", m.py().get_type::<Error>())?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

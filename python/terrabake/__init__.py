@@ -1,34 +1,29 @@
 """terrabake: terrain precomputation for Python.
 
-Read baked assets as numpy arrays (``terrabake.open``), compute horizons
-and sky-view factors of numpy DEMs without files (``terrabake.horizons``,
-``terrabake.sky_view_factor``), and bake DEMs into assets
-(``terrabake.bake``). Every value comes from the same Rust code as the
-``terrabake`` command line, so both give the same numbers.
+Read baked assets as numpy arrays (``terrabake.open``) or xarray
+DataArrays with rioxarray's georeferencing (``terrabake.to_xarray``),
+compute horizons and sky-view factors of numpy or xarray DEMs without
+files (``terrabake.horizons``, ``terrabake.sky_view_factor``), and bake
+DEMs into assets (``terrabake.bake``). Every value comes from the same
+Rust code as the ``terrabake`` command line, with the same defaults, so
+both give the same numbers.
 
 Conventions: azimuths are compass degrees, clockwise from north; horizon
 angles are degrees above the horizontal; NaN is nodata; arrays are
-(band, row, column) with row 0 the northernmost.
+(row, column), with row 0 the northernmost, and (band, row, column) for
+layers of several bands. Every failure raises ``terrabake.Error`` (a
+subclass of ``Exception``) with the command line's message, or
+``ValueError`` for an argument that is wrong before any work starts.
 """
 
-from __future__ import annotations
+import typing as _typing
 
-from typing import Any
-
-import numpy as np
-
-from ._native import (
-    Asset,
-    TerrabakeError,
-    __version__,
-    bake,
-    horizons,
-    open,
-    sky_view_factor,
-)
+from . import _native
+from ._native import Asset, Error, TerrabakeError, __version__, bake, open
 
 __all__ = [
     "Asset",
+    "Error",
     "TerrabakeError",
     "__version__",
     "bake",
@@ -38,46 +33,248 @@ __all__ = [
     "to_xarray",
 ]
 
+#: The atmosphere's refraction coefficient the command line assumes.
+DEFAULT_REFRACTION = 0.13
 
-def to_xarray(asset: Asset, name: str, level: int = 0) -> Any:
+
+def _prepared(
+    dem: _typing.Any,
+    cell_size: _typing.Any,
+    nodata: _typing.Optional[float],
+    crs: _typing.Any,
+    transform: _typing.Any,
+    curvature: _typing.Optional[bool],
+) -> _typing.Tuple[_typing.Any, _typing.Tuple[float, float], bool]:
+    """The heights as a C-contiguous float32/float64 array with NaN for
+    nodata, the cell size in metres, and the curvature switch, from a
+    numpy array, a masked array or an xarray DataArray."""
+    import numpy as np
+
+    if type(dem).__name__ == "DataArray" and hasattr(dem, "dims"):
+        rio = getattr(dem, "rio", None) if _has_rioxarray() else None
+        if rio is not None:
+            crs = crs if crs is not None else rio.crs
+            if transform is None and rio.crs is not None:
+                transform = tuple(rio.transform().to_gdal())
+            if nodata is None and rio.nodata is not None:
+                nodata = rio.nodata
+        if transform is None and "spatial_ref" in dem.coords:
+            text = dem.coords["spatial_ref"].attrs.get("GeoTransform")
+            if text:
+                transform = tuple(float(v) for v in str(text).split())
+            crs = crs if crs is not None else dem.coords["spatial_ref"].attrs.get("crs_wkt")
+        if nodata is None:
+            nodata = dem.attrs.get("_FillValue", dem.attrs.get("nodata"))
+        dem = dem.values
+    if isinstance(dem, np.ma.MaskedArray):
+        mask = np.ma.getmaskarray(dem)
+        values = np.ma.getdata(dem)
+    else:
+        mask = None
+        values = np.asarray(dem)
+    if values.dtype.kind not in "iuf":
+        raise ValueError(f"dem: expected numbers (int, uint or float heights), got dtype {values.dtype}")
+    if values.dtype.kind in "iu" or values.dtype.itemsize < 4:
+        values = values.astype(np.float32)
+    elif mask is not None or nodata is not None:
+        values = values.copy()
+    if nodata is not None and not np.isnan(nodata):
+        values[values == values.dtype.type(nodata)] = np.nan
+    if mask is not None:
+        values[mask] = np.nan
+    values = np.ascontiguousarray(values)
+
+    if cell_size is None:
+        cell_size = _cell_size_of(transform, crs)
+    if np.isscalar(cell_size):
+        cell_size = (float(cell_size), float(cell_size))  # type: ignore[arg-type]
+    try:
+        dx, dy = (float(v) for v in cell_size)
+    except (TypeError, ValueError):
+        raise ValueError(f"cell_size: {cell_size!r} is neither metres nor a pair (dx, dy) of metres") from None
+    if curvature is None:
+        # The command line's rule: curvature on when the grid is on the earth.
+        curvature = crs is not None or transform is not None
+    return values, (dx, dy), bool(curvature)
+
+
+def _has_rioxarray() -> bool:
+    try:
+        import rioxarray  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _cell_size_of(transform: _typing.Any, crs: _typing.Any) -> _typing.Tuple[float, float]:
+    """The cell size in metres of a projected grid's transform."""
+    if transform is None:
+        raise ValueError(
+            "cell_size: needed (metres, or (dx, dy)) for a DEM without a transform; "
+            "an xarray DataArray with rioxarray's georeferencing gives it"
+        )
+    t = tuple(float(v) for v in transform)
+    if t[2] != 0.0 or t[4] != 0.0:
+        raise ValueError(f"transform: {t} is rotated; terrabake reads north-up grids")
+    if crs is not None:
+        try:
+            import pyproj
+
+            if pyproj.CRS.from_user_input(crs).is_geographic:
+                raise ValueError(
+                    "cell_size: the grid is geographic (degrees); give the cell size in metres, "
+                    "or bake the GeoTIFF with terrabake.bake, which follows the meridians' convergence"
+                )
+        except ImportError:
+            pass
+    return abs(t[1]), abs(t[5])
+
+
+def horizons(
+    dem: _typing.Any,
+    cell_size: _typing.Any = None,
+    sectors: int = 16,
+    method: str = "line",
+    max_distance: _typing.Optional[float] = None,
+    curvature: _typing.Optional[bool] = None,
+    refraction: float = DEFAULT_REFRACTION,
+    progress: _typing.Optional[_typing.Callable[[int, int], _typing.Any]] = None,
+    *,
+    nodata: _typing.Optional[float] = None,
+    crs: _typing.Any = None,
+    transform: _typing.Any = None,
+) -> _typing.Tuple[_typing.Any, _typing.Any]:
+    """Horizon angles of a DEM held in memory, as ``terrabake horizons`` computes them.
+
+    Parameters
+    ----------
+    dem
+        Heights in metres, (rows, columns), row 0 the northernmost: a numpy
+        array of any integer or float dtype (NaN is nodata), a masked array
+        (masked posts are nodata), or an xarray DataArray (its rioxarray
+        CRS, transform and nodata are used).
+    cell_size
+        The post spacing in metres: one number for square cells or
+        ``(dx, dy)``. Optional when ``transform`` (or the DataArray) gives a
+        projected grid.
+    sectors
+        How many directions (bands), evenly spaced from north.
+    method
+        ``"line"`` (exact sight lines, the default), ``"sector"``
+        (Stewart's wedges) or ``"sampled"`` (a baseline).
+    max_distance
+        Metres beyond which terrain is not searched; None: to the edge.
+    curvature
+        Whether the earth's curvature (with refraction) lowers distant
+        terrain. None: the command line's rule, on when the DEM is
+        georeferenced (``crs`` or ``transform`` given, or a DataArray with
+        a CRS), off for a bare array.
+    refraction
+        The atmosphere's refraction coefficient (0.13: the standard
+        atmosphere), used with curvature.
+    progress
+        ``progress(done, total)``, called as bands complete.
+    nodata
+        A height that means nodata (for integer DEMs, e.g. -32768).
+    crs, transform
+        The DEM's georeferencing (any CRS pyproj reads; GDAL's six numbers).
+
+    Returns
+    -------
+    (angles, band_azimuths)
+        ``angles``: float32 degrees above the horizontal, shape (sectors,
+        rows, columns), NaN at nodata posts, -90 where nothing of the DEM
+        lies ahead. ``band_azimuths``: each band's compass azimuth, degrees.
+    """
+    values, size, curved = _prepared(dem, cell_size, nodata, crs, transform, curvature)
+    return _native.horizons(values, size, sectors, method, max_distance, curved, refraction, progress)
+
+
+def sky_view_factor(
+    dem: _typing.Any,
+    cell_size: _typing.Any = None,
+    sectors: int = 16,
+    method: str = "line",
+    max_distance: _typing.Optional[float] = None,
+    curvature: _typing.Optional[bool] = None,
+    refraction: float = DEFAULT_REFRACTION,
+    progress: _typing.Optional[_typing.Callable[[int, int], _typing.Any]] = None,
+    *,
+    nodata: _typing.Optional[float] = None,
+    crs: _typing.Any = None,
+    transform: _typing.Any = None,
+) -> _typing.Any:
+    """The sky-view factor (over the horizontal, Zakšek's) of a DEM held in
+    memory, from its horizons, as the ``sky`` stage computes it.
+
+    Takes the parameters of :func:`horizons`, with the same defaults.
+    Returns float32 (rows, columns) in 0..1, NaN at nodata posts.
+    """
+    values, size, curved = _prepared(dem, cell_size, nodata, crs, transform, curvature)
+    return _native.sky_view_factor(values, size, sectors, method, max_distance, curved, refraction, progress)
+
+
+def to_xarray(asset: Asset, name: str, level: int = 0) -> _typing.Any:
     """Layer ``name`` at ``level`` of ``asset`` as an ``xarray.DataArray``.
 
-    Dims are ``(band, y, x)``. ``x`` and ``y`` are the pixel centres in the
-    asset's CRS (post indices when it has no georeferencing). ``band`` holds
-    each band's compass azimuth for directional layers (horizons) and the
-    band index otherwise. The attributes carry the units, the method, the
-    layer's description, the CRS (``crs``, WKT or ``EPSG:n``) and GDAL's
-    ``transform``.
+    Dims are ``(y, x)`` for a layer of one band and ``(band, y, x)``
+    otherwise. ``x`` and ``y`` are the pixel centres in the asset's CRS
+    (post indices when it has no georeferencing). ``band`` holds each
+    band's compass azimuth for directional layers (horizons) and the band
+    index otherwise. Georeferencing follows rioxarray and GDAL: a
+    ``spatial_ref`` coordinate carries ``crs_wkt`` and ``GeoTransform``
+    (GDAL's order), and ``_FillValue`` is NaN, so ``da.rio.crs``,
+    ``da.rio.bounds()`` and ``da.rio.to_raster()`` work unchanged. The
+    other attributes carry the units, the method, the layer's description
+    and each band's description.
     """
     try:
+        import numpy as np
         import xarray as xr
     except ImportError as e:  # pragma: no cover - exercised without xarray
         raise ImportError("to_xarray needs xarray: pip install xarray") from e
     values = asset.read(name, level)
-    bands, rows, cols = values.shape
+    rows, cols = values.shape[-2:]
     transform = asset.transform
     scale = float(2**level)
+    coords: dict = {}
     if transform is None:
-        x = np.arange(cols) * scale
-        y = np.arange(rows) * scale
+        coords["x"] = np.arange(cols) * scale
+        coords["y"] = np.arange(rows) * scale
     else:
         t0, t1, _, t3, _, t5 = transform
-        x = t0 + (np.arange(cols) + 0.5) * t1 * scale
-        y = t3 + (np.arange(rows) + 0.5) * t5 * scale
-    azimuths = asset.band_azimuths(name) if level == 0 else []
-    band = np.asarray(azimuths, dtype=np.float64) if len(azimuths) == bands else np.arange(bands)
+        t1, t5 = t1 * scale, t5 * scale
+        coords["x"] = t0 + (np.arange(cols) + 0.5) * t1
+        coords["y"] = t3 + (np.arange(rows) + 0.5) * t5
+        wkt = _wkt(asset.crs)
+        spatial_ref = {"GeoTransform": " ".join(repr(float(v)) for v in (t0, t1, 0.0, t3, 0.0, t5))}
+        if wkt is not None:
+            spatial_ref.update(crs_wkt=wkt, spatial_ref=wkt)
+        coords["spatial_ref"] = xr.Variable((), 0, attrs=spatial_ref)
     attrs = dict(asset.attributes(name, level))
     attrs["band_descriptions"] = list(attrs.get("band_descriptions", []))
-    if asset.crs is not None:
-        attrs["crs"] = asset.crs
-    if transform is not None:
-        attrs["transform"] = tuple(transform)
-    if len(azimuths) == bands:
-        attrs["band"] = "compass azimuth, degrees clockwise from north"
-    return xr.DataArray(
-        values,
-        dims=("band", "y", "x"),
-        coords={"band": band, "y": y, "x": x},
-        name=name,
-        attrs=attrs,
-    )
+    attrs["_FillValue"] = np.nan
+    dims: _typing.Tuple[str, ...] = ("y", "x")
+    if values.ndim == 3:
+        bands = values.shape[0]
+        azimuths = asset.band_azimuths(name) if level == 0 else []
+        directional = len(azimuths) == bands
+        coords["band"] = np.asarray(azimuths, dtype=np.float64) if directional else np.arange(bands)
+        if directional:
+            attrs["band"] = "compass azimuth, degrees clockwise from north"
+        dims = ("band", "y", "x")
+    da = xr.DataArray(values, dims=dims, coords=coords, name=name, attrs=attrs)
+    if "spatial_ref" in coords:
+        da.encoding["grid_mapping"] = "spatial_ref"
+    return da
+
+
+def _wkt(crs: _typing.Optional[str]) -> _typing.Optional[str]:
+    """WKT of the asset's CRS: as stored, or from pyproj for ``EPSG:n``."""
+    if crs is None or not crs.startswith("EPSG:"):
+        return crs
+    try:
+        import pyproj
+    except ImportError:
+        return None
+    return str(pyproj.CRS.from_user_input(crs).to_wkt())

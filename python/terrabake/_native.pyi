@@ -9,8 +9,10 @@ __version__: str
 Path = Union[str, PathLike[str]]
 Progress = Callable[[int, int], Any]
 
-class TerrabakeError(Exception):
+class Error(Exception):
     """A terrabake operation failed; the message is the command line's."""
+
+TerrabakeError = Error
 
 class Asset:
     """An asset open for reading (validated, memory-mapped)."""
@@ -30,7 +32,8 @@ class Asset:
     def crs(self) -> Optional[str]:
         """WKT (WGS 84 and its UTM zones), EPSG:n, or None."""
     def read(self, name: str, level: int = 0) -> npt.NDArray[np.float32]:
-        """Every band decoded to float32, NaN for nodata: (bands, rows, columns)."""
+        """Every band decoded to float32, NaN for nodata: (bands, rows, columns),
+        or (rows, columns) for a layer of one band."""
     def tile(self, name: str, level: int, tx: int, ty: int, band: int = 0) -> npt.NDArray[Any]:
         """A read-only view of a stored tile (raw codes), without a copy."""
     def band_azimuths(self, name: str) -> list[float]:
@@ -44,6 +47,9 @@ class Asset:
 def open(path: Path) -> Asset:
     """Opens an asset directory."""
 
+# The native halves of terrabake.horizons and terrabake.sky_view_factor:
+# C-contiguous float32/float64 heights, the cell size as a pair, curvature
+# decided (the package's wrappers apply the command line's rule).
 def horizons(
     dem: npt.NDArray[np.floating[Any]],
     cell_size: tuple[float, float],
@@ -79,5 +85,7 @@ def bake(
     """Bakes a DEM into an asset, as `terrabake bake`; returns the stages' outcomes as JSON.
 
     progress(stage, done, total) is called as each stage is committed; an
-    exception it raises stops the bake there (committed stages stay)."""
+    exception it raises stops the bake there (committed stages stay). A bake
+    that fails otherwise raises Error, and a planned one removes the asset it
+    created."""
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import os
 import subprocess
+import sys
 import threading
 from pathlib import Path
 
@@ -71,7 +72,8 @@ def cell_size(asset: terrabake.Asset) -> tuple[float, float]:
 
 def test_read_gives_bands_first_float32_and_the_layers(line_asset: terrabake.Asset) -> None:
     z = line_asset.read("height")
-    assert z.dtype == np.float32 and z.shape == (1, 56, 72)
+    # One band: (rows, columns), as horizons() takes it.
+    assert z.dtype == np.float32 and z.shape == (56, 72)
     hz = line_asset.read("horizon")
     assert hz.shape == (16, 56, 72)
     names = {(layer["name"], layer["level"]) for layer in line_asset.layers}
@@ -93,7 +95,7 @@ def test_tiles_are_read_only_views_of_the_mapping(line_asset: terrabake.Asset) -
     # The same memory twice: no copy was made.
     again = line_asset.tile("height", 0, 1, 1)
     assert t.__array_interface__["data"][0] == again.__array_interface__["data"][0]
-    z = line_asset.read("height")[0]
+    z = line_asset.read("height")
     np.testing.assert_array_equal(t[:24, :32], z[32:56, 32:64])
     with pytest.raises(ValueError, match="outside layer"):
         line_asset.tile("height", 0, 9, 0)
@@ -114,7 +116,7 @@ def test_a_tile_keeps_the_asset_alive(tmp: Path) -> None:
 @pytest.mark.parametrize("curvature", [False, True])
 def test_horizons_equal_the_cli_exactly(tmp: Path, method: str, curvature: bool) -> None:
     asset = terrabake.open(baked(tmp, method, curvature))
-    z = asset.read("height")[0]
+    z = asset.read("height")
     angles, az = terrabake.horizons(
         z, cell_size(asset), sectors=16, method=method, curvature=curvature
     )
@@ -124,11 +126,11 @@ def test_horizons_equal_the_cli_exactly(tmp: Path, method: str, curvature: bool)
     svf = terrabake.sky_view_factor(
         z, cell_size(asset), sectors=16, method=method, curvature=curvature
     )
-    np.testing.assert_array_equal(svf, asset.read("svf")[0])
+    np.testing.assert_array_equal(svf, asset.read("svf"))
 
 
 def test_float64_dems_and_progress(line_asset: terrabake.Asset) -> None:
-    z = line_asset.read("height")[0]
+    z = line_asset.read("height")
     calls: list[tuple[int, int]] = []
     angles, _ = terrabake.horizons(
         z.astype(np.float64), cell_size(line_asset), progress=lambda d, n: calls.append((d, n))
@@ -165,12 +167,11 @@ def test_the_gil_is_released_while_rust_works() -> None:
 @pytest.mark.parametrize(
     "dem, message",
     [
-        (np.zeros((8, 8), dtype=np.int32), "float32 or float64"),
+        (np.zeros((8, 8), dtype=np.complex64), "expected numbers"),
         (np.zeros((2, 8, 8), dtype=np.float32), "2-D"),
-        (np.zeros((8, 16), dtype=np.float32)[:, ::2], "not C-contiguous"),
         (np.zeros((0, 8), dtype=np.float32), "at least 2 x 2"),
         (np.full((8, 8), np.nan, dtype=np.float32), "every post is NaN"),
-        ([[1.0, 2.0], [3.0, 4.0]], "numpy array"),
+        (np.array([["a", "b"], ["c", "d"]]), "expected numbers"),
     ],
 )
 def test_bad_arrays_are_value_errors(dem: object, message: str) -> None:
@@ -204,16 +205,16 @@ def test_a_dem_past_memory_is_refused_before_any_work() -> None:
         dem = np.empty((20_000, 20_000), dtype=np.float32)
     except MemoryError:
         pytest.skip("this machine will not even reserve 1.6 GB of address space")
-    with pytest.raises(terrabake.TerrabakeError, match="needs about .* of memory"):
+    with pytest.raises(terrabake.Error, match="needs about .* of memory"):
         terrabake.horizons(dem, (30.0, 30.0), sectors=4096)
 
 
 def test_errors_carry_the_cli_message(tmp: Path) -> None:
-    with pytest.raises(terrabake.TerrabakeError, match="no-such.tbake"):
+    with pytest.raises(terrabake.Error, match="no-such.tbake"):
         terrabake.open(tmp / "no-such.tbake")
     bad = tmp / "bad.tif"
     bad.write_bytes(b"II*\x00garbage")
-    with pytest.raises(terrabake.TerrabakeError, match="bad.tif"):
+    with pytest.raises(terrabake.Error, match="bad.tif"):
         terrabake.bake(bad, tmp / "bad.tbake")
     assert not (tmp / "bad.tbake" / "manifest.tba").exists()
 
@@ -272,6 +273,107 @@ def test_to_xarray_names_azimuths_and_units(line_asset: terrabake.Asset) -> None
     assert da["x"].values[0] == pytest.approx(t[0] + 0.5 * t[1])
 
 
+def test_a_panic_is_an_error_and_the_bake_it_broke_is_removed(tmp: Path) -> None:
+    # A panic injected at the bake's fifth durable step (after the ingest
+    # created the asset): terrabake.Error, an Exception, and no asset left.
+    out = tmp / "panicked.tbake"
+    code = (
+        "import sys, terrabake\n"
+        "try:\n"
+        f"    terrabake.bake({str(tmp / 'dem.tif')!r}, {str(out)!r}, budget='horizon=1')\n"
+        "except Exception as e:\n"
+        "    print(type(e).__name__, isinstance(e, terrabake.Error), e)\n"
+    )
+    env = {**os.environ, "TERRABAKE_PANIC_AT": "5"}
+    run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.startswith("Error True bake: an internal error"), run.stdout
+    assert "TERRABAKE_PANIC_AT=5" in run.stdout
+    assert not out.exists()
+
+
+def test_the_numpy_api_takes_what_users_have(line_asset: terrabake.Asset) -> None:
+    z = line_asset.read("height")
+    size = cell_size(line_asset)
+    want, _ = terrabake.horizons(z, size, sectors=8)
+    # Integer heights (SRTM's int16), float64, and a scalar cell size.
+    square, _ = terrabake.horizons(z, size[0], sectors=8)
+    np.testing.assert_array_equal(square, terrabake.horizons(z, (size[0], size[0]), sectors=8)[0])
+    for dtype in (np.int16, np.uint16, np.int32, np.float64):
+        ints = np.round(z).astype(dtype)
+        got, _ = terrabake.horizons(ints, size, sectors=8)
+        exact, _ = terrabake.horizons(np.round(z).astype(np.float32), size, sectors=8)
+        np.testing.assert_array_equal(got, exact)
+    # Nodata: a masked array, a NaN, and an integer sentinel are the same holes.
+    holes = np.zeros(z.shape, dtype=bool)
+    holes[10:14, 20:30] = True
+    masked, _ = terrabake.horizons(np.ma.masked_array(z, holes), size, sectors=8)
+    nan = z.copy()
+    nan[holes] = np.nan
+    np.testing.assert_array_equal(masked, terrabake.horizons(nan, size, sectors=8)[0])
+    assert np.isnan(masked[:, holes]).all() and not np.isnan(masked[:, ~holes]).any()
+    sentinel = np.round(z).astype(np.int16)
+    sentinel[holes] = -32768
+    np.testing.assert_array_equal(
+        terrabake.horizons(sentinel, size, sectors=8, nodata=-32768)[0],
+        terrabake.horizons(np.where(holes, np.nan, np.round(z)).astype(np.float32), size, sectors=8)[0],
+    )
+    # The command line's curvature rule: off for a bare array, on once the
+    # grid is georeferenced.
+    flat, _ = terrabake.horizons(z, size, sectors=8, curvature=False)
+    np.testing.assert_array_equal(want, flat)
+    curved, _ = terrabake.horizons(z, size, sectors=8, curvature=True)
+    georeferenced, _ = terrabake.horizons(z, size, sectors=8, transform=line_asset.transform)
+    np.testing.assert_array_equal(georeferenced, curved)
+
+
+def test_the_python_surface_is_documented_and_clean() -> None:
+    import inspect
+
+    public = {n for n in dir(terrabake) if not n.startswith("_")}
+    assert public == set(terrabake.__all__) - {"__version__"} | {"DEFAULT_REFRACTION"}, public
+    assert issubclass(terrabake.Error, Exception) and terrabake.TerrabakeError is terrabake.Error
+    for fn in (terrabake.horizons, terrabake.sky_view_factor):
+        sig = inspect.signature(fn)
+        assert sig.parameters["refraction"].default == 0.13
+        assert sig.parameters["curvature"].default is None
+    doc = terrabake.horizons.__doc__ or ""
+    for name in inspect.signature(terrabake.horizons).parameters:
+        assert name in doc, f"horizons' docstring says nothing of {name}"
+    stubs = (Path(terrabake.__file__).parent / "_native.pyi").read_text()
+    assert "class Error(Exception)" in stubs and "TerrabakeError = Error" in stubs
+
+
+def test_to_xarray_round_trips_through_rioxarray_and_gdal(tmp: Path) -> None:
+    rioxarray = pytest.importorskip("rioxarray")
+    out = tmp / "geo.tbake"
+    cli("ingest", ROOT / "data/srtm3_n07w006_geographic_int16.tif", "-o", out)
+    asset = terrabake.open(out)
+    da = asset.to_xarray("height")
+    assert da.dims == ("y", "x") and "transform" not in da.attrs
+    assert da.rio.crs.to_epsg() == 4326
+    # The tile spans 6.0004 W .. 4.9996 W, 6.9996 N .. 8.0004 N (SRTM posts
+    # sit on whole degrees; their pixels reach half a post beyond).
+    west, south, east, north = da.rio.bounds()
+    half = 0.5 / 1200
+    assert (west, south, east, north) == pytest.approx((-6 - half, 7 - half, -5 + half, 8 + half), abs=1e-9)
+    assert tuple(da.rio.transform().to_gdal()) == pytest.approx(asset.transform, abs=1e-12)
+    tif = tmp / "from-xarray.tif"
+    da.rio.to_raster(tif)
+    info = json.loads(subprocess.run(["gdalinfo", "-json", str(tif)], check=True,
+                                     capture_output=True, text=True).stdout)
+    assert info["geoTransform"] == pytest.approx(list(asset.transform), abs=1e-12)
+    assert "4326" in json.dumps(info["coordinateSystem"])
+    back = rioxarray.open_rasterio(tif).squeeze("band", drop=True)
+    np.testing.assert_array_equal(back.values, asset.read("height"))
+    # And into horizons(): the DataArray's georeferencing turns curvature on.
+    crop = da.isel(y=slice(0, 40), x=slice(0, 50)).rio.reproject("EPSG:32630")
+    size = tuple(abs(v) for v in crop.rio.resolution())
+    angles, _ = terrabake.horizons(crop, sectors=8)
+    curved, _ = terrabake.horizons(crop.values, size, sectors=8, curvature=True)
+    np.testing.assert_array_equal(angles, curved)
+
+
 # GDAL: the exported COGs pass its validator and read back the asset's values.
 gdal = pytest.importorskip("osgeo.gdal", reason="GDAL's Python bindings (python3-gdal)")
 
@@ -289,10 +391,11 @@ def test_cog_exports_pass_gdal_validator_and_read_back(
     assert errors == [], errors
     ds = gdal.Open(str(out))
     try:
-        assert ds.RasterCount == line_asset.read(layer).shape[0]
+        ours = line_asset.read(layer)
+        assert ds.RasterCount == (ours.shape[0] if ours.ndim == 3 else 1)
         assert ds.GetGeoTransform() == pytest.approx(line_asset.transform, abs=0)
         assert ds.GetRasterBand(1).GetOverviewCount() >= 1
-        np.testing.assert_array_equal(ds.ReadAsArray().reshape(-1, 56, 72), line_asset.read(layer))
+        np.testing.assert_array_equal(ds.ReadAsArray(), ours)
         if layer == "horizon":
             az = line_asset.band_azimuths("horizon")
             for b in range(ds.RasterCount):
@@ -316,6 +419,6 @@ def test_geographic_cog_keeps_the_crs(tmp: Path) -> None:
         asset = terrabake.open(out)
         assert ds.GetGeoTransform() == pytest.approx(asset.transform, abs=0)
         assert [o.XSize for o in map(ds.GetRasterBand(1).GetOverview, range(2))] == [601, 301]
-        np.testing.assert_array_equal(ds.ReadAsArray(), asset.read("height")[0])
+        np.testing.assert_array_equal(ds.ReadAsArray(), asset.read("height"))
     finally:
         ds = None
