@@ -421,65 +421,69 @@ fn compute_horizons(
     refraction: f64,
     progress: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<Horizons> {
-    let method = method_of(method)?;
-    // The stage's own checks of what it shares with this call (the sector
-    // count, the distance), with the CLI's messages.
-    let stage = terrabake::horizon::HorizonsStage {
-        sectors,
-        method,
-        max_distance,
-        refraction,
-        ..Default::default()
-    };
-    terrabake::stage::Stage::check(&stage).map_err(|e| PyValueError::new_err(format!("{e:#}")))?;
-    let (z, w, h) = dem_of(dem, sectors)?;
-    let (dx, dy) = cell_size_of(cell_size)?;
-    if let Some(p) = progress {
-        if !p.is_callable() {
-            return Err(PyValueError::new_err(
-                "progress: expected a callable(done, total)",
-            ));
-        }
-    }
-    let curvature = if curvature {
-        curvature_coefficient(refraction)
-    } else {
-        0.0
-    };
-    let bands = plan_bands(method, sectors, dx, dy, None);
-    let opts = BandOptions {
-        max_distance,
-        narrow_check: true,
-    };
-    // Bands in batches of four per core, so that cheap bands (the axes,
-    // one vertex a step) and dear ones (oblique lines, several crossings a
-    // step) share the cores evenly; the callback and Ctrl-C are looked at
-    // between batches.
-    let mut angles = Vec::with_capacity(bands.len());
-    let threads = rayon::current_num_threads().max(1);
-    for batch in bands.chunks(threads * 4) {
-        let done = py.detach(|| {
-            let mut terrain = Terrain::new(&z, w, h, dx, dy);
-            terrain.curvature = curvature;
-            batch
-                .par_iter()
-                .map(|band| band_horizons(&terrain, band, opts).0)
-                .collect::<Vec<_>>()
-        });
-        angles.extend(done);
-        py.check_signals()?;
+    // A panic (a bug) is raised as terrabake.Error, not PanicException.
+    guarded("horizons", || {
+        let method = method_of(method)?;
+        // The stage's own checks of what it shares with this call (the sector
+        // count, the distance), with the CLI's messages.
+        let stage = terrabake::horizon::HorizonsStage {
+            sectors,
+            method,
+            max_distance,
+            refraction,
+            ..Default::default()
+        };
+        terrabake::stage::Stage::check(&stage)
+            .map_err(|e| PyValueError::new_err(format!("{e:#}")))?;
+        let (z, w, h) = dem_of(dem, sectors)?;
+        let (dx, dy) = cell_size_of(cell_size)?;
         if let Some(p) = progress {
-            for i in angles.len() + 1 - batch.len()..=angles.len() {
-                p.call1((i, bands.len()))?;
+            if !p.is_callable() {
+                return Err(PyValueError::new_err(
+                    "progress: expected a callable(done, total)",
+                ));
             }
         }
-    }
-    Ok(Horizons {
-        z,
-        w,
-        h,
-        azimuths: bands.iter().map(|b| b.azimuth).collect(),
-        angles,
+        let curvature = if curvature {
+            curvature_coefficient(refraction)
+        } else {
+            0.0
+        };
+        let bands = plan_bands(method, sectors, dx, dy, None);
+        let opts = BandOptions {
+            max_distance,
+            narrow_check: true,
+        };
+        // Bands in batches of four per core, so that cheap bands (the axes,
+        // one vertex a step) and dear ones (oblique lines, several crossings a
+        // step) share the cores evenly; the callback and Ctrl-C are looked at
+        // between batches.
+        let mut angles = Vec::with_capacity(bands.len());
+        let threads = rayon::current_num_threads().max(1);
+        for batch in bands.chunks(threads * 4) {
+            let done = py.detach(|| {
+                let mut terrain = Terrain::new(&z, w, h, dx, dy);
+                terrain.curvature = curvature;
+                batch
+                    .par_iter()
+                    .map(|band| band_horizons(&terrain, band, opts).0)
+                    .collect::<Vec<_>>()
+            });
+            angles.extend(done);
+            py.check_signals()?;
+            if let Some(p) = progress {
+                for i in angles.len() + 1 - batch.len()..=angles.len() {
+                    p.call1((i, bands.len()))?;
+                }
+            }
+        }
+        Ok(Horizons {
+            z,
+            w,
+            h,
+            azimuths: bands.iter().map(|b| b.azimuth).collect(),
+            angles,
+        })
     })
 }
 
@@ -502,19 +506,17 @@ fn horizons<'py>(
     refraction: f64,
     progress: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<AnglesAndAzimuths<'py>> {
-    let hz = guarded("horizons", || {
-        compute_horizons(
-            py,
-            dem,
-            cell_size,
-            sectors,
-            method,
-            max_distance,
-            curvature,
-            refraction,
-            progress,
-        )
-    })?;
+    let hz = compute_horizons(
+        py,
+        dem,
+        cell_size,
+        sectors,
+        method,
+        max_distance,
+        curvature,
+        refraction,
+        progress,
+    )?;
     let (s, h, w) = (hz.angles.len(), hz.h, hz.w);
     let flat: Vec<f32> = hz.angles.into_iter().flatten().collect();
     let angles = Array3::from_shape_vec((s, h, w), flat).expect("S x H x W values");
@@ -537,19 +539,17 @@ fn sky_view_factor<'py>(
     refraction: f64,
     progress: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyArray2<f32>>> {
-    let hz = guarded("sky_view_factor", || {
-        compute_horizons(
-            py,
-            dem,
-            cell_size,
-            sectors,
-            method,
-            max_distance,
-            curvature,
-            refraction,
-            progress,
-        )
-    })?;
+    let hz = compute_horizons(
+        py,
+        dem,
+        cell_size,
+        sectors,
+        method,
+        max_distance,
+        curvature,
+        refraction,
+        progress,
+    )?;
     let svf = guarded("sky_view_factor", || {
         Ok(py.detach(|| {
             let integrals: Vec<BandIntegrals> = band_bounds(&hz.azimuths)

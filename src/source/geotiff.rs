@@ -299,23 +299,22 @@ impl GeoTiffSource {
         let width = self.info.width as usize;
         let rows = (out.len() / width) as u32;
         let (first, last) = (y0 / self.chunk_h, (y0 + rows - 1) / self.chunk_h);
+        // The held chunk row is the first of this read (reading forward) or
+        // its last (backward); the others are decoded.
         let held = self.held.take().filter(|(r, _)| *r == first || *r == last);
-        let mut bands: Vec<Vec<f32>> = Vec::new();
-        let mut decode = first..last + 1;
-        match &held {
-            Some((r, _)) if *r == first => decode.start += 1,
-            Some(_) => decode.end -= 1,
-            None => {}
-        }
-        let held_first = held.as_ref().is_some_and(|(r, _)| *r == first);
-        let decoded = self.decode_chunk_rows(decode, map)?;
-        if held_first {
-            bands.extend(held.map(|(_, b)| b));
-            bands.extend(decoded);
-        } else {
-            bands.extend(decoded);
-            bands.extend(held.map(|(_, b)| b));
-        }
+        let mut bands = match held {
+            Some((r, band)) if r == first => {
+                let mut bands = vec![band];
+                bands.extend(self.decode_chunk_rows(first + 1..last + 1, map)?);
+                bands
+            }
+            Some((_, band)) => {
+                let mut bands = self.decode_chunk_rows(first..last, map)?;
+                bands.push(band);
+                bands
+            }
+            None => self.decode_chunk_rows(first..last + 1, map)?,
+        };
         for (i, row_out) in out.chunks_exact_mut(width).enumerate() {
             let y = y0 + i as u32;
             let band = &bands[(y / self.chunk_h - first) as usize];
