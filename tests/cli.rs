@@ -351,6 +351,16 @@ fn errors_name_the_file_and_exit_1() {
     }
 }
 
+/// `bake --help` lists the stages a recipe may name, by hand: every one of
+/// `recipe::STAGES` must be there (ARCHITECTURE.md, "Adding a stage").
+#[test]
+fn bake_help_names_every_stage() {
+    let text = ok(&["bake", "--help"]);
+    for stage in terrabake::recipe::STAGES {
+        assert!(text.contains(stage), "bake --help does not name {stage}");
+    }
+}
+
 #[test]
 fn help_teaches() {
     let text = ok(&["--help"]);
