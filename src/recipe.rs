@@ -272,10 +272,7 @@ pub fn bake_with(
     let mut plan = match planned {
         Ok(plan) => plan,
         Err(e) => {
-            drop(writer);
-            if created {
-                let _ = std::fs::remove_dir_all(dir);
-            }
+            abandon(writer, dir, created);
             return Err(e);
         }
     };
@@ -316,8 +313,7 @@ pub fn bake_with(
         Ok(ran) => outcomes.extend(ran),
         Err(e) => {
             if created && plan.is_some() && !stopped_by_caller {
-                drop(writer);
-                let _ = std::fs::remove_dir_all(dir);
+                abandon(writer, dir, created);
                 return Err(e.context(format!(
                     "{}: removed the asset this planned bake created",
                     dir.display()
@@ -340,6 +336,15 @@ pub fn bake_with(
         )?;
     }
     Ok(outcomes)
+}
+
+/// Releases the writer lock of a planned bake that failed and removes the
+/// asset if the bake `created` it: what it would leave meets no budget.
+fn abandon(writer: AssetWriter, dir: &Path, created: bool) {
+    drop(writer);
+    if created {
+        let _ = std::fs::remove_dir_all(dir);
+    }
 }
 
 /// Plans the ingested asset for `request`. When the plan needs other
