@@ -2,15 +2,21 @@
 # `make test`; the rest are for developers.
 CARGO ?= cargo
 BIN := target/release/terrabake
+BENCH := target/release/terrabake-bench
 DEMO_DEM := data/srtm3_n07w006_geographic_int16.tif
 OUT ?= out
 
-.PHONY: all build demo test test-full capi capi-header test-page bake-parts bake-slurm test-slurm fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-visibility bench-plan time-models bench-cog bench-peers bench-targets bench-reader fixtures fmt lint clean
+.PHONY: all build build-bench demo test test-full capi capi-header test-page bake-parts bake-slurm test-slurm fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-visibility bench-plan time-models bench-cog bench-peers bench-targets bench-reader fixtures fmt lint clean
 
 all: build
 
 build:
 	$(CARGO) build --release --locked
+
+## The benchmark harnesses' binary (terrabake-bench, benches/): the product
+## never compiles them or their chart library.
+build-bench: build
+	$(CARGO) build --release --locked -p terrabake-bench --bin terrabake-bench
 
 ## Bake the bundled SRTM tile: asset, summary (text and JSON), verification,
 ## previews with legends, and out/index.html, one page with all of them.
@@ -79,9 +85,10 @@ capi-header:
 ## Every test again with debug assertions and overflow checks
 ## ([profile.test]: optimised, but checked), and the tracers' full matrices
 ## (10^6 rays per method and terrain, against 2 x 10^5 in `make test`);
-## CI runs it after `make test`.
+## the benchmark harnesses' tests (terrabake-bench); CI runs it after `make test`.
 test-full:
 	TERRABAKE_TRACE_RAYS=1000000 $(CARGO) test --locked
+	$(CARGO) test --release --locked -p terrabake-bench
 	VALGRIND=1 bash pipelines/capi/test.sh target/release/terrabake
 
 ## The demo page in a real headless browser (Debian's chromium, installed
@@ -124,49 +131,49 @@ fuzz:
 
 ## Out-of-core ingest of a generated 4 GiB GeoTIFF under a 1 GiB memory limit.
 bench-ingest-ooc: build
-	BIN=$(BIN) bash pipelines/bench_ingest_out_of_core.sh
+	BIN=$(BIN) BENCH=$(BENCH) bash pipelines/bench_ingest_out_of_core.sh
 
 ## Tracing: Table 1 on the SRTM tile, cost by azimuth, scaling with DEM size.
-bench-trace: build
-	BIN=$(BIN) bash pipelines/bench_trace.sh
+bench-trace: build-bench
+	BIN=$(BIN) BENCH=$(BENCH) bash pipelines/bench_trace.sh
 
 ## Horizons: speed and accuracy on the SRTM tile, time and memory against
 ## DEM size, the Fourier chart (docs/charts/horizons_fourier.svg), and the
 ## line sweep against this machine's memory-bandwidth floor.
-bench-horizons: build
-	BIN=$(BIN) bash pipelines/bench_horizons.sh
-	BIN=$(BIN) bash pipelines/bench_line_floor.sh
+bench-horizons: build-bench
+	BIN=$(BIN) BENCH=$(BENCH) bash pipelines/bench_horizons.sh
+	BIN=$(BIN) BENCH=$(BENCH) bash pipelines/bench_line_floor.sh
 
 ## Timonen's tables on the SRTM tile and synthetic terrains, the bounded
 ## total viewshed, charts docs/charts/visibility_*.svg; then the observer
 ## viewsheds beside GRASS r.viewshed (installed if missing).
-bench-visibility: build
+bench-visibility: build-bench
 	mkdir -p $(OUT)/bench
 	$(BIN) ingest $(DEMO_DEM) -o $(OUT)/bench/srtm.tbake -q
-	$(BIN) bench-visibility $(OUT)/bench/srtm.tbake --crop 1024 --directions 16 --scaling --errors --bounded 5000
-	$(BIN) bench-visibility $(OUT)/bench/srtm.tbake --crop 512 --directions 16 --scaling 128,256,512,1024,2048 --chart docs/charts/visibility
+	$(BENCH) visibility $(OUT)/bench/srtm.tbake --crop 1024 --directions 16 --scaling --errors --bounded 5000
+	$(BENCH) visibility $(OUT)/bench/srtm.tbake --crop 512 --directions 16 --scaling 128,256,512,1024,2048 --chart docs/charts/visibility
 	bash pipelines/compare_grass_viewshed.sh
 
 ## Out-of-core line horizons: a 1 GiB DEM in a 512 MiB cgroup (root).
 bench-horizons-ooc: build
-	BIN=$(BIN) bash pipelines/bench_horizons_out_of_core.sh
+	BIN=$(BIN) BENCH=$(BENCH) bash pipelines/bench_horizons_out_of_core.sh
 
 ## Cone planes: bake time against DEM size and slices; speed against bake
 ## time on the SRTM tile (table and docs/charts/cones_*.svg).
-bench-cones: build
-	BIN=$(BIN) bash pipelines/bench_cones.sh
-	BIN=$(BIN) bash pipelines/bench_cones_out_of_core.sh
+bench-cones: build-bench
+	BIN=$(BIN) BENCH=$(BENCH) bash pipelines/bench_cones.sh
+	BIN=$(BIN) BENCH=$(BENCH) bash pipelines/bench_cones_out_of_core.sh
 
 ## The planner's charts: plan, bake and check the bundled tile, the held-out
 ## DEMs and the synthetic terrains at five budgets (docs/charts/planning_*.svg,
 ## the table in docs/BENCHMARKS.md); then refit its time models.
-bench-plan: build
-	BIN=$(BIN) bash pipelines/bench_plan.sh
-	BIN=$(BIN) bash pipelines/fit_plan_models.sh
+bench-plan: build-bench
+	BIN=$(BIN) BENCH=$(BENCH) bash pipelines/bench_plan.sh
+	BIN=$(BIN) BENCH=$(BENCH) bash pipelines/fit_plan_models.sh
 
 ## This machine's time models for the planner (docs/PLANNING.md, "A
 ## machine's own models"): bake with TERRABAKE_TIME_MODELS=time-models.json.
-time-models: build
+time-models: build-bench
 	BIN=$(BIN) OUT=time-models.json bash pipelines/fit_plan_models.sh
 
 ## The peers beside us: HORAYZON, WhiteboxTools, topocalc, RVT, SurtGIS,
@@ -174,20 +181,20 @@ time-models: build
 ## and run on the same DEM, directions and radius as terrabake; their error
 ## against our exact reference, time and peak memory (docs/BENCHMARKS.md),
 ## and their points on docs/charts/horizons_*.svg.
-bench-peers: build
-	BIN=$(BIN) bash pipelines/peers/bench_peers.sh
+bench-peers: build-bench
+	BIN=$(BIN) BENCH=$(BENCH) bash pipelines/peers/bench_peers.sh
 
 ## Issue #17's speed targets on this machine, each against its target, in
 ## one run (docs/BENCHMARKS.md, "The speed targets of #17"): the sector
 ## horizons, the cone planes and parametric tracing measured here; the line
 ## horizons' ratio to HORAYZON comes from bench-peers.
-bench-targets: build
-	BIN=$(BIN) bash pipelines/bench_targets.sh
+bench-targets: build-bench
+	BIN=$(BIN) BENCH=$(BENCH) bash pipelines/bench_targets.sh
 
 ## COG export: a 1 GiB height layer inside a 256 MiB memory cgroup,
 ## deflate/zstd/none, beside GDAL's COG driver (and OLD=binary alternating).
 bench-cog: build
-	BIN=$(BIN) bash pipelines/bench_cog.sh
+	BIN=$(BIN) BENCH=$(BENCH) bash pipelines/bench_cog.sh
 
 ## Reader micro-benchmarks (criterion).
 bench-reader:

@@ -1,6 +1,6 @@
 //! Horizon algorithms on one core: one line direction and one Stewart
 //! sector over a fractal DEM (`cargo bench -p terrabake-bench --bench horizons`). Whole-stage
-//! figures come from `terrabake bench-horizons` (docs/BENCHMARKS.md).
+//! figures come from `terrabake-bench horizons` (docs/BENCHMARKS.md).
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use terrabake::horizon::line::{grid_direction, line_horizons};

@@ -7,6 +7,7 @@
 # Usage: make bench-cones [WORK=/tmp/terrabake-cones]
 set -euo pipefail
 BIN=${BIN:-target/release/terrabake}
+BENCH=${BENCH:-target/release/terrabake-bench}
 WORK=${WORK:-/tmp/terrabake-cones}
 mkdir -p "$WORK"
 source "$(dirname "$0")/bench_common.sh"
@@ -25,4 +26,4 @@ done
 echo
 echo "## Speed against bake time: SRTM N07W006, 16 views, 512 x 512, every 4th pixel, tracing on one thread"
 "$BIN" bake data/srtm3_n07w006_geographic_int16.tif -o "$WORK/srtm.tbake" --recipe pipelines/demo.toml -q
-"$BIN" bench-cones "$WORK/srtm.tbake" --encodings f32,f16,u16 --chart docs/charts/cones
+"$BENCH" cones "$WORK/srtm.tbake" --encodings f32,f16,u16 --chart docs/charts/cones

@@ -1,20 +1,21 @@
 #!/usr/bin/env bash
 # Horizons (docs/BENCHMARKS.md): speed and accuracy on the bundled SRTM tile
-# (bench-horizons), the Fourier chart, then time and peak memory of the whole
+# (terrabake-bench horizons), the Fourier chart, then time and peak memory of the whole
 # stage against DEM size and sector count on fractal DEMs.
 # Usage: bash pipelines/bench_horizons.sh [WORK=/tmp/terrabake-horizons]
 set -euo pipefail
 BIN=${BIN:-target/release/terrabake}
+BENCH=${BENCH:-target/release/terrabake-bench}
 WORK=${WORK:-/tmp/terrabake-horizons}
 mkdir -p "$WORK"
 "$BIN" ingest data/srtm3_n07w006_geographic_int16.tif -o "$WORK/srtm.tbake" -q
 # (The horizon and svf charts are make bench-peers's: the same study on the
 # UTM tile with every peer beside our methods.)
-"$BIN" bench-horizons "$WORK/srtm.tbake"
+"$BENCH" horizons "$WORK/srtm.tbake"
 echo
 # The demo's 32 line bands as Fourier coefficients: error against kept coefficients.
 "$BIN" bake data/srtm3_n07w006_geographic_int16.tif -o "$WORK/demo.tbake" --recipe pipelines/demo.toml -q
-"$BIN" bench-horizons "$WORK/demo.tbake" --fourier 1,2,3,4,6,8,12,15 --chart docs/charts/horizons
+"$BENCH" horizons "$WORK/demo.tbake" --fourier 1,2,3,4,6,8,12,15 --chart docs/charts/horizons
 echo
 echo "| DEM | method | sectors | time (s) | peak RSS (MiB) |"
 echo "| --- | --- | --- | --- | --- |"

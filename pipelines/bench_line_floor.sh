@@ -9,6 +9,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BIN=${BIN:-target/release/terrabake}
+BENCH=${BENCH:-target/release/terrabake-bench}
 DEM=${DEM:-../shared/data/srtm3_n07w006_utm90_f32.tif}
 WORK=$(mktemp -d /tmp/terrabake-floor.XXXXXX)
 trap 'rm -rf "$WORK"' EXIT
@@ -21,7 +22,7 @@ bandwidth() { # read|write -> MiB/s on two threads
 read_mib=$(bandwidth read)
 write_mib=$(bandwidth write)
 "$BIN" ingest "$DEM" -o "$WORK/dem.tbake" -q
-"$BIN" bench-horizons "$WORK/dem.tbake" --speed line:16,line:64 --methods line --counts 8 \
+"$BENCH" horizons "$WORK/dem.tbake" --speed line:16,line:64 --methods line --counts 8 \
   --reference 16 --crop 32 --json > "$WORK/speed.json"
 python3 - "$read_mib" "$write_mib" "$WORK/speed.json" <<'PY'
 import json, sys

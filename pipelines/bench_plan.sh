@@ -8,6 +8,7 @@
 #   BIN=target/release/terrabake bash pipelines/bench_plan.sh
 set -euo pipefail
 BIN=${BIN:-target/release/terrabake}
+BENCH=${BENCH:-target/release/terrabake-bench}
 WORK=$(mktemp -d)
 trap 'rm -rf "$WORK"' EXIT
 assets=()
@@ -20,4 +21,4 @@ for kind in spike bowl blocks flat quantised; do
   "$BIN" synth "$kind" --size 256x256 --seed 4242 -o "$WORK/$kind.tif" -q
   ingest "$WORK/$kind.tif" "synthetic_$kind"
 done
-"$BIN" bench-plan "${assets[@]}" --budgets 0.25,0.5,1,2,4 --chart docs/charts/planning
+"$BENCH" plan "${assets[@]}" --budgets 0.25,0.5,1,2,4 --chart docs/charts/planning

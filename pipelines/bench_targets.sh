@@ -13,7 +13,7 @@
 # - cone planes: an 8192² fractal, K = 256, default encoding; RUNS runs;
 # - parametric against hierarchical tracing: the same DEM with its pyramid
 #   and u16 cone planes (the planner's encoding), one thread, 15 passes a
-#   run (`bench-views --repeat 15`), the ratio of the two medians in each of
+#   run (`terrabake-bench views --repeat 15`), the ratio of the two medians in each of
 #   RATIO_RUNS runs;
 # - line horizons: our stage's wall time on the UTM tile, 16 directions,
 #   at the default tolerance and within 4.5 degrees. The target is a ratio
@@ -25,6 +25,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BIN=${BIN:-target/release/terrabake}
+BENCH=${BENCH:-target/release/terrabake-bench}
 WORK=${WORK:-/tmp/terrabake-targets}
 RUNS=${RUNS:-3}
 RATIO_RUNS=${RATIO_RUNS:-11}
@@ -73,7 +74,7 @@ say "parametric against hierarchical (8192², u16 planes, one thread), $RATIO_RU
 "$BIN" cones "$f8192" --slices 256 --encoding u16 --force -q
 ratios=()
 for _ in $(seq "$RATIO_RUNS"); do
-  RAYON_NUM_THREADS=1 "$BIN" bench-views "$f8192" --every 16 --methods hierarchical,parametric --repeat 15 --json > "$WORK/views.json"
+  RAYON_NUM_THREADS=1 "$BENCH" views "$f8192" --every 16 --methods hierarchical,parametric --repeat 15 --json > "$WORK/views.json"
   ratios+=("$(python3 -c '
 import json, sys
 seconds = {m["method"]: m["seconds"] for m in json.load(open(sys.argv[1]))["methods"]}

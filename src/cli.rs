@@ -205,26 +205,6 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
     /// Reads the committed horizon layer and the horizons stage's recorded parameters (area of
     /// interest, curvature); `terrabake horizons` runs it unless --no-sky.
     Sky(StageCommand<crate::sky::SkyStage>),
-    /// Chart the horizon methods' accuracy against their time, and time them on the whole DEM.
-    ///
-    /// Accuracy: on a centred crop, every method and band count against a reference of 1024
-    /// exact sight-line directions: RMS error of the horizon angle and of the sky-view factor
-    /// (central half of the crop). Speed: all bands of the whole DEM, all cores, for the runs in
-    /// --speed. Prints tables; --chart writes PREFIX_horizon.svg and PREFIX_svf.svg.
-    #[command(
-        after_help = "Example:\n  terrabake bench-horizons srtm.tbake --chart docs/charts/horizons"
-    )]
-    BenchHorizons(crate::bench::horizons::BenchHorizonsArgs),
-    /// Chart the parametric tracer's speed against the cone planes' bake time (replaces the asset's planes).
-    ///
-    /// For every slice count and encoding: bake the planes (all cores), then trace the sixteen
-    /// views of bench-views with the parametric tracer on one thread; the hierarchical tracer and
-    /// its pyramid are the reference. Prints a table; --chart writes PREFIX_steps.svg and
-    /// PREFIX_speed.svg.
-    #[command(
-        after_help = "Example:\n  terrabake bench-cones srtm.tbake --chart docs/charts/cones"
-    )]
-    BenchCones(crate::bench::cones::BenchConesArgs),
     /// Render a shaded perspective view, traced through the asset (sun light and sun shadows).
     ///
     /// Coordinates are local metres: x east and y north from the DEM's south-west post, z the
@@ -287,14 +267,6 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
         #[arg(long)]
         json: bool,
     },
-    /// Benchmark the tracers on the sixteen built-in views, side by side (Paglieroni's Table 1).
-    BenchViews(crate::bench::views::BenchViewsArgs),
-    /// Plan, bake and check each DEM at each budget: achieved error, time and bytes against the
-    /// budget (the planner's chart).
-    BenchPlan(crate::bench::plan::BenchPlanArgs),
-    /// Timonen's tables on our terrains: visible points, horizons and iterations per point, sweep
-    /// times against the naive method, scaling with line length, error against directions.
-    BenchVisibility(crate::bench::visibility::BenchVisibilityArgs),
     /// Plan the horizons a budget needs: directions, encoding, predicted error, time and bytes.
     Plan(crate::plan::PlanArgs),
     /// Measure the horizon and sky-view factor errors a bake achieved against exact references,
@@ -415,7 +387,7 @@ impl Cli {
 
 /// The first flag of `matches` (or of its subcommands) holding a number
 /// that is not finite, as clap's validation error of that command.
-fn refuse_non_finite(cmd: &mut clap::Command, matches: &ArgMatches) -> Result<(), clap::Error> {
+pub fn refuse_non_finite(cmd: &mut clap::Command, matches: &ArgMatches) -> Result<(), clap::Error> {
     for id in matches.ids() {
         let id = id.as_str();
         let mut numbers: Vec<f64> = Vec::new();

@@ -37,8 +37,6 @@
 //!   that would need more.
 //! - [`render`]: perspective views traced through an asset (any method).
 //! - [`shade`]: overhead maps shaded from stored horizons (sky, sun).
-//! - [`bench`](mod@bench): the benchmark harnesses (tracing views, cone
-//!   planes, horizon methods), their one table writer and chart writer.
 //! - [`synth`]: synthetic terrains for tests and benchmarks.
 //! - [`profile`]: the exact horizon around one point (`terrabake profile`).
 //! - [`export`]: layers out as GeoTIFF, OpenEXR or a PNG preview.
@@ -49,7 +47,6 @@
 
 pub mod args;
 pub mod asset;
-pub mod bench;
 pub mod budget;
 pub mod check;
 pub mod cli;

@@ -68,17 +68,12 @@ fn run(cli: Cli) -> Result<ExitCode> {
         Ok(())
     };
     match cli.command {
-        Command::BenchViews(args) => args.run(&say)?,
         Command::Page(args) => args.run(&say)?,
         Command::Viewshed(args) => args.run(&say)?,
         Command::Profile(args) => args.run()?,
         Command::TotalViewshed(c) => report(&run_stage(&c.asset, &c.stage, c.force)?, c.json)?,
         Command::Check(args) => return args.run(progress),
         Command::Plan(args) => args.run(progress)?,
-        Command::BenchPlan(args) => args.run(&say)?,
-        Command::BenchVisibility(args) => args.run(&say)?,
-        Command::BenchCones(args) => args.run(progress, &say)?,
-        Command::BenchHorizons(args) => args.run(&say)?,
         Command::Ingest {
             src,
             output,

@@ -135,7 +135,7 @@ impl Default for TimeModels {
 impl TimeModels {
     /// The models [`TIME_MODELS_VAR`] names, else the defaults; once read,
     /// kept for the process, so that the check before an ingest, the plans
-    /// after it and `bench-plan`'s plans all use the same file's models. A
+    /// after it and `terrabake-bench plan`'s plans all use the same file's models. A
     /// file that fails is not kept: its error ends the command.
     pub fn from_env() -> Result<Self> {
         static MODELS: std::sync::OnceLock<TimeModels> = std::sync::OnceLock::new();

@@ -441,33 +441,7 @@ fn cones_from_the_command_line_and_from_recipes() {
         s(&dir.path().join("v.png")),
         "-q",
     ]);
-    // The benchmark's repeated passes: each method's median pass, the same
-    // hits for both tracers; no passes at all is a usage error.
     ok(&["pyramid", s(&asset), "-q"]);
-    let bench = |repeat: &str| {
-        terrabake(&[
-            "bench-views",
-            s(&asset),
-            "--methods",
-            "hierarchical,parametric",
-            "--size",
-            "64",
-            "--every",
-            "4",
-            "--repeat",
-            repeat,
-            "--json",
-            "-q",
-        ])
-    };
-    let out = bench("3");
-    assert!(out.status.success(), "{}", stderr(&out));
-    let out: serde_json::Value = serde_json::from_str(&stdout(&out)).unwrap();
-    let rows = out["methods"].as_array().unwrap();
-    assert_eq!(rows.len(), 2, "{out}");
-    assert!(rows[0]["rays"].as_u64().unwrap() > 0, "{out}");
-    assert_eq!(rows[0]["hits"], rows[1]["hits"], "{out}");
-    assert_eq!(bench("0").status.code(), Some(2));
 
     let bad = terrabake(&["cones", s(&asset), "--slices", "0"]);
     assert_eq!(bad.status.code(), Some(2), "{}", stderr(&bad));

@@ -6,7 +6,7 @@
 bench_peers.sh installs the peers, then calls this. For each peer: its
 computation on the centred CROP x CROP crop of the DEM (outputs converted to
 our conventions by run_peer.py, or here for GRASS and SAGA, then scored by
-`terrabake bench-horizons --peers`), and its whole process on the whole DEM
+`terrabake-bench horizons --peers`), and its whole process on the whole DEM
 under /usr/bin/time (wall seconds, peak RSS), stopped at --limit seconds.
 Our own whole-DEM stage is timed the same way, before and after the peers.
 Writes DIR/peers.json (src/bench/peers.rs reads it). Standard library only:
@@ -150,7 +150,7 @@ def main():
     # (the horizons stage, then the sky stage's svf, openness and edge
     # layers), the horizons stage alone (what the peers compute: horizons,
     # no svf), and with --tolerance the stage alone with its directions
-    # that far from nominal (what it costs in accuracy, bench-horizons's
+    # that far from nominal (what it costs in accuracy, terrabake-bench horizons's
     # "line within" rows say).
     variants = [(f"terrabake horizons, line, {K}", []),
                 (f"terrabake horizons --no-sky, line, {K}", ["--no-sky"])]

@@ -15,12 +15,13 @@
 # so Cython regenerates it), SurtGIS and RVT (without its GUI and GIS
 # extras). A peer that cannot be installed is named in the tables with the
 # reason. Then bench_peers.py runs every peer and our stage, and
-# `terrabake bench-horizons --peers` scores them all against 1024 exact
+# `terrabake-bench horizons --peers` scores them all against 1024 exact
 # sight lines, prints the tables for docs/BENCHMARKS.md and redraws
 # docs/charts/horizons_{horizon,svf}.svg with the peers on them.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 BIN=${BIN:-target/release/terrabake}
+BENCH=${BENCH:-target/release/terrabake-bench}
 DEM=${DEM:-../shared/data/srtm3_n07w006_utm90_f32.tif}
 DIRECTIONS=${DIRECTIONS:-16}
 CROP=${CROP:-256}
@@ -92,5 +93,5 @@ if [ -z "$PEERS" ]; then
 else
   say "PEERS=$PEERS: docs/charts/horizons_*.svg left as they are (they are drawn from a run of every peer)"
 fi
-"$BIN" bench-horizons "$WORK/whole.tbake" --peers "$WORK/peers.json" --crop "$CROP" \
+"$BENCH" horizons "$WORK/whole.tbake" --peers "$WORK/peers.json" --crop "$CROP" \
   --speed none "${chart[@]}" ${TOLERANCE:+--direction-tolerance "$TOLERANCE"}

@@ -7,7 +7,7 @@ same grid as DEM_TIF as raw little-endian float32, row-major, north up
 (for the peers that take numpy arrays). The search radius is the whole
 DEM (its diagonal) for every peer that has one.
 
-Writes to OUT_DIR, in our conventions so that `terrabake bench-horizons
+Writes to OUT_DIR, in our conventions so that `terrabake-bench horizons
 --peers` reads every peer alike:
   horizons.f32  the horizon elevation angle in degrees, one band per
                 azimuth (band-major, raw float32), azimuths clockwise from

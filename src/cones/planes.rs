@@ -961,7 +961,7 @@ const BLOCK: usize = 8;
 /// passes over a block until the slice reaches its wake, testing 32
 /// blocks' wakes in one compare. A block is one vector of eight cells: at
 /// 8192², K = 256, 23 % of the blocks are read; at 2048², 28 % (54 % with
-/// blocks of 64 cells, which gained nothing); `terrabake bench-cones
+/// blocks of 64 cells, which gained nothing); `terrabake-bench cones
 /// --scan` counts them ([`PlaneStats`]). The targets are the same as
 /// without blocks, so the planes are the same bit for bit.
 #[derive(Debug, Clone, Copy)]

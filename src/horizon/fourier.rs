@@ -13,7 +13,7 @@
 //! pseudo-inverse shared by every post (`(A^T A)^-1 A^T`, `2K + 1` by `N`),
 //! not a DFT; on even azimuths the two agree. `2K + 1 <= N`: past that the
 //! system is underdetermined. What the coefficients cost is charted by
-//! `bench-horizons --fourier` against the stored bands (docs/BENCHMARKS.md).
+//! `terrabake-bench horizons --fourier` against the stored bands (docs/BENCHMARKS.md).
 
 use anyhow::{bail, Result};
 

@@ -1,4 +1,4 @@
-//! The planner's chart (`terrabake bench-plan`): for each DEM and budget,
+//! The planner's chart (`terrabake-bench plan`): for each DEM and budget,
 //! plan, bake what the plan says, and measure what the bake achieved with
 //! `check` on posts the plan never saw: budget against achieved error, and
 //! budget against bake time and bytes (docs/PLANNING.md).
@@ -11,10 +11,10 @@ use serde::Serialize;
 
 use super::chart::{log_log_svg, Series};
 use super::markdown_table;
-use crate::budget::{Budget, Request};
-use crate::check::{check, CheckOptions};
-use crate::progress::Progress;
-use crate::stage::run_stage;
+use terrabake::budget::{Budget, Request};
+use terrabake::check::{check, CheckOptions};
+use terrabake::progress::Progress;
+use terrabake::stage::run_stage;
 
 /// One DEM and one budget: predicted and achieved.
 #[derive(Debug, Clone, Serialize)]
@@ -65,7 +65,7 @@ impl PlanRow {
     }
 }
 
-/// `terrabake bench-plan`: its arguments.
+/// `terrabake-bench plan`: its arguments.
 #[derive(clap::Args, Debug)]
 pub struct BenchPlanArgs {
     /// Ingested assets; their horizon and sky layers are baked again for each budget.
@@ -101,8 +101,8 @@ impl BenchPlanArgs {
                     ..Default::default()
                 };
                 let start = Instant::now();
-                let asset = crate::asset::open(path)?;
-                let plan = match crate::plan::plan(&asset, &request, Progress::hidden()) {
+                let asset = terrabake::asset::open(path)?;
+                let plan = match terrabake::plan::plan(&asset, &request, Progress::hidden()) {
                     Ok(plan) => plan,
                     Err(e) => {
                         say(format!("{dem} {horizon} deg: refused: {e:#}"));
@@ -118,7 +118,7 @@ impl BenchPlanArgs {
                 }
                 let bake_seconds = start.elapsed().as_secs_f64();
                 let report = check(
-                    &crate::asset::open(path)?,
+                    &terrabake::asset::open(path)?,
                     &CheckOptions {
                         samples: 400,
                         seed: 99,

@@ -1,4 +1,4 @@
-//! The peers beside us (`make bench-peers`, `terrabake bench-horizons
+//! The peers beside us (`make bench-peers`, `terrabake-bench horizons
 //! --peers`): other tools' horizons and sky-view factors, measured against
 //! the same exact reference as our methods and charted beside them.
 //!
@@ -27,7 +27,7 @@ use serde::{Deserialize, Serialize};
 
 use super::horizons::{interpolated, svf_errors, svf_of, Reference};
 use super::markdown_table;
-use crate::horizon::sky::BandIntegrals;
+use terrabake::horizon::sky::BandIntegrals;
 
 /// `peers.json`, as `bench_peers.sh` writes it. Paths are relative to the
 /// manifest's folder.
@@ -360,8 +360,8 @@ pub fn whole_table_markdown(manifest: &PeerManifest) -> Result<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::horizon::terrain::Terrain;
-    use crate::synth::{height, SynthKind};
+    use terrabake::horizon::terrain::Terrain;
+    use terrabake::synth::{height, SynthKind};
 
     const SIDE: usize = 24;
 

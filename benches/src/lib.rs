@@ -1,5 +1,5 @@
-//! The benchmark harnesses, in one room: what `terrabake bench-views`,
-//! `bench-cones` and `bench-horizons` measure and how they print and chart
+//! The benchmark harnesses behind `terrabake-bench` (`src/main.rs`): what
+//! `views`, `cones`, `horizons`, `plan` and `visibility` measure and how they print and chart
 //! it (docs/BENCHMARKS.md has the figures and the commands).
 //!
 //! - [`views`]: the tracers over the sixteen oblique views (Paglieroni and

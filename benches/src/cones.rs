@@ -1,5 +1,5 @@
 //! The cone planes' speed against precomputation cost (`terrabake
-//! bench-cones`): for each slice count (and the exact cones) and each
+//! terrabake-bench cones`): for each slice count (and the exact cones) and each
 //! encoding, the bake time on all cores and the parametric tracer's mean
 //! steps and rays per second on one thread over the sixteen views of the
 //! tracing benchmark, with the hierarchical tracer (and its pyramid's bake
@@ -17,11 +17,11 @@ use terrabake_format::Asset;
 use super::chart::{log_log_svg, Series};
 use super::markdown_table;
 use super::views::{bench_views, BenchRow};
-use crate::cones::planes::{neighbourhood_max, sliced_planes, PlaneStats, Slices};
-use crate::cones::{summarize_heights, ConesStage, SliceChoice};
-use crate::progress::Progress;
-use crate::pyramid::PyramidStage;
-use crate::stage::run_stage;
+use terrabake::cones::planes::{neighbourhood_max, sliced_planes, PlaneStats, Slices};
+use terrabake::cones::{summarize_heights, ConesStage, SliceChoice};
+use terrabake::progress::Progress;
+use terrabake::pyramid::PyramidStage;
+use terrabake::stage::run_stage;
 
 /// One configuration's cost and benefit.
 #[derive(Debug, Clone, Serialize)]
@@ -191,7 +191,7 @@ pub fn tradeoff_charts(prefix: &Path, rows: &[TradeoffRow]) -> Result<()> {
     )
 }
 
-/// What one slice count's bake did (`bench-cones --scan`).
+/// What one slice count's bake did (`terrabake-bench cones --scan`).
 #[derive(Debug, Clone, Serialize)]
 pub struct ScanRow {
     pub slices: usize,
@@ -207,7 +207,7 @@ pub struct ScanRow {
 /// open-cell scans' blocks were read, and how many cells were open. `exact` has no slices and is
 /// left out.
 pub fn scan_stats(dir: &Path, slices: &[SliceChoice]) -> Result<Vec<ScanRow>> {
-    let asset = crate::asset::open(dir)?;
+    let asset = terrabake::asset::open(dir)?;
     let summary = summarize_heights(&asset)?;
     let height = asset.height()?;
     let (w, h) = (height.width() as usize, height.height() as usize);
@@ -275,7 +275,7 @@ pub fn scan_table_markdown(rows: &[ScanRow]) -> String {
     )
 }
 
-/// `terrabake bench-cones`: its flags.
+/// `terrabake-bench cones`: its flags.
 #[derive(Debug, Clone, clap::Args)]
 pub struct BenchConesArgs {
     /// The asset to measure (an ingested DEM).
@@ -322,7 +322,7 @@ impl BenchConesArgs {
             }
             return Ok(());
         }
-        crate::asset::open(&self.asset)?;
+        terrabake::asset::open(&self.asset)?;
         let rows = cone_tradeoff(
             &self.asset,
             &self.slices,

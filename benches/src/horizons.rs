@@ -1,5 +1,5 @@
 //! The horizon methods' speed against their accuracy (`terrabake
-//! bench-horizons`): the chart a user reads to choose a method and `S`.
+//! terrabake-bench horizons`): the chart a user reads to choose a method and `S`.
 //!
 //! **Reference.** Line horizons in 1024 grid directions (each within 0.1
 //! degree of `i * 360 / 1024`): exact sight lines, dense in azimuth.
@@ -22,9 +22,9 @@ use terrabake_format::horizons::{bands_around, between};
 use super::chart::{log_log_svg, log_log_svg_with_marks, Series};
 use super::markdown_table;
 use super::peers::{LoadedPeer, PeerManifest, PeerRow, SvfDefinition};
-use crate::horizon::sky::{sums_of_horizons, svf_of_horizons, BandIntegrals, SkySums};
-use crate::horizon::terrain::Terrain;
-use crate::horizon::{band_horizons, plan_bands, Band, BandKind, BandOptions, Method};
+use terrabake::horizon::sky::{sums_of_horizons, svf_of_horizons, BandIntegrals, SkySums};
+use terrabake::horizon::terrain::Terrain;
+use terrabake::horizon::{band_horizons, plan_bands, Band, BandKind, BandOptions, Method};
 
 /// Every band of `bands` on `terrain` (all cores), the wall time and the
 /// work counted by the algorithms.
@@ -277,7 +277,7 @@ pub fn accuracy_study(
         // Only lines have a tolerance, and the stage refuses one past
         // `tolerance_limit`.
         .filter(|&(m, k, t)| {
-            t.is_none_or(|t| m == Method::Line && t < crate::horizon::line::tolerance_limit(k))
+            t.is_none_or(|t| m == Method::Line && t < terrabake::horizon::line::tolerance_limit(k))
         })
         .map(|(m, k, t)| accuracy(&small, &reference_bands, m, k, t))
         .collect();
@@ -410,7 +410,7 @@ pub fn accuracy_charts(prefix: &Path, study: &AccuracyStudy) -> Result<()> {
     )
 }
 
-/// What `K` harmonics cost ([`crate::horizon::fourier`]): the error of the
+/// What `K` harmonics cost ([`terrabake::horizon::fourier`]): the error of the
 /// fit at the stored band azimuths over every post.
 #[derive(Debug, Clone, Serialize)]
 pub struct FourierRow {
@@ -434,7 +434,7 @@ pub fn fourier_study(
     harmonics
         .iter()
         .map(|&k| {
-            let fit = crate::horizon::fourier::FourierBasis::new(azimuths, k)?;
+            let fit = terrabake::horizon::fourier::FourierBasis::new(azimuths, k)?;
             // Per post: its sum of squares and its largest error.
             let per_post: Vec<(f64, f64, usize)> = (0..posts)
                 .into_par_iter()
@@ -503,7 +503,7 @@ pub fn fourier_table_markdown(rows: &[FourierRow], bands: usize) -> String {
     )
 }
 
-/// `terrabake bench-horizons`: its flags.
+/// `terrabake-bench horizons`: its flags.
 #[derive(Debug, Clone, clap::Args)]
 pub struct BenchHorizonsArgs {
     /// The asset to measure (an ingested DEM).
@@ -553,9 +553,9 @@ impl BenchHorizonsArgs {
     /// Runs the study and prints its tables (or JSON); `say` reports files.
     pub fn run(&self, say: &dyn Fn(String)) -> Result<()> {
         use anyhow::Context;
-        let opened = crate::asset::open(&self.asset)?;
+        let opened = terrabake::asset::open(&self.asset)?;
         if !self.fourier.is_empty() {
-            let (bands, azimuths) = crate::horizon::read_horizons(&opened)?;
+            let (bands, azimuths) = terrabake::horizon::read_horizons(&opened)?;
             let rows = fourier_study(&bands, &azimuths, &self.fourier)?;
             if self.json {
                 println!("{}", serde_json::to_string_pretty(&rows)?);
@@ -592,7 +592,7 @@ impl BenchHorizonsArgs {
                 "--direction-tolerance {t}: give a positive number of degrees"
             );
         }
-        let dem = crate::horizon::HeldDem::read(&opened)?;
+        let dem = terrabake::horizon::HeldDem::read(&opened)?;
         let whole = dem.terrain(0.0);
         let (manifest, peers) = match &self.peers {
             Some(path) => {
@@ -676,7 +676,7 @@ impl BenchHorizonsArgs {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::synth::{height, SynthKind};
+    use terrabake::synth::{height, SynthKind};
 
     /// With a tolerance, the line method's counts come again with it where
     /// it is under half their spacing, and no other method's.

@@ -1,4 +1,4 @@
-//! The tracing benchmark (`terrabake bench-views`): Paglieroni and
+//! The tracing benchmark (`terrabake-bench views`): Paglieroni and
 //! Petersen's Table 1 (every method over the sixteen built-in oblique views,
 //! primary rays only), the cost per ray by azimuth, and the scaling charts.
 
@@ -8,7 +8,7 @@ use terrabake_format::{Asset, Mmap};
 
 use super::chart::{log_log_svg, Series};
 use super::markdown_table;
-use crate::render::{builtin_views, render, RenderOptions, Shadows, Sun};
+use terrabake::render::{builtin_views, render, RenderOptions, Shadows, Sun};
 
 /// One method's totals over the sixteen views.
 #[derive(Debug, Clone, Serialize)]
@@ -49,7 +49,7 @@ pub fn bench_views(
         every,
         shadows: Shadows::Off,
         exaggeration: 1.0,
-        normals: crate::render::Normals::Flat,
+        normals: terrabake::render::Normals::Flat,
     };
     // Warm the page cache, the process's page tables and the tiles'
     // first-read checksums along the very rays timed below, with every
@@ -321,7 +321,7 @@ pub fn scaling_charts(
     Ok(())
 }
 
-/// `terrabake bench-views`: its flags.
+/// `terrabake-bench views`: its flags.
 #[derive(Debug, Clone, clap::Args)]
 pub struct BenchViewsArgs {
     /// One asset, or several (a scaling series, e.g. for --chart).
@@ -367,7 +367,7 @@ impl BenchViewsArgs {
     pub fn run(&self, say: &dyn Fn(String)) -> anyhow::Result<()> {
         let mut results = Vec::new();
         for asset in &self.assets {
-            let opened = crate::asset::open(asset)?;
+            let opened = terrabake::asset::open(asset)?;
             let azimuths = match self.directions {
                 Some(n) => even_azimuths(n),
                 None => run_length_azimuths(&self.run_lengths),

@@ -1,4 +1,4 @@
-//! Timonen's (2013) tables on our terrains (`terrabake bench-visibility`):
+//! Timonen's (2013) tables on our terrains (`terrabake-bench visibility`):
 //! visible points per direction (Table 1), horizons and iterations per
 //! point (Table 2), sweep times against the naive method (Table 3), the
 //! scaling of iterations with line length (Fig. 8), and the total
@@ -17,15 +17,15 @@ use serde::Serialize;
 
 use super::chart::{log_log_svg, Series};
 use super::markdown_table;
-use crate::horizon::terrain::Terrain;
-use crate::horizon::HeldDem;
-use crate::synth::{fill_rows, SynthKind};
-use crate::viewshed::observer::{observer_viewshed, Observer};
-use crate::viewshed::total::{total_viewshed, Method, TotalOptions, TotalStats};
+use terrabake::horizon::terrain::Terrain;
+use terrabake::horizon::HeldDem;
+use terrabake::synth::{fill_rows, SynthKind};
+use terrabake::viewshed::observer::{observer_viewshed, Observer};
+use terrabake::viewshed::total::{total_viewshed, Method, TotalOptions, TotalStats};
 
 #[derive(clap::Args, Debug)]
 #[command(
-    after_help = "Example (docs/BENCHMARKS.md):\n  terrabake bench-visibility \
+    after_help = "Example (docs/BENCHMARKS.md):\n  terrabake-bench visibility \
 out/srtm.tbake --crop 512 --directions 32 --chart docs/charts/visibility"
 )]
 pub struct BenchVisibilityArgs {
@@ -42,7 +42,7 @@ pub struct BenchVisibilityArgs {
     pub observer_height: f64,
     /// Also time the total viewshed of each whole asset within this many metres (naive, hull
     /// tree, hull tree with the safe zone).
-    #[arg(long, value_parser = crate::args::parse_positive)]
+    #[arg(long, value_parser = terrabake::args::parse_positive)]
     pub bounded: Option<f64>,
     /// Line lengths (DEM sides) of the scaling study (Fig. 8), comma-separated; none given: skip.
     #[arg(long, value_delimiter = ',', num_args = 0.., default_value = "128,256,512,1024,2048")]
@@ -244,7 +244,7 @@ impl BenchVisibilityArgs {
     pub fn run(&self, say: &dyn Fn(String)) -> Result<()> {
         let mut assets = Vec::new();
         for path in &self.assets {
-            let asset = crate::asset::open(path)?;
+            let asset = terrabake::asset::open(path)?;
             let name = path
                 .file_stem()
                 .map_or("asset".into(), |s| s.to_string_lossy().into_owned());
@@ -367,8 +367,8 @@ impl BenchVisibilityArgs {
         if let Some(d) = self.bounded {
             for (name, dem) in &assets {
                 say(format!("bounded: {name} within {d} m"));
-                let t = dem.terrain(crate::horizon::terrain::curvature_coefficient(
-                    crate::horizon::terrain::DEFAULT_REFRACTION,
+                let t = dem.terrain(terrabake::horizon::terrain::curvature_coefficient(
+                    terrabake::horizon::terrain::DEFAULT_REFRACTION,
                 ));
                 let opts = |method| TotalOptions {
                     height: 1.7,
