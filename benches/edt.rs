@@ -12,7 +12,7 @@ fn bench(c: &mut Criterion) {
             .map(|i| (i.wrapping_mul(2_654_435_761) >> 7) % 97 == 0)
             .collect();
         group.bench_function(format!("squared_2d {n}x{n}"), |b| {
-            b.iter(|| terrabake::edt::squared_2d(&site, n, n, 30.0, 30.0))
+            b.iter(|| terrabake::algorithms::edt::squared_2d(&site, n, n, 30.0, 30.0))
         });
     }
     group.finish();

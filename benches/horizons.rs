@@ -3,10 +3,10 @@
 //! figures come from `terrabake-bench horizons` (docs/BENCHMARKS.md).
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use terrabake::horizon::line::{grid_direction, line_horizons};
-use terrabake::horizon::sector::sector_horizons;
-use terrabake::horizon::terrain::Terrain;
-use terrabake::synth::{height, SynthKind};
+use terrabake::algorithms::horizon::line::{grid_direction, line_horizons};
+use terrabake::algorithms::horizon::sector::sector_horizons;
+use terrabake::io::synth::{height, SynthKind};
+use terrabake::terrain::Terrain;
 
 fn fractal(n: usize) -> Vec<f32> {
     let mut z = Vec::with_capacity(n * n);

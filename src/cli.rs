@@ -7,12 +7,12 @@ use std::path::PathBuf;
 use clap::{ArgMatches, CommandFactory, FromArgMatches, Parser, Subcommand};
 use terrabake_format::trace::Method;
 
-use crate::args::{parse_point, parse_size, parse_sun};
-use crate::cones::ConesStage;
-use crate::horizon::HorizonsStage;
-use crate::ingest::IngestOptions;
-use crate::render::Sun;
-use crate::synth::SynthKind;
+use crate::io::synth::SynthKind;
+use crate::present::render::Sun;
+use crate::stage::args::{parse_point, parse_size, parse_sun};
+use crate::stages::cones::ConesStage;
+use crate::stages::horizons::HorizonsStage;
+use crate::stages::ingest::IngestOptions;
 
 /// A stage run on its own: the asset, the stage's flags, and what every
 /// stage command takes.
@@ -204,7 +204,7 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
     ///
     /// Reads the committed horizon layer and the horizons stage's recorded parameters (area of
     /// interest, curvature); `terrabake horizons` runs it unless --no-sky.
-    Sky(StageCommand<crate::sky::SkyStage>),
+    Sky(StageCommand<crate::stages::sky::SkyStage>),
     /// Render a shaded perspective view, traced through the asset (sun light and sun shadows).
     ///
     /// Coordinates are local metres: x east and y north from the DEM's south-west post, z the
@@ -217,7 +217,7 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
         /// `sky` (overcast sky, radiosity) or `sun:AZ,EL` (sun disc and Stewart's sky); needs the
         /// horizons stage.
         #[arg(long, conflicts_with_all = ["view", "camera"])]
-        shade: Option<crate::shade::Shade>,
+        shade: Option<crate::present::shade::Shade>,
         /// Camera position X,Y,Z (local metres).
         #[arg(long, value_parser = parse_point, allow_hyphen_values = true, requires = "look_at", conflicts_with = "view")]
         camera: Option<[f64; 3]>,
@@ -228,7 +228,7 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
         #[arg(long, value_parser = clap::value_parser!(u32).range(1..=16))]
         view: Option<u32>,
         /// Horizontal field of view, degrees (built-in views use 104).
-        #[arg(long, allow_hyphen_values = true, value_parser = crate::args::parse_fov)]
+        #[arg(long, allow_hyphen_values = true, value_parser = crate::stage::args::parse_fov)]
         fov: Option<f64>,
         /// Image size WIDTHxHEIGHT.
         #[arg(long, value_parser = parse_size, default_value = "800x600")]
@@ -251,12 +251,12 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
         #[arg(long, conflicts_with = "no_shadows")]
         horizon_shadows: bool,
         /// Vertical exaggeration (camera heights are then in exaggerated metres).
-        #[arg(long, default_value_t = 1.0, allow_hyphen_values = true, value_parser = crate::args::parse_positive)]
+        #[arg(long, default_value_t = 1.0, allow_hyphen_values = true, value_parser = crate::stage::args::parse_positive)]
         exaggerate: f64,
         /// Shading normals: smooth (post normals interpolated across cells) or flat (each
         /// triangle's own, facets showing). Hits and shadows are exact either way.
         #[arg(long, value_enum, default_value = "smooth")]
-        normals: crate::render::Normals,
+        normals: crate::present::render::Normals,
         /// The PNG to write (its directory is created).
         #[arg(short, long)]
         output: PathBuf,
@@ -271,17 +271,17 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
     Plan(crate::plan::PlanArgs),
     /// Measure the horizon and sky-view factor errors a bake achieved against exact references,
     /// and check them against a budget.
-    Check(crate::check::CheckArgs),
+    Check(crate::plan::check::CheckArgs),
     /// Write one self-contained HTML page with an asset's summary, pictures and charts.
-    Page(crate::page::PageArgs),
+    Page(crate::present::page::PageArgs),
     /// One observer's viewshed as a GeoTIFF: which posts it sees, and at what elevation angle.
-    Viewshed(crate::viewshed::command::ViewshedArgs),
+    Viewshed(crate::export::viewshed::ViewshedArgs),
     /// The horizon around one point at every azimuth step, from the exact sight line at each
     /// azimuth, with the distance to what sets it: CSV, JSON, or PVGIS's horizon columns.
-    Profile(crate::profile::ProfileArgs),
+    Profile(crate::present::profile::ProfileArgs),
     /// Add the total viewshed: at every post, the area an eye above it sees (square metres),
     /// by Timonen's azimuthal sweeps with the convex hull tree.
-    TotalViewshed(StageCommand<crate::viewshed::stage::TotalViewshedStage>),
+    TotalViewshed(StageCommand<crate::stages::viewshed::stage::TotalViewshedStage>),
     /// Ingest a DEM and run every stage of a recipe, skipping work already done.
     ///
     /// A recipe is a TOML file: an [ingest] table with ingest's options (tile, codec,
@@ -324,7 +324,7 @@ A recipe (a shorter pipelines/demo.toml):\n  \
         request: crate::plan::RequestArgs,
         /// Cut the bake into this many parts (with --part).
         #[arg(long, value_name = "N", requires = "part", conflicts_with = "budget",
-              value_parser = clap::value_parser!(u32).range(1..=i64::from(crate::partition::MAX_PARTS)))]
+              value_parser = clap::value_parser!(u32).range(1..=i64::from(crate::bake::partition::MAX_PARTS)))]
         parts: Option<u32>,
         /// Bake only this part, 0 to N - 1 (with --parts).
         #[arg(long, value_name = "I", requires = "parts")]
@@ -376,7 +376,7 @@ impl Cli {
             ..
         } = cli.command
         {
-            if let Err(e) = crate::partition::Part::new(i, n) {
+            if let Err(e) = crate::bake::partition::Part::new(i, n) {
                 let bake = cmd.find_subcommand_mut("bake").expect("bake is a command");
                 return Err(bake.error(clap::error::ErrorKind::ValueValidation, e));
             }
@@ -400,7 +400,8 @@ pub fn refuse_non_finite(cmd: &mut clap::Command, matches: &ArgMatches) -> Resul
         } else if let Ok(Some(v)) = matches.try_get_many::<[f64; 3]>(id) {
             numbers.extend(v.flatten().copied());
         }
-        if numbers.iter().any(|v| !v.is_finite()) && !crate::args::NAN_MEANS_SOMETHING.contains(&id)
+        if numbers.iter().any(|v| !v.is_finite())
+            && !crate::stage::args::NAN_MEANS_SOMETHING.contains(&id)
         {
             let flag = cmd
                 .get_arguments()

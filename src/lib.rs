@@ -3,84 +3,39 @@
 //! The pipeline that turns DEMs into terrabake assets. The asset format and
 //! its reader live in `terrabake-format`; this crate reads sources, runs the
 //! bake stages and writes their layers, and hosts the CLI (`src/main.rs`).
+//! Its rooms, from the bottom up (a room imports only rooms above it in
+//! this list; ARCHITECTURE.md maps them, `tests/architecture.rs` holds the
+//! order):
 //!
-//! - [`args`]: value parsers for command-line flags (the CLI's and the
-//!   stages' parameter types').
-//! - [`asset`]: an asset open for writing: its directory, its writer lock,
-//!   and the reclaiming of a dead or failed writer's files.
-//! - [`source`]: DEM readers (GeoTIFF, SRTM .hgt, raw, PNG, OpenEXR), row
-//!   band by row band, never holding a whole DEM.
-//! - [`interrupt`]: Ctrl-C and SIGTERM: temporaries removed, a message,
-//!   exit status 130.
-//! - [`ingest`]: the first stage: a source becomes the asset's `height` layer.
-//! - [`stage`]: the stage interface (layers in, layers out, recorded in the
-//!   manifest), run under the asset's writer lock.
-//! - [`recipe`]: the registry above the stages and the recipes that `bake`
-//!   runs in order, resumably.
-//! - [`pyramid`]: the max/min pyramid stage, for hierarchical tracing.
-//! - [`cones`]: the parameter-plane stage (cone apex and slope per cell),
-//!   for parametric tracing.
-//! - [`edt`]: exact Euclidean distance transforms (the cone stage's slices).
-//! - [`horizon`]: the horizons stage (line, sector and sampled horizon maps)
-//!   and its algorithms.
-//! - [`sky`]: the sky stage (sky-view factors, openness, the edge count)
-//!   from the committed horizons.
-//! - [`viewshed`]: observer viewsheds and Timonen's total viewshed (the
-//!   `viewshed` and `total_viewshed` stages, `terrabake viewshed`).
-//! - [`ordered`]: parallel steps written in a fixed order, so that files
-//!   do not depend on thread timing.
-//! - [`partition`]: partitioned bakes (one part of N, on any node) and the
-//!   join that assembles them, bit for bit as one machine bakes.
+//! - [`plumbing`]: the process's edges: files written whole or not at all,
+//!   parallel work in a fixed order, Ctrl-C, free disk and memory, progress.
+//! - [`terrain`]: the shared terrain kernel: the grid the algorithms see
+//!   ([`terrain::Terrain`]), a DEM held in memory, geodesy, tile rows, the sun.
+//! - [`io`]: DEM readers row band by row band, the one GeoTIFF writer,
+//!   synthetic terrains.
+//! - [`algorithms`]: the papers' algorithms, pure functions over slices.
+//! - [`stage`]: the stage interface, the asset's writer lock and the flag
+//!   parsers every stage's parameters use.
+//! - [`stages`]: ingest, pyramid, cones, horizons, sky, viewsheds.
+//! - [`plan`]: the error budget: the planner, the exact references, `check`.
+//! - [`bake`]: recipes, the registry above the stages, partitioned bakes.
+//! - [`present`]: renders, shaded maps, legends, the demo page, the text
+//!   the command line prints.
+//! - [`export`]: layers out as GeoTIFF, OpenEXR, PNG, GRASS and engine
+//!   textures.
 //! - [`cli`]: the command line's grammar (the binary parses with it).
-//! - [`report`]: what the command line prints for people.
-//! - [`resources`]: free disk and available memory, checked before work
-//!   that would need more.
-//! - [`render`]: perspective views traced through an asset (any method).
-//! - [`shade`]: overhead maps shaded from stored horizons (sky, sun).
-//! - [`synth`]: synthetic terrains for tests and benchmarks.
-//! - [`profile`]: the exact horizon around one point (`terrabake profile`).
-//! - [`export`]: layers out as GeoTIFF, OpenEXR or a PNG preview.
-//! - [`cog`]: the Cloud-Optimized GeoTIFF writer (tiled, band-interleaved,
-//!   overviews, GDAL metadata), in one streaming pass.
-//! - [`output`]: files written whole or not at all.
-//! - [`simd`]: how wide the vector kernels may go (`TERRABAKE_SIMD`).
 
-pub mod args;
-pub mod asset;
-pub mod budget;
-pub mod check;
+pub mod algorithms;
+pub mod bake;
 pub mod cli;
-pub mod cog;
-pub mod cones;
-pub mod edt;
 pub mod export;
-pub mod geo;
-pub mod horizon;
-pub mod ingest;
-pub mod interrupt;
-pub mod legend;
-pub mod ordered;
-pub mod output;
-pub mod page;
-pub mod pages;
-pub mod partition;
+pub mod io;
 pub mod plan;
-pub mod profile;
-pub mod progress;
-pub mod pyramid;
-pub mod recipe;
-pub mod reference;
-pub mod render;
-pub mod report;
-pub mod resources;
-pub mod shade;
-pub mod simd;
-pub mod sky;
-pub mod source;
+pub mod plumbing;
+pub mod present;
 pub mod stage;
-pub mod synth;
-pub mod tiling;
-pub mod viewshed;
+pub mod stages;
+pub mod terrain;
 
 /// `terrabake <version>`, recorded in every manifest.
 pub fn tool_version() -> String {

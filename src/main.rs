@@ -1,20 +1,22 @@
 //! The `terrabake` command line: parse (`terrabake::cli`), dispatch to the
-//! library, print (`terrabake::report` for people, `--json` for scripts).
+//! library, print (`terrabake::present::report` for people, `--json` for scripts).
 
 use std::path::Path;
 use std::process::ExitCode;
 
 use anyhow::{bail, Result};
-use terrabake::asset::{open as open_asset, AssetWriter, Wait};
+use terrabake::bake::partition::{assemble, bake_part, Part};
+use terrabake::bake::recipe::{bake, Recipe};
 use terrabake::cli::{Cli, Command};
-use terrabake::ingest::IngestStage;
-use terrabake::partition::{assemble, bake_part, Part};
-use terrabake::progress::Progress;
-use terrabake::pyramid::PyramidStage;
-use terrabake::recipe::{bake, Recipe};
-use terrabake::render::{builtin_views, render, write_png, Camera, RenderOptions, Shadows};
-use terrabake::report::describe_outcome;
+use terrabake::plumbing::progress::Progress;
+use terrabake::present::render::{
+    builtin_views, render, write_png, Camera, RenderOptions, Shadows,
+};
+use terrabake::present::report::describe_outcome;
+use terrabake::stage::asset::{open as open_asset, AssetWriter, Wait};
 use terrabake::stage::{run_stage_in, run_stages_in, Stage, StageOutcome};
+use terrabake::stages::ingest::IngestStage;
+use terrabake::stages::pyramid::PyramidStage;
 use terrabake_format::cones::CONE_APEX;
 use terrabake_format::horizons::HORIZON;
 use terrabake_format::trace::Tracer;
@@ -30,18 +32,18 @@ fn main() -> ExitCode {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
     let cli = Cli::parse_checked();
-    terrabake::interrupt::install();
+    terrabake::plumbing::interrupt::install();
     match run(cli) {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {}", terrabake::report::error_chain(&e));
+            eprintln!("error: {}", terrabake::present::report::error_chain(&e));
             ExitCode::FAILURE
         }
     }
 }
 
 fn run(cli: Cli) -> Result<ExitCode> {
-    terrabake::simd::cap_from_env().map_err(anyhow::Error::msg)?;
+    terrabake::plumbing::simd::cap_from_env().map_err(anyhow::Error::msg)?;
     let progress = Progress::new(cli.quiet);
     let wait = Wait::unless(cli.no_wait);
     let run_stage = |asset: &Path, stage: &dyn Stage, force: bool| -> Result<StageOutcome> {
@@ -90,20 +92,23 @@ fn run(cli: Cli) -> Result<ExitCode> {
             if json {
                 println!("{}", serde_json::to_string_pretty(&manifest)?);
             }
-            say(terrabake::report::ingested(
+            say(terrabake::present::report::ingested(
                 &src,
                 &output,
                 &manifest,
                 start.elapsed(),
             ));
         }
-        Command::Info { asset, json } => print!("{}", terrabake::report::info(&asset, json)?),
+        Command::Info { asset, json } => {
+            print!("{}", terrabake::present::report::info(&asset, json)?)
+        }
         Command::Verify {
             asset,
             same_as,
             json,
         } => {
-            let (text, good) = terrabake::report::verify_asset(&asset, same_as.as_deref(), json)?;
+            let (text, good) =
+                terrabake::present::report::verify_asset(&asset, same_as.as_deref(), json)?;
             print!("{text}");
             if !good {
                 return Ok(ExitCode::from(EXIT_VERIFY_FAILED));
@@ -116,7 +121,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             seed,
             output,
         } => {
-            terrabake::synth::write_geotiff(&output, kind, size.0, size.1, seed, progress)?;
+            terrabake::io::synth::write_geotiff(&output, kind, size.0, size.1, seed, progress)?;
             say(format!(
                 "wrote {} ({} x {} {:?}, seed {seed})",
                 output.display(),
@@ -132,7 +137,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             ..
         } => {
             let opened = open_asset(&asset)?;
-            terrabake::shade::write_shade_png(&opened, shade, &output, 4096)?;
+            terrabake::present::shade::write_shade_png(&opened, shade, &output, 4096)?;
             say(format!("wrote {}", output.display()));
         }
         Command::Render {
@@ -156,7 +161,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
         } => {
             let opened = open_asset(&asset)?;
             let tracer = Tracer::new(&opened)?;
-            terrabake::render::require_layers(&tracer, method, &asset)?;
+            terrabake::present::render::require_layers(&tracer, method, &asset)?;
             let mut cam = match (view, camera, look_at) {
                 (Some(v), _, _) => builtin_views(&tracer, &opened)[v as usize - 1],
                 (None, Some(eye), Some(look_at)) => Camera {
@@ -191,7 +196,10 @@ fn run(cli: Cli) -> Result<ExitCode> {
                     )?
                 );
             } else if stats {
-                println!("{}", terrabake::report::render_stats(method.name(), &st));
+                println!(
+                    "{}",
+                    terrabake::present::report::render_stats(method.name(), &st)
+                );
             }
             say(format!("wrote {}", output.display()));
         }
@@ -228,7 +236,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
         } => {
             // One run: the sky layers the new horizons drop are committed
             // again with them, so no reader finds them missing meanwhile.
-            let sky = terrabake::sky::SkyStage::default();
+            let sky = terrabake::stages::sky::SkyStage::default();
             let mut stages: Vec<(&dyn Stage, bool)> = vec![(&stage, force)];
             if !no_sky {
                 stages.push((&sky, false));
@@ -243,7 +251,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             let opened = open_asset(&asset)?;
             let entry = opened.manifest().layer(HORIZON, 0).cloned();
             if json {
-                let v = terrabake::report::horizons_json(&outcome, entry.as_ref())?;
+                let v = terrabake::present::report::horizons_json(&outcome, entry.as_ref())?;
                 println!("{}", serde_json::to_string_pretty(&v)?);
             }
             say(describe_outcome(&outcome));

@@ -10,13 +10,13 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use common::*;
-use terrabake::check::{check, CheckOptions};
-use terrabake::horizon::HorizonsStage;
-use terrabake::ingest::IngestOptions;
-use terrabake::progress::Progress;
-use terrabake::sky::SkyStage;
+use terrabake::io::synth::SynthKind;
+use terrabake::plan::check::{check, CheckOptions};
+use terrabake::plumbing::progress::Progress;
 use terrabake::stage::run_stage;
-use terrabake::synth::SynthKind;
+use terrabake::stages::horizons::HorizonsStage;
+use terrabake::stages::ingest::IngestOptions;
+use terrabake::stages::sky::SkyStage;
 use terrabake_format::horizons::AngleEncoding;
 use terrabake_format::Asset;
 

@@ -67,17 +67,17 @@ fn every_synthetic_kind_ingests_verifies_and_round_trips_through_geotiff() {
         assert_eq!(info["cell_size"]["dx"], 30.0);
         let original = heights(&Asset::open(&asset).unwrap());
         for (x, y) in [(0u32, 0u32), (75, 48), (149, 96)] {
-            let want = terrabake::synth::height(
+            let want = terrabake::io::synth::height(
                 match kind {
-                    "fractal" => terrabake::synth::SynthKind::Fractal,
-                    "flat" => terrabake::synth::SynthKind::Flat,
-                    "spike" => terrabake::synth::SynthKind::Spike,
-                    "bowl" => terrabake::synth::SynthKind::Bowl,
-                    "sine" => terrabake::synth::SynthKind::Sine,
-                    "blocks" => terrabake::synth::SynthKind::Blocks,
-                    "noise" => terrabake::synth::SynthKind::Noise,
-                    "quantised" => terrabake::synth::SynthKind::Quantised,
-                    _ => terrabake::synth::SynthKind::Holes,
+                    "fractal" => terrabake::io::synth::SynthKind::Fractal,
+                    "flat" => terrabake::io::synth::SynthKind::Flat,
+                    "spike" => terrabake::io::synth::SynthKind::Spike,
+                    "bowl" => terrabake::io::synth::SynthKind::Bowl,
+                    "sine" => terrabake::io::synth::SynthKind::Sine,
+                    "blocks" => terrabake::io::synth::SynthKind::Blocks,
+                    "noise" => terrabake::io::synth::SynthKind::Noise,
+                    "quantised" => terrabake::io::synth::SynthKind::Quantised,
+                    _ => terrabake::io::synth::SynthKind::Holes,
                 },
                 x,
                 y,
@@ -156,7 +156,7 @@ fn png_and_exr_exports() {
     let mut buf = vec![0; reader.output_buffer_size().unwrap()];
     let info = reader.next_frame(&mut buf).unwrap();
     // The map, then its legend under it.
-    let legend_rows = terrabake::legend::height(300);
+    let legend_rows = terrabake::present::legend::height(300);
     assert_eq!(
         (info.width, info.height, info.color_type),
         (300, 200 + legend_rows, png::ColorType::Rgba)
@@ -356,7 +356,7 @@ fn errors_name_the_file_and_exit_1() {
 #[test]
 fn bake_help_names_every_stage() {
     let text = ok(&["bake", "--help"]);
-    for stage in terrabake::recipe::STAGES {
+    for stage in terrabake::bake::recipe::STAGES {
         assert!(text.contains(stage), "bake --help does not name {stage}");
     }
 }
@@ -399,7 +399,7 @@ fn help_teaches() {
         .lines()
         .map(|l| l.trim_start().to_string() + "\n")
         .collect();
-    let recipe = terrabake::recipe::Recipe::parse(Path::new("bake --help"), shown).unwrap();
+    let recipe = terrabake::bake::recipe::Recipe::parse(Path::new("bake --help"), shown).unwrap();
     assert_eq!(recipe.resolve_stages().unwrap().len(), 3);
 }
 
@@ -669,7 +669,9 @@ fn horizons_from_the_command_line_export_shade_and_recipes() {
 
     // Bounded sectors, out of core tile row by tile row (32-post tiles,
     // 3 rows of reach): the library's answer on the whole DEM in memory.
-    use terrabake::horizon::{band_horizons, plan_bands, read_heights, terrain::Terrain};
+    use terrabake::algorithms::horizon::{band_horizons, plan_bands};
+    use terrabake::terrain::held::read_heights;
+    use terrabake::terrain::Terrain;
     let bounded = dir.path().join("bounded.tbake");
     ok(&["ingest", s(&tif), "-o", s(&bounded), "--tile", "32", "-q"]);
     // Sectors baked as f32 without curvature, as the library computes them.
@@ -690,7 +692,7 @@ fn horizons_from_the_command_line_export_shade_and_recipes() {
             let stored = Asset::open(&bounded).unwrap();
             let stored = HorizonMap::open(&stored).unwrap();
             let bands = plan_bands(
-                terrabake::horizon::Method::Sector,
+                terrabake::algorithms::horizon::Method::Sector,
                 count,
                 cs.dx,
                 cs.dy,
@@ -709,7 +711,7 @@ fn horizons_from_the_command_line_export_shade_and_recipes() {
                 }
             }
         };
-    let opts = terrabake::horizon::BandOptions {
+    let opts = terrabake::algorithms::horizon::BandOptions {
         max_distance: Some(100.0),
         narrow_check: true,
     };
@@ -1101,7 +1103,13 @@ fn vector_caps_change_no_layer() {
     let tif = tmp.path().join("fractal.tif");
     ok(&["synth", "fractal", "--size", "300x200", "-o", s(&tif), "-q"]);
     let run = |cap: Option<&str>, args: &[&str]| {
-        terrabake_with((terrabake::simd::VAR, cap.map(std::ffi::OsStr::new)), args)
+        terrabake_with(
+            (
+                terrabake::plumbing::simd::VAR,
+                cap.map(std::ffi::OsStr::new),
+            ),
+            args,
+        )
     };
     let bake = |cap: Option<&str>| {
         let asset = tmp

@@ -51,8 +51,9 @@ fn format_v1_fixture_reads_forever() {
 /// must be the exact sight-line horizons within the u8 encoding's error.
 #[test]
 fn quantised_fixture_reads_forever() {
-    use terrabake::horizon::terrain::{RowScale, Terrain};
-    use terrabake::horizon::{band_horizons, plan_bands, BandOptions, HorizonsStage, Method};
+    use terrabake::algorithms::horizon::{band_horizons, plan_bands, BandOptions, Method};
+    use terrabake::stages::horizons::HorizonsStage;
+    use terrabake::terrain::{RowScale, Terrain};
     use terrabake_format::cones::ConePlanes;
     use terrabake_format::horizons::HorizonMap;
     use terrabake_format::ElemType;
@@ -76,7 +77,7 @@ fn quantised_fixture_reads_forever() {
     // recorded parameters.
     let stage = HorizonsStage::recorded(&asset).expect("horizons record");
     let bands = plan_bands(Method::Line, 8, m.cell_size.dx, m.cell_size.dy, None);
-    let row_scale = terrabake::geo::row_scale(m.georef.as_ref(), h as u32);
+    let row_scale = terrabake::terrain::geo::row_scale(m.georef.as_ref(), h as u32);
     let terrain = Terrain::new(&z, w, h, m.cell_size.dx, m.cell_size.dy)
         .with_row_scale(RowScale::new(&row_scale))
         .with_curvature(stage.curvature_coefficient(&asset));

@@ -14,12 +14,12 @@ mod common;
 
 use std::path::Path;
 
-use terrabake::cones::planes::{brute_force_slopes, neighbourhood_max};
-use terrabake::cones::{ConesStage, SliceChoice};
-use terrabake::ingest::IngestOptions;
-use terrabake::progress::Progress;
+use terrabake::algorithms::planes::{brute_force_slopes, neighbourhood_max};
+use terrabake::io::synth::SynthKind;
+use terrabake::plumbing::progress::Progress;
 use terrabake::stage::run_stage;
-use terrabake::synth::SynthKind;
+use terrabake::stages::cones::{ConesStage, SliceChoice};
+use terrabake::stages::ingest::IngestOptions;
 use terrabake_format::cones::{Cone, ConeEncoding, ConePlanes};
 use terrabake_format::surface::Cell;
 use terrabake_format::{Asset, Mmap};
@@ -257,7 +257,7 @@ fn windowed_bakes_are_valid_and_never_wider_than_whole_ones() {
                 dir.path(),
                 &ConesStage {
                     slices,
-                    max_memory: 32 * 32 * terrabake::cones::BYTES_PER_CELL,
+                    max_memory: 32 * 32 * terrabake::stages::cones::BYTES_PER_CELL,
                     ..Default::default()
                 },
             );
@@ -333,7 +333,7 @@ fn the_generic_decoder_reads_every_cone_encoding() {
 /// mattered) fails, as a wider one would.
 #[test]
 fn sliced_cones_are_as_wide_as_the_definition_allows() {
-    use terrabake::cones::planes::{sliced_planes, Slices};
+    use terrabake::algorithms::planes::{sliced_planes, Slices};
     // Unequal spacings; rows across three shares of 64 columns, whose
     // plane cells between near neighbours are left out of the rows'
     // envelopes (`Span::hidden_bits`); and columns across three bands of
@@ -350,7 +350,7 @@ fn sliced_cones_are_as_wide_as_the_definition_allows() {
         .flat_map(|kind| shapes.map(|shape| (kind, shape)))
     {
         let mut posts = vec![0f32; w * h];
-        terrabake::synth::fill_rows(kind, 0, &mut posts, w as u32, h as u32, 4);
+        terrabake::io::synth::fill_rows(kind, 0, &mut posts, w as u32, h as u32, 4);
         let (cw, ch) = (w - 1, h - 1);
         let nmax = neighbourhood_max(&posts, w, h);
         let finite = nmax.iter().filter(|v| v.is_finite()).map(|&v| f64::from(v));

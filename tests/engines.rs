@@ -11,7 +11,7 @@ use std::path::Path;
 
 use common::{heights, stderr, terrabake};
 use terrabake::export::engine::{export_heightmap, Engine};
-use terrabake::progress::Progress;
+use terrabake::plumbing::progress::Progress;
 use terrabake_format::Asset;
 
 fn s(p: &Path) -> &str {

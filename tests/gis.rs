@@ -8,9 +8,9 @@
 mod common;
 
 use common::{stderr, stdout, terrabake};
-use terrabake::horizon::terrain::Terrain;
-use terrabake::horizon::{brute, line, plan_bands, BandKind, Method};
-use terrabake::synth::{self, SynthKind};
+use terrabake::algorithms::horizon::{brute, line, plan_bands, BandKind, Method};
+use terrabake::io::synth::{self, SynthKind};
+use terrabake::terrain::Terrain;
 
 fn grid(kind: SynthKind, w: usize, h: usize, seed: u64) -> Vec<f32> {
     let mut z = vec![0f32; w * h];
@@ -191,7 +191,7 @@ fn same_distance(got: f32, want: Option<f64>) -> bool {
 /// the tags leave the angles bit for bit as they are.
 #[test]
 fn sector_distances_are_the_brute_forces() {
-    use terrabake::horizon::sector::{self, NarrowStencil, SectorFrame};
+    use terrabake::algorithms::horizon::sector::{self, NarrowStencil, SectorFrame};
     let (w, h) = (37, 33);
     let z = holed_fractal(w, h);
     let t = Terrain::new(&z, w, h, 30.0, 25.0).with_curvature(6.8e-8);
@@ -299,7 +299,7 @@ fn bounded_line_distances_are_the_brute_forces() {
 /// that look at it along a grid axis: the spike's distance exactly.
 #[test]
 fn every_method_names_a_lone_spike() {
-    use terrabake::horizon::{band_horizons_into, BandOptions};
+    use terrabake::algorithms::horizon::{band_horizons_into, BandOptions};
     let (w, h) = (30, 9);
     let mut z = vec![100f32; w * h];
     let spike = (25, 4);

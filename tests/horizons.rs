@@ -8,13 +8,13 @@
 
 mod common;
 
-use terrabake::horizon::brute;
-use terrabake::horizon::hull_tree::{local_horizons_brute, HullTree};
-use terrabake::horizon::line::{self, GridDirection};
-use terrabake::horizon::sector::{sector_horizons, NarrowStencil, SectorFrame};
-use terrabake::horizon::terrain::{curvature_coefficient, RowScale, Terrain};
-use terrabake::horizon::{band_horizons, plan_bands, BandKind, BandOptions, Method};
-use terrabake::synth::{self, SynthKind};
+use terrabake::algorithms::horizon::brute;
+use terrabake::algorithms::horizon::line::{self, GridDirection};
+use terrabake::algorithms::horizon::sector::{sector_horizons, NarrowStencil, SectorFrame};
+use terrabake::algorithms::horizon::{band_horizons, plan_bands, BandKind, BandOptions, Method};
+use terrabake::algorithms::viewshed::hull_tree::{local_horizons_brute, HullTree};
+use terrabake::io::synth::{self, SynthKind};
+use terrabake::terrain::{curvature_coefficient, RowScale, Terrain};
 
 const COUNTS: [usize; 5] = [4, 7, 16, 64, 256];
 
@@ -167,7 +167,7 @@ fn line_and_sector_equal_brute_force_on_the_real_dem_with_curvature() {
 /// latitude `lat0` down by `dlat` degrees a row (`geo::row_scale`, the
 /// stage's own).
 fn geographic_scale(h: usize, lat0: f64, dlat: f64) -> Vec<f64> {
-    use terrabake::geo::{georef_from_keys, row_scale, GT_MODEL_TYPE};
+    use terrabake::terrain::geo::{georef_from_keys, row_scale, GT_MODEL_TYPE};
     let georef = georef_from_keys(
         vec![1, 1, 0, 1, GT_MODEL_TYPE, 0, 1, 2],
         vec![],
@@ -531,7 +531,7 @@ fn max_distance_cuts_the_horizon_where_it_should() {
 
 #[test]
 fn sector_within_a_distance_equals_brute_force_band_by_band() {
-    use terrabake::horizon::sector::sector_horizons_within;
+    use terrabake::algorithms::horizon::sector::sector_horizons_within;
     let (w, h) = (23, 19);
     let scale = geographic_scale(h, 60.0, 0.5);
     let noise = synth_grid(SynthKind::Noise, w, h, 2);
@@ -671,7 +671,7 @@ fn line_dirs(dx: f64, dy: f64, extra: &[(i64, i64)]) -> Vec<GridDirection> {
 
 #[test]
 fn line_sweeps_by_bands_equal_one_band() {
-    use terrabake::horizon::line::BandedSweep;
+    use terrabake::algorithms::horizon::line::BandedSweep;
     // Out of core, a direction is swept over bands of rows with each line's
     // hull carried across: the result must not depend on the band height.
     let (w, h) = (41, 37);
@@ -731,7 +731,7 @@ fn line_sweeps_by_bands_equal_one_band() {
 /// lanes for the scalar sweep); with deep hulls and with shallow ones.
 #[test]
 fn line_lanes_equal_the_scalar_sweep_bit_for_bit() {
-    use terrabake::horizon::line::{grid_direction, BandedSweep};
+    use terrabake::algorithms::horizon::line::{grid_direction, BandedSweep};
     let cpu = line::lanes::cpu_has_lanes();
     let (srtm, sdx, sdy) = common::srtm_crop((500, 300), (83, 61));
     let scale = geographic_scale(61, 55.0, 1.0 / 1200.0);
@@ -801,9 +801,9 @@ fn line_lanes_equal_the_scalar_sweep_bit_for_bit() {
             // Every kind of lanes the CPU runs; bands of rows; hulls as deep
             // as the lanes go, and shallower (64 KiB a direction: 32
             // vertices or none on these widths).
-            let kinds: Vec<_> = terrabake::simd::available()
+            let kinds: Vec<_> = terrabake::plumbing::simd::available()
                 .into_iter()
-                .filter(|&l| l > terrabake::simd::Level::Scalar)
+                .filter(|&l| l > terrabake::plumbing::simd::Level::Scalar)
                 .collect();
             let runs = [(1, None), (7, None), (h, None), (7, Some(64 << 10))];
             for (kind, (rows, memory)) in kinds.iter().flat_map(|&k| runs.map(|r| (k, r))) {
@@ -838,7 +838,7 @@ fn line_lanes_equal_the_scalar_sweep_bit_for_bit() {
     }
     eprintln!(
         "{in_lanes} sweeps in lanes ({:?})",
-        terrabake::simd::available()
+        terrabake::plumbing::simd::available()
     );
     assert_eq!(in_lanes > 0, cpu);
     // The dome's long lines left the lanes.
@@ -910,9 +910,11 @@ fn the_sector_tree_equals_brute_force_above_its_buckets() {
 /// room (`Scratch`), whatever the last one left in it.
 #[test]
 fn the_sector_tree_gives_the_same_bits_in_every_store_and_shared() {
-    use terrabake::horizon::sector::{sector_horizons_at, DataPosts, Ranks, Scratch, Shared};
-    use terrabake::simd::Level;
-    let levels = terrabake::simd::available();
+    use terrabake::algorithms::horizon::sector::{
+        sector_horizons_at, DataPosts, Ranks, Scratch, Shared,
+    };
+    use terrabake::plumbing::simd::Level;
+    let levels = terrabake::plumbing::simd::available();
     let widest = *levels.last().unwrap();
     let fractal = synth_grid(SynthKind::Fractal, 400, 260, 5);
     let dome: Vec<f32> = synth_grid(SynthKind::Bowl, 240, 160, 1)
@@ -1082,7 +1084,7 @@ fn records_stopped_at_the_relief_bound_equal_the_whole_walk() {
 /// untrimmed sweep's bits, scalar and in lanes, in one band and in many.
 #[test]
 fn trimmed_hulls_keep_the_bits_and_bound_a_curved_sea() {
-    use terrabake::horizon::line::{grid_direction, BandedSweep};
+    use terrabake::algorithms::horizon::line::{grid_direction, BandedSweep};
     let plain = RowScale::default();
     // A flat sea 45 km long, 30 m posts, the earth's curvature with
     // refraction: each hull keeps a few vertices, whatever the DEM's size.

@@ -6,9 +6,9 @@ mod common;
 use std::path::Path;
 
 use common::*;
-use terrabake::ingest::{ingest, IngestOptions};
-use terrabake::progress::Progress;
-use terrabake::source::{ByteOrder, RawSampleType, RawSpec};
+use terrabake::io::source::{ByteOrder, RawSampleType, RawSpec};
+use terrabake::plumbing::progress::Progress;
+use terrabake::stages::ingest::{ingest, IngestOptions};
 use terrabake_format::manifest::{CrsKind, RasterType};
 use terrabake_format::Asset;
 

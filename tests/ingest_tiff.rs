@@ -5,8 +5,8 @@
 mod common;
 
 use common::*;
-use terrabake::ingest::{ingest, IngestOptions};
-use terrabake::progress::Progress;
+use terrabake::plumbing::progress::Progress;
+use terrabake::stages::ingest::{ingest, IngestOptions};
 use terrabake_format::manifest::{CrsKind, RasterType};
 use terrabake_format::{Asset, Codec};
 

@@ -9,8 +9,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 use common::*;
-use terrabake::cog::{write_f32, GeoTags};
-use terrabake::progress::Progress;
+use terrabake::io::cog::{write_f32, GeoTags};
+use terrabake::plumbing::progress::Progress;
 use terrabake_format::{Asset, MANIFEST_FILE};
 
 /// A 170 x 230 geographic DEM (the SRTM tile's georeferencing) of fractal
@@ -18,7 +18,7 @@ use terrabake_format::{Asset, MANIFEST_FILE};
 /// different east-west spacing, and nodata.
 fn dem(dir: &Path) -> PathBuf {
     let srtm = dir.join("srtm.tbake");
-    terrabake::ingest::ingest(
+    terrabake::stages::ingest::ingest(
         &repo_file("data/srtm3_n07w006_geographic_int16.tif"),
         &srtm,
         &Default::default(),
@@ -39,7 +39,14 @@ fn dem(dir: &Path) -> PathBuf {
             *v = if hole {
                 -9999.0
             } else {
-                40.0 * terrabake::synth::height(terrabake::synth::SynthKind::Fractal, x, y, w, h, 5)
+                40.0 * terrabake::io::synth::height(
+                    terrabake::io::synth::SynthKind::Fractal,
+                    x,
+                    y,
+                    w,
+                    h,
+                    5,
+                )
             };
         }
         Ok(())
@@ -162,7 +169,7 @@ fn baked_on_one_machine(r: usize) -> (tempfile::TempDir, PathBuf, PathBuf, PathB
 /// Every layer of `a` and `b` decodes to the same values, bit for bit.
 fn assert_same_asset(a: &Path, b: &Path, what: &str) {
     let (a, b) = (Asset::open(a).unwrap(), Asset::open(b).unwrap());
-    let differences = terrabake::partition::differences(&a, &b).unwrap();
+    let differences = terrabake::bake::partition::differences(&a, &b).unwrap();
     assert!(differences.is_empty(), "{what}: {differences:#?}");
     assert!(a.manifest().layers.len() >= 2, "{what}: nothing compared");
 }
@@ -185,7 +192,7 @@ fn assembled_parts_equal_one_machine_for_every_stage_and_n() {
             );
             ok(terrabake(&["assemble", path(&out), "-q"]));
             assert!(
-                !terrabake::partition::parts_dir(&out).exists(),
+                !terrabake::bake::partition::parts_dir(&out).exists(),
                 "parts left behind"
             );
             assert_same_asset(&one, &out, &format!("recipe {r}, {n} parts"));
@@ -226,7 +233,7 @@ fn parts_are_idempotent_and_resume_after_a_kill() {
         files
     };
     ok(part(0, None));
-    let parts = terrabake::partition::parts_dir(&out);
+    let parts = terrabake::bake::partition::parts_dir(&out);
     let before = listing(&parts.join("part-0-of-3"));
     ok(part(0, None));
     assert!(
@@ -319,10 +326,12 @@ fn a_bad_set_of_parts_is_refused_by_name_and_nothing_is_committed() {
         assemble(),
         &["two partitions", "part-0-of-2", "part-0-of-3"],
     );
-    std::fs::remove_dir_all(terrabake::partition::parts_dir(&out).join("part-0-of-2")).unwrap();
-    std::fs::remove_file(terrabake::partition::parts_dir(&out).join("part-0-of-2.json")).unwrap();
+    std::fs::remove_dir_all(terrabake::bake::partition::parts_dir(&out).join("part-0-of-2"))
+        .unwrap();
+    std::fs::remove_file(terrabake::bake::partition::parts_dir(&out).join("part-0-of-2.json"))
+        .unwrap();
     // A damaged chunk in part 2's horizons.
-    let part2 = terrabake::partition::parts_dir(&out).join("part-2-of-3");
+    let part2 = terrabake::bake::partition::parts_dir(&out).join("part-2-of-3");
     let horizon = Asset::open(&part2)
         .unwrap()
         .layer("horizon", 0)
@@ -422,7 +431,7 @@ fn parts_prove_their_source_and_identity_and_the_join_is_idempotent() {
     let manifest = std::fs::read(out.join(MANIFEST_FILE)).unwrap();
     ok(part(&src, &out, "0"));
     ok(part(&src, &out, "1"));
-    let parts = terrabake::partition::parts_dir(&out);
+    let parts = terrabake::bake::partition::parts_dir(&out);
     let removing = out.with_file_name("names.tbake.parts.removed-999999");
     std::fs::rename(&parts, &removing).unwrap();
     ok(assemble(&out));
@@ -461,7 +470,7 @@ fn parts_prove_their_source_and_identity_and_the_join_is_idempotent() {
     let out = tmp.path().join("copied.tbake");
     ok(part(&src, &out, "0"));
     ok(part(&src, &out, "1"));
-    let parts = terrabake::partition::parts_dir(&out);
+    let parts = terrabake::bake::partition::parts_dir(&out);
     std::fs::remove_dir_all(parts.join("part-1-of-2")).unwrap();
     copy_tree(&parts.join("part-0-of-2"), &parts.join("part-1-of-2"));
     refused(
@@ -498,7 +507,7 @@ fn an_assemble_killed_at_every_durable_step_resumes() {
     let (tmp, src, recipe, one) = baked_on_one_machine(0);
     let out = tmp.path().join("k.tbake");
     bake_parts(&src, &out, &recipe, 2);
-    let parts = terrabake::partition::parts_dir(&out);
+    let parts = terrabake::bake::partition::parts_dir(&out);
     let pristine = tmp.path().join("pristine.parts");
     copy_tree(&parts, &pristine);
     let (mut killed, mut at) = (0, 1u32);

@@ -9,13 +9,13 @@ use std::path::Path;
 
 use common::*;
 use proptest::prelude::*;
-use terrabake::budget::{Budget, Need, Needs, Request, SunPosition};
-use terrabake::check::{check, CheckOptions, CheckReport};
-use terrabake::ingest::IngestOptions;
+use terrabake::io::synth::SynthKind;
+use terrabake::plan::budget::{Budget, Need, Needs, Request, SunPosition};
+use terrabake::plan::check::{check, CheckOptions, CheckReport};
 use terrabake::plan::{plan, Plan, TimeModels, SHARE_DIRECTIONS, TIME_MODELS_VAR};
-use terrabake::progress::Progress;
+use terrabake::plumbing::progress::Progress;
 use terrabake::stage::run_stage;
-use terrabake::synth::SynthKind;
+use terrabake::stages::ingest::IngestOptions;
 use terrabake_format::Asset;
 
 fn terrain(dir: &Path, kind: SynthKind, seed: u64) -> std::path::PathBuf {
@@ -444,7 +444,7 @@ fn refused_recipe(dir: &Path, tif: &str, text: &str) -> String {
 
 #[test]
 fn fast_tracing_bakes_u16_cone_planes_of_64_slices_that_stay_exact() {
-    use terrabake::cones::{ConesStage, SliceChoice};
+    use terrabake::stages::cones::{ConesStage, SliceChoice};
     use terrabake_format::cones::ConeEncoding;
     let dir = tempfile::tempdir().unwrap();
     let asset = terrain(dir.path(), SynthKind::Fractal, 6);
@@ -685,8 +685,9 @@ fn a_bytes_limit_picks_zstd_heights_unless_the_recipe_set_the_codec() {
 /// posts are the pilot's, to the sweep's rounding.
 #[test]
 fn the_pilot_measures_the_directions_the_planned_bake_stores() {
-    use terrabake::horizon::{HeldDem, HorizonsStage};
-    use terrabake::reference::{Pilot, Sampling};
+    use terrabake::plan::reference::{Pilot, Sampling};
+    use terrabake::stages::horizons::HorizonsStage;
+    use terrabake::terrain::held::HeldDem;
     use terrabake_format::horizons::{AngleEncoding, HorizonMap};
 
     let dir = tempfile::tempdir().unwrap();
@@ -755,8 +756,8 @@ fn the_pilot_measures_the_directions_the_planned_bake_stores() {
 /// error.
 #[test]
 fn the_tolerance_widens_only_where_the_error_allows() {
-    use terrabake::horizon::line::{default_tolerance, Stencil};
-    use terrabake::horizon::BandKind;
+    use terrabake::algorithms::horizon::line::{default_tolerance, Stencil};
+    use terrabake::algorithms::horizon::BandKind;
 
     let (mut widened, mut refused) = (0, 0);
     for kind in [SynthKind::Fractal, SynthKind::Sine, SynthKind::Bowl] {
@@ -780,7 +781,7 @@ fn the_tolerance_widens_only_where_the_error_allows() {
             let chosen = p.chosen.as_ref().unwrap();
             let stage = p.horizons_stage().unwrap();
             let crossings = |tolerance: Option<f64>| -> usize {
-                let stage = terrabake::horizon::HorizonsStage {
+                let stage = terrabake::stages::horizons::HorizonsStage {
                     direction_tolerance: tolerance,
                     ..stage.clone()
                 };
@@ -845,10 +846,10 @@ fn the_tolerance_widens_only_where_the_error_allows() {
 /// with every exit status a documented one.
 #[test]
 fn the_planner_and_check_work_at_high_latitudes() {
-    use terrabake::cog::{write_f32, GeoTags};
+    use terrabake::io::cog::{write_f32, GeoTags};
     let dir = tempfile::tempdir().unwrap();
     let srtm = dir.path().join("srtm.tbake");
-    terrabake::ingest::ingest(
+    terrabake::stages::ingest::ingest(
         &repo_file("data/srtm3_n07w006_geographic_int16.tif"),
         &srtm,
         &IngestOptions::default(),

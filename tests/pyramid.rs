@@ -4,8 +4,8 @@
 
 mod common;
 
-use terrabake::ingest::IngestOptions;
-use terrabake::synth::SynthKind;
+use terrabake::io::synth::SynthKind;
+use terrabake::stages::ingest::IngestOptions;
 use terrabake_format::trace::{PYRAMID_MAX, PYRAMID_MIN};
 use terrabake_format::Asset;
 

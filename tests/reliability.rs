@@ -15,7 +15,7 @@ use common::{stderr, stdout, terrabake};
 fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
-use terrabake::synth::SynthKind;
+use terrabake::io::synth::SynthKind;
 use terrabake_format::layout::xxh3;
 use terrabake_format::{Asset, MANIFEST_FILE};
 
@@ -26,13 +26,13 @@ fn bin() -> Command {
 /// A small synthetic DEM and a recipe that runs every stage on it.
 fn dem_and_recipe(dir: &Path) -> (PathBuf, PathBuf) {
     let tif = dir.join("dem.tif");
-    terrabake::synth::write_geotiff(
+    terrabake::io::synth::write_geotiff(
         &tif,
         SynthKind::Fractal,
         48,
         40,
         7,
-        terrabake::progress::Progress::hidden(),
+        terrabake::plumbing::progress::Progress::hidden(),
     )
     .unwrap();
     (tif, write_recipe(dir, "r.toml", "sectors = 8"))
@@ -679,7 +679,7 @@ fn a_failed_stage_removes_its_own_files() {
             asset: &Asset<Mmap>,
             dir: &Path,
             _: &terrabake::stage::Share,
-            _: terrabake::progress::Progress,
+            _: terrabake::plumbing::progress::Progress,
         ) -> anyhow::Result<Vec<LayerEntry>> {
             let h = asset.height()?;
             let spec = |name: &str| LayerSpec {
@@ -717,7 +717,7 @@ fn a_failed_stage_removes_its_own_files() {
             &asset,
             &FailsMidway,
             true,
-            terrabake::progress::Progress::hidden(),
+            terrabake::plumbing::progress::Progress::hidden(),
         )
         .unwrap_err();
         assert!(format!("{err:#}").contains("No space left"), "{err:#}");
@@ -736,7 +736,7 @@ fn a_failed_stage_removes_its_own_files() {
 /// parses). Both are now refused at ingest, naming the file and the fix.
 #[test]
 fn sources_whose_georeferencing_no_reader_accepts_are_refused() {
-    use terrabake::cog::{write_f32, GeoTags};
+    use terrabake::io::cog::{write_f32, GeoTags};
     use terrabake_format::manifest::{CrsKind, Georef, RasterType};
     let dir = tempfile::tempdir().unwrap();
     let georef = |scale: f64, doubles: Vec<f64>| Georef {

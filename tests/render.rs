@@ -3,13 +3,13 @@
 
 mod common;
 
-use terrabake::cones::ConesStage;
-use terrabake::ingest::{ingest, IngestOptions};
-use terrabake::progress::Progress;
-use terrabake::pyramid::PyramidStage;
-use terrabake::render::{builtin_views, render, RenderOptions, Sun};
+use terrabake::io::synth::SynthKind;
+use terrabake::plumbing::progress::Progress;
+use terrabake::present::render::{builtin_views, render, RenderOptions, Sun};
 use terrabake::stage::run_stage;
-use terrabake::synth::SynthKind;
+use terrabake::stages::cones::ConesStage;
+use terrabake::stages::ingest::{ingest, IngestOptions};
+use terrabake::stages::pyramid::PyramidStage;
 use terrabake_format::trace::{Method, Ray, Tracer};
 use terrabake_format::Asset;
 
@@ -51,9 +51,9 @@ fn every_method_renders_the_same_picture() {
                     elevation: 4.0,
                 },
                 every: 1,
-                shadows: terrabake::render::Shadows::Rays,
+                shadows: terrabake::present::render::Shadows::Rays,
                 exaggeration: 1.0,
-                normals: terrabake::render::Normals::Smooth,
+                normals: terrabake::present::render::Normals::Smooth,
             };
             let (image, stats) = render(&asset, &tracer, &views[view], &opts).unwrap();
             assert_eq!(stats.primary_rays, 80 * 60);
@@ -229,7 +229,7 @@ fn horizon_shadows_agree_with_shadow_rays() {
         3,
         IngestOptions::default(),
     );
-    let stage = terrabake::horizon::HorizonsStage {
+    let stage = terrabake::stages::horizons::HorizonsStage {
         sectors: 32,
         curvature: Some(false),
         encoding: Some(terrabake_format::horizons::AngleEncoding::F32),
@@ -239,7 +239,7 @@ fn horizon_shadows_agree_with_shadow_rays() {
     let asset = Asset::open(&out).unwrap();
     let tracer = Tracer::new(&asset).unwrap();
     let views = builtin_views(&tracer, &asset);
-    let picture = |view: &terrabake::render::Camera, shadows| {
+    let picture = |view: &terrabake::present::render::Camera, shadows| {
         let opts = RenderOptions {
             width: 160,
             height: 100,
@@ -251,11 +251,11 @@ fn horizon_shadows_agree_with_shadow_rays() {
             every: 1,
             shadows,
             exaggeration: 1.0,
-            normals: terrabake::render::Normals::Smooth,
+            normals: terrabake::present::render::Normals::Smooth,
         };
         render(&asset, &tracer, view, &opts).unwrap().0.rgb
     };
-    use terrabake::render::Shadows;
+    use terrabake::present::render::Shadows;
     let differ = |a: &[u8], b: &[u8]| {
         a.chunks(3)
             .zip(b.chunks(3))
@@ -289,7 +289,7 @@ fn horizon_shadows_agree_with_shadow_rays() {
 /// of 655,360 pixels when shadow rays used the true surface).
 #[test]
 fn shadows_fall_on_the_exaggerated_surface() {
-    use terrabake::render::{Camera, Shadows};
+    use terrabake::present::render::{Camera, Shadows};
     let dir = tempfile::tempdir().unwrap();
     let srtm = Asset::open(srtm_with_pyramid(dir.path())).unwrap();
     let tracer = Tracer::new(&srtm).unwrap();
@@ -311,7 +311,7 @@ fn shadows_fall_on_the_exaggerated_surface() {
                 every: 1,
                 shadows,
                 exaggeration: e,
-                normals: terrabake::render::Normals::Smooth,
+                normals: terrabake::present::render::Normals::Smooth,
             };
             render(&srtm, &tracer, &demo_view, &opts).unwrap().0.rgb
         };
@@ -330,7 +330,7 @@ fn shadows_fall_on_the_exaggerated_surface() {
 /// triangle's own normal, while every hit, and so the silhouette, stays.
 #[test]
 fn smooth_normals_show_no_facets() {
-    use terrabake::render::{Camera, Normals, Shadows};
+    use terrabake::present::render::{Camera, Normals, Shadows};
     let dir = tempfile::tempdir().unwrap();
     let srtm = Asset::open(srtm_with_pyramid(dir.path())).unwrap();
     let tracer = Tracer::new(&srtm).unwrap();

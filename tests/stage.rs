@@ -8,10 +8,10 @@ use std::path::Path;
 
 use anyhow::Result;
 use common::*;
-use terrabake::ingest::{ingest, IngestOptions};
-use terrabake::progress::Progress;
+use terrabake::plumbing::progress::Progress;
 use terrabake::stage::{run_stage, Stage};
-use terrabake::tiling::push_tile_row;
+use terrabake::stages::ingest::{ingest, IngestOptions};
+use terrabake::terrain::tiling::push_tile_row;
 use terrabake_format::{Asset, Codec, ElemType, LayerEntry, LayerSpec, LayerWriter, Mmap};
 
 /// A test stage: `offset` = height + `add`, written band by band; fails
@@ -256,9 +256,9 @@ fn record(asset: &Path, stage: &str) -> serde_json::Value {
 fn command_line_and_recipe_record_the_same_parameters() {
     let dir = tempfile::tempdir().unwrap();
     let tif = dir.path().join("t.tif");
-    terrabake::synth::write_geotiff(
+    terrabake::io::synth::write_geotiff(
         &tif,
-        terrabake::synth::SynthKind::Fractal,
+        terrabake::io::synth::SynthKind::Fractal,
         50,
         40,
         2,
@@ -335,9 +335,9 @@ fn command_line_and_recipe_record_the_same_parameters() {
 fn a_misspelled_recipe_key_is_refused_by_name() {
     let dir = tempfile::tempdir().unwrap();
     let tif = dir.path().join("t.tif");
-    terrabake::synth::write_geotiff(
+    terrabake::io::synth::write_geotiff(
         &tif,
-        terrabake::synth::SynthKind::Flat,
+        terrabake::io::synth::SynthKind::Flat,
         20,
         20,
         1,
@@ -388,29 +388,29 @@ fn command_line_defaults_are_the_stage_defaults() {
     #[derive(Parser)]
     struct Cones {
         #[command(flatten)]
-        stage: terrabake::cones::ConesStage,
+        stage: terrabake::stages::cones::ConesStage,
     }
     #[derive(Parser)]
     struct Horizons {
         #[command(flatten)]
-        stage: terrabake::horizon::HorizonsStage,
+        stage: terrabake::stages::horizons::HorizonsStage,
     }
     #[derive(Parser)]
     struct Ingest {
         #[command(flatten)]
-        opts: terrabake::ingest::IngestOptions,
+        opts: terrabake::stages::ingest::IngestOptions,
     }
     #[derive(Parser)]
     struct Sky {
         #[command(flatten)]
-        stage: terrabake::sky::SkyStage,
+        stage: terrabake::stages::sky::SkyStage,
     }
     assert_eq!(Ingest::parse_from(["x"]).opts, Default::default());
     assert_eq!(Sky::parse_from(["x"]).stage, Default::default());
     assert_eq!(Cones::parse_from(["x"]).stage, Default::default());
     assert_eq!(Horizons::parse_from(["x"]).stage, Default::default());
     let empty = toml::Table::new();
-    let from_recipe: terrabake::horizon::HorizonsStage =
+    let from_recipe: terrabake::stages::horizons::HorizonsStage =
         toml::Value::Table(empty).try_into().unwrap();
     assert_eq!(from_recipe, Default::default());
 }
@@ -420,17 +420,18 @@ fn command_line_defaults_are_the_stage_defaults() {
 /// there, bit for bit.
 #[test]
 fn a_region_baked_with_its_declared_reach_equals_the_whole() {
-    use terrabake::cog::{write_f32, GeoTags};
-    use terrabake::horizon::{HorizonsStage, Method};
-    use terrabake::pyramid::PyramidStage;
-    use terrabake::sky::{SkyLayer, SkyStage};
+    use terrabake::algorithms::horizon::Method;
+    use terrabake::io::cog::{write_f32, GeoTags};
     use terrabake::stage::Reach;
+    use terrabake::stages::horizons::HorizonsStage;
+    use terrabake::stages::pyramid::PyramidStage;
+    use terrabake::stages::sky::{SkyLayer, SkyStage};
 
     let (w, h) = (64u32, 56u32);
     let region = (20u32, 15u32, 44u32, 37u32); // posts x0..x1, y0..y1
     let dir = tempfile::tempdir().unwrap();
     let z = |x: u32, y: u32| {
-        terrabake::synth::height(terrabake::synth::SynthKind::Fractal, x, y, w, h, 9)
+        terrabake::io::synth::height(terrabake::io::synth::SynthKind::Fractal, x, y, w, h, 9)
     };
     // A DEM of posts [x0, x1) x [y0, y1) of the whole, as its own asset.
     let asset_of = |name: &str, (x0, y0, x1, y1): (u32, u32, u32, u32)| {
@@ -545,14 +546,15 @@ fn a_region_baked_with_its_declared_reach_equals_the_whole() {
 /// inside it, nodata outside: every method, bounded and not.
 #[test]
 fn an_area_of_interest_equals_the_whole_inside_and_is_nodata_outside() {
-    use terrabake::horizon::{HorizonsStage, Method};
-    use terrabake::sky::SkyStage;
+    use terrabake::algorithms::horizon::Method;
+    use terrabake::stages::horizons::HorizonsStage;
+    use terrabake::stages::sky::SkyStage;
 
     let dir = tempfile::tempdir().unwrap();
     let tif = dir.path().join("t.tif");
-    terrabake::synth::write_geotiff(
+    terrabake::io::synth::write_geotiff(
         &tif,
-        terrabake::synth::SynthKind::Fractal,
+        terrabake::io::synth::SynthKind::Fractal,
         90,
         70,
         4,

@@ -262,7 +262,7 @@ fn cone_textures_are_conservative_under_bilinear_filtering() {
 /// no worse than the fit allows.
 #[test]
 fn fourier_horizon_textures_hold_each_posts_fit() {
-    use terrabake::horizon::fourier::FourierBasis;
+    use terrabake::algorithms::horizon::fourier::FourierBasis;
     let dir = tempfile::tempdir().unwrap();
     let asset = baked(
         dir.path(),
@@ -294,7 +294,7 @@ fn fourier_horizon_textures_hold_each_posts_fit() {
         f32::from_le_bytes(data[k..k + 4].try_into().unwrap())
     };
     let a = Asset::open(&asset).unwrap();
-    let (bands, azimuths) = terrabake::horizon::read_horizons(&a).unwrap();
+    let (bands, azimuths) = terrabake::stages::horizons::read_horizons(&a).unwrap();
     let fit = FourierBasis::new(&azimuths, 4).unwrap();
     let (mut post, mut want, mut back) = (vec![0f32; 16], vec![0f32; 9], vec![0f64; 16]);
     let mut checked = 0;

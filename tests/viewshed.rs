@@ -5,10 +5,12 @@
 mod common;
 
 use proptest::prelude::*;
-use terrabake::horizon::terrain::Terrain;
-use terrabake::synth::{fill_rows, SynthKind};
-use terrabake::viewshed::observer::{line_of_sight, observer_viewshed, Observer, OUTSIDE};
-use terrabake::viewshed::total::{total_viewshed, Method, TotalOptions};
+use terrabake::algorithms::viewshed::observer::{
+    line_of_sight, observer_viewshed, Observer, OUTSIDE,
+};
+use terrabake::algorithms::viewshed::total::{total_viewshed, Method, TotalOptions};
+use terrabake::io::synth::{fill_rows, SynthKind};
+use terrabake::terrain::Terrain;
 
 fn synth(kind: SynthKind, w: usize, h: usize, seed: u64) -> Vec<f32> {
     let mut z = vec![0f32; w * h];
@@ -65,7 +67,7 @@ fn curvature_hides_what_lies_below_the_horizon() {
     let (w, h) = (200, 2);
     let z = vec![0f32; w * h];
     let flat = Terrain::new(&z, w, h, 100.0, 100.0);
-    let round = flat.with_curvature(terrabake::horizon::terrain::curvature_coefficient(0.13));
+    let round = flat.with_curvature(terrabake::terrain::curvature_coefficient(0.13));
     let obs = Observer {
         col: 0,
         row: 0,
@@ -96,7 +98,7 @@ fn block_walk_equals_every_crossing_on_synthetic_terrains() {
     ] {
         let z = synth(kind, w, h, seed);
         let t = Terrain::new(&z, w, h, 30.0, 25.0)
-            .with_curvature(terrabake::horizon::terrain::curvature_coefficient(0.13));
+            .with_curvature(terrabake::terrain::curvature_coefficient(0.13));
         for (col, row, height) in [(75, 60, 1.7), (3, 120, 30.0), (149, 0, 0.0)] {
             if z[row * w + col].is_nan() {
                 continue;
@@ -218,13 +220,13 @@ mod cli {
     /// A synthetic GeoTIFF `dir/t.tif`.
     fn synth_tif(dir: &std::path::Path, kind: SynthKind, (w, h): (u32, u32)) -> std::path::PathBuf {
         let tif = dir.join("t.tif");
-        terrabake::synth::write_geotiff(
+        terrabake::io::synth::write_geotiff(
             &tif,
             kind,
             w,
             h,
             4,
-            terrabake::progress::Progress::hidden(),
+            terrabake::plumbing::progress::Progress::hidden(),
         )
         .unwrap();
         tif
@@ -410,7 +412,7 @@ mod cli {
         // The stored total viewshed is the algorithm's (f32 of the f64 sums).
         let z = common::heights(&opened);
         let cs = &opened.manifest().cell_size;
-        let curvature = terrabake::horizon::curvature_for(opened.manifest(), None, 0.13);
+        let curvature = terrabake::terrain::held::curvature_for(opened.manifest(), None, 0.13);
         let t = Terrain::new(&z, 64, 48, cs.dx, cs.dy).with_curvature(curvature);
         let (want, _) = total_viewshed(
             &t,

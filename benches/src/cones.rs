@@ -17,11 +17,11 @@ use terrabake_format::Asset;
 use super::chart::{log_log_svg, Series};
 use super::markdown_table;
 use super::views::{bench_views, BenchRow};
-use terrabake::cones::planes::{neighbourhood_max, sliced_planes, PlaneStats, Slices};
-use terrabake::cones::{summarize_heights, ConesStage, SliceChoice};
-use terrabake::progress::Progress;
-use terrabake::pyramid::PyramidStage;
+use terrabake::algorithms::planes::{neighbourhood_max, sliced_planes, PlaneStats, Slices};
+use terrabake::plumbing::progress::Progress;
 use terrabake::stage::run_stage;
+use terrabake::stages::cones::{summarize_heights, ConesStage, SliceChoice};
+use terrabake::stages::pyramid::PyramidStage;
 
 /// One configuration's cost and benefit.
 #[derive(Debug, Clone, Serialize)]
@@ -207,7 +207,7 @@ pub struct ScanRow {
 /// open-cell scans' blocks were read, and how many cells were open. `exact` has no slices and is
 /// left out.
 pub fn scan_stats(dir: &Path, slices: &[SliceChoice]) -> Result<Vec<ScanRow>> {
-    let asset = terrabake::asset::open(dir)?;
+    let asset = terrabake::stage::asset::open(dir)?;
     let summary = summarize_heights(&asset)?;
     let height = asset.height()?;
     let (w, h) = (height.width() as usize, height.height() as usize);
@@ -322,7 +322,7 @@ impl BenchConesArgs {
             }
             return Ok(());
         }
-        terrabake::asset::open(&self.asset)?;
+        terrabake::stage::asset::open(&self.asset)?;
         let rows = cone_tradeoff(
             &self.asset,
             &self.slices,

@@ -22,9 +22,13 @@ use terrabake_format::horizons::{bands_around, between};
 use super::chart::{log_log_svg, log_log_svg_with_marks, Series};
 use super::markdown_table;
 use super::peers::{LoadedPeer, PeerManifest, PeerRow, SvfDefinition};
-use terrabake::horizon::sky::{sums_of_horizons, svf_of_horizons, BandIntegrals, SkySums};
-use terrabake::horizon::terrain::Terrain;
-use terrabake::horizon::{band_horizons, plan_bands, Band, BandKind, BandOptions, Method};
+use terrabake::algorithms::horizon::sky::{
+    sums_of_horizons, svf_of_horizons, BandIntegrals, SkySums,
+};
+use terrabake::algorithms::horizon::{
+    band_horizons, plan_bands, Band, BandKind, BandOptions, Method,
+};
+use terrabake::terrain::Terrain;
 
 /// Every band of `bands` on `terrain` (all cores), the wall time and the
 /// work counted by the algorithms.
@@ -277,7 +281,9 @@ pub fn accuracy_study(
         // Only lines have a tolerance, and the stage refuses one past
         // `tolerance_limit`.
         .filter(|&(m, k, t)| {
-            t.is_none_or(|t| m == Method::Line && t < terrabake::horizon::line::tolerance_limit(k))
+            t.is_none_or(|t| {
+                m == Method::Line && t < terrabake::algorithms::horizon::line::tolerance_limit(k)
+            })
         })
         .map(|(m, k, t)| accuracy(&small, &reference_bands, m, k, t))
         .collect();
@@ -410,7 +416,7 @@ pub fn accuracy_charts(prefix: &Path, study: &AccuracyStudy) -> Result<()> {
     )
 }
 
-/// What `K` harmonics cost ([`terrabake::horizon::fourier`]): the error of the
+/// What `K` harmonics cost ([`terrabake::algorithms::horizon::fourier`]): the error of the
 /// fit at the stored band azimuths over every post.
 #[derive(Debug, Clone, Serialize)]
 pub struct FourierRow {
@@ -434,7 +440,7 @@ pub fn fourier_study(
     harmonics
         .iter()
         .map(|&k| {
-            let fit = terrabake::horizon::fourier::FourierBasis::new(azimuths, k)?;
+            let fit = terrabake::algorithms::horizon::fourier::FourierBasis::new(azimuths, k)?;
             // Per post: its sum of squares and its largest error.
             let per_post: Vec<(f64, f64, usize)> = (0..posts)
                 .into_par_iter()
@@ -553,9 +559,9 @@ impl BenchHorizonsArgs {
     /// Runs the study and prints its tables (or JSON); `say` reports files.
     pub fn run(&self, say: &dyn Fn(String)) -> Result<()> {
         use anyhow::Context;
-        let opened = terrabake::asset::open(&self.asset)?;
+        let opened = terrabake::stage::asset::open(&self.asset)?;
         if !self.fourier.is_empty() {
-            let (bands, azimuths) = terrabake::horizon::read_horizons(&opened)?;
+            let (bands, azimuths) = terrabake::stages::horizons::read_horizons(&opened)?;
             let rows = fourier_study(&bands, &azimuths, &self.fourier)?;
             if self.json {
                 println!("{}", serde_json::to_string_pretty(&rows)?);
@@ -592,7 +598,7 @@ impl BenchHorizonsArgs {
                 "--direction-tolerance {t}: give a positive number of degrees"
             );
         }
-        let dem = terrabake::horizon::HeldDem::read(&opened)?;
+        let dem = terrabake::terrain::held::HeldDem::read(&opened)?;
         let whole = dem.terrain(0.0);
         let (manifest, peers) = match &self.peers {
             Some(path) => {
@@ -676,7 +682,7 @@ impl BenchHorizonsArgs {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use terrabake::synth::{height, SynthKind};
+    use terrabake::io::synth::{height, SynthKind};
 
     /// With a tolerance, the line method's counts come again with it where
     /// it is under half their spacing, and no other method's.

@@ -6,7 +6,7 @@
 use std::process::ExitCode;
 
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
-use terrabake::progress::Progress;
+use terrabake::plumbing::progress::Progress;
 
 #[derive(Parser, Debug)]
 #[command(
@@ -41,7 +41,9 @@ enum Command {
     /// views of `views` with the parametric tracer on one thread; the hierarchical tracer and
     /// its pyramid are the reference. Prints a table; --chart writes PREFIX_steps.svg and
     /// PREFIX_speed.svg.
-    #[command(after_help = "Example:\n  terrabake-bench cones srtm.tbake --chart docs/charts/cones")]
+    #[command(
+        after_help = "Example:\n  terrabake-bench cones srtm.tbake --chart docs/charts/cones"
+    )]
     Cones(terrabake_bench::cones::BenchConesArgs),
     /// Benchmark the tracers on the sixteen built-in views, side by side (Paglieroni's Table 1).
     Views(terrabake_bench::views::BenchViewsArgs),
@@ -62,14 +64,14 @@ fn main() -> ExitCode {
             Cli::from_arg_matches(&m).map_err(|e| e.format(&mut cmd))
         })
         .unwrap_or_else(|e| e.exit());
-    terrabake::interrupt::install();
+    terrabake::plumbing::interrupt::install();
     let say = |msg: String| {
         if !cli.quiet {
             eprintln!("{msg}");
         }
     };
     let run = || -> anyhow::Result<()> {
-        terrabake::simd::cap_from_env().map_err(anyhow::Error::msg)?;
+        terrabake::plumbing::simd::cap_from_env().map_err(anyhow::Error::msg)?;
         match &cli.command {
             Command::Horizons(args) => args.run(&say),
             Command::Cones(args) => args.run(Progress::new(cli.quiet), &say),
@@ -81,7 +83,7 @@ fn main() -> ExitCode {
     match run() {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {}", terrabake::report::error_chain(&e));
+            eprintln!("error: {}", terrabake::present::report::error_chain(&e));
             ExitCode::FAILURE
         }
     }

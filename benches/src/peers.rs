@@ -27,7 +27,7 @@ use serde::{Deserialize, Serialize};
 
 use super::horizons::{interpolated, svf_errors, svf_of, Reference};
 use super::markdown_table;
-use terrabake::horizon::sky::BandIntegrals;
+use terrabake::algorithms::horizon::sky::BandIntegrals;
 
 /// `peers.json`, as `bench_peers.sh` writes it. Paths are relative to the
 /// manifest's folder.
@@ -360,8 +360,8 @@ pub fn whole_table_markdown(manifest: &PeerManifest) -> Result<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use terrabake::horizon::terrain::Terrain;
-    use terrabake::synth::{height, SynthKind};
+    use terrabake::io::synth::{height, SynthKind};
+    use terrabake::terrain::Terrain;
 
     const SIDE: usize = 24;
 

@@ -11,9 +11,9 @@ use serde::Serialize;
 
 use super::chart::{log_log_svg, Series};
 use super::markdown_table;
-use terrabake::budget::{Budget, Request};
-use terrabake::check::{check, CheckOptions};
-use terrabake::progress::Progress;
+use terrabake::plan::budget::{Budget, Request};
+use terrabake::plan::check::{check, CheckOptions};
+use terrabake::plumbing::progress::Progress;
 use terrabake::stage::run_stage;
 
 /// One DEM and one budget: predicted and achieved.
@@ -101,7 +101,7 @@ impl BenchPlanArgs {
                     ..Default::default()
                 };
                 let start = Instant::now();
-                let asset = terrabake::asset::open(path)?;
+                let asset = terrabake::stage::asset::open(path)?;
                 let plan = match terrabake::plan::plan(&asset, &request, Progress::hidden()) {
                     Ok(plan) => plan,
                     Err(e) => {
@@ -118,7 +118,7 @@ impl BenchPlanArgs {
                 }
                 let bake_seconds = start.elapsed().as_secs_f64();
                 let report = check(
-                    &terrabake::asset::open(path)?,
+                    &terrabake::stage::asset::open(path)?,
                     &CheckOptions {
                         samples: 400,
                         seed: 99,

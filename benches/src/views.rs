@@ -8,7 +8,7 @@ use terrabake_format::{Asset, Mmap};
 
 use super::chart::{log_log_svg, Series};
 use super::markdown_table;
-use terrabake::render::{builtin_views, render, RenderOptions, Shadows, Sun};
+use terrabake::present::render::{builtin_views, render, RenderOptions, Shadows, Sun};
 
 /// One method's totals over the sixteen views.
 #[derive(Debug, Clone, Serialize)]
@@ -49,7 +49,7 @@ pub fn bench_views(
         every,
         shadows: Shadows::Off,
         exaggeration: 1.0,
-        normals: terrabake::render::Normals::Flat,
+        normals: terrabake::present::render::Normals::Flat,
     };
     // Warm the page cache, the process's page tables and the tiles'
     // first-read checksums along the very rays timed below, with every
@@ -367,7 +367,7 @@ impl BenchViewsArgs {
     pub fn run(&self, say: &dyn Fn(String)) -> anyhow::Result<()> {
         let mut results = Vec::new();
         for asset in &self.assets {
-            let opened = terrabake::asset::open(asset)?;
+            let opened = terrabake::stage::asset::open(asset)?;
             let azimuths = match self.directions {
                 Some(n) => even_azimuths(n),
                 None => run_length_azimuths(&self.run_lengths),

@@ -17,11 +17,11 @@ use serde::Serialize;
 
 use super::chart::{log_log_svg, Series};
 use super::markdown_table;
-use terrabake::horizon::terrain::Terrain;
-use terrabake::horizon::HeldDem;
-use terrabake::synth::{fill_rows, SynthKind};
-use terrabake::viewshed::observer::{observer_viewshed, Observer};
-use terrabake::viewshed::total::{total_viewshed, Method, TotalOptions, TotalStats};
+use terrabake::algorithms::viewshed::observer::{observer_viewshed, Observer};
+use terrabake::algorithms::viewshed::total::{total_viewshed, Method, TotalOptions, TotalStats};
+use terrabake::io::synth::{fill_rows, SynthKind};
+use terrabake::terrain::held::HeldDem;
+use terrabake::terrain::Terrain;
 
 #[derive(clap::Args, Debug)]
 #[command(
@@ -42,7 +42,7 @@ pub struct BenchVisibilityArgs {
     pub observer_height: f64,
     /// Also time the total viewshed of each whole asset within this many metres (naive, hull
     /// tree, hull tree with the safe zone).
-    #[arg(long, value_parser = terrabake::args::parse_positive)]
+    #[arg(long, value_parser = terrabake::stage::args::parse_positive)]
     pub bounded: Option<f64>,
     /// Line lengths (DEM sides) of the scaling study (Fig. 8), comma-separated; none given: skip.
     #[arg(long, value_delimiter = ',', num_args = 0.., default_value = "128,256,512,1024,2048")]
@@ -244,7 +244,7 @@ impl BenchVisibilityArgs {
     pub fn run(&self, say: &dyn Fn(String)) -> Result<()> {
         let mut assets = Vec::new();
         for path in &self.assets {
-            let asset = terrabake::asset::open(path)?;
+            let asset = terrabake::stage::asset::open(path)?;
             let name = path
                 .file_stem()
                 .map_or("asset".into(), |s| s.to_string_lossy().into_owned());
@@ -367,8 +367,8 @@ impl BenchVisibilityArgs {
         if let Some(d) = self.bounded {
             for (name, dem) in &assets {
                 say(format!("bounded: {name} within {d} m"));
-                let t = dem.terrain(terrabake::horizon::terrain::curvature_coefficient(
-                    terrabake::horizon::terrain::DEFAULT_REFRACTION,
+                let t = dem.terrain(terrabake::terrain::curvature_coefficient(
+                    terrabake::terrain::DEFAULT_REFRACTION,
                 ));
                 let opts = |method| TotalOptions {
                     height: 1.7,

@@ -2,7 +2,7 @@
 
 use std::process::{Command, Output};
 
-use terrabake::progress::Progress;
+use terrabake::plumbing::progress::Progress;
 use terrabake::stage::run_stage;
 
 fn bench(args: &[&str]) -> Output {
@@ -16,9 +16,9 @@ fn bench(args: &[&str]) -> Output {
 fn views_repeats_its_passes_and_refuses_none() {
     let dir = tempfile::tempdir().unwrap();
     let tif = dir.path().join("t.tif");
-    terrabake::synth::write_geotiff(
+    terrabake::io::synth::write_geotiff(
         &tif,
-        terrabake::synth::SynthKind::Sine,
+        terrabake::io::synth::SynthKind::Sine,
         60,
         40,
         1,
@@ -26,10 +26,11 @@ fn views_repeats_its_passes_and_refuses_none() {
     )
     .unwrap();
     let asset = dir.path().join("t.tbake");
-    terrabake::ingest::ingest(&tif, &asset, &Default::default(), Progress::hidden()).unwrap();
-    let pyramid = terrabake::pyramid::PyramidStage;
+    terrabake::stages::ingest::ingest(&tif, &asset, &Default::default(), Progress::hidden())
+        .unwrap();
+    let pyramid = terrabake::stages::pyramid::PyramidStage;
     run_stage(&asset, &pyramid, false, Progress::hidden()).unwrap();
-    let cones = terrabake::cones::ConesStage::default();
+    let cones = terrabake::stages::cones::ConesStage::default();
     run_stage(&asset, &cones, false, Progress::hidden()).unwrap();
     // Each method's median pass, the same hits for both tracers; no passes
     // at all is a usage error.

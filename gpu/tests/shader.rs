@@ -8,9 +8,9 @@
 
 use std::path::Path;
 
-use terrabake::asset::Wait;
-use terrabake::progress::Progress;
-use terrabake::recipe::{bake, Recipe};
+use terrabake::bake::recipe::{bake, Recipe};
+use terrabake::plumbing::progress::Progress;
+use terrabake::stage::asset::Wait;
 use terrabake_format::trace::{Method, Ray, Tracer};
 use terrabake_format::Asset;
 use terrabake_gpu::{Gpu, Scene, Shading};

@@ -27,9 +27,9 @@ use pyo3::exceptions::{PyException, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 use rayon::prelude::*;
-use terrabake::horizon::sky::{svf_of_horizons, BandIntegrals};
-use terrabake::horizon::terrain::{curvature_coefficient, Terrain, DEFAULT_REFRACTION};
-use terrabake::horizon::{band_bounds, band_horizons, plan_bands, BandOptions, Method};
+use terrabake::algorithms::horizon::sky::{svf_of_horizons, BandIntegrals};
+use terrabake::algorithms::horizon::{band_bounds, band_horizons, plan_bands, BandOptions, Method};
+use terrabake::terrain::{curvature_coefficient, Terrain, DEFAULT_REFRACTION};
 use terrabake_format::{ElemType, Mmap, Tile};
 
 pyo3::create_exception!(
@@ -40,7 +40,7 @@ pyo3::create_exception!(
 );
 
 fn raise(e: anyhow::Error) -> PyErr {
-    Error::new_err(terrabake::report::error_chain(&e))
+    Error::new_err(terrabake::present::report::error_chain(&e))
 }
 
 /// Runs `f`, turning a panic into `terrabake.Error` naming `what`.
@@ -251,7 +251,7 @@ impl Asset {
     fn crs(&self) -> Option<String> {
         let g = self.inner.manifest().georef.as_ref()?;
         let epsg = g.epsg?;
-        Some(terrabake::geo::wkt(epsg).unwrap_or_else(|| format!("EPSG:{epsg}")))
+        Some(terrabake::terrain::geo::wkt(epsg).unwrap_or_else(|| format!("EPSG:{epsg}")))
     }
 
     /// The compass azimuth (degrees clockwise from north) of each band of
@@ -322,7 +322,7 @@ impl Asset {
 #[pyfunction]
 fn open(path: PathBuf) -> PyResult<Asset> {
     guarded("open", || {
-        let inner = terrabake::asset::open(&path).map_err(raise)?;
+        let inner = terrabake::stage::asset::open(&path).map_err(raise)?;
         Ok(Asset {
             inner: Arc::new(inner),
         })
@@ -362,7 +362,7 @@ fn dem_of(dem: &Bound<'_, PyAny>, bands: usize) -> PyResult<(Vec<f32>, usize, us
     }
     // The heights, the angles of every band, and a band in flight per core.
     let held = 1 + bands as u64 + rayon::current_num_threads() as u64;
-    terrabake::resources::ensure_memory(
+    terrabake::plumbing::resources::ensure_memory(
         (w * h) as u64 * 4 * held,
         &format!("horizons of a {w} x {h} DEM in {bands} directions"),
     )
@@ -426,7 +426,7 @@ fn compute_horizons(
         let method = method_of(method)?;
         // The stage's own checks of what it shares with this call (the sector
         // count, the distance), with the CLI's messages.
-        let stage = terrabake::horizon::HorizonsStage {
+        let stage = terrabake::stages::horizons::HorizonsStage {
             sectors,
             method,
             max_distance,
@@ -603,11 +603,11 @@ fn bake(
         (Some(_), Some(_)) => {
             return Err(PyValueError::new_err("give a recipe or a budget, not both"))
         }
-        (Some(r), None) => terrabake::recipe::Recipe::load(&r).map_err(raise)?,
+        (Some(r), None) => terrabake::bake::recipe::Recipe::load(&r).map_err(raise)?,
         (None, budget) => {
             let plan = match budget {
                 None => None,
-                Some(b) => Some(terrabake::budget::Request {
+                Some(b) => Some(terrabake::plan::budget::Request {
                     budget: b
                         .parse()
                         .map_err(|e| PyValueError::new_err(format!("budget: {e}")))?,
@@ -620,7 +620,7 @@ fn bake(
                     ..Default::default()
                 }),
             };
-            terrabake::recipe::Recipe {
+            terrabake::bake::recipe::Recipe {
                 plan,
                 ..Default::default()
             }
@@ -631,12 +631,12 @@ fn bake(
     let created = !out.exists();
     let result = guarded("bake", || {
         Ok(py.detach(|| {
-            terrabake::recipe::bake_with(
+            terrabake::bake::recipe::bake_with(
                 &src,
                 &out,
                 &recipe,
-                terrabake::asset::Wait::unless(false),
-                terrabake::progress::Progress::new(true),
+                terrabake::stage::asset::Wait::unless(false),
+                terrabake::plumbing::progress::Progress::new(true),
                 &mut |outcome, done, total| {
                     let Some(cb) = &progress else { return Ok(()) };
                     Python::attach(|py| {

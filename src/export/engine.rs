@@ -25,8 +25,8 @@ use anyhow::{anyhow, bail, Context, Result};
 use serde::Serialize;
 use terrabake_format::{Asset, Layer, Mmap};
 
-use crate::output::write_atomically;
-use crate::progress::Progress;
+use crate::plumbing::output::write_atomically;
+use crate::plumbing::progress::Progress;
 
 /// The engines `export --for` writes heightmaps for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -27,8 +27,8 @@ use terrabake_format::horizons::{bands_around, between, HORIZON};
 use terrabake_format::{Asset, Mmap};
 
 use super::{cog_for_layer, TiffOptions};
-use crate::cog::{BandMetadata, Cog, Metadata, Resampling};
-use crate::progress::Progress;
+use crate::io::cog::{BandMetadata, Cog, Metadata, Resampling};
+use crate::plumbing::progress::Progress;
 
 /// The map name prefix; `r.sun horizon_basename=horizon`.
 pub const BASENAME: &str = "horizon";

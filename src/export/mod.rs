@@ -1,4 +1,4 @@
-//! Layers out of an asset: Cloud-Optimized GeoTIFF ([`crate::cog`]:
+//! Layers out of an asset: Cloud-Optimized GeoTIFF ([`crate::io::cog`]:
 //! georeferencing, nodata and band descriptions kept, so GDAL and QGIS read
 //! back the same geotransform and know each band's azimuth), OpenEXR (float,
 //! for engines), and PNG previews for people.
@@ -9,6 +9,7 @@
 pub mod engine;
 pub mod grass;
 pub mod texture;
+pub mod viewshed;
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -16,10 +17,10 @@ use std::path::{Path, PathBuf};
 use anyhow::{anyhow, bail, Result};
 use terrabake_format::{Asset, Layer, Mmap};
 
-use crate::cog::{Cog, Compression, GeoTags, Resampling};
-use crate::legend::{Legend, Ramp, Stretch};
-use crate::output::write_atomically;
-use crate::progress::Progress;
+use crate::io::cog::{Cog, Compression, GeoTags, Resampling};
+use crate::plumbing::output::write_atomically;
+use crate::plumbing::progress::Progress;
+use crate::present::legend::{Legend, Ramp, Stretch};
 
 /// The command that makes layer `name`, for a message about its absence.
 fn stage_making(name: &str) -> Option<&'static str> {
@@ -130,7 +131,7 @@ pub struct TiffOptions {
     #[arg(long, value_enum, default_value = "deflate")]
     pub compress: Compression,
     /// GeoTIFF tile edge in pixels (a multiple of 16).
-    #[arg(long, default_value_t = crate::cog::DEFAULT_TILE, value_parser = clap::value_parser!(u32).range(16..=4096))]
+    #[arg(long, default_value_t = crate::io::cog::DEFAULT_TILE, value_parser = clap::value_parser!(u32).range(16..=4096))]
     pub tile: u32,
     /// How the GeoTIFF's overviews are made: `nearest` (the default for angles, codes and
     /// counts) or `average` (the default for heights, sky-view factors and areas).
@@ -147,7 +148,7 @@ impl Default for TiffOptions {
     fn default() -> Self {
         Self {
             compress: Compression::default(),
-            tile: crate::cog::DEFAULT_TILE,
+            tile: crate::io::cog::DEFAULT_TILE,
             resampling: None,
             max_memory: None,
         }
@@ -224,7 +225,7 @@ pub fn cog_for_layer(asset: &Asset<Mmap>, layer: &Layer<Mmap>, tiff: &TiffOption
                 }
                 None => layer_title(name, b, layer.bands()),
             };
-            crate::cog::BandMetadata {
+            crate::io::cog::BandMetadata {
                 description,
                 unit: unit.to_string(),
                 items,
@@ -253,7 +254,7 @@ pub fn cog_for_layer(asset: &Asset<Mmap>, layer: &Layer<Mmap>, tiff: &TiffOption
         compression: tiff.compress,
         resampling: tiff.resampling.unwrap_or_else(|| default_resampling(name)),
         tags: GeoTags::for_level(manifest.georef.as_ref(), nodata, entry.level),
-        metadata: crate::cog::Metadata {
+        metadata: crate::io::cog::Metadata {
             dataset,
             bands: band_metadata,
         },
@@ -306,7 +307,7 @@ pub struct ExportArgs {
     pub for_program: Option<ExportFor>,
     /// With --for grass: degrees between directions, 0.1 to 360 (360 / the layer's bands by default);
     /// give `r.sun` the same `horizon_step`.
-    #[arg(long, requires = "for_program", value_parser = crate::args::parse_grass_step)]
+    #[arg(long, requires = "for_program", value_parser = crate::stage::args::parse_grass_step)]
     pub step: Option<f64>,
     /// With a .ktx2 horizon export: the horizons as 2K + 1 Fourier coefficients per post for K
     /// harmonics (at most (bands - 1) / 2), a float array texture, instead of the bands.
@@ -334,7 +335,7 @@ pub enum ExportFor {
 
 impl ExportArgs {
     pub fn run(&self, progress: Progress, say: &dyn Fn(String)) -> Result<()> {
-        let asset = crate::asset::open(&self.asset)?;
+        let asset = crate::stage::asset::open(&self.asset)?;
         if self.for_program == Some(ExportFor::Grass) {
             if self.layer != terrabake_format::layers::HORIZON || self.level != 0 {
                 bail!("--for grass exports the horizon layer: add --layer horizon");
@@ -568,7 +569,7 @@ fn write_png_preview(
     );
     let legend_rows = match style {
         PngStyle::Gray => 0,
-        _ => crate::legend::height(pw),
+        _ => crate::present::legend::height(pw),
     };
     write_atomically(out, |file| {
         let mut enc = png::Encoder::new(file, pw, ph + legend_rows);
@@ -614,7 +615,7 @@ fn write_png_preview(
                             f64::from(right - left) / (2.0 * dx),
                             f64::from(down - up) / (2.0 * dy),
                         );
-                        let [r, g, b] = crate::legend::hypsometric(t);
+                        let [r, g, b] = crate::present::legend::hypsometric(t);
                         let s = 0.35 + 0.65 * shade;
                         bytes.extend_from_slice(&[
                             (r * s) as u8,
@@ -629,7 +630,7 @@ fn write_png_preview(
             above = std::mem::replace(&mut here, below);
         }
         if legend_rows > 0 {
-            let panel: Vec<u8> = crate::legend::render(pw, &legend)
+            let panel: Vec<u8> = crate::present::legend::render(pw, &legend)
                 .into_iter()
                 .flat_map(|[r, g, b]| [r, g, b, 255])
                 .collect();

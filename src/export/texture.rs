@@ -31,7 +31,7 @@ use anyhow::{bail, Result};
 use terrabake_format::horizons::AngleEncoding;
 use terrabake_format::{Asset, ElemType, Layer, Mmap};
 
-use crate::output::write_atomically;
+use crate::plumbing::output::write_atomically;
 
 /// Vulkan's format numbers for the formats written.
 pub const VK_FORMAT_R8_UNORM: u32 = 9;
@@ -304,7 +304,7 @@ pub fn conservative_cones(
 }
 
 /// The horizon layer of `asset` as `2K + 1` Fourier coefficients per post
-/// ([`crate::horizon::fourier`]): an `R32_SFLOAT` array texture, layer `j`
+/// ([`crate::algorithms::horizon::fourier`]): an `R32_SFLOAT` array texture, layer `j`
 /// coefficient `j` (`c_0`, then `cos` and `sin` of each harmonic), NaN for
 /// nodata.
 pub fn fourier_texture(asset: &Asset<Mmap>, harmonics: usize) -> Result<Ktx2> {
@@ -320,8 +320,8 @@ pub fn fourier_texture(asset: &Asset<Mmap>, harmonics: usize) -> Result<Ktx2> {
             held
         );
     }
-    let (bands, azimuths) = crate::horizon::read_horizons(asset)?;
-    let fit = crate::horizon::fourier::FourierBasis::new(&azimuths, harmonics)?;
+    let (bands, azimuths) = crate::stages::horizons::read_horizons(asset)?;
+    let fit = crate::algorithms::horizon::fourier::FourierBasis::new(&azimuths, harmonics)?;
     let (w, h) = (layer.width(), layer.height());
     let posts = w as usize * h as usize;
     let mut coefficients = vec![0f32; fit.len() * posts];

@@ -90,20 +90,20 @@ pub fn same_heights(a: f32, b: f32) -> bool {
 /// the asset directory `dir/t.tbake`.
 pub fn synth_with_pyramid(
     dir: &Path,
-    kind: terrabake::synth::SynthKind,
+    kind: terrabake::io::synth::SynthKind,
     w: u32,
     h: u32,
     seed: u64,
-    opts: terrabake::ingest::IngestOptions,
+    opts: terrabake::stages::ingest::IngestOptions,
 ) -> PathBuf {
-    use terrabake::progress::Progress;
+    use terrabake::plumbing::progress::Progress;
     let tif = dir.join("t.tif");
-    terrabake::synth::write_geotiff(&tif, kind, w, h, seed, Progress::hidden()).unwrap();
+    terrabake::io::synth::write_geotiff(&tif, kind, w, h, seed, Progress::hidden()).unwrap();
     let out = dir.join("t.tbake");
-    terrabake::ingest::ingest(&tif, &out, &opts, Progress::hidden()).unwrap();
+    terrabake::stages::ingest::ingest(&tif, &out, &opts, Progress::hidden()).unwrap();
     terrabake::stage::run_stage(
         &out,
-        &terrabake::pyramid::PyramidStage,
+        &terrabake::stages::pyramid::PyramidStage,
         false,
         Progress::hidden(),
     )
@@ -116,11 +116,11 @@ pub fn synth_with_pyramid(
 pub fn srtm_crop((x0, y0): (u32, u32), (w, h): (u32, u32)) -> (Vec<f32>, f64, f64) {
     let dir = tempfile::tempdir().expect("temp dir");
     let full = dir.path().join("srtm.tbake");
-    terrabake::ingest::ingest(
+    terrabake::stages::ingest::ingest(
         &repo_file("data/srtm3_n07w006_geographic_int16.tif"),
         &full,
-        &terrabake::ingest::IngestOptions::default(),
-        terrabake::progress::Progress::hidden(),
+        &terrabake::stages::ingest::IngestOptions::default(),
+        terrabake::plumbing::progress::Progress::hidden(),
     )
     .expect("ingest the bundled tile");
     let srtm = Asset::open(&full).expect("open");

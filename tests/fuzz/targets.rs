@@ -16,11 +16,11 @@ use terrabake_format::Asset;
 /// cone planes, horizons, sky layers), baked into `dir` and read back as
 /// file name -> bytes: the seed every reader input mutates.
 pub fn seed_asset(dir: &Path) -> HashMap<String, Vec<u8>> {
-    use terrabake::progress::Progress;
+    use terrabake::plumbing::progress::Progress;
     let tif = dir.join("seed.tif");
-    terrabake::synth::write_geotiff(
+    terrabake::io::synth::write_geotiff(
         &tif,
-        terrabake::synth::SynthKind::Fractal,
+        terrabake::io::synth::SynthKind::Fractal,
         40,
         36,
         3,
@@ -34,8 +34,8 @@ pub fn seed_asset(dir: &Path) -> HashMap<String, Vec<u8>> {
     )
     .expect("seed recipe");
     let asset = dir.join("seed.tbake");
-    let recipe = terrabake::recipe::Recipe::load(&recipe).expect("recipe");
-    terrabake::recipe::bake(
+    let recipe = terrabake::bake::recipe::Recipe::load(&recipe).expect("recipe");
+    terrabake::bake::recipe::bake(
         &tif,
         &asset,
         &recipe,
@@ -290,18 +290,18 @@ pub fn ingest(data: &[u8], ext: &str, dir: &Path) -> bool {
     std::fs::write(&src, data).expect("write input");
     // Huge sparse rasters ingest correctly, just slowly: the fuzzer keeps
     // to inputs it can run a thousand of.
-    let small = terrabake::source::open(&src, None, 16, 64 << 20)
+    let small = terrabake::io::source::open(&src, None, 16, 64 << 20)
         .is_ok_and(|s| u64::from(s.info().width) * u64::from(s.info().height) <= 1 << 20);
     if !small {
         return false;
     }
-    let opts = terrabake::ingest::IngestOptions {
+    let opts = terrabake::stages::ingest::IngestOptions {
         tile_size: 16,
         max_memory: 64 << 20,
         ..Default::default()
     };
-    let hidden = terrabake::progress::Progress::hidden();
-    if terrabake::ingest::ingest(&src, &out, &opts, hidden).is_err() {
+    let hidden = terrabake::plumbing::progress::Progress::hidden();
+    if terrabake::stages::ingest::ingest(&src, &out, &opts, hidden).is_err() {
         return false;
     }
     let asset = Asset::open(&out).expect("an ingested asset opens");

@@ -1,0 +1,711 @@
+//! `terrabake check`: the error a bake achieved, measured against exact
+//! references computed from the heights alone, never from the baked layers
+//! (docs/PLANNING.md).
+//!
+//! **Reference.** `reference::Pilot`: sampled posts of the area the
+//! horizons stage computed (random, and the highest relief), and their
+//! exact line horizons in dense directions. **Error** at each post and
+//! reference azimuth: what the loader serves there
+//! (`HorizonMap::horizon_at`: the stored bands, linear between the two
+//! nearest) minus the reference. The budget's statistic is the 99th
+//! percentile of its absolute value over posts and azimuths: too few bands,
+//! a distance limit, quantisation and interpolation all count.
+//!
+//! **The DEM's edge.** Where the reference or one of the two bands serving
+//! an azimuth has nothing of the DEM ahead (the post faces out over the
+//! edge), the true horizon jumps from a real angle to none at an azimuth
+//! no band records; no stored sampling can know where. Those samples are
+//! counted and their largest error reported apart; the headline figures
+//! and the budget's verdicts are over the rest, what the asset claims to
+//! know.
+//!
+//! **Sky-view factor reference.** Zakšek's factor from the reference
+//! horizons (each direction's band its share of the circle); the error is
+//! the stored `svf` minus it, its statistic the 99th percentile over posts.
+
+use std::time::Instant;
+
+use anyhow::{bail, Result};
+use rayon::prelude::*;
+use serde::Serialize;
+use terrabake_format::cones::ConePlanes;
+use terrabake_format::horizons::{HorizonMap, NOTHING_AHEAD};
+use terrabake_format::layers::{HEIGHT, HORIZON, SVF};
+use terrabake_format::trace::{Method as TraceMethod, Ray, Tracer};
+use terrabake_format::{Asset, Mmap};
+
+use crate::io::synth::SplitMix64;
+use crate::plan::budget::{Budget, SunPosition};
+use crate::plan::reference::shade_differs;
+pub use crate::plan::reference::{percentile, Pilot, Sampling};
+use crate::plan::{Baked, Candidate};
+use crate::plumbing::progress::Progress;
+use crate::stages::horizons::HorizonsStage;
+use crate::terrain::held::HeldDem;
+
+/// How a check samples (the default: 400 posts and 100 of the highest
+/// relief, seed 1, 720 directions).
+pub type CheckOptions = Sampling;
+
+/// What a check measured of the horizons and what derives from them.
+#[derive(Debug, Clone, Serialize)]
+pub struct HorizonCheck {
+    pub posts: usize,
+    pub relief_posts: usize,
+    pub reference_directions: usize,
+    /// What was baked: method, bands, encoding.
+    pub method: String,
+    pub bands: usize,
+    pub encoding: String,
+    pub max_distance: Option<f64>,
+    /// Absolute horizon angle error over posts and azimuths, degrees.
+    pub horizon_p50_deg: f64,
+    pub horizon_p99_deg: f64,
+    pub horizon_max_deg: f64,
+    /// Mean signed error (stored minus reference), degrees.
+    pub horizon_bias_deg: f64,
+    /// (post, azimuth) samples in the figures above.
+    pub samples: usize,
+    /// Samples at the DEM's edge (the reference or a serving band has
+    /// nothing ahead), left out of the figures above; the posts they fall
+    /// on, and their largest error (degrees, `None` when there are none).
+    pub edge_samples: usize,
+    pub edge_posts: usize,
+    pub edge_max_deg: Option<f64>,
+    /// Absolute sky-view factor error over posts (`None`: no svf layer).
+    pub svf_p99: Option<f64>,
+    pub svf_max: Option<f64>,
+    /// The share of (post, sun position) pairs whose sun/shade state the
+    /// stored horizons get wrong (`None`: no sun positions).
+    pub shade_share: Option<f64>,
+    pub sun_positions: usize,
+}
+
+/// What a check measured of the tracing layers, by brute force.
+#[derive(Debug, Clone, Serialize)]
+pub struct TracingCheck {
+    /// Cells whose cone was checked against every cell of the DEM.
+    pub cone_cells: usize,
+    /// Cells whose stored cone holds terrain (must be 0).
+    pub cone_violations: usize,
+    /// Mean, over the checked cells, of the stored slope over the widest
+    /// slope its apex allows (1: as wide as can be); measured on DEMs of up
+    /// to 4 M cells.
+    pub cone_tightness: Option<f64>,
+    /// Random rays traced by each method and by the brute force.
+    pub rays: usize,
+    /// Per method, the rays whose hit differs from the brute force's (must
+    /// be 0).
+    pub mismatches: Vec<(String, usize)>,
+}
+
+/// What a check measured.
+#[derive(Debug, Clone, Serialize)]
+pub struct CheckReport {
+    pub horizons: Option<HorizonCheck>,
+    pub tracing: Option<TracingCheck>,
+    /// Bytes of the asset on disk: the manifest and the layer files it
+    /// names.
+    pub bytes: u64,
+    pub seconds: f64,
+    pub seed: u64,
+    /// The budget checked against (given, or the recorded plan's), and
+    /// each limit's verdict.
+    pub budget: Option<Budget>,
+    /// What the recorded plan predicted for the horizons, if any.
+    pub predicted: Option<Candidate>,
+    /// What the planned bake measured of itself (time, peak memory).
+    pub baked: Option<Baked>,
+    pub verdicts: Vec<Verdict>,
+}
+
+/// One limit of the budget against what was achieved.
+#[derive(Debug, Clone, Serialize)]
+pub struct Verdict {
+    pub what: &'static str,
+    pub achieved: Option<f64>,
+    pub limit: f64,
+    /// `None`: not measured.
+    pub met: Option<bool>,
+}
+
+impl CheckReport {
+    /// Whether every measured limit was met, and the tracing layers are
+    /// exact.
+    pub fn within_budget(&self) -> bool {
+        self.verdicts.iter().all(|v| v.met != Some(false))
+            && self
+                .tracing
+                .as_ref()
+                .is_none_or(|t| t.cone_violations == 0 && t.mismatches.iter().all(|(_, n)| *n == 0))
+    }
+}
+
+/// Bytes of the asset: the files its manifest names (retired generations
+/// and leftovers that writers delete are not the asset) and the manifest.
+fn asset_bytes(asset: &Asset<Mmap>) -> u64 {
+    let manifest =
+        std::fs::metadata(asset.dir().join(terrabake_format::MANIFEST_FILE)).map_or(0, |m| m.len());
+    manifest
+        + asset
+            .manifest()
+            .layers
+            .iter()
+            .map(|l| l.file_len)
+            .sum::<u64>()
+}
+
+/// Measures `asset`'s horizons, sky-view factors, sun/shade states and
+/// tracing layers against exact references, and `budget`'s limits against
+/// them. The sun positions are `sun`, else the recorded plan's.
+pub fn check(
+    asset: &Asset<Mmap>,
+    opts: &CheckOptions,
+    budget: Option<&Budget>,
+    sun: &[SunPosition],
+    progress: Progress,
+) -> Result<CheckReport> {
+    let start = Instant::now();
+    let dir = asset.dir();
+    let plan = crate::plan::recorded(asset);
+    let sun = if sun.is_empty() {
+        plan.as_ref().map_or(&[][..], |p| &p.sun[..])
+    } else {
+        sun
+    };
+    if budget.is_some_and(|b| b.shade.is_some()) && sun.is_empty() {
+        bail!(
+            "{}: a shade budget needs sun positions, and neither --sun nor a recorded plan gives any (--sun AZ,EL;AZ,EL)",
+            dir.display()
+        );
+    }
+    // The heights, read once for both references.
+    let dem = HeldDem::read(asset)?;
+    let horizons = match HorizonMap::open(asset) {
+        Ok(map) => Some(check_horizons(asset, &dem, &map, opts, sun, progress)?),
+        Err(_) => None,
+    };
+    let tracing = check_tracing(asset, &dem, opts)?;
+    if horizons.is_none() && tracing.is_none() {
+        bail!(
+            "{}: nothing to check: the asset has no horizon layer, pyramid or cone planes (terrabake horizons {})",
+            dir.display(),
+            dir.display()
+        );
+    }
+    let mut report = CheckReport {
+        horizons,
+        tracing,
+        bytes: asset_bytes(asset),
+        seconds: start.elapsed().as_secs_f64(),
+        seed: opts.seed,
+        budget: budget.copied(),
+        predicted: None,
+        baked: None,
+        verdicts: Vec::new(),
+    };
+    if report.budget.is_none() {
+        report.budget = plan.as_ref().map(|p| p.budget);
+    }
+    if let Some(plan) = plan {
+        report.predicted = plan.chosen;
+        report.baked = plan.baked;
+    }
+    if let Some(b) = report.budget {
+        report.verdicts = verdicts(&report, &b);
+    }
+    Ok(report)
+}
+
+/// The horizons against exact line horizons at sampled posts.
+fn check_horizons(
+    asset: &Asset<Mmap>,
+    dem: &HeldDem,
+    map: &HorizonMap<'_, Mmap>,
+    opts: &CheckOptions,
+    sun: &[SunPosition],
+    progress: Progress,
+) -> Result<HorizonCheck> {
+    let dir = asset.dir();
+    let Some(stage) = HorizonsStage::recorded(asset) else {
+        bail!(
+            "{}: the horizon layer has no stage record to check it against",
+            dir.display()
+        );
+    };
+    let m = asset.manifest();
+    let area = stage.area(m.width as usize, m.height as usize);
+    let pilot = Pilot::measure(
+        asset,
+        dem,
+        stage.curvature_coefficient(asset),
+        area,
+        opts,
+        progress,
+    )?;
+    let svf_layer = asset.layer(SVF, 0).ok();
+    // Each sun at the nearest reference direction, where both the exact
+    // and the served horizon are known.
+    let suns: Vec<(usize, f64)> = sun
+        .iter()
+        .map(|&[az, el]| (pilot.nearest_direction(az), el))
+        .collect();
+    // Per post: the signed horizon errors at every reference azimuth (those
+    // at the DEM's edge apart), the svf error, and the wrong sun/shade
+    // states.
+    type PostErrors = (Vec<f64>, Vec<f64>, Option<f64>, usize);
+    let per_post: Vec<Result<PostErrors>> = pilot
+        .posts
+        .par_iter()
+        .zip(&pilot.exact)
+        .map(|(&(c, r), exact)| {
+            let (mut errors, mut at_edge) = (Vec::with_capacity(exact.len()), Vec::new());
+            let mut served = vec![None; exact.len()];
+            for ((band, &truth), out) in pilot.reference.iter().zip(exact).zip(&mut served) {
+                let Some(s) = map.served_at(c as u32, r as u32, band.azimuth)? else {
+                    continue;
+                };
+                *out = Some(s.angle);
+                if s.at_edge || truth == NOTHING_AHEAD {
+                    at_edge.push(s.angle - truth);
+                } else {
+                    errors.push(s.angle - truth);
+                }
+            }
+            let wrong = suns
+                .iter()
+                .filter(|&&(j, el)| served[j].is_some_and(|s| shade_differs(el, s, exact[j])))
+                .count();
+            let svf_error = match &svf_layer {
+                Some(layer) => {
+                    let stored = layer.get::<f32>(0, c as u32, r as u32)?;
+                    (!stored.is_nan()).then(|| f64::from(stored) - pilot.svf(exact))
+                }
+                None => None,
+            };
+            Ok((errors, at_edge, svf_error, wrong))
+        })
+        .collect();
+    let (mut horizon, mut svf, mut wrong) = (Vec::new(), Vec::new(), 0);
+    let (mut edge_samples, mut edge_posts, mut edge_max) = (0, 0, None::<f64>);
+    for post in per_post {
+        let (errors, at_edge, svf_error, w) = post?;
+        horizon.extend(errors);
+        if !at_edge.is_empty() {
+            edge_samples += at_edge.len();
+            edge_posts += 1;
+            let largest = at_edge.iter().fold(0.0f64, |m, e| m.max(e.abs()));
+            edge_max = Some(edge_max.map_or(largest, |m| m.max(largest)));
+        }
+        svf.extend(svf_error.map(f64::abs));
+        wrong += w;
+    }
+    let bias = horizon.iter().sum::<f64>() / horizon.len().max(1) as f64;
+    let mut horizon: Vec<f64> = horizon.into_iter().map(f64::abs).collect();
+    horizon.sort_unstable_by(f64::total_cmp);
+    svf.sort_unstable_by(f64::total_cmp);
+    let layer = asset.layer(HORIZON, 0)?;
+    Ok(HorizonCheck {
+        posts: pilot.posts.len(),
+        relief_posts: pilot.relief_posts,
+        reference_directions: pilot.reference.len(),
+        method: stage.method.name().into(),
+        bands: layer.bands() as usize,
+        encoding: map.encoding().name().into(),
+        max_distance: stage.max_distance,
+        horizon_p50_deg: percentile(&horizon, 50),
+        horizon_p99_deg: percentile(&horizon, 99),
+        horizon_max_deg: horizon.last().copied().unwrap_or(0.0),
+        horizon_bias_deg: bias,
+        samples: horizon.len(),
+        edge_samples,
+        edge_posts,
+        edge_max_deg: edge_max,
+        svf_p99: (!svf.is_empty()).then(|| percentile(&svf, 99)),
+        svf_max: svf.last().copied(),
+        shade_share: (!suns.is_empty())
+            .then(|| wrong as f64 / (suns.len() * pilot.posts.len()) as f64),
+        sun_positions: suns.len(),
+    })
+}
+
+/// DEMs of up to this many cells have every cell scanned for each checked
+/// cone (the tightness); larger ones only the window where terrain could
+/// enter it.
+const FULL_SCAN_CELLS: usize = 4_000_000;
+
+/// The cone planes and the tracers against brute force: `samples` random
+/// cells' cones against every cell of the DEM, and `4 * samples` random
+/// rays traced by every method the asset serves and by the brute force.
+/// `None` when the asset has neither a pyramid nor cone planes.
+fn check_tracing(
+    asset: &Asset<Mmap>,
+    dem: &HeldDem,
+    opts: &CheckOptions,
+) -> Result<Option<TracingCheck>> {
+    let tracer = Tracer::new(asset)?;
+    if !tracer.has_pyramid() && !tracer.has_cones() {
+        return Ok(None);
+    }
+    let (w, h) = (dem.width, dem.height);
+    let (cw, ch) = (w - 1, h - 1);
+    let mut rng = SplitMix64(opts.seed ^ 0x7472_6163);
+    // Each cell's tallest corner (-inf without surface), as the pyramid's
+    // level 0 bounds it, from the heights rather than the baked layer.
+    let mut tall = vec![0f32; cw * ch];
+    let mut low = vec![0f32; cw];
+    for (r, max) in tall.chunks_exact_mut(cw).enumerate() {
+        let rows = &dem.z[r * w..(r + 2) * w];
+        crate::stages::pyramid::cell_bounds_row(&rows[..w], &rows[w..], max, &mut low);
+    }
+    let (mut cone_cells, mut cone_violations, mut tightness) = (0, 0, None);
+    if let Some(planes) = ConePlanes::open(asset)? {
+        let cells: Vec<usize> = (0..opts.samples.min(cw * ch))
+            .map(|_| rng.below(cw * ch))
+            .collect();
+        // Distance between the closed squares of two cells.
+        let gap = |a: usize, b: usize| (a.abs_diff(b).saturating_sub(1)) as f64;
+        // Terrain can enter a cone only within `slope * (top - apex)` of
+        // its cell, so that window is exact for violations; the tightness
+        // needs every taller cell, so it is measured on DEMs of up to
+        // FULL_SCAN_CELLS cells only.
+        let top = tall.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        let full = cw * ch <= FULL_SCAN_CELLS;
+        let found: Vec<Result<(bool, Option<f64>)>> = cells
+            .par_iter()
+            .map(|&i| {
+                let cone = planes.cone((i % cw) as u32, (i / cw) as u32)?;
+                let (ci, ri) = (i % cw, i / cw);
+                let reach = |cell: f64, n: usize| {
+                    let r = (cone.slope * (f64::from(top) - cone.apex).max(0.0) / cell).ceil();
+                    if full || !r.is_finite() || r >= n as f64 {
+                        n
+                    } else {
+                        r as usize + 1
+                    }
+                };
+                let (rx, ry) = (reach(dem.dx, cw), reach(dem.dy, ch));
+                let (mut holds_terrain, mut widest) = (false, f64::INFINITY);
+                for rj in ri.saturating_sub(ry)..(ri + ry + 1).min(ch) {
+                    for cj in ci.saturating_sub(rx)..(ci + rx + 1).min(cw) {
+                        let rise = f64::from(tall[rj * cw + cj]) - cone.apex;
+                        if rise > 0.0 {
+                            let d = (gap(ci, cj) * dem.dx).hypot(gap(ri, rj) * dem.dy);
+                            holds_terrain |= d < cone.slope * rise;
+                            widest = widest.min(d / rise);
+                        }
+                    }
+                }
+                Ok((
+                    holds_terrain,
+                    (full && widest.is_finite() && widest > 0.0).then(|| cone.slope / widest),
+                ))
+            })
+            .collect();
+        let mut ratios = Vec::new();
+        for f in found {
+            let (bad, ratio) = f?;
+            cone_cells += 1;
+            cone_violations += usize::from(bad);
+            ratios.extend(ratio);
+        }
+        tightness = (!ratios.is_empty()).then(|| ratios.iter().sum::<f64>() / ratios.len() as f64);
+    }
+    // Rays from anywhere above the lowest post, in any direction.
+    let (xm, ym) = tracer.extent();
+    let m = asset.manifest();
+    let (lo, hi) = m
+        .height_range
+        .map_or((0.0, 1.0), |r| (f64::from(r.min), f64::from(r.max)));
+    let span = (hi - lo).max(1.0);
+    let rays: Vec<Ray> = (0..4 * opts.samples)
+        .map(|_| {
+            let origin = [
+                rng.unit() * xm,
+                rng.unit() * ym,
+                lo + rng.unit() * 1.5 * span,
+            ];
+            let (z, phi) = (2.0 * rng.unit() - 1.0, rng.unit() * std::f64::consts::TAU);
+            let s = (1.0 - z * z).sqrt();
+            Ray {
+                origin,
+                dir: [s * phi.cos(), s * phi.sin(), z],
+                t_min: 0.0,
+                t_max: f64::INFINITY,
+            }
+        })
+        .collect();
+    let mut methods = Vec::new();
+    if tracer.has_pyramid() {
+        methods.push(TraceMethod::Hierarchical);
+    }
+    if tracer.has_cones() {
+        methods.push(TraceMethod::Parametric);
+    }
+    let mut mismatches = Vec::new();
+    let reference: Vec<_> = rays
+        .par_iter()
+        .map(|ray| {
+            tracer
+                .trace(ray, TraceMethod::BruteForce)
+                .map(|(hit, _)| hit)
+        })
+        .collect::<Result<_, _>>()?;
+    for method in methods {
+        // The same point: both miss, or `t` agrees to 1e-5 relative, the
+        // tracer tests' bar (a hit on an edge may name either cell that
+        // holds it, so cells are not compared).
+        let wrong = rays
+            .par_iter()
+            .zip(&reference)
+            .map(|(ray, want)| {
+                let (got, _) = tracer.trace(ray, method)?;
+                Ok(usize::from(match (got, want) {
+                    (None, None) => false,
+                    (Some(a), Some(b)) => (a.t - b.t).abs() > 1e-5 * b.t.abs().max(1.0),
+                    _ => true,
+                }))
+            })
+            .collect::<Result<Vec<usize>>>()?
+            .into_iter()
+            .sum();
+        mismatches.push((method.name().to_string(), wrong));
+    }
+    Ok(Some(TracingCheck {
+        cone_cells,
+        cone_violations,
+        cone_tightness: tightness,
+        rays: rays.len(),
+        mismatches,
+    }))
+}
+
+/// Each limit of `b` against `report`.
+fn verdicts(report: &CheckReport, b: &Budget) -> Vec<Verdict> {
+    let measured = |what, achieved: Option<f64>, limit: f64| Verdict {
+        what,
+        achieved,
+        limit,
+        met: achieved.map(|a| a <= limit),
+    };
+    let h = report.horizons.as_ref();
+    let mut v = Vec::new();
+    if let Some(h) = h {
+        v.push(measured(
+            "horizon p99 (deg)",
+            Some(h.horizon_p99_deg),
+            b.horizon,
+        ));
+    }
+    // Asked for and not there is not met.
+    let required = |mut verdict: Verdict| {
+        verdict.met = Some(verdict.met == Some(true));
+        verdict
+    };
+    if let Some(limit) = b.svf {
+        v.push(required(measured(
+            "svf p99",
+            h.and_then(|h| h.svf_p99),
+            limit,
+        )));
+    }
+    if let Some(limit) = b.shade {
+        v.push(required(measured(
+            "shade share",
+            h.and_then(|h| h.shade_share),
+            limit,
+        )));
+    }
+    if let Some(limit) = b.bytes {
+        v.push(measured("bytes", Some(report.bytes as f64), limit as f64));
+    }
+    let baked = report.baked.as_ref();
+    if let Some(limit) = b.time {
+        v.push(measured("time (s)", baked.map(|b| b.seconds), limit));
+    }
+    if let Some(limit) = b.memory {
+        v.push(measured(
+            "memory (MiB)",
+            baked.map(|b| b.peak_memory_mib),
+            limit as f64,
+        ));
+    }
+    v
+}
+
+/// Records `report` in the asset's manifest (a `check` record, dropped when
+/// the heights, horizons or sky-view factors are baked again).
+pub fn record(dir: &std::path::Path, report: &CheckReport) -> Result<()> {
+    crate::stage::record_measurement(
+        dir,
+        "check",
+        serde_json::to_value(report)?,
+        vec![
+            format!("{HEIGHT}@0"),
+            format!("{HORIZON}@0"),
+            format!("{SVF}@0"),
+        ],
+    )
+}
+
+/// The report as a table for people.
+pub fn describe(report: &CheckReport) -> String {
+    let mut out = String::new();
+    if let Some(h) = &report.horizons {
+        out += &format!(
+            "checked {} posts ({} of the highest relief) against exact line horizons in {} directions\n\
+             baked: {} horizons, {} bands, {}{}\n\n",
+            h.posts,
+            h.relief_posts,
+            h.reference_directions,
+            h.method,
+            h.bands,
+            h.encoding,
+            h.max_distance
+                .map_or(String::new(), |d| format!(", max distance {d} m")),
+        );
+        out += &format!(
+            "horizon error (deg)   p50 {:.3}   p99 {:.3}   max {:.3}   bias {:+.3}   ({} post-azimuth samples)\n",
+            h.horizon_p50_deg, h.horizon_p99_deg, h.horizon_max_deg, h.horizon_bias_deg, h.samples
+        );
+        if let Some(max) = h.edge_max_deg {
+            out += &format!(
+                "at the DEM's edge     {} samples at {} posts look out over the edge (nothing ahead on one side \
+                 of the azimuth): max {max:.3}, left out of the figures above\n",
+                h.edge_samples, h.edge_posts
+            );
+        }
+        if let (Some(p99), Some(max)) = (h.svf_p99, h.svf_max) {
+            out += &format!("svf error             p99 {p99:.4}   max {max:.4}\n");
+        }
+        if let Some(share) = h.shade_share {
+            out += &format!(
+                "sun/shade wrong       {share:.4} of {} posts x {} sun positions\n",
+                h.posts, h.sun_positions
+            );
+        }
+    }
+    if let Some(t) = &report.tracing {
+        if t.cone_cells > 0 {
+            out += &format!(
+                "cone planes           {} cells against every cell: {} hold terrain, {}\n",
+                t.cone_cells,
+                t.cone_violations,
+                t.cone_tightness
+                    .map_or("no taller terrain".into(), |r| format!(
+                        "mean slope {:.1} % of the widest its apex allows",
+                        100.0 * r
+                    )),
+            );
+        }
+        for (method, wrong) in &t.mismatches {
+            out += &format!(
+                "rays, {method:<13}  {} random rays against the brute force: {wrong} differ\n",
+                t.rays
+            );
+        }
+    }
+    out += &format!(
+        "bytes on disk         {}\nchecked in            {:.1} s\n",
+        crate::present::report::human_bytes(report.bytes),
+        report.seconds
+    );
+    if let Some(b) = &report.baked {
+        out += &format!(
+            "baked in              {:.1} s, peak memory {:.0} MiB\n",
+            b.seconds, b.peak_memory_mib
+        );
+    }
+    if let Some(p) = &report.predicted {
+        out += &format!(
+            "planned               horizon p99 {:.3}   svf p99 {:.4}{}   horizon and sky layers {} ({} directions, {}{})\n",
+            p.horizon_p99_deg,
+            p.svf_p99,
+            p.shade_share.map_or(String::new(), |s| format!("   shade {s:.4}")),
+            crate::present::report::human_bytes(p.bytes),
+            p.sectors,
+            p.encoding.name(),
+            p.max_distance.map_or(String::new(), |d| format!(", within {:.1} km", d / 1000.0)),
+        );
+    }
+    if let Some(b) = &report.budget {
+        out += &format!("\nbudget {b}\n");
+        for v in &report.verdicts {
+            let achieved = v.achieved.map_or("-".into(), |a| format!("{a:.4}"));
+            let verdict = match v.met {
+                Some(true) => "met",
+                Some(false) => "EXCEEDED",
+                None => "not measured (time and memory are measured by a planned bake)",
+            };
+            out += &format!(
+                "  {:<20} {:>12} <= {:<10} {verdict}\n",
+                v.what, achieved, v.limit
+            );
+        }
+    }
+    out
+}
+
+/// Exit status of `check` when a measured limit is exceeded.
+pub const EXIT_OVER_BUDGET: u8 = 4;
+
+/// `terrabake check`: its arguments.
+#[derive(clap::Args, Debug)]
+#[command(after_help = "Examples:\n  terrabake check dem.tbake\n  \
+terrabake check dem.tbake --budget horizon=0.5,svf=0.01 --json\n\n\
+Exit status: 0 within budget (or none given), 1 error, 4 a measured limit exceeded.")]
+pub struct CheckArgs {
+    /// The asset whose horizons and sky-view factors are measured.
+    pub asset: std::path::PathBuf,
+    /// Random posts to measure; a quarter as many of the highest relief are added.
+    #[arg(long, default_value_t = 400, value_parser = clap::value_parser!(u64).range(1..=1_000_000))]
+    pub samples: u64,
+    /// Seed of the posts drawn (the same seed draws the same posts).
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Reference directions (exact line horizons, within 0.1 degree of i * 360 / N).
+    #[arg(long, default_value_t = 720, value_parser = clap::value_parser!(u64).range(4..=8192))]
+    pub directions: u64,
+    /// The budget to check: horizon=DEG[,svf=X][,shade=F][,time=S][,bytes=SIZE][,memory=MIB]
+    /// (docs/PLANNING.md defines each).
+    #[arg(long)]
+    pub budget: Option<Budget>,
+    /// Sun positions for the shade share: AZ,EL;AZ,EL;... degrees (default: the recorded
+    /// plan's).
+    #[arg(long, allow_hyphen_values = true)]
+    pub sun: Option<crate::plan::budget::SunPositions>,
+    /// Measure only: leave the manifest as it is (by default the result is recorded in it).
+    #[arg(long)]
+    pub no_record: bool,
+    /// Print the report as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+impl CheckArgs {
+    pub fn run(&self, progress: Progress) -> Result<std::process::ExitCode> {
+        let asset = crate::stage::asset::open(&self.asset)?;
+        let opts = CheckOptions {
+            samples: self.samples as usize,
+            seed: self.seed,
+            directions: self.directions as usize,
+            cuts: &[],
+        };
+        let sun = self.sun.clone().map(|s| s.0).unwrap_or_default();
+        let report = check(&asset, &opts, self.budget.as_ref(), &sun, progress)?;
+        drop(asset);
+        if !self.no_record {
+            record(&self.asset, &report)?;
+        }
+        if self.json {
+            println!("{}", serde_json::to_string_pretty(&report)?);
+        } else {
+            print!("{}", describe(&report));
+        }
+        Ok(if report.within_budget() {
+            std::process::ExitCode::SUCCESS
+        } else {
+            std::process::ExitCode::from(EXIT_OVER_BUDGET)
+        })
+    }
+}

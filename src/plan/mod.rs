@@ -1,0 +1,1363 @@
+//! The planner (`terrabake plan`, `terrabake bake --budget`, a recipe's
+//! `[plan]`): from what a scene needs and the user's error budget to the
+//! stages and layers to bake, with the predicted error, time, bytes and
+//! memory of each choice and the cheaper choice it rejected
+//! (docs/PLANNING.md).
+//!
+//! **Error model: the scene measures itself.** A pilot ([`Pilot`]) computes
+//! exact line horizons in 720 directions at a few hundred posts (random,
+//! and those of the highest relief), with a seed apart from `check`'s, and
+//! keeps each sight line's horizon cut at every candidate distance too
+//! (from the line's records: where its running maximum rose). For `S` line
+//! directions (a divisor of 720), a distance limit and an encoding, the
+//! pilot measures the very directions the stage would store (its grid
+//! steps at the default tolerance, an eighth of the spacing: seldom
+//! reference directions), the planner makes the stored angles the stage
+//! would, serves every reference azimuth from them as the loader does
+//! (linear between the two nearest), and measures the error: the
+//! prediction is the error of that very bake at those posts. The svf and
+//! the sun/shade state at the sun positions are predicted the same way.
+//! (Until 2026-11-26 the bake stored reference directions, within 0.1
+//! degree of nominal: grid steps of 20 to 120 crossings, the stage 2.9x to
+//! 10x slower at 72 to 16 directions for the same error.)
+//!
+//! **Choice.** Each decision takes a fixed share of the budget, measured
+//! on its own: the directions (interpolation alone, 0.6), the distance
+//! limit (the cut alone, 0.05), the encoding (quantisation alone, 0.25);
+//! the rest (0.1) covers the posts the pilot did not see. Each decision is
+//! monotone in the budget, so a looser budget never gives more directions,
+//! a longer reach or a finer encoding: never more bytes or time. The
+//! directions' tolerance comes after their count, in the same share: the
+//! count is decided at the default tolerance (bytes first), then a fifth,
+//! a quarter and a third of the spacing are measured in turn, each taken
+//! while its grid steps cost fewer crossings a post and its error still
+//! fits (a looser budget never narrows it). The time model is the default
+//! tolerance's, an upper bound for a wider one.
+//!
+//! **Cost models**, fitted by `pipelines/fit_plan_models.sh` on the bundled
+//! tile (2 cores), each raised until no fit run took longer: unbounded
+//! line sweeps `posts * S^1.66 / 2.85e8` s; bounded lines (a walk of each
+//! post's reach) `posts * S * (5.79e-9 + 5.81e-9 * D / cell)` s, upper
+//! bounds on the machine of the fit only (`TERRABAKE_TIME_MODELS` names
+//! another machine's fit, [`TimeModels`]); bytes
+//! from the layers' tiles; memory from the
+//! tile row the line stage holds per band. The bake takes the faster of the
+//! two line routes that fits the memory limit.
+//!
+//! **Limits beyond the errors.** A memory limit can shrink the tiles (the
+//! line sweeps hold a tile row of every direction), a bytes limit can make
+//! the heights zstd (a sample of tile rows encoded as ingest would); both
+//! mean a second ingest, which `recipe::bake` runs. Fast tracing gets
+//! 64-slice u16 cone planes, chosen from the bundled tile's measurements.
+
+pub mod budget;
+pub mod check;
+pub mod reference;
+
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use serde::{Deserialize, Serialize};
+use terrabake_format::cones::ConeEncoding;
+use terrabake_format::horizons::{bands_around, between, AngleEncoding};
+use terrabake_format::{Asset, Codec, Mmap};
+
+use crate::algorithms::horizon::line::{default_tolerance, Stencil};
+use crate::algorithms::horizon::sky::{svf_of_horizons, BandIntegrals};
+use crate::algorithms::horizon::{Band, BandKind, Method};
+use crate::plan::budget::{Budget, Need, Needs, Request, SunPosition};
+use crate::plan::reference::{quantile_unsorted, shade_differs, Pilot, Sampling};
+use crate::plumbing::progress::Progress;
+use crate::stage::Stage;
+use crate::stages::horizons::HorizonsStage;
+use crate::stages::sky::{SkyLayer, SkyStage};
+use crate::terrain::Terrain;
+
+/// Reference directions of the pilot; candidates divide it.
+const PILOT_DIRECTIONS: usize = 720;
+/// Direction counts the planner considers (divisors of 720).
+const CANDIDATES: [usize; 20] = [
+    4, 6, 8, 10, 12, 16, 18, 20, 24, 30, 36, 40, 48, 60, 72, 90, 120, 180, 240, 360,
+];
+/// Distance limits the planner considers, metres.
+const DISTANCES: [f64; 18] = [
+    250.0, 500.0, 1e3, 1.5e3, 2e3, 3e3, 5e3, 7.5e3, 1e4, 1.5e4, 2e4, 3e4, 5e4, 7.5e4, 1e5, 1.5e5,
+    2e5, 3e5,
+];
+/// The shares of the budget: interpolation between directions, the
+/// distance limit, quantisation; the rest (0.1) covers the posts the pilot
+/// did not see.
+pub const SHARE_DIRECTIONS: f64 = 0.6;
+const SHARE_DISTANCE: f64 = 0.05;
+const SHARE_QUANTISATION: f64 = 0.25;
+/// Tolerances the planner tries beyond the stage's default (an eighth of
+/// the spacing), as divisors of the spacing, narrowest first; up to a
+/// third, short of the half at which two directions could take one step.
+const WIDER_TOLERANCES: [f64; 3] = [5.0, 4.0, 3.0];
+/// The pilot's quantile that decides (the budget's is 0.99): where a lone
+/// spike is seen in about 1 % of the azimuths, the 99th sits on a knife's
+/// edge and a pilot can find it small where a check finds it large.
+const DECISION_QUANTILE: f64 = 0.995;
+/// The pilot's seed: apart from `check`'s default, so that a check of a
+/// planned bake measures posts the plan never saw.
+pub const PILOT_SEED: u64 = 0x504c_414e;
+/// The environment variable naming a JSON file of [`TimeModels`] fitted on
+/// the machine that bakes (`OUT=FILE pipelines/fit_plan_models.sh` writes
+/// one); unset or empty, the planner takes the defaults.
+pub const TIME_MODELS_VAR: &str = "TERRABAKE_TIME_MODELS";
+
+/// The time models of the horizons and sky stages (docs/PLANNING.md, "Cost
+/// models"): `fixed_seconds` and, for sweeps to the edge, `posts *
+/// S^sweep_exponent / sweep_rate` seconds, for bounded lines `posts * S *
+/// (bounded_per_line + bounded_per_cell * D / cell)`. Each is fitted by
+/// `pipelines/fit_plan_models.sh` and raised until no fit run took longer,
+/// so it is an upper bound on the machine it was fitted on, not on every
+/// machine: the defaults are the Zen 4 machine's (2 cores), whose fit had
+/// no fixed term.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TimeModels {
+    /// What a bake of a few posts takes: starting, opening, writing.
+    pub fixed_seconds: f64,
+    pub sweep_exponent: f64,
+    pub sweep_rate: f64,
+    pub bounded_per_line: f64,
+    pub bounded_per_cell: f64,
+}
+
+impl Default for TimeModels {
+    fn default() -> Self {
+        Self {
+            fixed_seconds: 0.0,
+            sweep_exponent: 1.66,
+            sweep_rate: 2.85e8,
+            bounded_per_line: 5.79e-9,
+            bounded_per_cell: 5.81e-9,
+        }
+    }
+}
+
+impl TimeModels {
+    /// The models [`TIME_MODELS_VAR`] names, else the defaults; once read,
+    /// kept for the process, so that the check before an ingest, the plans
+    /// after it and `terrabake-bench plan`'s plans all use the same file's models. A
+    /// file that fails is not kept: its error ends the command.
+    pub fn from_env() -> Result<Self> {
+        static MODELS: std::sync::OnceLock<TimeModels> = std::sync::OnceLock::new();
+        if let Some(models) = MODELS.get() {
+            return Ok(*models);
+        }
+        let models = match std::env::var_os(TIME_MODELS_VAR).filter(|v| !v.is_empty()) {
+            None => Self::default(),
+            Some(path) => Self::read(std::path::Path::new(&path))?,
+        };
+        Ok(*MODELS.get_or_init(|| models))
+    }
+
+    /// The models in the JSON file `path`: every field given, each a
+    /// positive number (the fixed seconds may be 0).
+    pub fn read(path: &std::path::Path) -> Result<Self> {
+        // A file of five numbers; anything larger is not one.
+        const MAX_BYTES: u64 = 64 << 10;
+        let named = || format!("{} ({TIME_MODELS_VAR})", path.display());
+        // A regular file only: a FIFO there would hang the plan.
+        let bytes = terrabake_format::fsio::read_regular(path, MAX_BYTES + 1)
+            .with_context(|| format!("{}: cannot read the time models", named()))?;
+        if bytes.len() as u64 > MAX_BYTES {
+            bail!("{}: over {MAX_BYTES} bytes, not time models", named());
+        }
+        let models: Self = serde_json::from_slice(&bytes).with_context(|| {
+            format!(
+                "{}: not time models as fit_plan_models.sh writes them",
+                named()
+            )
+        })?;
+        let m = &models;
+        for (key, value, may_be_zero) in [
+            ("fixed_seconds", m.fixed_seconds, true),
+            ("sweep_exponent", m.sweep_exponent, false),
+            ("sweep_rate", m.sweep_rate, false),
+            ("bounded_per_line", m.bounded_per_line, false),
+            ("bounded_per_cell", m.bounded_per_cell, false),
+        ] {
+            if !(value.is_finite() && (value > 0.0 || may_be_zero && value == 0.0)) {
+                let least = if may_be_zero { "0 or more" } else { "positive" };
+                bail!("{}: {key} is {value}; it must be {least}", named());
+            }
+        }
+        Ok(models)
+    }
+}
+
+/// Seconds per post of the pyramid and of the cone planes at
+/// CONE_SLICES slices, measured on the bundled tile (2 cores, 0.13 s and
+/// 0.46 s; docs/BENCHMARKS.md, cone planes).
+const PYRAMID_SECONDS_PER_POST: f64 = 9.0e-8;
+const CONES_SECONDS_PER_POST: f64 = 3.2e-7;
+/// The cone planes' slices: within 6 % of the exact cones' steps per ray on
+/// the bundled tile at 37 % of the bake time of 256 slices (1.3 %).
+const CONE_SLICES: usize = 64;
+/// Peak memory, measured on the bundled tile: a base of 40 MiB, 10.7 bytes
+/// per post and band of a tile row of horizons in flight (97 MiB at 16
+/// directions, 463 MiB at 120), the DEM itself (4 bytes a post) for bounded
+/// lines, and 32 bytes a post for in-core cone planes; the pilot's own is
+/// counted exactly (`plan`).
+const BASE_MIB: f64 = 40.0;
+const LINE_BYTES_PER_ROW_POST_BAND: f64 = 10.7;
+const CONES_BYTES_PER_POST: f64 = 32.0;
+
+/// One count of directions, distance limit and encoding, predicted.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Candidate {
+    pub sectors: usize,
+    pub encoding: AngleEncoding,
+    /// The distance limit baked, metres (`None`: the whole DEM).
+    #[serde(default)]
+    pub max_distance: Option<f64>,
+    pub horizon_p99_deg: f64,
+    pub svf_p99: f64,
+    /// The share of (post, sun position) pairs whose sun/shade state is
+    /// wrong, when the scene needs the sun.
+    #[serde(default)]
+    pub shade_share: Option<f64>,
+    /// Bytes of the horizon and sky layers.
+    pub bytes: u64,
+    /// Seconds of the horizons and sky stages.
+    pub seconds: f64,
+    /// How far (degrees) a stored direction may sit from `i * 360 / S`
+    /// (`None`: the stage's default, an eighth of the spacing).
+    #[serde(default)]
+    pub direction_tolerance: Option<f64>,
+}
+
+impl Candidate {
+    /// Its predicted errors, for a reason: "horizon p99 .. deg, svf p99
+    /// ..[, shade ..]".
+    fn errors_text(&self) -> String {
+        format!(
+            "horizon p99 {:.3} deg, svf p99 {:.4}{}",
+            self.horizon_p99_deg,
+            self.svf_p99,
+            self.shade_share
+                .map_or(String::new(), |s| format!(", shade {s:.4}"))
+        )
+    }
+}
+
+/// What the planner measured of the scene.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Scene {
+    pub width: u32,
+    pub height: u32,
+    pub cell_size: (f64, f64),
+    pub relief_m: f64,
+    pub nodata_share: f64,
+    pub curvature: bool,
+    /// The farthest two posts lie apart, metres.
+    #[serde(default)]
+    pub extent_m: f64,
+    /// The scene's central latitude, degrees, when it is known.
+    #[serde(default)]
+    pub latitude_deg: Option<f64>,
+    /// The east-west post spacing on the first and the last row, metres
+    /// (they differ with latitude on geographic grids).
+    #[serde(default)]
+    pub dx_range_m: Option<(f64, f64)>,
+    /// The slope at the pilot's posts (random ones and those of the
+    /// highest relief): median and 90th percentile, degrees.
+    #[serde(default)]
+    pub slope_p50_deg: Option<f64>,
+    #[serde(default)]
+    pub slope_p90_deg: Option<f64>,
+    pub pilot_posts: usize,
+    /// Directions the pilot measured: the reference's and those the
+    /// candidate bakes would store.
+    #[serde(default)]
+    pub pilot_directions: usize,
+    /// The reference's distinct directions (fewer than the 720 asked for
+    /// where non-square cells put two on one grid step; 0 in plans
+    /// recorded before this was).
+    #[serde(default)]
+    pub pilot_reference_directions: usize,
+    pub pilot_seconds: f64,
+}
+
+/// One decision and its reason.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Choice {
+    pub what: String,
+    pub chosen: String,
+    pub why: String,
+    pub rejected: Option<String>,
+}
+
+/// What the planned bake measured of itself (recorded by the bake).
+#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+pub struct Baked {
+    /// Wall seconds of the stages after ingest.
+    pub seconds: f64,
+    /// Peak resident memory of the bake's process, MiB.
+    pub peak_memory_mib: f64,
+}
+
+/// The plan: the stages to run, why, and what they will cost.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Plan {
+    pub budget: Budget,
+    #[serde(default)]
+    pub needs: Needs,
+    /// The sun positions the shade is planned for, degrees.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub sun: Vec<SunPosition>,
+    pub scene: Scene,
+    /// The horizons, when a need derives from them.
+    pub chosen: Option<Candidate>,
+    /// Beyond this distance (metres) terrain moves the horizon by less than
+    /// its share of the budget at the pilot's posts: the reach of a bounded
+    /// bake, a partitioned bake's halo (`None`: every distance matters).
+    #[serde(default)]
+    pub safe_distance: Option<f64>,
+    #[serde(default)]
+    pub sky_layers: Vec<SkyLayer>,
+    /// The tile size the plan bakes with (smaller than the ingest's when
+    /// the memory limit needs it: the bake ingests again).
+    #[serde(default)]
+    pub tile: u32,
+    /// The heights' codec the plan bakes with: the ingest's, or zstd when
+    /// only that fits the bytes limit (the bake ingests again).
+    #[serde(default = "raw_codec")]
+    pub codec: Codec,
+    #[serde(default)]
+    pub pyramid: bool,
+    #[serde(default)]
+    pub cones: bool,
+    /// Predicted for the whole bake after ingest.
+    #[serde(default)]
+    pub seconds: f64,
+    /// The models that predicted the horizons' and sky's seconds.
+    #[serde(default)]
+    pub time_models: TimeModels,
+    #[serde(default)]
+    pub bytes: u64,
+    #[serde(default)]
+    pub memory_mib: f64,
+    pub choices: Vec<Choice>,
+    /// Every candidate the planner predicted, fewest directions first
+    /// (each at the default tolerance, then the chosen count's wider
+    /// tolerances in the order tried; f32 and to the edge).
+    pub candidates: Vec<Candidate>,
+    /// Stages a recipe gave explicitly: they were baked instead of the
+    /// plan's, and `check` measures what they achieved.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub overridden: Vec<String>,
+    #[serde(default)]
+    pub baked: Option<Baked>,
+}
+
+impl Plan {
+    /// The stages' working-memory limit, bytes: the budget's memory.
+    fn working_memory(&self) -> Option<u64> {
+        self.budget.memory.map(|mib| mib << 20)
+    }
+
+    /// The horizons stage that bakes the plan, if the needs take one.
+    pub fn horizons_stage(&self) -> Option<HorizonsStage> {
+        let chosen = self.chosen.as_ref()?;
+        let mut stage = HorizonsStage {
+            max_distance: chosen.max_distance,
+            encoding: Some(chosen.encoding),
+            ..line_stage(chosen.sectors, chosen.direction_tolerance)
+        };
+        if let Some(bytes) = self.working_memory() {
+            stage.max_memory = bytes;
+        }
+        Some(stage)
+    }
+
+    /// Every stage the plan bakes after ingest, in the order they run.
+    pub fn stages(&self) -> Vec<Box<dyn Stage>> {
+        let mut stages: Vec<Box<dyn Stage>> = Vec::new();
+        if self.pyramid {
+            stages.push(Box::new(crate::stages::pyramid::PyramidStage));
+        }
+        if self.cones {
+            let mut cones = crate::stages::cones::ConesStage {
+                slices: crate::stages::cones::SliceChoice::Count(CONE_SLICES),
+                encoding: ConeEncoding::U16,
+                ..Default::default()
+            };
+            if let Some(bytes) = self.working_memory() {
+                cones.max_memory = bytes;
+            }
+            stages.push(Box::new(cones));
+        }
+        if let Some(h) = self.horizons_stage() {
+            stages.push(Box::new(h));
+        }
+        if !self.sky_layers.is_empty() {
+            stages.push(Box::new(SkyStage {
+                layers: self.sky_layers.clone(),
+            }));
+        }
+        stages
+    }
+}
+
+fn raw_codec() -> Codec {
+    Codec::Raw
+}
+
+/// Bytes of the heights stored as zstd tiles of `tile` posts: up to eight
+/// tile rows spread over the DEM, encoded as ingest encodes them, scaled to
+/// every row.
+fn zstd_height_bytes(asset: &Asset<Mmap>, tile: usize) -> Result<u64> {
+    let height = asset.height()?;
+    let (w, h) = (height.width() as usize, height.height() as usize);
+    let bands = crate::terrain::tiling::row_bands(h, tile);
+    let stride = bands.len().div_ceil(8);
+    let (mut sampled, mut stored) = (0, 0);
+    for band in bands.iter().step_by(stride) {
+        let mut z = vec![0f32; w * band.len()];
+        height.read_rows_f32(0, band.start as u32, &mut z)?;
+        let tiles = crate::terrain::tiling::encode_tile_row(&z, w, tile, f32::NAN, Codec::Zstd);
+        sampled += 1;
+        stored += tiles.iter().map(|t| t.bytes.len() as u64).sum::<u64>();
+    }
+    Ok(stored * bands.len() as u64 / sampled.max(1))
+}
+
+/// A sun position as the pilot sees it: the nearest reference direction.
+#[derive(Debug, Clone, Copy)]
+struct PilotSun {
+    direction: usize,
+    elevation: f64,
+}
+
+/// The errors a bake would make at the pilot's posts: the horizon's
+/// (degrees) at every post and reference azimuth, the svf's at every post,
+/// and the sun/shade states it gets wrong.
+struct Errors {
+    horizon: Vec<f64>,
+    svf: Vec<f64>,
+    shade_wrong: usize,
+    shade_pairs: usize,
+}
+
+impl Errors {
+    /// The horizon's and the svf's errors at quantile `q`, and the share of
+    /// wrong sun/shade states (`None` without sun positions).
+    fn at(&mut self, q: f64) -> (f64, f64, Option<f64>) {
+        (
+            quantile_unsorted(&mut self.horizon, q),
+            quantile_unsorted(&mut self.svf, q),
+            (self.shade_pairs > 0).then(|| self.shade_wrong as f64 / self.shade_pairs as f64),
+        )
+    }
+
+    /// Whether these errors, at the deciding quantile, stay within `share`
+    /// of every limit the budget sets for them.
+    fn within(&mut self, budget: &Budget, share: f64) -> bool {
+        let (horizon, svf, shade) = self.at(DECISION_QUANTILE);
+        horizon <= share * budget.horizon
+            && budget.svf.is_none_or(|v| svf <= share * v)
+            && budget
+                .shade
+                .is_none_or(|v| shade.is_none_or(|s| s <= share * v))
+    }
+}
+
+/// The errors at the pilot's posts of storing, in the measured directions
+/// `stored` (ascending azimuths), `stored(post, direction)` degrees,
+/// served at every reference azimuth as the loader serves it (linear
+/// between the two nearest stored directions).
+fn errors(
+    pilot: &Pilot,
+    stored: &[usize],
+    suns: &[PilotSun],
+    value: impl Fn(usize, usize) -> f64,
+) -> Errors {
+    let azimuths: Vec<f64> = stored.iter().map(|&j| pilot.azimuth(j)).collect();
+    let integrals = BandIntegrals::of_azimuths(&azimuths);
+    let mut e = Errors {
+        horizon: Vec::new(),
+        svf: Vec::new(),
+        shade_wrong: 0,
+        shade_pairs: 0,
+    };
+    // Which stored directions serve each reference azimuth: the same at
+    // every post.
+    let around: Vec<(usize, usize, f64)> = pilot
+        .reference
+        .iter()
+        .map(|band| bands_around(&azimuths, band.azimuth))
+        .collect();
+    let mut served = vec![0.0; PILOT_DIRECTIONS];
+    for (post, exact) in pilot.exact.iter().enumerate() {
+        let kept: Vec<f64> = stored.iter().map(|&j| value(post, j)).collect();
+        for ((&(i, j, f), &truth), out) in around.iter().zip(exact).zip(&mut served) {
+            *out = between(kept[i], kept[j], f);
+            if out.is_finite() && truth.is_finite() {
+                e.horizon.push((*out - truth).abs());
+            }
+        }
+        e.shade_pairs += suns.len();
+        e.shade_wrong += suns
+            .iter()
+            .filter(|sun| shade_differs(sun.elevation, served[sun.direction], exact[sun.direction]))
+            .count();
+        let s = svf_of_horizons(&integrals, kept.iter().copied());
+        let truth = pilot.svf(exact);
+        if s.is_finite() && truth.is_finite() {
+            e.svf.push((s - truth).abs());
+        }
+    }
+    e
+}
+
+/// `deg` stored as `encoding` and read back.
+fn stored_as(encoding: AngleEncoding, deg: f64) -> f64 {
+    encoding.decode(encoding.encode(deg)).unwrap_or(f64::NAN)
+}
+
+/// The errors of the measured directions `stored` cut at
+/// `DISTANCES[distance]`, stored as `encoding`.
+fn predict(
+    pilot: &Pilot,
+    suns: &[PilotSun],
+    stored: &[usize],
+    distance: Option<usize>,
+    encoding: AngleEncoding,
+) -> Errors {
+    errors(pilot, stored, suns, |i, j| {
+        let angle = distance.map_or(pilot.exact[i][j], |k| pilot.bounded(i, j, k));
+        stored_as(encoding, angle)
+    })
+}
+
+/// The horizons stage a plan of `sectors` line directions within
+/// `tolerance` (`None`: the stage's default) bakes, before its encoding
+/// and distance: its bands are those the pilot measures
+/// ([`HorizonsStage::bands`]).
+fn line_stage(sectors: usize, tolerance: Option<f64>) -> HorizonsStage {
+    HorizonsStage {
+        sectors,
+        method: Method::Line,
+        direction_tolerance: tolerance,
+        ..Default::default()
+    }
+}
+
+/// Profile vertices a post costs in the line sweeps of `bands` (the
+/// crossings of each direction's grid step and its next post): the
+/// sweep's work, which a wider tolerance cuts by taking shorter steps.
+fn crossings(bands: &[Band]) -> usize {
+    bands
+        .iter()
+        .map(|band| match &band.kind {
+            BandKind::Line(direction) => Stencil::new(direction.step).len(),
+            _ => 0,
+        })
+        .sum()
+}
+
+/// `x` rounded up at `decimals` decimals: a limit to relax to that,
+/// printed, still suffices.
+fn round_up(x: f64, decimals: i32) -> f64 {
+    let scale = 10f64.powi(decimals);
+    (x * scale).ceil() / scale
+}
+
+/// Bytes of a layer of `bands` elements of `size` bytes per post on a
+/// `w x h` grid in `tile`-post tiles (raw; edge tiles are whole).
+fn layer_bytes(w: usize, h: usize, tile: usize, size: usize, bands: usize) -> u64 {
+    (w.div_ceil(tile) * h.div_ceil(tile) * tile * tile * size * bands) as u64
+}
+
+/// Costs of the horizons and sky stages.
+#[derive(Clone, Copy)]
+struct LineCosts {
+    posts: f64,
+    width: usize,
+    height: usize,
+    tile: usize,
+    /// Sky layers baked from the horizons.
+    sky_layers: usize,
+    /// Mean post spacing, metres.
+    cell: f64,
+    models: TimeModels,
+}
+
+impl LineCosts {
+    /// Posts of a tile row (edge tiles whole).
+    fn row_posts(&self) -> f64 {
+        (self.width.div_ceil(self.tile) * self.tile * self.tile) as f64
+    }
+
+    fn layer_bytes(&self, size: usize, bands: usize) -> u64 {
+        layer_bytes(self.width, self.height, self.tile, size, bands)
+    }
+
+    fn seconds(&self, sectors: usize, distance: Option<f64>) -> f64 {
+        let (s, m) = (sectors as f64, &self.models);
+        let work = match distance {
+            None => self.posts * s.powf(m.sweep_exponent) / m.sweep_rate,
+            Some(d) => self.posts * s * (m.bounded_per_line + m.bounded_per_cell * d / self.cell),
+        };
+        m.fixed_seconds + work
+    }
+
+    fn memory_mib(&self, sectors: usize, distance: Option<f64>) -> f64 {
+        let held = if distance.is_some() {
+            4.0 * self.posts
+        } else {
+            0.0
+        };
+        BASE_MIB
+            + (LINE_BYTES_PER_ROW_POST_BAND * self.row_posts() * sectors as f64 + held) / 1048576.0
+    }
+}
+
+/// Plans what `asset` needs for `request`.
+pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Result<Plan> {
+    request.validate().map_err(anyhow::Error::msg)?;
+    let time_models = TimeModels::from_env()?;
+    let budget = &request.budget;
+    let needs = &request.needs;
+    let m = asset.manifest();
+    let (w, h) = (m.width as usize, m.height as usize);
+    let posts = (w * h) as u64;
+    let heights = m.layer(terrabake_format::HEIGHT_LAYER, 0);
+    let tile = heights.map_or(256, |l| l.tile_size as usize);
+    let curvature = HorizonsStage::default().curvature_coefficient(asset);
+    let (dx, dy) = (m.cell_size.dx, m.cell_size.dy);
+    let start = Instant::now();
+    let dem = if needs.horizons() {
+        Some(crate::terrain::held::HeldDem::read(asset)?)
+    } else {
+        None
+    };
+    let mut pilot = if let Some(dem) = &dem {
+        Some(Pilot::measure(
+            asset,
+            dem,
+            curvature,
+            [0, 0, w, h],
+            &Sampling {
+                samples: 240,
+                seed: PILOT_SEED,
+                directions: PILOT_DIRECTIONS,
+                cuts: &DISTANCES,
+            },
+            progress,
+        )?)
+    } else {
+        None
+    };
+    let relief_m = m
+        .height_range
+        .map_or(0.0, |r| f64::from(r.max) - f64::from(r.min));
+    let mut scene = Scene {
+        width: m.width,
+        height: m.height,
+        cell_size: (dx, dy),
+        relief_m,
+        nodata_share: m.nodata.count as f64 / posts.max(1) as f64,
+        curvature: curvature > 0.0,
+        extent_m: ((w.saturating_sub(1)) as f64 * dx).hypot((h.saturating_sub(1)) as f64 * dy),
+        latitude_deg: m
+            .georef
+            .as_ref()
+            .and_then(|g| crate::terrain::geo::central_latitude(g, m.width, m.height)),
+        dx_range_m: pilot.as_ref().map(|p| p.dx_range),
+        slope_p50_deg: pilot
+            .as_ref()
+            .map(|p| quantile_unsorted(&mut p.slope_deg.clone(), 0.5)),
+        slope_p90_deg: pilot
+            .as_ref()
+            .map(|p| quantile_unsorted(&mut p.slope_deg.clone(), 0.9)),
+        pilot_posts: pilot.as_ref().map_or(0, |p| p.posts.len()),
+        pilot_directions: pilot.as_ref().map_or(0, Pilot::directions_measured),
+        pilot_reference_directions: pilot.as_ref().map_or(0, |p| p.reference.len()),
+        pilot_seconds: start.elapsed().as_secs_f64(),
+    };
+    let mut sun = request.sun.clone();
+    if let Some(day) = request.sun_day {
+        let Some(latitude) = scene.latitude_deg else {
+            bail!(
+                "{}: --sun-day needs the scene's latitude, and this DEM is neither geographic nor WGS 84 UTM; give the sun positions with --sun AZ,EL;AZ,EL...",
+                asset.dir().display()
+            );
+        };
+        sun.extend(crate::present::shade::sun_path(latitude, day));
+    }
+    let mut sky_layers = Vec::new();
+    if needs.svf() {
+        sky_layers.push(SkyLayer::Svf);
+    }
+    if needs.has(Need::Sky) {
+        sky_layers.push(SkyLayer::SvfCosine);
+    }
+    let mut costs = LineCosts {
+        posts: posts as f64,
+        width: w,
+        height: h,
+        tile,
+        sky_layers: sky_layers.len(),
+        cell: (dx + dy) / 2.0,
+        models: time_models,
+    };
+    let (mut chosen, mut safe_distance) = (None, None);
+    let (mut choices, mut candidates) = (Vec::new(), Vec::new());
+    if let (Some(pilot), Some(dem)) = (&mut pilot, &dem) {
+        let suns: Vec<PilotSun> = sun
+            .iter()
+            .map(|&[az, el]| PilotSun {
+                direction: pilot.nearest_direction(az),
+                elevation: el,
+            })
+            .collect();
+        let added = Instant::now();
+        let terrain = dem.terrain(curvature);
+        let plan = plan_horizons(pilot, &terrain, &suns, budget, &costs, &scene, curvature)?;
+        scene.pilot_seconds += added.elapsed().as_secs_f64();
+        scene.pilot_directions = pilot.directions_measured();
+        candidates = plan.candidates;
+        choices = plan.choices;
+        chosen = Some(plan.chosen);
+        safe_distance = plan.safe_distance;
+    }
+    // The tile size: the ingest's, unless the tile row of every direction
+    // that the line sweeps hold would not fit the memory limit; then the
+    // largest smaller power of two (down to 32) that fits, for a re-ingest.
+    let ingested_tile = tile;
+    if let (Some(c), Some(limit)) = (chosen.as_mut(), budget.memory) {
+        while costs.memory_mib(c.sectors, c.max_distance) > limit as f64 && costs.tile > 32 {
+            costs.tile /= 2;
+        }
+        c.bytes = costs.layer_bytes(c.encoding.elem().size(), c.sectors)
+            + costs.layer_bytes(4, costs.sky_layers);
+    }
+    let tile = costs.tile;
+    let pyramid = needs.has(Need::Tracing) || needs.has(Need::FastTracing);
+    let cones = needs.has(Need::FastTracing);
+    // The pyramid: max and min planes of every stored level.
+    let pyramid_bytes = crate::stages::pyramid::level_dims(w as u32, h as u32, tile as u32)
+        .into_iter()
+        .map(|(lw, lh)| 2 * layer_bytes(lw as usize, lh as usize, tile, 4, 1))
+        .sum::<u64>();
+    let cells = (w.saturating_sub(1), h.saturating_sub(1));
+    let planes = |size: usize| 2 * layer_bytes(cells.0, cells.1, tile, size, 1);
+    let cones_bytes = planes(2);
+    if pyramid {
+        choices.push(Choice {
+            what: "tracing".into(),
+            chosen: if cones {
+                "pyramid and cone planes".into()
+            } else {
+                "max/min pyramid".into()
+            },
+            why: if cones {
+                "fast tracing: parametric steps through the cone planes, the pyramid's exact hits in fewer steps".into()
+            } else {
+                "exact hierarchical tracing needs only the pyramid".into()
+            },
+            rejected: Some(if cones {
+                "the pyramid alone: the same hits, more steps per ray (docs/TRACING.md)".into()
+            } else {
+                format!(
+                    "cone planes as well: faster rays for {:.1} MiB more and {:.1} s (ask for fast_tracing)",
+                    cones_bytes as f64 / 1048576.0,
+                    posts as f64 * CONES_SECONDS_PER_POST
+                )
+            }),
+        });
+    }
+    let mut seconds = 0.0;
+    // The asset on disk: the heights (as stored, when they are zstd) and
+    // every planned layer.
+    let mut bytes = heights
+        .filter(|l| l.codec == Codec::Zstd && l.tile_size as usize == tile)
+        .map_or(layer_bytes(w, h, tile, 4, 1), |l| l.file_len);
+    // The pilot holds the DEM (4 bytes a post), its blocks' highest posts
+    // and, per post and reference direction, the exact horizon (8 bytes)
+    // and its cuts (4 bytes each).
+    let mut memory_mib = BASE_MIB;
+    if let Some(pilot) = &pilot {
+        let per_post = pilot.directions_measured() * (8 + 4 * DISTANCES.len());
+        let held = 4 * posts as usize + pilot.bounds_bytes() + pilot.posts.len() * per_post;
+        memory_mib += held as f64 / 1048576.0;
+    }
+    if let Some(c) = &chosen {
+        seconds += c.seconds;
+        bytes += c.bytes;
+        memory_mib = memory_mib.max(costs.memory_mib(c.sectors, c.max_distance));
+    }
+    if pyramid {
+        seconds += posts as f64 * PYRAMID_SECONDS_PER_POST;
+        bytes += pyramid_bytes;
+    }
+    if cones {
+        choices.push(Choice {
+            what: "cone planes".into(),
+            chosen: format!("{CONE_SLICES} slices, u16"),
+            why: format!(
+                "{CONE_SLICES} slices step within 6 % of the exact cones on the bundled tile; u16 planes (conservative) step and trace as f32 do, in half the bytes (docs/BENCHMARKS.md, cone planes)"
+            ),
+            rejected: Some(format!(
+                "256 slices: within 1.3 % of exact, 2.7x the bake; f32 planes: {:.1} MiB more for the same steps",
+                (planes(4) - cones_bytes) as f64 / 1048576.0
+            )),
+        });
+        seconds += posts as f64 * CONES_SECONDS_PER_POST;
+        bytes += cones_bytes;
+        let in_core = BASE_MIB + CONES_BYTES_PER_POST * posts as f64 / 1048576.0;
+        // Cones bake in windows within a memory limit.
+        memory_mib = memory_mib.max(budget.memory.map_or(in_core, |l| in_core.min(l as f64)));
+    }
+    let line_row = |t: usize| {
+        let at = LineCosts { tile: t, ..costs };
+        chosen
+            .as_ref()
+            .map_or(0.0, |c| at.memory_mib(c.sectors, c.max_distance))
+    };
+    choices.push(if tile == ingested_tile {
+        Choice {
+            what: "tiles".into(),
+            chosen: format!("{tile} posts"),
+            why: "the ingest's: the line sweeps' tile rows fit the memory".into(),
+            rejected: None,
+        }
+    } else {
+        Choice {
+            what: "tiles".into(),
+            chosen: format!("{tile} posts (ingest again)"),
+            why: format!(
+                "the line sweeps hold a tile row of every direction: {:.0} MiB at {tile} posts fits the memory limit",
+                line_row(tile)
+            ),
+            rejected: Some(format!(
+                "{ingested_tile} posts (the ingest's): {:.0} MiB, over the limit",
+                line_row(ingested_tile)
+            )),
+        }
+    });
+    // The heights' codec: raw (read in place), or zstd when only that fits
+    // the bytes limit.
+    let ingested_codec = heights.map_or(Codec::Raw, |l| l.codec);
+    let mut codec = ingested_codec;
+    if let Some(limit) = budget.bytes {
+        let raw_heights = layer_bytes(w, h, tile, 4, 1);
+        if codec == Codec::Raw && bytes > limit && bytes - raw_heights < limit {
+            let zstd = zstd_height_bytes(asset, tile)?;
+            if bytes - raw_heights + zstd <= limit {
+                choices.push(Choice {
+                    what: "codec".into(),
+                    chosen: "zstd heights (ingest again)".into(),
+                    why: format!(
+                        "raw heights ({:.1} MiB) would pass the bytes limit; zstd tiles take {:.1} MiB (encoded on a sample of tile rows)",
+                        raw_heights as f64 / 1048576.0,
+                        zstd as f64 / 1048576.0
+                    ),
+                    rejected: Some("raw: over the bytes limit".into()),
+                });
+                bytes = bytes - raw_heights + zstd;
+                codec = Codec::Zstd;
+            }
+        }
+    }
+    if codec == Codec::Zstd && ingested_codec == Codec::Zstd {
+        choices.push(Choice {
+            what: "codec".into(),
+            chosen: "zstd heights".into(),
+            why: "the ingest's".into(),
+            rejected: None,
+        });
+    } else if codec == Codec::Raw {
+        choices.push(Choice {
+            what: "codec".into(),
+            chosen: "raw".into(),
+            why: "tiles are read in place from the memory mapping, no decode per read (derived layers are always raw)".into(),
+            rejected: Some("zstd heights: fewer bytes, a decode on every tile read (chosen when only it fits the bytes limit)".into()),
+        });
+    }
+    let what_to_relax = if chosen.is_some() {
+        ", or horizon (fewer directions)"
+    } else {
+        ", or drop fast_tracing"
+    };
+    for (what, limit, predicted) in [
+        ("bytes", budget.bytes.map(|b| b as f64), bytes as f64),
+        ("time", budget.time, seconds),
+        ("memory", budget.memory.map(|m| m as f64), memory_mib),
+    ] {
+        if let Some(limit) = limit {
+            if predicted > limit {
+                bail!(
+                    "budget {budget}: the plan that meets the error budget needs {what} {predicted:.0}, over the limit {limit:.0}; relax {what}{what_to_relax}",
+                );
+            }
+        }
+    }
+    Ok(Plan {
+        budget: *budget,
+        needs: needs.clone(),
+        sun,
+        scene,
+        chosen,
+        safe_distance,
+        sky_layers,
+        tile: tile as u32,
+        codec,
+        pyramid,
+        cones,
+        seconds,
+        time_models,
+        bytes,
+        memory_mib,
+        choices,
+        candidates,
+        overridden: Vec::new(),
+        baked: None,
+    })
+}
+
+/// What [`plan_horizons`] decided.
+struct HorizonPlan {
+    chosen: Candidate,
+    safe_distance: Option<f64>,
+    choices: Vec<Choice>,
+    candidates: Vec<Candidate>,
+}
+
+/// The horizons: encoding, distance limit, directions and route, each from
+/// its share of the budget (module docs).
+fn plan_horizons(
+    pilot: &mut Pilot,
+    terrain: &Terrain,
+    suns: &[PilotSun],
+    budget: &Budget,
+    costs: &LineCosts,
+    scene: &Scene,
+    curvature: f64,
+) -> Result<HorizonPlan> {
+    // The encoding: the coarsest whose worst error is within its share of
+    // the budget, in degrees and (for the svf, which a change of h radians
+    // in every direction moves by at most h) in radians, and whose rounding
+    // alone flips few enough sun/shade states.
+    let share = SHARE_QUANTISATION;
+    let every_reference: Vec<usize> = (0..pilot.reference.len()).collect();
+    let encoding = [AngleEncoding::U8, AngleEncoding::U16, AngleEncoding::F32]
+        .into_iter()
+        .find(|&e| {
+            e.max_error_deg() <= share * budget.horizon
+                && budget
+                    .svf
+                    .is_none_or(|s| e.max_error_deg().to_radians() <= share * s)
+                && (budget.shade.is_none()
+                    || errors(pilot, &every_reference, suns, |i, j| {
+                        stored_as(e, pilot.exact[i][j])
+                    })
+                    .within(budget, share))
+        })
+        .unwrap_or(AngleEncoding::F32);
+    // The distance: the shortest beyond which the terrain moves the
+    // horizons (in all 720 directions, f32) by at most its share.
+    let safe_cut = (0..DISTANCES.len())
+        .take_while(|&k| DISTANCES[k] < scene.extent_m)
+        .find(|&k| {
+            errors(pilot, &every_reference, suns, |i, j| pilot.bounded(i, j, k))
+                .within(budget, SHARE_DISTANCE)
+        });
+    let safe_distance = safe_cut.map(|k| DISTANCES[k]);
+    // The directions: the fewest whose error between directions alone
+    // (exact to the edge, f32) is within their share.
+    let mut candidates = Vec::new();
+    let candidate =
+        |(sectors, tolerance): (usize, Option<f64>), distance, encoding, errors: &mut Errors| {
+            let (horizon_p99_deg, svf_p99, shade_share) = errors.at(0.99);
+            Candidate {
+                sectors,
+                encoding,
+                max_distance: distance,
+                horizon_p99_deg,
+                svf_p99,
+                shade_share,
+                bytes: costs.layer_bytes(encoding.elem().size(), sectors)
+                    + costs.layer_bytes(4, costs.sky_layers),
+                seconds: costs.seconds(sectors, distance),
+                direction_tolerance: tolerance,
+            }
+        };
+    let (dx, dy) = scene.cell_size;
+    let mut sectors = None;
+    let mut deciding = (0.0, 0.0);
+    let mut stored = Vec::new();
+    for &s in &CANDIDATES {
+        // The directions the stage would store, measured at the pilot's
+        // posts: at its default tolerance they are seldom reference
+        // directions, and far cheaper to sweep than those would be.
+        stored = pilot.measure_directions(terrain, &line_stage(s, None).bands(dx, dy), || ());
+        let mut e = predict(pilot, suns, &stored, None, AngleEncoding::F32);
+        let (horizon, svf, _) = e.at(DECISION_QUANTILE);
+        deciding = (horizon, svf);
+        let meets = e.within(budget, SHARE_DIRECTIONS);
+        candidates.push(candidate((s, None), None, AngleEncoding::F32, &mut e));
+        if meets {
+            sectors = Some(s);
+            break;
+        }
+    }
+    let Some(sectors) = sectors else {
+        let closest = candidates.last().expect("candidates");
+        // What to relax to: what the most directions leave, at the
+        // quantile that decides, over the share of the budget it gets.
+        bail!(
+            "budget {budget} cannot be met with up to {} line directions on this scene: {} directions leave a horizon p99 of {:.3} degrees and an svf p99 of {:.4} between them{}; relax horizon to at least {:.3}{}",
+            closest.sectors,
+            closest.sectors,
+            closest.horizon_p99_deg,
+            closest.svf_p99,
+            closest
+                .shade_share
+                .map_or(String::new(), |s| format!(", and {:.4} of the sun/shade states wrong", s)),
+            round_up(deciding.0 / SHARE_DIRECTIONS, 3),
+            budget.svf.map_or(String::new(), |_| format!(
+                " and svf to at least {:.4}",
+                round_up(deciding.1 / SHARE_DIRECTIONS, 4)
+            )),
+        );
+    };
+    // The tolerance: of those directions' grid steps within ever wider
+    // tolerances, the ones a post sweeps in the fewest crossings whose
+    // error between directions stays within the same share (the default
+    // met it). A wider tolerance takes shorter steps, and widens the gaps
+    // the loader interpolates across only a little (module docs).
+    let (found, fewer) = (
+        candidates.last().cloned().expect("chosen"),
+        candidates.iter().rev().nth(1).cloned(),
+    );
+    let spacing = 360.0 / sectors as f64;
+    let at_default = crossings(&line_stage(sectors, None).bands(dx, dy));
+    let mut tolerance = (default_tolerance(sectors), at_default);
+    let mut too_wide = None;
+    for divisor in WIDER_TOLERANCES {
+        let tol = spacing / divisor;
+        let bands = line_stage(sectors, Some(tol)).bands(dx, dy);
+        let cost = crossings(&bands);
+        if cost >= tolerance.1 {
+            continue;
+        }
+        let measured = pilot.measure_directions(terrain, &bands, || ());
+        let mut e = predict(pilot, suns, &measured, None, AngleEncoding::F32);
+        let meets = e.within(budget, SHARE_DIRECTIONS);
+        candidates.push(candidate(
+            (sectors, Some(tol)),
+            None,
+            AngleEncoding::F32,
+            &mut e,
+        ));
+        if meets {
+            (tolerance, stored) = ((tol, cost), measured);
+        } else {
+            let (horizon, svf, _) = e.at(DECISION_QUANTILE);
+            too_wide = Some((tol, cost, horizon, svf));
+            break;
+        }
+    }
+    // The route: bounded lines (walk each post's reach, the DEM in memory)
+    // when that is faster and fits the memory limit, else the sweeps to
+    // the edge (out of core).
+    let fits = |d: Option<f64>| {
+        budget
+            .memory
+            .is_none_or(|l| costs.memory_mib(sectors, d) <= l as f64)
+    };
+    let bounded_cut = safe_cut.filter(|&k| {
+        let d = Some(DISTANCES[k]);
+        costs.seconds(sectors, d) < costs.seconds(sectors, None) && fits(d)
+    });
+    let bounded = bounded_cut.map(|k| DISTANCES[k]);
+    let chosen = candidate(
+        (sectors, Some(tolerance.0)),
+        bounded,
+        encoding,
+        &mut predict(pilot, suns, &stored, bounded_cut, encoding),
+    );
+    let finer = [AngleEncoding::U8, AngleEncoding::U16]
+        .into_iter()
+        .filter(|e| e.max_error_deg() > encoding.max_error_deg())
+        .map(|e| {
+            format!(
+                "{} (worst error {:.3} deg: over its share of the budget)",
+                e.name(),
+                e.max_error_deg()
+            )
+        })
+        .collect::<Vec<_>>();
+    // Relief and curvature bound what lies beyond D: no post sees terrain
+    // there above atan(relief / D - c D); past sqrt(relief / c) it lies
+    // below every post's horizontal plane.
+    let relief = scene.relief_m;
+    let bound = |d: f64| (relief / d - curvature * d).atan().to_degrees();
+    let below_horizontal = (curvature > 0.0).then(|| (relief / curvature).sqrt());
+    let distance_why = match safe_distance {
+        Some(d) => format!(
+            "beyond {:.1} km the terrain moves the pilot's horizons by at most {} of the budget (p99.5); relief and curvature allow at most {:.2} deg there{}",
+            d / 1000.0,
+            SHARE_DISTANCE,
+            bound(d),
+            below_horizontal.map_or(String::new(), |b| format!(
+                ", and nothing past {:.0} km rises above a post's horizontal",
+                b / 1000.0
+            )),
+        ),
+        None => "every distance within the DEM moves some horizon by more than its share of the budget".into(),
+    };
+    let route_rejected = match (safe_distance, bounded) {
+        (Some(d), None) => Some(format!(
+            "bounded to {:.1} km: {:.1} s and {:.0} MiB (the DEM held) against {:.1} s and {:.0} MiB to the edge",
+            d / 1000.0,
+            costs.seconds(sectors, Some(d)),
+            costs.memory_mib(sectors, Some(d)),
+            costs.seconds(sectors, None),
+            costs.memory_mib(sectors, None),
+        )),
+        (_, Some(d)) => Some(format!(
+            "sweeps to the edge: {:.1} s against {:.1} s bounded to {:.1} km",
+            costs.seconds(sectors, None),
+            costs.seconds(sectors, Some(d)),
+            d / 1000.0
+        )),
+        (None, None) => None,
+    };
+    let choices = vec![
+        Choice {
+            what: "method".into(),
+            chosen: "line (exact sight lines)".into(),
+            why: "exact at every stored direction; the only errors left are between directions, the distance cut and the encoding".into(),
+            rejected: Some(
+                "sector (Stewart's wedges: biased high by definition, its RMS error levels off at 0.67 deg however many sectors) and sampled (nearest-post rounding: levels off at 0.41 deg); 16 lines (0.12 deg) beat both in less time than either's fastest (docs/BENCHMARKS.md, horizon methods on the SRTM crop)".into(),
+            ),
+        },
+        Choice {
+            what: "directions".into(),
+            chosen: sectors.to_string(),
+            why: format!(
+                "the fewest whose error between directions ({}, f32) is within {SHARE_DIRECTIONS} of the budget",
+                found.errors_text()
+            ),
+            rejected: fewer.map(|c| format!("{} directions: {}", c.sectors, c.errors_text())),
+        },
+        Choice {
+            what: "tolerance".into(),
+            chosen: format!("{:.2} deg", tolerance.0),
+            why: if tolerance.1 < at_default {
+                format!(
+                    "the widest up to a third of the spacing whose error between directions stays within {SHARE_DIRECTIONS} of the budget: its grid steps cost {} crossings a post, against {at_default} within {:.2} deg (the default)",
+                    tolerance.1,
+                    default_tolerance(sectors),
+                )
+            } else {
+                format!(
+                    "the stage's default, an eighth of the spacing: {at_default} crossings a post, and no wider tolerance up to a third both costs fewer and stays within {SHARE_DIRECTIONS} of the budget"
+                )
+            },
+            rejected: too_wide.map(|(tol, cost, horizon, svf)| {
+                format!(
+                    "{tol:.2} deg: {cost} crossings a post, but its error between directions at p99.5, the quantile that decides (horizon {horizon:.3} deg, svf {svf:.4}), is over the share"
+                )
+            }),
+        },
+        Choice {
+            what: "encoding".into(),
+            chosen: encoding.name().into(),
+            why: format!(
+                "the coarsest whose worst error ({:.4} deg) is within {SHARE_QUANTISATION} of the budget",
+                encoding.max_error_deg()
+            ),
+            rejected: (!finer.is_empty()).then(|| finer.join("; ")),
+        },
+        Choice {
+            what: "distance".into(),
+            chosen: safe_distance.map_or("the whole DEM".into(), |d| format!("{:.1} km", d / 1000.0)),
+            why: distance_why,
+            rejected: safe_distance
+                .and_then(|d| DISTANCES.into_iter().rev().find(|&x| x < d))
+                .map(|d| format!("{:.2} km: the terrain beyond moves the horizons by more than {SHARE_DISTANCE} of the budget", d / 1000.0)),
+        },
+        Choice {
+            what: "route".into(),
+            chosen: match bounded {
+                Some(d) => format!("bounded lines, {:.1} km, in core", d / 1000.0),
+                None => "line sweeps to the edge, out of core".into(),
+            },
+            why: match bounded {
+                Some(_) => "faster than the sweeps: each post walks only its reach (the DEM held in memory)".into(),
+                None => "the sweeps stream tile rows: memory grows with the width, not the DEM".into(),
+            },
+            rejected: route_rejected,
+        },
+    ];
+    Ok(HorizonPlan {
+        chosen,
+        safe_distance,
+        choices,
+        candidates,
+    })
+}
+
+/// The plan as a table for people.
+pub fn describe(plan: &Plan) -> String {
+    let s = &plan.scene;
+    let mut out = format!(
+        "budget {}\nneeds  {}{}\nscene  {} x {} posts, cells {:.1} x {:.1} m, relief {:.0} m, nodata {:.2} %, curvature {}\n",
+        plan.budget,
+        plan.needs,
+        if plan.sun.is_empty() {
+            String::new()
+        } else {
+            format!(" ({} sun positions)", plan.sun.len())
+        },
+        s.width,
+        s.height,
+        s.cell_size.0,
+        s.cell_size.1,
+        s.relief_m,
+        100.0 * s.nodata_share,
+        if s.curvature { "on" } else { "off" },
+    );
+    if let (Some(p50), Some(p90), Some((top, bottom))) =
+        (s.slope_p50_deg, s.slope_p90_deg, s.dx_range_m)
+    {
+        out += &format!(
+            "       slope p50 {p50:.1} deg, p90 {p90:.1} deg at the pilot's posts; east-west spacing {top:.1} m (first row) to {bottom:.1} m (last)\n"
+        );
+    }
+    if s.pilot_posts > 0 {
+        // (A plan recorded before the pilot measured the stored
+        // directions too says 0 for them.)
+        let reference = match s.pilot_reference_directions {
+            0 => PILOT_DIRECTIONS,
+            n => n,
+        };
+        let stored = s.pilot_directions.saturating_sub(reference);
+        out += &format!(
+            "pilot  exact horizons in {reference} reference directions and {stored} that the candidates store, at {} posts ({:.1} s)\n",
+            s.pilot_posts, s.pilot_seconds,
+        );
+    }
+    out += "\n";
+    for c in &plan.choices {
+        out += &format!("{:<11} {:<34} {}\n", c.what, c.chosen, c.why);
+        if let Some(r) = &c.rejected {
+            out += &format!("{:<11} {:<34} rejected: {r}\n", "", "");
+        }
+    }
+    let mut predicted = Vec::new();
+    if let Some(c) = &plan.chosen {
+        predicted.push(format!("horizon p99 {:.3} deg", c.horizon_p99_deg));
+        predicted.push(format!("svf p99 {:.4}", c.svf_p99));
+        if let Some(share) = c.shade_share {
+            predicted.push(format!("shade {share:.4}"));
+        }
+    }
+    predicted.push(if plan.time_models == TimeModels::default() {
+        format!("time {:.1} s (2 cores)", plan.seconds)
+    } else {
+        format!("time {:.1} s (by {TIME_MODELS_VAR}'s models)", plan.seconds)
+    });
+    predicted.push(format!("bytes {:.1} MiB", plan.bytes as f64 / 1048576.0));
+    predicted.push(format!("memory {:.0} MiB", plan.memory_mib));
+    out + "\npredicted  " + &predicted.join("   ") + "\n"
+}
+
+/// The plan recorded by a planned bake, if the heights are still those it
+/// planned for.
+pub fn recorded(asset: &Asset<Mmap>) -> Option<Plan> {
+    crate::stage::recorded_params(asset.manifest(), "plan")
+}
+
+/// The request of a command line: `--budget`, `--needs`, `--sun`,
+/// `--sun-day`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct RequestArgs {
+    /// The budget: horizon=DEG[,svf=X][,shade=FRACTION][,time=SECONDS][,bytes=SIZE][,memory=MIB].
+    #[arg(long)]
+    pub budget: Option<Budget>,
+    /// What the scene needs, a comma list: horizons, svf, sky, sun, tracing, fast_tracing
+    /// (default: horizons,svf).
+    #[arg(long, requires = "budget")]
+    pub needs: Option<Needs>,
+    /// Sun positions for `sun` and the shade budget: AZ,EL;AZ,EL;... degrees (azimuth
+    /// clockwise from north).
+    #[arg(long, requires = "budget", allow_hyphen_values = true)]
+    pub sun: Option<crate::plan::budget::SunPositions>,
+    /// A day of the year (1-366) for `sun`: the sun every 15 minutes while it is up, at the
+    /// scene's central latitude.
+    #[arg(long, requires = "budget", value_parser = clap::value_parser!(u32).range(1..=366))]
+    pub sun_day: Option<u32>,
+}
+
+impl RequestArgs {
+    /// The request, when a budget was given.
+    pub fn request(&self) -> Option<Request> {
+        Some(Request {
+            budget: self.budget?,
+            needs: self.needs.clone().unwrap_or_default(),
+            sun: self.sun.clone().map(|s| s.0).unwrap_or_default(),
+            sun_day: self.sun_day,
+        })
+    }
+}
+
+/// `terrabake plan`: its arguments.
+#[derive(clap::Args, Debug)]
+#[command(
+    mut_arg("budget", |a| a.required(true)),
+    after_help = "Examples:\n  terrabake plan dem.tif --budget horizon=0.5,svf=0.01\n  \
+terrabake plan dem.tbake --budget horizon=1,shade=0.01 --needs horizons,sun --sun-day 172\n  \
+terrabake bake dem.tif -o dem.tbake --budget horizon=0.5   # bake what the plan says\n\n\
+The budget (docs/PLANNING.md): horizon=DEG is the 99th percentile over posts and azimuths of the \
+absolute horizon angle error, interpolation between stored directions included; svf=X the 99th \
+percentile over posts of the absolute sky-view factor error; shade=F the share of (post, sun \
+position) pairs whose sun/shade state is wrong; bytes=SIZE, time=SECONDS and memory=MIB limit the \
+bake. Its time is predicted by models fitted on a 2-core machine; on another, \
+OUT=models.json pipelines/fit_plan_models.sh fits that machine's, and TERRABAKE_TIME_MODELS=models.json \
+makes the planner use them."
+)]
+pub struct PlanArgs {
+    /// A DEM (ingested into a temporary asset to be measured) or an ingested asset.
+    pub src: std::path::PathBuf,
+    #[command(flatten)]
+    pub request: RequestArgs,
+    /// Print the plan as JSON (every candidate with its predicted error, time and bytes).
+    #[arg(long)]
+    pub json: bool,
+}
+
+impl PlanArgs {
+    pub fn run(&self, progress: Progress) -> Result<()> {
+        let request = self.request.request().expect("clap requires --budget");
+        // The time models are checked before a source DEM's ingest.
+        TimeModels::from_env()?;
+        let plan = if self.src.is_dir() {
+            plan(&crate::stage::asset::open(&self.src)?, &request, progress)?
+        } else {
+            // A source DEM: measured through a temporary ingest (default
+            // options), removed afterwards.
+            let scratch = tempfile::Builder::new()
+                .prefix("terrabake-plan")
+                .tempdir()?;
+            crate::plumbing::interrupt::scratch(scratch.path().to_path_buf());
+            let dir = scratch.path().join("scene.tbake");
+            crate::stages::ingest::ingest(&self.src, &dir, &Default::default(), progress)?;
+            plan(&crate::stage::asset::open(&dir)?, &request, progress)?
+        };
+        if self.json {
+            println!("{}", serde_json::to_string_pretty(&plan)?);
+        } else {
+            print!("{}", describe(&plan));
+        }
+        Ok(())
+    }
+}

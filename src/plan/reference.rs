@@ -1,0 +1,348 @@
+//! Exact horizon references from the heights alone, at sampled posts: what
+//! `check` measures a bake against and what the planner measures a scene
+//! with (docs/PLANNING.md).
+//!
+//! **Posts.** `samples` posts drawn uniformly (seeded, so a measurement
+//! repeats) from an area, and a quarter as many again of the highest local
+//! relief (the largest height range within four posts, among twenty random
+//! candidates each): where horizons are steep, errors are largest.
+//!
+//! **Horizons.** At each post, the exact line horizon
+//! (`horizon::brute::line_horizon`: every crossing of the sight line with
+//! the grid, on the two-triangle surface, with the stage's curvature and
+//! refraction, and no distance limit) in `directions` grid directions, each
+//! within 0.1 degree of `i * 360 / directions`. Each line stops where the
+//! DEM's highest post could no longer rise above its horizon so far, and
+//! steps over the blocks of cells whose highest post could not
+//! (`brute::line_horizon_records_below`: the same records;
+//! docs/BENCHMARKS.md has what each saves).
+
+use std::collections::HashSet;
+
+use anyhow::{bail, Result};
+use rayon::prelude::*;
+use terrabake_format::{Asset, Mmap};
+
+use crate::algorithms::horizon::sky::{svf_of_horizons, BandIntegrals};
+use crate::algorithms::horizon::{brute, distinct_line_bands, plan_bands, Band, BandKind, Method};
+use crate::io::synth::SplitMix64;
+use crate::plumbing::progress::Progress;
+use crate::terrain::held::HeldDem;
+use crate::terrain::Terrain;
+
+/// How a reference samples.
+#[derive(Debug, Clone, Copy)]
+pub struct Sampling {
+    /// Random posts; a quarter as many of the highest relief are added.
+    pub samples: usize,
+    pub seed: u64,
+    /// Reference directions.
+    pub directions: usize,
+    /// Distances (metres) at which to keep each sight line's horizon cut
+    /// off (the planner's distance limit); empty for none.
+    pub cuts: &'static [f64],
+}
+
+/// `check`'s sampling: 400 random posts (and 100 of the highest relief),
+/// seed 1, 720 directions.
+impl Default for Sampling {
+    fn default() -> Self {
+        Self {
+            samples: 400,
+            seed: 1,
+            directions: 720,
+            cuts: &[],
+        }
+    }
+}
+
+/// The sampled posts `(col, row)`: random ones, then those of the highest
+/// relief; no nodata post, none twice.
+fn sample_posts(
+    z: &[f32],
+    w: usize,
+    [x0, y0, x1, y1]: [usize; 4],
+    opts: &Sampling,
+) -> (Vec<(usize, usize)>, usize) {
+    let mut rng = SplitMix64(opts.seed);
+    let draw = |rng: &mut SplitMix64| -> Option<(usize, usize)> {
+        (0..32).find_map(|_| {
+            let (c, r) = (x0 + rng.below(x1 - x0), y0 + rng.below(y1 - y0));
+            (!z[r * w + c].is_nan()).then_some((c, r))
+        })
+    };
+    // Random posts may repeat; a set keeps each once (and the relief posts
+    // apart from them) in time linear in the samples.
+    let mut seen = HashSet::new();
+    let mut posts: Vec<(usize, usize)> = (0..opts.samples)
+        .filter_map(|_| draw(&mut rng))
+        .filter(|&p| seen.insert(p))
+        .collect();
+    let h = z.len() / w;
+    let relief = |(c, r): (usize, usize)| -> f32 {
+        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+        for rr in r.saturating_sub(4)..(r + 5).min(h) {
+            for cc in c.saturating_sub(4)..(c + 5).min(w) {
+                let v = z[rr * w + cc];
+                if !v.is_nan() {
+                    lo = lo.min(v);
+                    hi = hi.max(v);
+                }
+            }
+        }
+        hi - lo
+    };
+    let wanted = opts.samples / 4;
+    let mut candidates: Vec<(f32, (usize, usize))> = (0..wanted * 20)
+        .filter_map(|_| draw(&mut rng))
+        .map(|p| (relief(p), p))
+        .collect();
+    candidates.sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
+    let before = posts.len();
+    for (_, p) in candidates {
+        if posts.len() - before == wanted {
+            break;
+        }
+        if seen.insert(p) {
+            posts.push(p);
+        }
+    }
+    let relief_posts = posts.len() - before;
+    (posts, relief_posts)
+}
+
+/// The exact horizons of sampled posts in dense directions, from the heights
+/// alone: what `check` measures a bake against and what the planner
+/// measures a scene with. The planner adds the directions a bake would
+/// store ([`Pilot::measure_directions`]): they need not be reference
+/// directions.
+#[derive(Debug)]
+pub struct Pilot {
+    /// The posts `(col, row)`: random ones, then those of the highest relief.
+    pub posts: Vec<(usize, usize)>,
+    pub relief_posts: usize,
+    /// The reference directions (grid lines within 0.1 degree of
+    /// `i * 360 / directions`), and their bands' integrals for the svf.
+    pub reference: Vec<crate::algorithms::horizon::Band>,
+    integrals: Vec<BandIntegrals>,
+    /// The grid steps measured and their azimuths: the reference's, then
+    /// any added, each once.
+    steps: Vec<(i64, i64)>,
+    azimuths: Vec<f64>,
+    /// Per post, the exact horizon in each measured direction (the
+    /// reference directions first, in order), degrees.
+    pub exact: Vec<Vec<f64>>,
+    /// Per post, the horizon of each measured direction `j` cut off at each
+    /// of the cut distances `k`, at `j * cuts.len() + k`, degrees (empty
+    /// without cuts).
+    cut: Vec<Vec<f32>>,
+    cuts: &'static [f64],
+    /// The DEM's highest post in blocks and overall: where a sight line
+    /// can set no more records, and which blocks it can step over
+    /// ([`brute::line_horizon_records_below`]).
+    heights: brute::BlockMax,
+    /// Per post, the terrain's slope there, degrees (`Terrain::normal`).
+    pub slope_deg: Vec<f64>,
+    /// The east-west post spacing on the first and the last row, metres
+    /// (they differ on geographic grids).
+    pub dx_range: (f64, f64),
+}
+
+/// Cells a side of the blocks whose highest posts bound the pilot's sight
+/// lines ([`brute::BlockMax`]), coarsest first.
+const HEIGHT_BLOCKS: [usize; 2] = [64, 16];
+
+impl Pilot {
+    /// Samples the posts of `dem` (`asset`'s heights, read once by the
+    /// caller) within `area` and computes their exact horizons with the
+    /// curvature coefficient `curvature`.
+    pub fn measure(
+        asset: &Asset<Mmap>,
+        dem: &HeldDem,
+        curvature: f64,
+        area: [usize; 4],
+        opts: &Sampling,
+        progress: Progress,
+    ) -> Result<Self> {
+        let dir = asset.dir();
+        if opts.samples == 0 || opts.directions < 4 {
+            bail!("a check needs at least one sample and four reference directions");
+        }
+        let m = asset.manifest();
+        let terrain = dem.terrain(curvature);
+        let (posts, relief_posts) = sample_posts(&dem.z, dem.width, area, opts);
+        if posts.is_empty() {
+            bail!(
+                "{}: the area holds no post with a height to measure",
+                dir.display()
+            );
+        }
+        // Each grid step once: on non-square cells some asked azimuths
+        // share one, and every index into the reference is one direction.
+        let reference = distinct_line_bands(plan_bands(
+            Method::Line,
+            opts.directions,
+            m.cell_size.dx,
+            m.cell_size.dy,
+            Some(0.1),
+        ));
+        let integrals = reference
+            .iter()
+            .map(|b| BandIntegrals::new(b.lo, b.hi))
+            .collect();
+        let slope_deg = posts
+            .iter()
+            .map(|&(c, r)| {
+                terrain
+                    .normal(c, r)
+                    .map_or(0.0, |n| n[2].acos().to_degrees())
+            })
+            .collect();
+        let dx_range = (terrain.dx_at(0), terrain.dx_at(dem.height - 1));
+        let mut pilot = Self {
+            exact: vec![Vec::new(); posts.len()],
+            cut: vec![Vec::new(); posts.len()],
+            posts,
+            relief_posts,
+            reference: Vec::new(),
+            integrals,
+            steps: Vec::new(),
+            azimuths: Vec::new(),
+            cuts: opts.cuts,
+            // From the heights themselves, not the manifest's range: the
+            // reference rests on nothing but the heights.
+            heights: brute::BlockMax::of(&terrain, &HEIGHT_BLOCKS),
+            slope_deg,
+            dx_range,
+        };
+        let bar = progress.bar(pilot.posts.len() as u64, "exact horizons", "posts");
+        pilot.measure_directions(&terrain, &reference, || bar.inc(1));
+        bar.finish_and_clear();
+        pilot.reference = reference;
+        Ok(pilot)
+    }
+
+    /// The memory the blocks bounding its sight lines hold, bytes.
+    pub fn bounds_bytes(&self) -> usize {
+        self.heights.bytes()
+    }
+
+    /// The indices (into each post's `exact`) of the line directions of
+    /// `bands`, measuring at every post those not measured yet (by their
+    /// grid step: a direction measured once serves every band on it).
+    /// `terrain` is the one the pilot was measured on (its blocks' highest
+    /// posts bound the sight lines); `posted` is called once per post
+    /// measured.
+    pub fn measure_directions(
+        &mut self,
+        terrain: &Terrain,
+        bands: &[Band],
+        posted: impl Fn() + Sync,
+    ) -> Vec<usize> {
+        let step = |band: &Band| match &band.kind {
+            BandKind::Line(direction) => direction.step,
+            _ => unreachable!("the pilot measures lines"),
+        };
+        assert!(self.heights.fits(terrain), "the pilot's own terrain");
+        let mut new: Vec<(i64, i64)> = Vec::new();
+        for b in bands {
+            let s = step(b);
+            if !self.steps.contains(&s) && !new.contains(&s) {
+                new.push(s);
+                self.azimuths.push(b.azimuth);
+            }
+        }
+        if !new.is_empty() {
+            // Each line's records give its exact horizon (the last) and its
+            // horizon cut off at any distance (the last record within it);
+            // only the cuts asked for are kept, as a bowl's lines are
+            // records all the way out.
+            let (cuts, heights) = (self.cuts, &self.heights);
+            self.posts
+                .par_iter()
+                .zip(&mut self.exact)
+                .zip(&mut self.cut)
+                .for_each(|((&post, exact), cut)| {
+                    for &s in &new {
+                        let records = brute::line_horizon_records_below(terrain, post, s, heights);
+                        exact.push(f64::from(brute::horizon_within(&records, None)));
+                        cut.extend(
+                            cuts.iter()
+                                .map(|&d| brute::horizon_within(&records, Some(d))),
+                        );
+                    }
+                    posted();
+                });
+            self.steps.extend(new);
+        }
+        bands
+            .iter()
+            .map(|b| {
+                let s = step(b);
+                self.steps.iter().position(|&m| m == s).expect("measured")
+            })
+            .collect()
+    }
+
+    /// The azimuth of measured direction `j`, degrees.
+    pub fn azimuth(&self, j: usize) -> f64 {
+        self.azimuths[j]
+    }
+
+    /// Directions measured: the reference's and those added.
+    pub fn directions_measured(&self) -> usize {
+        self.steps.len()
+    }
+
+    /// Post `i`'s horizon in measured direction `j` from the terrain no
+    /// farther than cut distance `k` (`Sampling::cuts`), degrees.
+    pub fn bounded(&self, i: usize, j: usize, k: usize) -> f64 {
+        f64::from(self.cut[i][j * self.cuts.len() + k])
+    }
+
+    /// The reference direction nearest azimuth `az` (degrees, any turn):
+    /// where a sun at `az` is compared.
+    pub fn nearest_direction(&self, az: f64) -> usize {
+        let gap = |b: &Band| {
+            let d = (b.azimuth - az).rem_euclid(360.0);
+            d.min(360.0 - d)
+        };
+        (0..self.reference.len())
+            .min_by(|&i, &j| gap(&self.reference[i]).total_cmp(&gap(&self.reference[j])))
+            .unwrap_or(0)
+    }
+
+    /// Zakšek's sky-view factor of a post's reference horizons (the first
+    /// of its `exact`).
+    pub fn svf(&self, exact: &[f64]) -> f64 {
+        svf_of_horizons(
+            &self.integrals,
+            exact[..self.reference.len()].iter().copied(),
+        )
+    }
+}
+
+/// Whether a sun `elevation` degrees up is lit under one horizon and not
+/// under the other (a wrong sun/shade state; the sun is a point).
+pub fn shade_differs(elevation: f64, served: f64, exact: f64) -> bool {
+    (elevation > served) != (elevation > exact)
+}
+
+/// The value at `p` percent of sorted `v` (0 when empty).
+pub fn percentile(v: &[f64], p: usize) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    v[(v.len() * p / 100).min(v.len() - 1)]
+}
+
+/// The value at quantile `q` (0..1) of `v` once sorted, without sorting
+/// it all (0 when empty); `v` is left reordered, so that several
+/// quantiles of one slice cost a selection each.
+pub fn quantile_unsorted(v: &mut [f64], q: f64) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    let at = ((v.len() as f64 * q) as usize).min(v.len() - 1);
+    *v.select_nth_unstable_by(at, f64::total_cmp).1
+}

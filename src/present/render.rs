@@ -1,0 +1,497 @@
+//! Perspective views of an asset, traced with any method: Lambert shading
+//! from the sun, sun shadows from shadow rays, a hypsometric tint, and a sky.
+//! Used by `terrabake render` and by the tracing benchmark (Paglieroni and
+//! Petersen's Table 1: 16 oblique views from inside the bounding box).
+//!
+//! Coordinates are local metres: `x` east and `y` north from the DEM's
+//! south-west post, `z` the heights' metres (see `terrabake_format::trace`).
+
+use rayon::prelude::*;
+use serde::Serialize;
+use terrabake_format::trace::{Counters, Method, Ray, Tracer};
+use terrabake_format::{Asset, Mmap};
+
+/// A pinhole camera: horizontal field of view, up is +z.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Camera {
+    pub eye: [f64; 3],
+    pub look_at: [f64; 3],
+    /// Horizontal field of view, degrees.
+    pub fov: f64,
+}
+
+/// Sun direction: azimuth clockwise from north, elevation above the horizon, degrees.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Sun {
+    pub azimuth: f64,
+    pub elevation: f64,
+}
+
+impl Sun {
+    /// Unit vector towards the sun (x east, y north, z up).
+    pub fn direction(&self) -> [f64; 3] {
+        let (az, el) = (self.azimuth.to_radians(), self.elevation.to_radians());
+        [az.sin() * el.cos(), az.cos() * el.cos(), el.sin()]
+    }
+}
+
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct RenderStats {
+    pub pixels: u64,
+    pub primary_rays: u64,
+    pub primary_hits: u64,
+    pub shadow_rays: u64,
+    pub seconds: f64,
+    /// Primary and shadow rays per second, over all threads.
+    pub rays_per_second: f64,
+    pub threads: usize,
+    /// Means over primary rays.
+    pub mean_steps: f64,
+    pub mean_cells: f64,
+    pub mean_nodes_pushed: f64,
+}
+
+/// An RGB image, row-major from the top.
+#[derive(Debug, Clone)]
+pub struct Image {
+    pub width: u32,
+    pub height: u32,
+    pub rgb: Vec<u8>,
+}
+
+fn normalize(v: [f64; 3]) -> [f64; 3] {
+    let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    [v[0] / l, v[1] / l, v[2] / l]
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+impl Camera {
+    /// The camera's basis for a `w x h` image, computed once per image.
+    pub fn projector(&self, w: u32, h: u32) -> Projector {
+        let forward = normalize([
+            self.look_at[0] - self.eye[0],
+            self.look_at[1] - self.eye[1],
+            self.look_at[2] - self.eye[2],
+        ]);
+        // Looking straight up or down: any horizontal right vector will do.
+        let right = if forward[0].abs() < 1e-12 && forward[1].abs() < 1e-12 {
+            [1.0, 0.0, 0.0]
+        } else {
+            normalize(cross(forward, [0.0, 0.0, 1.0]))
+        };
+        let up = cross(right, forward);
+        let half = (self.fov.to_radians() / 2.0).tan();
+        let aspect = f64::from(h) / f64::from(w);
+        Projector {
+            eye: self.eye,
+            forward,
+            right: right.map(|c| c * half),
+            up: up.map(|c| c * half * aspect),
+            size: (f64::from(w), f64::from(h)),
+        }
+    }
+}
+
+/// Primary rays of one camera and image size.
+#[derive(Debug, Clone, Copy)]
+pub struct Projector {
+    eye: [f64; 3],
+    forward: [f64; 3],
+    /// Right and up, scaled to the half-width and half-height of the image plane.
+    right: [f64; 3],
+    up: [f64; 3],
+    size: (f64, f64),
+}
+
+impl Projector {
+    /// The primary ray through the centre of pixel `(px, py)`.
+    pub fn ray(&self, px: f64, py: f64) -> Ray {
+        let (sx, sy) = (
+            2.0 * (px + 0.5) / self.size.0 - 1.0,
+            1.0 - 2.0 * (py + 0.5) / self.size.1,
+        );
+        let dir = [0, 1, 2].map(|i| self.forward[i] + sx * self.right[i] + sy * self.up[i]);
+        Ray {
+            origin: self.eye,
+            dir,
+            t_min: 0.0,
+            t_max: f64::INFINITY,
+        }
+    }
+}
+
+/// What to render.
+#[derive(Debug, Clone, Copy)]
+pub struct RenderOptions {
+    pub width: u32,
+    pub height: u32,
+    pub method: Method,
+    pub sun: Sun,
+    /// Trace only every `every`-th pixel in x and y (1: all); the rest are
+    /// filled from the traced ones, for quick previews and the benchmark.
+    pub every: u32,
+    /// Sun shadows: shadow rays, the stored horizons, or none (benchmarks
+    /// of primary rays alone).
+    pub shadows: Shadows,
+    /// Vertical exaggeration of the terrain (1: true heights). The camera
+    /// and look-at heights are in exaggerated metres.
+    pub exaggeration: f64,
+    /// Shading normals: smooth across cells, or each triangle's own.
+    pub normals: Normals,
+}
+
+/// The normals that shading uses. Hits and shadows are of the triangles
+/// either way; only the light on them differs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Normals {
+    /// Post normals by central differences, bilinear across each cell
+    /// (`surface::smooth_normal`): no facets.
+    Smooth,
+    /// The normal of the triangle hit: every facet shows.
+    Flat,
+}
+
+/// The smooth normal (unit, true heights) at `hit`, from the 4 x 4 posts
+/// around its cell; posts outside the DEM are missing.
+fn smooth_normal_at<D: AsRef<[u8]>>(
+    height: &terrabake_format::Layer<D>,
+    hit: &terrabake_format::trace::Hit,
+    cell: (f64, f64),
+    rows_max: f64,
+) -> terrabake_format::Result<[f64; 3]> {
+    let (c, r) = hit.cell;
+    let (x0, y0) = (c.saturating_sub(1), r.saturating_sub(1));
+    let (x1, y1) = ((c + 3).min(height.width()), (r + 3).min(height.height()));
+    let mut window = [0f32; 16];
+    height.read_window(
+        0,
+        x0,
+        y0,
+        x1 - x0,
+        y1 - y0,
+        &mut window[..((x1 - x0) * (y1 - y0)) as usize],
+    )?;
+    let mut posts = [f32::NAN; 16];
+    for y in y0..y1 {
+        for x in x0..x1 {
+            let at = ((y - y0) * (x1 - x0) + (x - x0)) as usize;
+            posts[((y + 1 - r) * 4 + (x + 1 - c)) as usize] = window[at];
+        }
+    }
+    let east = hit.point[0] / cell.0 - f64::from(c);
+    let north = f64::from(r) + 1.0 - (rows_max - hit.point[1] / cell.1);
+    Ok(normalize(terrabake_format::surface::smooth_normal(
+        &posts, east, north, cell.0, cell.1,
+    )))
+}
+
+/// Where sun shadows come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Shadows {
+    Off,
+    /// A shadow ray from every lit hit towards the sun (exact).
+    Rays,
+    /// The horizons stage's angles: the share of the sun's disc above the
+    /// horizon (`lit_fraction`, radius 0.27 degrees), bilinear between the
+    /// four posts around the hit. No ray; soft edges. Under an exaggeration
+    /// `e` the sun stands where it does over the exaggerated surface: at
+    /// `atan(tan(elevation) / e)` over the true one.
+    Horizons,
+}
+
+/// The lit share of the sun's disc at fractional post `(col, row)`:
+/// `lit_fraction` of the four posts around it, bilinear (nodata posts left
+/// out).
+fn lit_between_posts<D: AsRef<[u8]>>(
+    map: &terrabake_format::horizons::HorizonMap<'_, D>,
+    (col, row): (f64, f64),
+    sun: Sun,
+) -> terrabake_format::Result<f64> {
+    let (c0, r0) = (col.floor().max(0.0), row.floor().max(0.0));
+    let (fc, fr) = ((col - c0).clamp(0.0, 1.0), (row - r0).clamp(0.0, 1.0));
+    let (mut sum, mut weight) = (0.0, 0.0);
+    for (dc, dr, w) in [
+        (0.0, 0.0, (1.0 - fc) * (1.0 - fr)),
+        (1.0, 0.0, fc * (1.0 - fr)),
+        (0.0, 1.0, (1.0 - fc) * fr),
+        (1.0, 1.0, fc * fr),
+    ] {
+        let (c, r) = ((c0 + dc) as u32, (r0 + dr) as u32);
+        if w > 0.0 {
+            if let Ok(Some(lit)) = map.lit_fraction(c, r, sun.azimuth, sun.elevation, 0.27) {
+                sum += w * lit;
+                weight += w;
+            }
+        }
+    }
+    Ok(if weight > 0.0 { sum / weight } else { 1.0 })
+}
+
+/// Renders `camera`'s view. Errors only when the asset cannot be read.
+pub fn render(
+    asset: &Asset<Mmap>,
+    tracer: &Tracer<'_, Mmap>,
+    camera: &Camera,
+    opts: &RenderOptions,
+) -> anyhow::Result<(Image, RenderStats)> {
+    anyhow::ensure!(
+        camera.eye != camera.look_at,
+        "the camera looks at its own position {:?}: give a --look-at point away from --camera",
+        camera.eye
+    );
+    let (w, h, every) = (opts.width, opts.height, opts.every.max(1));
+    // The traced pixels and the image, 3 bytes each.
+    crate::plumbing::resources::ensure_memory(
+        u64::from(w) * u64::from(h) * 6,
+        &format!("a {w} x {h} image"),
+    )?;
+    let range = asset
+        .manifest()
+        .height_range
+        .map_or((0.0, 1.0), |r| (f64::from(r.min), f64::from(r.max)));
+    let sun = opts.sun.direction();
+    let e = if opts.exaggeration > 0.0 {
+        opts.exaggeration
+    } else {
+        1.0
+    };
+    // Shading and shadows are of the same, exaggerated surface: towards
+    // the sun over it is, over the true heights, a ray whose rise is
+    // divided by e (and a sun that much lower).
+    let sun_true = Sun {
+        azimuth: opts.sun.azimuth,
+        elevation: (opts.sun.elevation.to_radians().tan() / e)
+            .atan()
+            .to_degrees(),
+    };
+    let horizons = match opts.shadows {
+        Shadows::Horizons => Some(terrabake_format::horizons::HorizonMap::open(asset).map_err(
+            |e| {
+                anyhow::anyhow!(
+                    "{e}: horizon shadows need the horizons stage (terrabake horizons {})",
+                    asset.dir().display()
+                )
+            },
+        )?),
+        _ => None,
+    };
+    let m = asset.manifest();
+    let (cell, rows_max) = ((m.cell_size.dx, m.cell_size.dy), f64::from(m.height - 1));
+    let height = asset.height()?;
+    let start = std::time::Instant::now();
+    let projector = camera.projector(w, h);
+    let traced_rows: Vec<u32> = (0..h).step_by(every as usize).collect();
+    let rows: Vec<anyhow::Result<TracedRow>> = traced_rows
+        .par_iter()
+        .map(|&py| {
+            let mut row = Vec::with_capacity(w.div_ceil(every) as usize);
+            let (mut counters, mut hits, mut shadow_rays) = (Counters::default(), 0u64, 0u64);
+            for px in (0..w).step_by(every as usize) {
+                let ray = projector.ray(f64::from(px), f64::from(py));
+                // Exaggerating the terrain by e is tracing the ray with its z
+                // divided by e: the hit's t is the same.
+                let (hit, c) = tracer.trace(&squash(&ray, e), opts.method)?;
+                counters += c;
+                let colour = match hit {
+                    None => sky(&ray),
+                    Some(hit) => {
+                        hits += 1;
+                        let n = match opts.normals {
+                            Normals::Flat => hit.normal.map(f64::from),
+                            Normals::Smooth => smooth_normal_at(height, &hit, cell, rows_max)?,
+                        };
+                        let n = normalize([n[0] * e, n[1] * e, n[2]]);
+                        let lambert = (n[0] * sun[0] + n[1] * sun[1] + n[2] * sun[2]).max(0.0);
+                        let lit = if lambert <= 0.0 {
+                            0.0
+                        } else {
+                            match (opts.shadows, &horizons) {
+                                (Shadows::Rays, _) => {
+                                    shadow_rays += 1;
+                                    // Start just above the hit so the ray leaves its own triangle.
+                                    let lift = 1e-3 * (range.1 - range.0).max(1.0);
+                                    let origin = [hit.point[0], hit.point[1], hit.point[2] + lift];
+                                    let shadow = Ray {
+                                        origin,
+                                        dir: sun_true.direction(),
+                                        t_min: 0.0,
+                                        t_max: f64::INFINITY,
+                                    };
+                                    if tracer.trace(&shadow, opts.method)?.0.is_none() {
+                                        1.0
+                                    } else {
+                                        0.0
+                                    }
+                                }
+                                (Shadows::Horizons, Some(map)) => {
+                                    let (col, row) =
+                                        (hit.point[0] / cell.0, rows_max - hit.point[1] / cell.1);
+                                    lit_between_posts(map, (col, row), sun_true)?
+                                }
+                                _ => 1.0,
+                            }
+                        };
+                        let t = ((hit.point[2] - range.0) / (range.1 - range.0).max(1e-9)) as f32;
+                        let tint = crate::present::legend::hypsometric(t);
+                        let light = 0.25 + 0.75 * (lit * lambert) as f32;
+                        tint.map(|c| (c * light).clamp(0.0, 255.0) as u8)
+                    }
+                };
+                row.push(colour);
+            }
+            Ok(TracedRow {
+                pixels: row,
+                counters,
+                hits,
+                shadow_rays,
+            })
+        })
+        .collect();
+    let seconds = start.elapsed().as_secs_f64();
+    let mut stats = RenderStats {
+        threads: rayon::current_num_threads(),
+        seconds,
+        ..Default::default()
+    };
+    let mut totals = Counters::default();
+    let mut traced: Vec<Vec<[u8; 3]>> = Vec::with_capacity(rows.len());
+    for row in rows {
+        let TracedRow {
+            pixels: row,
+            counters: c,
+            hits,
+            shadow_rays: shadows,
+        } = row?;
+        stats.primary_rays += row.len() as u64;
+        stats.primary_hits += hits;
+        stats.shadow_rays += shadows;
+        totals += c;
+        traced.push(row);
+    }
+    stats.pixels = u64::from(w) * u64::from(h);
+    let n = stats.primary_rays.max(1) as f64;
+    stats.mean_steps = totals.steps as f64 / n;
+    stats.mean_cells = totals.cells as f64 / n;
+    stats.mean_nodes_pushed = totals.nodes_pushed as f64 / n;
+    stats.rays_per_second = (stats.primary_rays + stats.shadow_rays) as f64 / seconds.max(1e-9);
+    // Untraced pixels take the nearest traced one up and to the left.
+    let mut rgb = Vec::with_capacity(w as usize * h as usize * 3);
+    for py in 0..h {
+        let row = &traced[(py / every) as usize];
+        for px in 0..w {
+            rgb.extend_from_slice(&row[(px / every) as usize]);
+        }
+    }
+    Ok((
+        Image {
+            width: w,
+            height: h,
+            rgb,
+        },
+        stats,
+    ))
+}
+
+/// One traced row of pixels and what it cost.
+struct TracedRow {
+    pixels: Vec<[u8; 3]>,
+    counters: Counters,
+    hits: u64,
+    shadow_rays: u64,
+}
+
+/// The ray in true heights for a terrain exaggerated `e` times.
+fn squash(ray: &Ray, e: f64) -> Ray {
+    let mut r = *ray;
+    r.origin[2] /= e;
+    r.dir[2] /= e;
+    r
+}
+
+fn sky(ray: &Ray) -> [u8; 3] {
+    let d = normalize(ray.dir);
+    let t = d[2].clamp(-0.2, 1.0) as f32;
+    [
+        (170.0 - 90.0 * t) as u8,
+        (200.0 - 70.0 * t) as u8,
+        (235.0 - 20.0 * t) as u8,
+    ]
+}
+
+/// The sixteen built-in oblique views of an asset (`--view 1..=16`), after
+/// Paglieroni and Petersen's Table 1: cameras inside the bounding box, at
+/// heights from just above the terrain's top to well above it, looking in
+/// sixteen azimuths with tilts from slightly up to steeply down, 104 degree
+/// field of view (their 50 mm lens on a 128 mm focal plane).
+pub fn builtin_views(tracer: &Tracer<'_, Mmap>, asset: &Asset<Mmap>) -> Vec<Camera> {
+    let (xm, ym) = tracer.extent();
+    let r = asset
+        .manifest()
+        .height_range
+        .map_or((0.0, 1.0), |r| (f64::from(r.min), f64::from(r.max)));
+    let relief = (r.1 - r.0).max(1.0);
+    (0..16)
+        .map(|k| {
+            let k = f64::from(k);
+            let az = (k * 22.5 + 10.0).to_radians();
+            // Cameras on a ring inside the box, looking across it.
+            let (ex, ey) = (
+                0.5 * xm - 0.3 * xm * az.sin(),
+                0.5 * ym - 0.3 * ym * az.cos(),
+            );
+            let ez = r.1 + relief * (0.05 + 0.5 * ((k * 7.0) % 16.0) / 16.0);
+            // Depression below the horizontal: -5 (slightly up) to 33 degrees.
+            let depression = (-5.0 + 38.0 * ((k * 5.0) % 16.0) / 15.0).to_radians();
+            let d = 0.5 * xm.max(ym);
+            Camera {
+                eye: [ex, ey, ez],
+                look_at: [
+                    ex + d * az.sin(),
+                    ey + d * az.cos(),
+                    ez - d * depression.tan(),
+                ],
+                fov: 104.0,
+            }
+        })
+        .collect()
+}
+
+/// Writes an RGB PNG (through a temporary file).
+pub fn write_png(path: &std::path::Path, image: &Image) -> anyhow::Result<()> {
+    crate::plumbing::output::write_atomically(path, |file| {
+        let mut enc = png::Encoder::new(file, image.width, image.height);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        enc.write_header()?.write_image_data(&image.rgb)?;
+        Ok(())
+    })
+}
+
+/// Refuses `method` on an asset without the layers it walks, naming the
+/// asset and the command that adds them.
+pub fn require_layers(
+    tracer: &Tracer<'_, Mmap>,
+    method: Method,
+    asset: &std::path::Path,
+) -> anyhow::Result<()> {
+    let missing = match method {
+        Method::Hierarchical if !tracer.has_pyramid() => Some(("the max pyramid", "pyramid")),
+        Method::Parametric if !tracer.has_cones() => Some(("the cone planes", "cones")),
+        _ => None,
+    };
+    match missing {
+        Some((what, command)) => anyhow::bail!(
+            "{0}: --method {1} needs {what}, which this asset does not have: run `terrabake {command} {0}` first, or choose --method incremental",
+            asset.display(),
+            method.name()
+        ),
+        None => Ok(()),
+    }
+}

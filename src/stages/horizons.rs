@@ -1,0 +1,1009 @@
+//! The `horizons` stage: horizon angles at every post in `S` azimuths, and
+//! the sky layers derived from them. `docs/HORIZONS.md` is the long form.
+//!
+//! **Stage.** Two cases run out of core, bands in parallel: `line` without
+//! a maximum distance sweeps each direction over tile-row bands of the DEM
+//! with every line's hull carried across ([`line::BandedSweep`]); `sector`
+//! with one reads each tile row with the rows within reach
+//! ([`sector::sector_horizons_within`]). The other cases hold the DEM in
+//! memory (4 bytes per post) and one band of output per worker, within
+//! `--max-memory`. Bands are written band-major (sector-major) in compass
+//! order, in an order that does not depend on thread timing
+//! ([`crate::plumbing::ordered`]). The derived layers (`svf`, `svf_cosine`,
+//! `openness`, `horizon_edge`) are the `sky` stage's ([`crate::stages::sky`]), from
+//! the committed angles. Geographic grids take their east-west spacing row
+//! by row ([`terrain::RowScale`]).
+//!
+//! **Parts.** In a partitioned bake ([`crate::bake::partition`]) the stage splits
+//! by rows within a maximum distance and by bands without one; a share
+//! skips the bands and (where rows are independent) the rows it does not
+//! own, and bounded `line` holds only its rows and their reach.
+
+use std::path::Path;
+use std::sync::Mutex;
+
+use anyhow::{bail, Context, Result};
+use rayon::prelude::*;
+use terrabake_format::horizons::{AngleEncoding, HORIZON};
+use terrabake_format::layers::HORIZON_DISTANCE;
+use terrabake_format::{Asset, Codec, LayerEntry, LayerSpec, LayerWriter, Mmap};
+
+use crate::algorithms::horizon::line::{self};
+use crate::algorithms::horizon::{
+    band_horizons_into, plan_bands, sector, Band, BandKind, BandOptions, Method,
+};
+use crate::plumbing::progress::Progress;
+use crate::stage::{Share, Split, Stage};
+use crate::terrain::held::{curvature_for, read_rows};
+use crate::terrain::tiling::encode_tile_row;
+use crate::terrain::{self, RowScale, Terrain};
+
+/// An area of interest in posts: columns `x0..x1`, rows `y0..y1`.
+pub type Aoi = [u32; 4];
+
+/// The `horizons` stage and its parameters: `terrabake horizons` flattens
+/// it, a recipe's `[[stage]] name = "horizons"` table deserialises into it
+/// (unknown keys refused), and the manifest records its serialisation.
+#[derive(Debug, Clone, PartialEq, clap::Args, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct HorizonsStage {
+    /// Number of azimuths (bands), 3..=4096; band i is centred on i * 360 / S degrees.
+    #[arg(long, visible_alias = "directions", default_value_t = 16, value_parser = crate::stage::args::parse_sectors)]
+    pub sectors: usize,
+    /// line (exact sight lines), sector (Stewart's wedges) or sampled (baseline).
+    #[arg(long, default_value = "line", value_parser = Method::parser())]
+    pub method: Method,
+    /// Look no farther than this many metres (default: the whole DEM, exact). Bounded
+    /// line and sector horizons walk or scan each post's reach: O(M) and O(M^2 / S) per post;
+    /// bounded sector runs out of core.
+    #[arg(long, allow_hyphen_values = true, value_parser = crate::stage::args::parse_positive)]
+    pub max_distance: Option<f64>,
+    /// Earth curvature, drop d^2 (1 - k) / 2R: on, off (default: on for georeferenced DEMs).
+    #[arg(long, value_parser = crate::stage::args::parse_on_off)]
+    pub curvature: Option<bool>,
+    /// Refraction coefficient k of the curvature drop.
+    #[arg(long, default_value_t = terrain::DEFAULT_REFRACTION)]
+    pub refraction: f64,
+    /// Only compute posts in columns X0..X1 and rows Y0..Y1 (end exclusive); every post of the
+    /// DEM still occludes. With --max-distance the work is the area's and its reach's.
+    #[arg(long, value_parser = crate::stage::args::parse_aoi)]
+    pub aoi: Option<Aoi>,
+    /// Largest angular error of the stored angles, degrees: picks u8 (0.354), u16 (0.0014) or
+    /// f32.
+    #[arg(long, default_value_t = 0.5, conflicts_with = "encoding", allow_hyphen_values = true, value_parser = crate::stage::args::parse_positive)]
+    #[serde(rename = "max_error_deg")]
+    pub max_error: f64,
+    /// Store angles as u8, u16 or f32 regardless of --max-error.
+    #[arg(long)]
+    pub encoding: Option<AngleEncoding>,
+    /// Stewart's narrow-sector check (sec. IV-E) with --method sector;
+    /// `--no-narrow-check` leaves it out.
+    #[arg(long = "no-narrow-check", action = clap::ArgAction::SetFalse)]
+    pub narrow_check: bool,
+    /// How far a line direction may sit from i * 360 / S, degrees (default: spacing / 8; less
+    /// than spacing / 2). Wider takes shorter grid steps: at 16 directions on the SRTM tile in UTM,
+    /// 4.5 degrees sweeps in half the time for 5 % more horizon error
+    /// (docs/BENCHMARKS.md). `terrabake bake --budget` picks it from the budget.
+    #[arg(long, allow_hyphen_values = true, value_parser = crate::stage::args::parse_positive)]
+    pub direction_tolerance: Option<f64>,
+    /// Also write `horizon_distance`: per post and band, the horizontal distance in metres to
+    /// the point that sets the horizon (line: exact; sector: the steepest post of the wedge;
+    /// sampled: the steepest sample).
+    #[arg(long)]
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub distance: bool,
+    /// Working memory in MiB for the methods that hold the DEM in memory (sector
+    /// without --max-distance, sampled, line with --max-distance); a DEM that needs more
+    /// is refused with the out-of-core routes named. Out of core, line's SIMD lanes take
+    /// at most a sixteenth of it. Results do not depend on it, so it is not recorded.
+    #[arg(long = "max-memory", value_name = "MIB", default_value = "8192", value_parser = crate::stage::mib::parse)]
+    #[serde(
+        rename = "max_memory_mib",
+        with = "crate::stage::mib",
+        skip_serializing
+    )]
+    pub max_memory: u64,
+}
+
+impl HorizonsStage {
+    /// The encoding of the stored angles: `encoding`, else the smallest
+    /// within `max_error`.
+    pub fn angle_encoding(&self) -> AngleEncoding {
+        self.encoding
+            .unwrap_or_else(|| AngleEncoding::for_error(self.max_error))
+    }
+}
+
+/// Memory of unbounded `sector` per post and sector in flight: the tree's
+/// hulls and buckets, the posts' centre-plane coordinates, both orders and
+/// the ranks (75-84 bytes measured at 1 M to 4.2 M posts, with the hulls
+/// in one array, `sector::hulls`, the ranks handed on, `sector::Ranks`,
+/// and a room of arrays each sector takes from the one before,
+/// `sector::Scratch`; 77-87 before the room; about 5 more at 4.2 M posts
+/// since each thread sweeps a sector and its opposite and holds both
+/// bands' angles, [`opposite_pairs`]).
+pub const SECTOR_BYTES_PER_POST: u64 = 96;
+
+impl Default for HorizonsStage {
+    fn default() -> Self {
+        Self {
+            sectors: 16,
+            method: Method::Line,
+            max_distance: None,
+            curvature: None,
+            refraction: terrain::DEFAULT_REFRACTION,
+            aoi: None,
+            max_error: 0.5,
+            encoding: None,
+            narrow_check: true,
+            direction_tolerance: None,
+            distance: false,
+            max_memory: 8 << 30,
+        }
+    }
+}
+
+impl HorizonsStage {
+    /// What [`Stage::check`] cannot know without the DEM: memory and the
+    /// area of interest.
+    /// `held` of the `h` rows are held in memory.
+    fn check_dem(&self, w: usize, h: usize, held: usize) -> Result<()> {
+        let threads = rayon::current_num_threads() as u64;
+        if let Some(need) = self.in_core_bytes((w * held) as u64, threads) {
+            if need > self.max_memory {
+                let routes = match self.method {
+                    Method::Sector => "give --max-distance M (bounded sectors run out of core), use --method line (exact sight lines, out of core)",
+                    _ => "use --method line without --max-distance (out of core)",
+                };
+                bail!(
+                    "--method {} holds this {w} x {h} DEM in memory: about {} MiB with {threads} bands in flight, over --max-memory {} MiB; {routes}, or raise --max-memory",
+                    self.method.name(),
+                    need >> 20,
+                    self.max_memory >> 20
+                );
+            }
+        }
+        if let Some([x0, y0, x1, y1]) = self.aoi {
+            if x0 >= x1 || y0 >= y1 || x1 as usize > w || y1 as usize > h {
+                bail!("aoi = [{x0}, {y0}, {x1}, {y1}] (--aoi {x0},{y0},{x1},{y1}) is not a non-empty window of the {w} x {h} DEM");
+            }
+        }
+        Ok(())
+    }
+
+    /// Bytes held in memory for `posts` posts with `threads` bands in
+    /// flight, or `None` where the method runs out of core: the DEM (4
+    /// bytes per post) and per band Stewart's tree ([`SECTOR_BYTES_PER_POST`])
+    /// or one band of angles; with distances, a band of them and the
+    /// tree's tags (the post of every hull point and bucket entry: 12
+    /// bytes per post measured, 30-46 MiB more at 1.44 M posts and two
+    /// sectors in flight).
+    pub fn in_core_bytes(&self, posts: u64, threads: u64) -> Option<u64> {
+        let per_band = match (self.method, self.distance) {
+            (Method::Sector, false) => SECTOR_BYTES_PER_POST,
+            (Method::Sector, true) => SECTOR_BYTES_PER_POST + 16,
+            (Method::Line | Method::Sampled, false) => 4,
+            (Method::Line | Method::Sampled, true) => 8,
+        };
+        (!self.out_of_core()).then_some(posts * (4 + per_band * threads))
+    }
+
+    /// Whether the bands run out of core: `line` without a maximum
+    /// distance, `sector` with one (see `row_bands`).
+    pub fn out_of_core(&self) -> bool {
+        matches!(
+            (self.method, self.max_distance),
+            (Method::Line, None) | (Method::Sector, Some(_))
+        )
+    }
+
+    /// How `band` is computed out of core (where [`Self::out_of_core`]):
+    /// `line` without a maximum distance sweeps tile-row bands with every
+    /// line's hull carried across; `sector` within a maximum distance reads
+    /// each tile row with the rows within the distance.
+    fn row_bands(
+        &self,
+        band: &Band,
+        dims: (usize, usize),
+        spacing: (f64, f64),
+        row_scale: RowScale,
+        nodata: bool,
+        height_bound: f64,
+    ) -> Box<dyn RowBands + Send> {
+        match (&band.kind, self.max_distance) {
+            // The lanes' hulls of the sweeps in flight take at most a
+            // sixteenth of the working memory.
+            (BandKind::Line(dir), None) => Box::new(
+                line::BandedSweep::new(dir, dims, spacing, row_scale, nodata)
+                    .with_lane_memory(self.max_memory as usize / 16 / OUT_OF_CORE_BATCH)
+                    .with_height_bound(height_bound),
+            ),
+            (&BandKind::Sector { index, count }, Some(max_distance)) => Box::new(BoundedSector {
+                sector: (index, count),
+                narrow: self.narrow_check,
+                max_distance,
+                halo: sector::rows_within(max_distance, spacing.1),
+                height: dims.1,
+                cols: {
+                    let [x0, _, x1, _] = self.area(dims.0, dims.1);
+                    x0..x1
+                },
+            }),
+            _ => unreachable!("{:?} bands run in memory", self.method),
+        }
+    }
+
+    /// The bands this stage bakes on cells of `dx x dy` metres: its
+    /// directions (line grid steps within its tolerance) or sectors.
+    pub fn bands(&self, dx: f64, dy: f64) -> Vec<Band> {
+        plan_bands(self.method, self.sectors, dx, dy, self.direction_tolerance)
+    }
+
+    /// The curvature coefficient `c` of the drop `c d^2` (0 when
+    /// curvature is off; on by default for georeferenced DEMs).
+    pub fn curvature_coefficient(&self, asset: &Asset<Mmap>) -> f64 {
+        curvature_for(asset.manifest(), self.curvature, self.refraction)
+    }
+
+    /// The area of interest, or the whole `w x h` DEM.
+    pub fn area(&self, w: usize, h: usize) -> [usize; 4] {
+        self.aoi
+            .unwrap_or([0, 0, w as u32, h as u32])
+            .map(|v| v as usize)
+    }
+
+    /// The parameters the horizons stage last ran with on this asset.
+    pub fn recorded(asset: &Asset<Mmap>) -> Option<Self> {
+        crate::stage::recorded_params(asset.manifest(), "horizons")
+    }
+}
+
+impl Stage for HorizonsStage {
+    fn name(&self) -> &'static str {
+        "horizons"
+    }
+
+    fn params(&self) -> serde_json::Value {
+        serde_json::to_value(self).expect("parameters serialise")
+    }
+
+    fn check(&self) -> Result<()> {
+        if self.sectors < 3 || self.sectors > 4096 {
+            bail!(
+                "sectors = {0} (--sectors {0}): give 3 to 4096 (sectors must be narrower than 180 degrees)",
+                self.sectors
+            );
+        }
+        let positive = |(key, flag): (&str, &str), v: Option<f64>| match v {
+            Some(d) if !(d > 0.0 && d.is_finite()) => {
+                bail!("{key} = {d} (--{flag} {d}): give a positive number")
+            }
+            _ => Ok(()),
+        };
+        positive(("max_distance", "max-distance"), self.max_distance)?;
+        terrain::check_refraction(self.refraction)?;
+        positive(
+            ("direction_tolerance", "direction-tolerance"),
+            self.direction_tolerance,
+        )?;
+        positive(("max_error_deg", "max-error"), Some(self.max_error))?;
+        let half = line::tolerance_limit(self.sectors);
+        match self.direction_tolerance {
+            Some(t) if self.method == Method::Line && t >= half => bail!(
+                "direction_tolerance = {t} (--direction-tolerance {t}): give less than half the spacing of {} directions, {half} degrees (else two directions can take the same grid step)",
+                self.sectors
+            ),
+            _ => Ok(()),
+        }
+    }
+
+    fn outputs(&self, _: &terrabake_format::Manifest) -> Vec<String> {
+        let mut outputs = vec![format!("{HORIZON}@0")];
+        if self.distance {
+            outputs.push(format!("{HORIZON_DISTANCE}@0"));
+        }
+        outputs
+    }
+
+    /// Within `max_distance`, every post reads the terrain up to that far
+    /// (the shortest post spacing, row by row on geographic grids, sets how
+    /// many posts that is, plus one for the cell a sight line ends in);
+    /// without it, the whole DEM.
+    /// Out of core, the steps in flight (one per thread), each holding
+    /// its window of heights (a tile row, with the rows within the
+    /// maximum distance for bounded sectors) and a tile row of angles (and
+    /// of distances), plus the lanes' hulls (a sixteenth of the budget).
+    /// In core, [`HorizonsStage::in_core_bytes`], checked with the DEM's
+    /// own routes out in `check_dem`.
+    fn memory(&self, m: &terrabake_format::Manifest) -> Option<u64> {
+        if !self.out_of_core() {
+            return None;
+        }
+        let (w, h, ts) = (
+            u64::from(m.width),
+            u64::from(m.height),
+            u64::from(m.tile_size),
+        );
+        let halo = self
+            .max_distance
+            .map_or(0, |d| sector::rows_within(d, m.cell_size.dy) as u64);
+        let window = (ts + 2 * halo).min(h);
+        let threads = rayon::current_num_threads() as u64;
+        let outputs = if self.distance { 2 } else { 1 };
+        Some(threads * 4 * w * (window + outputs * ts) + self.max_memory / 16)
+    }
+
+    fn max_memory(&self) -> Option<u64> {
+        Some(self.max_memory)
+    }
+
+    fn reach(&self, m: &terrabake_format::Manifest) -> crate::stage::Reach {
+        let Some(d) = self.max_distance else {
+            return crate::stage::Reach::Whole;
+        };
+        let scale = crate::terrain::geo::row_scale(m.georef.as_ref(), m.height);
+        let narrowest = scale.iter().copied().fold(1.0f64, f64::min);
+        let spacing = (m.cell_size.dx * narrowest).min(m.cell_size.dy);
+        let posts = (d / spacing).ceil() + 1.0;
+        if posts >= f64::from(m.width.max(m.height)) {
+            crate::stage::Reach::Whole
+        } else {
+            crate::stage::Reach::Posts(posts as u32)
+        }
+    }
+
+    /// Within a maximum distance, by rows; without one, by bands: each
+    /// direction (or sector) is independent of the others, and runs over
+    /// the whole DEM out of core (line) or in memory (sector, sampled).
+    fn split(&self, m: &terrabake_format::Manifest) -> Split {
+        match self.reach(m) {
+            crate::stage::Reach::Posts(halo) => Split::Rows { halo },
+            crate::stage::Reach::Whole => Split::Bands,
+        }
+    }
+
+    /// Bands outside the share are not computed; rows outside it are not
+    /// where the rows are independent (bounded `line` and `sector`).
+    fn run(
+        &self,
+        asset: &Asset<Mmap>,
+        dir: &Path,
+        share: &Share,
+        progress: Progress,
+    ) -> Result<Vec<LayerEntry>> {
+        let m = asset.manifest();
+        let height = asset.height()?;
+        let (w, h, ts) = (
+            height.width() as usize,
+            height.height() as usize,
+            height.tile_size() as usize,
+        );
+        // Posts outside the area of interest are NaN, so only its rows (of
+        // the share's) are computed where rows are independent, and only
+        // its columns by bounded `line`.
+        let aoi = self.area(w, h);
+        let rows = share.rows_within(h, aoi[1]..aoi[3]);
+        let cols = aoi[0]..aoi[2];
+        // Bounded `line` holds only the rows it computes and those within
+        // reach of them (a part of a partitioned bake: its share; an area of
+        // interest); the other in-memory methods the whole DEM.
+        let window = match (self.method, self.reach(m)) {
+            (Method::Line, crate::stage::Reach::Posts(r)) => {
+                rows.start.saturating_sub(r as usize)..(rows.end + r as usize).min(h)
+            }
+            _ => 0..h,
+        };
+        self.check_dem(w, h, window.len())?;
+        let curvature = self.curvature_coefficient(asset);
+        let (dx, dy) = (m.cell_size.dx, m.cell_size.dy);
+        let row_scale = crate::terrain::geo::row_scale(m.georef.as_ref(), h as u32);
+        let row_scale = RowScale::new(&row_scale);
+        let bands = self.bands(dx, dy);
+        let enc = self.angle_encoding();
+        let method_text = match self.method {
+            Method::Line => "line: steepest sight line along the grid direction of the band (exact on the two-triangle surface)",
+            Method::Sector => if self.narrow_check {
+                "sector: Stewart's maximum over the closed wedge, with the IV-E narrow-sector check"
+            } else {
+                "sector: Stewart's maximum over the closed wedge, without the IV-E check"
+            },
+            Method::Sampled => "sampled: centre-line sampling, nearest post, one spacing per step (baseline)",
+        };
+        let description = format!(
+            "horizon elevation angle, degrees, band per azimuth (band_azimuths), {}; {method_text}; curvature {}",
+            enc.name(),
+            if curvature > 0.0 { format!("on, refraction {}", self.refraction) } else { "off".into() }
+        );
+        // A writer of one of the stage's layers (band per azimuth), masked
+        // to the area of interest.
+        let band_writer =
+            |name: &str, enc: AngleEncoding, description: String| -> Result<BandWriter> {
+                let spec = post_layer(
+                    (name, "horizons"),
+                    enc.elem(),
+                    bands.len() as u32,
+                    (w, h, ts),
+                    description,
+                );
+                Ok(BandWriter {
+                    writer: Mutex::new(LayerWriter::create(dir, spec)?),
+                    enc,
+                    width: w,
+                    tile_size: ts,
+                    tiles: (w.div_ceil(ts), h.div_ceil(ts)),
+                    aoi,
+                })
+            };
+        let out = band_writer(HORIZON, enc, description)?;
+        // Distances: f32 metres, written beside the angles.
+        let distances = self
+            .distance
+            .then(|| band_writer(
+                HORIZON_DISTANCE,
+                AngleEncoding::F32,
+                format!("horizontal distance to the point that sets the horizon, metres, band per azimuth (band_azimuths) as {HORIZON}; NaN for nodata and where no terrain lies ahead; {method_text}"),
+            ))
+            .transpose()?;
+        let mine = share.bands(bands.len());
+        // Tile rows outside the share's rows (all of them for bands outside
+        // its bands) hold the fill value.
+        let wanted = |y0: usize| y0 < rows.end && y0 + ts > rows.start;
+        for b in (0..bands.len()).filter(|b| !mine.contains(b)) {
+            for y0 in (0..h).step_by(ts) {
+                out.push(b, y0, None)?;
+                if let Some(d) = &distances {
+                    d.push(b, y0, None)?;
+                }
+            }
+        }
+        let bar = progress.bar(mine.len() as u64, "horizons", "bands");
+        let opts = BandOptions {
+            max_distance: self.max_distance,
+            narrow_check: self.narrow_check,
+        };
+        let nodata = m.nodata.count > 0;
+        // No post is higher: what lets a line's hull drop far vertices.
+        let highest = m.height_range.map_or(f64::INFINITY, |r| f64::from(r.max));
+        if self.out_of_core() {
+            // Bands in batches of a fixed size, each batch's sweeps run tile
+            // row by tile row on every core and written in a fixed order
+            // (crate::plumbing::ordered): the layer's bytes are the same on every run
+            // and any number of threads.
+            let threads = rayon::current_num_threads();
+            let first = mine.start;
+            for (b, batch) in bands[mine.clone()].chunks(OUT_OF_CORE_BATCH).enumerate() {
+                // Each sweep with its row bands, in the order it must take them.
+                let sweeps: Vec<_> = batch
+                    .iter()
+                    .map(|band| {
+                        let sweep =
+                            self.row_bands(band, (w, h), (dx, dy), row_scale, nodata, highest);
+                        let rows = sweep.bands(ts);
+                        (sweep, rows)
+                    })
+                    .collect();
+                let steps = crate::terrain::tiling::row_bands(h, ts).len();
+                crate::plumbing::ordered::steps_in_order(
+                    sweeps,
+                    steps,
+                    threads,
+                    |(sweep, bands), k| {
+                        let rows = bands[k].clone();
+                        if sweep.independent() && !wanted(rows.start) {
+                            return Ok((rows.start, None, None));
+                        }
+                        let window = sweep.window(&rows);
+                        let rows_buf = read_rows(height, window.clone())?;
+                        let terrain = Terrain::window(&rows_buf, (w, h), window.start, (dx, dy))
+                            .with_row_scale(row_scale)
+                            .with_curvature(curvature);
+                        let mut angles = vec![0f32; rows.len() * w];
+                        let mut metres = distances.as_ref().map(|_| vec![0f32; rows.len() * w]);
+                        sweep.sweep(&terrain, rows.clone(), &mut angles, metres.as_deref_mut());
+                        let metres = distances
+                            .as_ref()
+                            .zip(metres.as_mut())
+                            .map(|(d, m)| d.encode(rows.start, m));
+                        Ok((
+                            rows.start,
+                            Some(out.encode(rows.start, &mut angles)),
+                            metres,
+                        ))
+                    },
+                    |j, k, (y0, tiles, metres)| {
+                        let band = first + b * OUT_OF_CORE_BATCH + j;
+                        if let Some(d) = &distances {
+                            d.push(band, y0, metres)?;
+                        }
+                        out.push(band, y0, tiles)?;
+                        if k + 1 == steps {
+                            bar.inc(1);
+                        }
+                        Ok(())
+                    },
+                )?;
+            }
+        } else {
+            let z = read_rows(height, window.clone())?;
+            let terrain = Terrain::window(&z, (w, h), window.start, (dx, dy))
+                .with_row_scale(row_scale)
+                .with_curvature(curvature);
+            let threads = rayon::current_num_threads().max(1);
+            let mut tile_row = vec![0f32; ts * w];
+            // A band's values over the window into `writer`, tile row by
+            // tile row (NaN outside the window, fill outside the share).
+            let mut write_band = |writer: &BandWriter, band: usize, values: &[f32]| -> Result<()> {
+                for y0 in (0..h).step_by(ts) {
+                    if !wanted(y0) {
+                        writer.push(band, y0, None)?;
+                        continue;
+                    }
+                    let tile_row = &mut tile_row[..ts.min(h - y0) * w];
+                    for (r, row) in tile_row.chunks_mut(w).enumerate() {
+                        match (y0 + r)
+                            .checked_sub(window.start)
+                            .filter(|&i| i < window.len())
+                        {
+                            Some(i) => row.copy_from_slice(&values[i * w..(i + 1) * w]),
+                            None => row.fill(f32::NAN),
+                        }
+                    }
+                    writer.write(band, y0, tile_row)?;
+                }
+                Ok(())
+            };
+            // Unbounded sectors hand their sorted orders on: each sweeps
+            // beside its opposite (whose ranks are its own reversed), a
+            // batch's pairs sort their ranks side by side, and each sector
+            // takes its processing order from the sector before
+            // (`sector::Ranks`).
+            let sector = |band: &Band| match band.kind {
+                BandKind::Sector { index, count } if opts.max_distance.is_none() => {
+                    Some((index, count))
+                }
+                _ => None,
+            };
+            let posts = bands[mine.clone()]
+                .iter()
+                .any(|b| sector(b).is_some())
+                .then(|| sector::DataPosts::of(&terrain));
+            // The last pair's ranks, for the first pair of the next batch.
+            let mut previous: Vec<sector::Ranks> = Vec::new();
+            // Each of a batch's pairs sorts and sweeps in the room the same
+            // place in the batch before left (`sector::Scratch`).
+            let rooms: Vec<sector::Scratch> = (0..threads).map(|_| Default::default()).collect();
+            for batch in opposite_pairs(&bands, mine.clone()).chunks(threads) {
+                let ranks: Vec<Vec<sector::Ranks>> = batch
+                    .par_iter()
+                    .zip(&rooms)
+                    .map(|(pair, room)| {
+                        let Some(posts) = posts.as_ref() else {
+                            return Vec::new();
+                        };
+                        let sort = |s| sector::Ranks::of_in(&terrain, posts, s, room);
+                        let first = sector(&bands[pair[0]]).map(sort);
+                        // The second is the first's opposite ([`opposite_pairs`]).
+                        let second = pair.get(1).and_then(|&b| sector(&bands[b])).map(|s| {
+                            first
+                                .as_ref()
+                                .and_then(sector::Ranks::opposite)
+                                .unwrap_or_else(|| sort(s))
+                        });
+                        first.into_iter().chain(second).collect()
+                    })
+                    .collect();
+                let known: Vec<&sector::Ranks> = ranks.iter().flatten().chain(&previous).collect();
+                let find = |s: Option<(usize, usize)>| {
+                    let s = s?;
+                    known.iter().copied().find(|r| r.sector() == s)
+                };
+                type Swept = (usize, Vec<f32>, Option<Vec<f32>>);
+                let results: Vec<Vec<Swept>> = batch
+                    .par_iter()
+                    .zip(&rooms)
+                    .map(|(pair, room)| {
+                        let sweep = |&b: &usize| {
+                            let band = &bands[b];
+                            let mut angles = vec![0f32; terrain.z.len()];
+                            let mut metres = distances.as_ref().map(|_| vec![0f32; angles.len()]);
+                            let s = sector(band);
+                            let shared = sector::Shared {
+                                posts: posts.as_ref(),
+                                ranks: find(s),
+                                previous: find(s.map(|(i, n)| ((i + n - 1) % n, n))),
+                                scratch: Some(room),
+                            };
+                            band_horizons_into(
+                                &terrain,
+                                band,
+                                opts,
+                                [rows.clone(), cols.clone()],
+                                (&mut angles, metres.as_deref_mut()),
+                                shared,
+                            );
+                            (b, angles, metres)
+                        };
+                        pair.iter().map(sweep).collect()
+                    })
+                    .collect();
+                drop(known);
+                previous = ranks.into_iter().next_back().unwrap_or_default();
+                for (band, angles, metres) in results.into_iter().flatten() {
+                    write_band(&out, band, &angles)?;
+                    if let (Some(d), Some(metres)) = (&distances, metres) {
+                        write_band(d, band, &metres)?;
+                    }
+                    bar.inc(1);
+                }
+            }
+        }
+        bar.finish_and_clear();
+        let azimuths: Vec<f64> = bands.iter().map(|b| b.azimuth).collect();
+        let mut layers = vec![out.finish(&azimuths)?];
+        if let Some(d) = distances {
+            layers.push(d.finish(&azimuths)?);
+        }
+        Ok(layers)
+    }
+}
+
+/// The bands of `mine` in the order an in-core bake sweeps them: each
+/// sector of an even count followed by the opposite one where that is in
+/// `mine` too (its ranks are the first's reversed, `sector::Ranks`), else
+/// alone. Fixed by the bands alone, not the thread count, so that the
+/// file is the same on every machine.
+fn opposite_pairs(bands: &[Band], mine: std::ops::Range<usize>) -> Vec<Vec<usize>> {
+    // Band `i` of sectors is sector `i` ([`plan_bands`]).
+    let opposite = |b: usize| match bands[b].kind {
+        BandKind::Sector { index, count } if count.is_multiple_of(2) && index == b => {
+            Some((index + count / 2) % count).filter(|o| mine.contains(o))
+        }
+        _ => None,
+    };
+    let mut placed = vec![false; bands.len()];
+    let mut pairs = Vec::new();
+    for b in mine.clone() {
+        if placed[b] {
+            continue;
+        }
+        placed[b] = true;
+        let mut pair = vec![b];
+        if let Some(o) = opposite(b).filter(|&o| !placed[o]) {
+            placed[o] = true;
+            pair.push(o);
+        }
+        pairs.push(pair);
+    }
+    pairs
+}
+
+/// Bands swept together out of core (their sweeps are alive at once). Fixed,
+/// not the thread count, so that the file is the same on every machine;
+/// eight keep two to eight cores busy.
+const OUT_OF_CORE_BATCH: usize = 8;
+
+/// One band computed out of core: output rows in bands, each from a window
+/// of the DEM's rows, in the order the bands must go.
+trait RowBands {
+    /// The bands of at most `rows` output rows, in order.
+    fn bands(&self, rows: usize) -> Vec<std::ops::Range<usize>>;
+    /// The DEM rows that output rows `band` need.
+    fn window(&self, band: &std::ops::Range<usize>) -> std::ops::Range<usize>;
+    /// Angles of output rows `band` from `window`, the rows [`Self::window`]
+    /// named, and their distances to the horizon where asked.
+    fn sweep(
+        &mut self,
+        window: &Terrain,
+        band: std::ops::Range<usize>,
+        out: &mut [f32],
+        distances: Option<&mut [f32]>,
+    );
+    /// Whether a band of rows can be computed without the bands before it
+    /// (a partitioned bake skips the rows another part computes).
+    fn independent(&self) -> bool;
+}
+
+impl RowBands for line::BandedSweep {
+    fn bands(&self, rows: usize) -> Vec<std::ops::Range<usize>> {
+        line::BandedSweep::bands(self, rows)
+    }
+
+    fn window(&self, band: &std::ops::Range<usize>) -> std::ops::Range<usize> {
+        line::BandedSweep::window(self, band)
+    }
+
+    fn sweep(
+        &mut self,
+        window: &Terrain,
+        band: std::ops::Range<usize>,
+        out: &mut [f32],
+        distances: Option<&mut [f32]>,
+    ) {
+        line::BandedSweep::sweep_with_distances(self, window, band, out, distances)
+    }
+
+    /// Every line's hull is carried from band to band.
+    fn independent(&self) -> bool {
+        false
+    }
+}
+
+/// `sector` within a maximum distance: every post depends only on the rows
+/// within the distance, so bands go north to south, each reading `halo`
+/// rows either side.
+struct BoundedSector {
+    sector: (usize, usize),
+    narrow: bool,
+    max_distance: f64,
+    halo: usize,
+    height: usize,
+    /// The area of interest's columns (the others are NaN).
+    cols: std::ops::Range<usize>,
+}
+
+impl RowBands for BoundedSector {
+    fn bands(&self, rows: usize) -> Vec<std::ops::Range<usize>> {
+        crate::terrain::tiling::row_bands(self.height, rows)
+    }
+
+    fn window(&self, band: &std::ops::Range<usize>) -> std::ops::Range<usize> {
+        band.start.saturating_sub(self.halo)..(band.end + self.halo).min(self.height)
+    }
+
+    fn sweep(
+        &mut self,
+        window: &Terrain,
+        band: std::ops::Range<usize>,
+        out: &mut [f32],
+        distances: Option<&mut [f32]>,
+    ) {
+        sector::sector_horizons_within(
+            window,
+            self.sector,
+            self.narrow,
+            self.max_distance,
+            [band, self.cols.clone()],
+            out,
+            distances,
+        );
+    }
+
+    fn independent(&self) -> bool {
+        true
+    }
+}
+
+/// A layer of the stage: one element per post, raw tiles like the heights.
+pub(crate) fn post_layer(
+    (name, stage): (&str, &str),
+    elem: terrabake_format::ElemType,
+    bands: u32,
+    (w, h, ts): (usize, usize, usize),
+    description: String,
+) -> LayerSpec {
+    LayerSpec {
+        name: name.into(),
+        level: 0,
+        elem,
+        bands,
+        width: w as u32,
+        height: h as u32,
+        tile_size: ts as u32,
+        codec: Codec::Raw,
+        // What the tiles are padded with: NaN for f32 values, code 0
+        // (nodata, or a zero count) for integers.
+        fill_bits: if elem == terrabake_format::ElemType::F32 {
+            u64::from(f32::NAN.to_bits())
+        } else {
+            0
+        },
+        stage: stage.into(),
+        description,
+    }
+}
+
+/// Writes a band's rows of angles into the horizon layer as they come (in
+/// any order), masked to the area of interest.
+struct BandWriter {
+    writer: Mutex<LayerWriter>,
+    enc: AngleEncoding,
+    width: usize,
+    tile_size: usize,
+    tiles: (usize, usize),
+    aoi: [usize; 4],
+}
+
+impl BandWriter {
+    /// The layer's entry, with its quantisation and band azimuths.
+    fn finish(self, azimuths: &[f64]) -> Result<LayerEntry> {
+        let mut entry = self
+            .writer
+            .into_inner()
+            .expect("no panic while writing")
+            .finish()?;
+        entry.quantization = self.enc.quantization();
+        entry.band_azimuths = azimuths.to_vec();
+        Ok(entry)
+    }
+
+    /// Rows `y0..` of band `band` (whole tile rows, `y0` on a tile edge).
+    fn write(&self, band: usize, y0: usize, angles: &mut [f32]) -> Result<()> {
+        let tiles = self.encode(y0, angles);
+        self.push(band, y0, Some(tiles))
+    }
+
+    /// The tiles of rows `y0..` of angles, masked to the area of interest.
+    fn encode(&self, y0: usize, angles: &mut [f32]) -> Vec<terrabake_format::EncodedTile> {
+        let (w, ts, [x0, ay0, x1, ay1]) = (self.width, self.tile_size, self.aoi);
+        for (r, row) in angles.chunks_mut(w).enumerate() {
+            if (ay0..ay1).contains(&(y0 + r)) {
+                row[..x0.min(w)].fill(f32::NAN);
+                row[x1.min(w)..].fill(f32::NAN);
+            } else {
+                row.fill(f32::NAN);
+            }
+        }
+        let enc = self.enc;
+        match enc {
+            AngleEncoding::U16 => {
+                let codes = quantise_row(enc, angles, |c| c as u16);
+                encode_tile_row(&codes.expect("u16 codes"), w, ts, 0u16, Codec::Raw)
+            }
+            AngleEncoding::U8 => {
+                let codes = quantise_row(enc, angles, |c| c as u8);
+                encode_tile_row(&codes.expect("u8 codes"), w, ts, 0u8, Codec::Raw)
+            }
+            AngleEncoding::F32 => encode_tile_row(angles, w, ts, f32::NAN, Codec::Raw),
+        }
+    }
+
+    /// Appends the tiles of the tile row at `y0` of band `band` (`None`:
+    /// fill, a row another part of a partitioned bake computes).
+    fn push(
+        &self,
+        band: usize,
+        y0: usize,
+        tiles: Option<Vec<terrabake_format::EncodedTile>>,
+    ) -> Result<()> {
+        let ty = y0 / self.tile_size;
+        let chunk = |tx: usize| ((band * self.tiles.1 + ty) * self.tiles.0 + tx) as u64;
+        let mut writer = self.writer.lock().expect("no panic while writing");
+        match tiles {
+            Some(tiles) => {
+                for (tx, tile) in tiles.into_iter().enumerate() {
+                    writer.push_at(chunk(tx), tile)?;
+                }
+            }
+            None => {
+                for tx in 0..self.tiles.0 {
+                    writer.push_fill_at(chunk(tx))?;
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// [`AngleEncoding::quantise_row`] in the CPU's vectors ([`crate::plumbing::simd`]):
+/// the format crate's loop, compiled here for AVX-512 or AVX2 (the same
+/// codes), where the baseline build converts two values at a time.
+fn quantise_row<T, F: Fn(u32) -> T>(enc: AngleEncoding, degs: &[f32], narrow: F) -> Option<Vec<T>> {
+    quantise_row_at(crate::plumbing::simd::level(), enc, degs, narrow)
+}
+
+/// [`quantise_row`] at `level` (one the CPU runs, [`crate::plumbing::simd::available`]).
+fn quantise_row_at<T, F: Fn(u32) -> T>(
+    level: crate::plumbing::simd::Level,
+    enc: AngleEncoding,
+    degs: &[f32],
+    narrow: F,
+) -> Option<Vec<T>> {
+    use crate::plumbing::simd::Level;
+    assert!(
+        level <= crate::plumbing::simd::level(),
+        "{level:?} is not run by this CPU"
+    );
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx512vl,avx512bw,avx512dq")]
+    fn avx512<T, F: Fn(u32) -> T>(enc: AngleEncoding, degs: &[f32], narrow: F) -> Option<Vec<T>> {
+        enc.quantise_row(degs, narrow)
+    }
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn avx2<T, F: Fn(u32) -> T>(enc: AngleEncoding, degs: &[f32], narrow: F) -> Option<Vec<T>> {
+        enc.quantise_row(degs, narrow)
+    }
+    match level {
+        // SAFETY: the CPU runs `level`.
+        #[cfg(target_arch = "x86_64")]
+        Level::Avx512 => unsafe { avx512(enc, degs, narrow) },
+        #[cfg(target_arch = "x86_64")]
+        Level::Avx2 => unsafe { avx2(enc, degs, narrow) },
+        _ => enc.quantise_row(degs, narrow),
+    }
+}
+
+/// All bands of the `horizon` layer decoded to degrees, band-major.
+pub fn read_horizons(asset: &Asset<Mmap>) -> Result<(Vec<Vec<f32>>, Vec<f64>)> {
+    let map = terrabake_format::horizons::HorizonMap::open(asset)
+        .context("the asset has no usable horizon layer; run `terrabake horizons` first")?;
+    let layer = asset.layer(HORIZON, 0)?;
+    let bands = (0..layer.bands())
+        .map(|b| {
+            let mut v = vec![0f32; layer.width() as usize * layer.height() as usize];
+            layer.read_rows_f32(b, 0, &mut v)?;
+            Ok(v)
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok((bands, map.azimuths().to_vec()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Each sector is swept beside its opposite where the share holds
+    /// both, else alone; other methods' bands and odd counts alone.
+    #[test]
+    fn opposite_sectors_pair_within_a_share() {
+        let pairs = |method, count, mine| {
+            opposite_pairs(&plan_bands(method, count, 30.0, 30.0, None), mine)
+        };
+        assert_eq!(
+            pairs(Method::Sector, 8, 0..8),
+            [[0, 4], [1, 5], [2, 6], [3, 7]]
+        );
+        assert_eq!(
+            pairs(Method::Sector, 8, 2..7),
+            [vec![2, 6], vec![3], vec![4], vec![5]]
+        );
+        assert_eq!(pairs(Method::Sector, 8, 5..8), [[5], [6], [7]]);
+        assert_eq!(
+            pairs(Method::Sector, 7, 0..7),
+            (0..7).map(|b| vec![b]).collect::<Vec<_>>()
+        );
+        assert_eq!(
+            pairs(Method::Line, 8, 0..8),
+            (0..8).map(|b| vec![b]).collect::<Vec<_>>()
+        );
+    }
+
+    /// The vector builds of the angle codes give the format crate's codes:
+    /// every code's centre and half-steps a hair either side, the ends,
+    /// NaN and infinities, and a spread of angles.
+    #[test]
+    fn quantised_rows_are_the_format_crates_codes_at_every_level() {
+        for enc in [AngleEncoding::U8, AngleEncoding::U16] {
+            let step = enc.step_deg();
+            let mut degs = vec![
+                f32::NAN,
+                f32::INFINITY,
+                f32::NEG_INFINITY,
+                -1e9,
+                1e9,
+                -90.0,
+                90.0,
+            ];
+            let mut k = -90.0;
+            while k <= 90.0 {
+                for d in [0.0, 0.5 * step, -0.5 * step] {
+                    let x = (k + d) as f32;
+                    degs.extend([
+                        x,
+                        f32::from_bits(x.to_bits() + 1),
+                        f32::from_bits(x.to_bits().wrapping_sub(1)),
+                    ]);
+                }
+                k += step;
+            }
+            degs.extend((0..10_000).map(|i| -95.0 + 190.0 * (i as f32 / 10_000.0)));
+            for level in crate::plumbing::simd::available() {
+                assert_eq!(
+                    quantise_row_at(level, enc, &degs, |c| c),
+                    enc.quantise_row(&degs, |c| c),
+                    "{enc:?} at {level:?}"
+                );
+            }
+        }
+    }
+}
