@@ -8,11 +8,11 @@ use clap::{ArgMatches, CommandFactory, FromArgMatches, Parser, Subcommand};
 use terrabake_format::trace::Method;
 
 use crate::io::synth::SynthKind;
-use crate::present::render::Sun;
 use crate::stage::args::{parse_point, parse_size, parse_sun};
 use crate::stages::cones::ConesStage;
 use crate::stages::horizons::HorizonsStage;
 use crate::stages::ingest::IngestOptions;
+use crate::terrain::sun::Sun;
 
 /// A stage run on its own: the asset, the stage's flags, and what every
 /// stage command takes.

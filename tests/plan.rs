@@ -10,12 +10,13 @@ use std::path::Path;
 use common::*;
 use proptest::prelude::*;
 use terrabake::io::synth::SynthKind;
-use terrabake::plan::budget::{Budget, Need, Needs, Request, SunPosition};
+use terrabake::plan::budget::{Budget, Need, Needs, Request};
 use terrabake::plan::check::{check, CheckOptions, CheckReport};
 use terrabake::plan::{plan, Plan, TimeModels, SHARE_DIRECTIONS, TIME_MODELS_VAR};
 use terrabake::plumbing::progress::Progress;
 use terrabake::stage::run_stage;
 use terrabake::stages::ingest::IngestOptions;
+use terrabake::terrain::sun::SunPosition;
 use terrabake_format::Asset;
 
 fn terrain(dir: &Path, kind: SynthKind, seed: u64) -> std::path::PathBuf {

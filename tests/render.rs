@@ -5,11 +5,12 @@ mod common;
 
 use terrabake::io::synth::SynthKind;
 use terrabake::plumbing::progress::Progress;
-use terrabake::present::render::{builtin_views, render, RenderOptions, Sun};
+use terrabake::present::render::{builtin_views, render, RenderOptions};
 use terrabake::stage::run_stage;
 use terrabake::stages::cones::ConesStage;
 use terrabake::stages::ingest::{ingest, IngestOptions};
 use terrabake::stages::pyramid::PyramidStage;
+use terrabake::terrain::sun::Sun;
 use terrabake_format::trace::{Method, Ray, Tracer};
 use terrabake_format::Asset;
 

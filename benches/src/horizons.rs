@@ -518,7 +518,7 @@ pub struct BenchHorizonsArgs {
     #[arg(long, value_delimiter = ',', default_value = "8,16,32,64,128,256")]
     pub counts: Vec<usize>,
     /// Methods for the accuracy study, comma-separated.
-    #[arg(long, value_delimiter = ',', default_value = "line,sector,sampled", value_parser = Method::parser())]
+    #[arg(long, value_delimiter = ',', default_value = "line,sector,sampled", value_parser = terrabake::stage::args::named(&Method::ALL, Method::name))]
     pub methods: Vec<Method>,
     /// Directions of the reference.
     #[arg(long, default_value_t = 1024)]

@@ -8,7 +8,8 @@ use terrabake_format::{Asset, Mmap};
 
 use super::chart::{log_log_svg, Series};
 use super::markdown_table;
-use terrabake::present::render::{builtin_views, render, RenderOptions, Shadows, Sun};
+use terrabake::present::render::{builtin_views, render, RenderOptions, Shadows};
+use terrabake::terrain::sun::Sun;
 
 /// One method's totals over the sixteen views.
 #[derive(Debug, Clone, Serialize)]

@@ -19,6 +19,8 @@ use std::str::FromStr;
 
 use serde::{Deserialize, Serialize};
 
+use crate::terrain::sun::SunPosition;
+
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Budget {
@@ -290,9 +292,6 @@ impl fmt::Display for Needs {
         f.write_str(&names.join(","))
     }
 }
-
-/// A sun position: azimuth clockwise from north and elevation, degrees.
-pub type SunPosition = [f64; 2];
 
 /// Sun positions on the command line: `AZ,EL;AZ,EL;...` degrees.
 #[derive(Debug, Clone, PartialEq)]

@@ -34,14 +34,15 @@ use terrabake_format::layers::{HEIGHT, HORIZON, SVF};
 use terrabake_format::trace::{Method as TraceMethod, Ray, Tracer};
 use terrabake_format::{Asset, Mmap};
 
-use crate::io::synth::SplitMix64;
-use crate::plan::budget::{Budget, SunPosition};
+use crate::plan::budget::Budget;
 use crate::plan::reference::shade_differs;
 pub use crate::plan::reference::{percentile, Pilot, Sampling};
 use crate::plan::{Baked, Candidate};
 use crate::plumbing::progress::Progress;
 use crate::stages::horizons::HorizonsStage;
 use crate::terrain::held::HeldDem;
+use crate::terrain::random::SplitMix64;
+use crate::terrain::sun::SunPosition;
 
 /// How a check samples (the default: 400 posts and 100 of the highest
 /// relief, seed 1, 720 directions).
@@ -607,7 +608,7 @@ pub fn describe(report: &CheckReport) -> String {
     }
     out += &format!(
         "bytes on disk         {}\nchecked in            {:.1} s\n",
-        crate::present::report::human_bytes(report.bytes),
+        crate::plumbing::resources::human_bytes(report.bytes),
         report.seconds
     );
     if let Some(b) = &report.baked {
@@ -622,7 +623,7 @@ pub fn describe(report: &CheckReport) -> String {
             p.horizon_p99_deg,
             p.svf_p99,
             p.shade_share.map_or(String::new(), |s| format!("   shade {s:.4}")),
-            crate::present::report::human_bytes(p.bytes),
+            crate::plumbing::resources::human_bytes(p.bytes),
             p.sectors,
             p.encoding.name(),
             p.max_distance.map_or(String::new(), |d| format!(", within {:.1} km", d / 1000.0)),

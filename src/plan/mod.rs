@@ -65,12 +65,13 @@ use terrabake_format::{Asset, Codec, Mmap};
 use crate::algorithms::horizon::line::{default_tolerance, Stencil};
 use crate::algorithms::horizon::sky::{svf_of_horizons, BandIntegrals};
 use crate::algorithms::horizon::{Band, BandKind, Method};
-use crate::plan::budget::{Budget, Need, Needs, Request, SunPosition};
+use crate::plan::budget::{Budget, Need, Needs, Request};
 use crate::plan::reference::{quantile_unsorted, shade_differs, Pilot, Sampling};
 use crate::plumbing::progress::Progress;
 use crate::stage::Stage;
 use crate::stages::horizons::HorizonsStage;
 use crate::stages::sky::{SkyLayer, SkyStage};
+use crate::terrain::sun::SunPosition;
 use crate::terrain::Terrain;
 
 /// Reference directions of the pilot; candidates divide it.
@@ -688,7 +689,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
                 asset.dir().display()
             );
         };
-        sun.extend(crate::present::shade::sun_path(latitude, day));
+        sun.extend(crate::terrain::sun::sun_path(latitude, day));
     }
     let mut sky_layers = Vec::new();
     if needs.svf() {

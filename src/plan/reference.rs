@@ -25,9 +25,9 @@ use terrabake_format::{Asset, Mmap};
 
 use crate::algorithms::horizon::sky::{svf_of_horizons, BandIntegrals};
 use crate::algorithms::horizon::{brute, distinct_line_bands, plan_bands, Band, BandKind, Method};
-use crate::io::synth::SplitMix64;
 use crate::plumbing::progress::Progress;
 use crate::terrain::held::HeldDem;
+use crate::terrain::random::SplitMix64;
 use crate::terrain::Terrain;
 
 /// How a reference samples.

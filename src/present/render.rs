@@ -11,6 +11,8 @@ use serde::Serialize;
 use terrabake_format::trace::{Counters, Method, Ray, Tracer};
 use terrabake_format::{Asset, Mmap};
 
+use crate::terrain::sun::Sun;
+
 /// A pinhole camera: horizontal field of view, up is +z.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Camera {
@@ -18,21 +20,6 @@ pub struct Camera {
     pub look_at: [f64; 3],
     /// Horizontal field of view, degrees.
     pub fov: f64,
-}
-
-/// Sun direction: azimuth clockwise from north, elevation above the horizon, degrees.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-pub struct Sun {
-    pub azimuth: f64,
-    pub elevation: f64,
-}
-
-impl Sun {
-    /// Unit vector towards the sun (x east, y north, z up).
-    pub fn direction(&self) -> [f64; 3] {
-        let (az, el) = (self.azimuth.to_radians(), self.elevation.to_radians());
-        [az.sin() * el.cos(), az.cos() * el.cos(), el.sin()]
-    }
 }
 
 #[derive(Debug, Clone, Copy, Default, Serialize)]

@@ -4,6 +4,7 @@
 
 use std::path::Path;
 
+use crate::plumbing::resources::human_bytes;
 use crate::stage::StageOutcome;
 
 pub fn describe_outcome(o: &StageOutcome) -> String {
@@ -126,17 +127,6 @@ pub fn describe(path: &Path, m: &terrabake_format::Manifest) -> String {
         );
     }
     s
-}
-
-pub fn human_bytes(n: u64) -> String {
-    let units = ["B", "KiB", "MiB", "GiB", "TiB"];
-    let mut v = n as f64;
-    let mut u = 0;
-    while v >= 1024.0 && u + 1 < units.len() {
-        v /= 1024.0;
-        u += 1;
-    }
-    format!("{v:.1} {}", units[u])
 }
 
 /// What `terrabake verify` prints: each problem and a summary line, or the

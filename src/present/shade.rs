@@ -20,9 +20,10 @@ use terrabake_format::{Asset, Mmap};
 use crate::algorithms::horizon::band_bounds;
 use crate::algorithms::horizon::sky::{radiosity, sun_glow, SkyTable};
 use crate::present::legend::{Legend, Ramp, Stretch};
-use crate::present::render::{Image, Sun};
+use crate::present::render::Image;
 use crate::stages::horizons::read_horizons;
 use crate::terrain::held::read_heights;
+use crate::terrain::sun::Sun;
 use crate::terrain::{RowScale, Terrain};
 
 /// What lights the map.
@@ -161,29 +162,4 @@ pub fn write_shade_png(asset: &Asset<Mmap>, shade: Shade, out: &Path, max_side: 
         rgb,
     };
     crate::present::render::write_png(out, &map)
-}
-
-/// The sun every 15 minutes of day `day` (1-366) while it is up, at
-/// `latitude` degrees, as `[azimuth clockwise from north, elevation]`
-/// degrees: Cooper's declination and the hour angle of local solar time
-/// (no equation of time, no refraction): within about a degree of an
-/// ephemeris, which is what a plan for "this day's shadows" needs.
-pub fn sun_path(latitude: f64, day: u32) -> Vec<crate::plan::budget::SunPosition> {
-    let phi = latitude.to_radians();
-    let declination =
-        23.44f64.to_radians() * (std::f64::consts::TAU * (284.0 + f64::from(day)) / 365.0).sin();
-    (0..96)
-        .filter_map(|quarter| {
-            let hour_angle = (f64::from(quarter) * 3.75 - 180.0 + 1.875).to_radians();
-            let sin_el =
-                phi.sin() * declination.sin() + phi.cos() * declination.cos() * hour_angle.cos();
-            let el = sin_el.clamp(-1.0, 1.0).asin();
-            // Azimuth from north, clockwise: morning east, evening west.
-            let az = hour_angle
-                .sin()
-                .atan2(hour_angle.cos() * phi.sin() - declination.tan() * phi.cos())
-                + std::f64::consts::PI;
-            (el > 0.0).then(|| [az.to_degrees().rem_euclid(360.0), el.to_degrees()])
-        })
-        .collect()
 }

@@ -4,7 +4,7 @@
 
 use terrabake_format::Codec;
 
-use crate::present::render::Sun;
+use crate::terrain::sun::Sun;
 
 pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
     let (w, h) = s
@@ -170,4 +170,14 @@ pub fn named<T: Copy + Send + Sync + 'static>(
     use clap::builder::TypedValueParser;
     clap::builder::PossibleValuesParser::new(all.iter().map(|&v| name(v)))
         .map(move |s| *all.iter().find(|&&v| name(v) == s).expect("a listed name"))
+}
+
+/// An area of interest in posts: columns `x0..x1`, rows `y0..y1`.
+pub type Aoi = [u32; 4];
+
+/// The area of interest `aoi` as `[x0, y0, x1, y1]` posts, or the whole
+/// `w x h` DEM.
+pub fn area_of(aoi: Option<Aoi>, w: usize, h: usize) -> [usize; 4] {
+    aoi.unwrap_or([0, 0, w as u32, h as u32])
+        .map(|v| v as usize)
 }

@@ -535,6 +535,35 @@ pub fn unix_now() -> u64 {
         .map_or(0, |d| d.as_secs())
 }
 
+/// A layer of the stage: one element per post, raw tiles like the heights.
+pub fn post_layer(
+    (name, stage): (&str, &str),
+    elem: terrabake_format::ElemType,
+    bands: u32,
+    (w, h, ts): (usize, usize, usize),
+    description: String,
+) -> terrabake_format::LayerSpec {
+    terrabake_format::LayerSpec {
+        name: name.into(),
+        level: 0,
+        elem,
+        bands,
+        width: w as u32,
+        height: h as u32,
+        tile_size: ts as u32,
+        codec: terrabake_format::Codec::Raw,
+        // What the tiles are padded with: NaN for f32 values, code 0
+        // (nodata, or a zero count) for integers.
+        fill_bits: if elem == terrabake_format::ElemType::F32 {
+            u64::from(f32::NAN.to_bits())
+        } else {
+            0
+        },
+        stage: stage.into(),
+        description,
+    }
+}
+
 /// Memory budgets: bytes in the stage, MiB on the command line, in recipes
 /// (`max_memory_mib`) and in the manifest record.
 pub mod mib {

@@ -26,20 +26,19 @@ use anyhow::{bail, Context, Result};
 use rayon::prelude::*;
 use terrabake_format::horizons::{AngleEncoding, HORIZON};
 use terrabake_format::layers::HORIZON_DISTANCE;
-use terrabake_format::{Asset, Codec, LayerEntry, LayerSpec, LayerWriter, Mmap};
+use terrabake_format::{Asset, Codec, LayerEntry, LayerWriter, Mmap};
 
 use crate::algorithms::horizon::line::{self};
 use crate::algorithms::horizon::{
     band_horizons_into, plan_bands, sector, Band, BandKind, BandOptions, Method,
 };
 use crate::plumbing::progress::Progress;
+use crate::stage::args::Aoi;
+use crate::stage::post_layer;
 use crate::stage::{Share, Split, Stage};
 use crate::terrain::held::{curvature_for, read_rows};
 use crate::terrain::tiling::encode_tile_row;
 use crate::terrain::{self, RowScale, Terrain};
-
-/// An area of interest in posts: columns `x0..x1`, rows `y0..y1`.
-pub type Aoi = [u32; 4];
 
 /// The `horizons` stage and its parameters: `terrabake horizons` flattens
 /// it, a recipe's `[[stage]] name = "horizons"` table deserialises into it
@@ -51,7 +50,7 @@ pub struct HorizonsStage {
     #[arg(long, visible_alias = "directions", default_value_t = 16, value_parser = crate::stage::args::parse_sectors)]
     pub sectors: usize,
     /// line (exact sight lines), sector (Stewart's wedges) or sampled (baseline).
-    #[arg(long, default_value = "line", value_parser = Method::parser())]
+    #[arg(long, default_value = "line", value_parser = crate::stage::args::named(&Method::ALL, Method::name))]
     pub method: Method,
     /// Look no farther than this many metres (default: the whole DEM, exact). Bounded
     /// line and sector horizons walk or scan each post's reach: O(M) and O(M^2 / S) per post;
@@ -247,9 +246,7 @@ impl HorizonsStage {
 
     /// The area of interest, or the whole `w x h` DEM.
     pub fn area(&self, w: usize, h: usize) -> [usize; 4] {
-        self.aoi
-            .unwrap_or([0, 0, w as u32, h as u32])
-            .map(|v| v as usize)
+        crate::stage::args::area_of(self.aoi, w, h)
     }
 
     /// The parameters the horizons stage last ran with on this asset.
@@ -770,35 +767,6 @@ impl RowBands for BoundedSector {
 
     fn independent(&self) -> bool {
         true
-    }
-}
-
-/// A layer of the stage: one element per post, raw tiles like the heights.
-pub(crate) fn post_layer(
-    (name, stage): (&str, &str),
-    elem: terrabake_format::ElemType,
-    bands: u32,
-    (w, h, ts): (usize, usize, usize),
-    description: String,
-) -> LayerSpec {
-    LayerSpec {
-        name: name.into(),
-        level: 0,
-        elem,
-        bands,
-        width: w as u32,
-        height: h as u32,
-        tile_size: ts as u32,
-        codec: Codec::Raw,
-        // What the tiles are padded with: NaN for f32 values, code 0
-        // (nodata, or a zero count) for integers.
-        fill_bits: if elem == terrabake_format::ElemType::F32 {
-            u64::from(f32::NAN.to_bits())
-        } else {
-            0
-        },
-        stage: stage.into(),
-        description,
     }
 }
 

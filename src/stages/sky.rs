@@ -22,8 +22,9 @@ use terrabake_format::{Asset, Codec, ElemType, LayerEntry, LayerWriter, Mmap, HE
 
 use crate::algorithms::horizon::sky::{band_terms, sin_cos_deg, BandIntegrals, SkySums};
 use crate::plumbing::progress::Progress;
+use crate::stage::post_layer;
 use crate::stage::{Share, Stage};
-use crate::stages::horizons::{post_layer, HorizonsStage};
+use crate::terrain::held::curvature_for;
 use crate::terrain::tiling::{push_fill_row, push_tile_row};
 use crate::terrain::{RowScale, Terrain};
 
@@ -108,6 +109,21 @@ impl Default for SkyStage {
     }
 }
 
+/// What the sky stage reads of the horizons stage's record: the area of
+/// interest and the curvature the angles were computed with (the record's
+/// other parameters are the horizons stage's own).
+#[derive(serde::Deserialize)]
+struct HorizonsRecord {
+    aoi: Option<crate::stage::args::Aoi>,
+    curvature: Option<bool>,
+    #[serde(default = "default_refraction")]
+    refraction: f64,
+}
+
+fn default_refraction() -> f64 {
+    crate::terrain::DEFAULT_REFRACTION
+}
+
 impl Stage for SkyStage {
     fn name(&self) -> &'static str {
         "sky"
@@ -154,7 +170,7 @@ impl Stage for SkyStage {
         share: &Share,
         progress: Progress,
     ) -> Result<Vec<LayerEntry>> {
-        let horizons = HorizonsStage::recorded(asset)
+        let horizons: HorizonsRecord = crate::stage::recorded_params(asset.manifest(), "horizons")
             .context("the asset has no horizons record; run `terrabake horizons` first")?;
         let m = asset.manifest();
         let height = asset.height()?;
@@ -168,8 +184,8 @@ impl Stage for SkyStage {
         );
         let azimuths = &horizon.entry().band_azimuths;
         let integrals = BandIntegrals::of_azimuths(azimuths);
-        let [ax0, ay0, ax1, ay1] = horizons.area(w, h);
-        let curvature = horizons.curvature_coefficient(asset);
+        let [ax0, ay0, ax1, ay1] = crate::stage::args::area_of(horizons.aoi, w, h);
+        let curvature = curvature_for(m, horizons.curvature, horizons.refraction);
         let row_scale = crate::terrain::geo::row_scale(m.georef.as_ref(), h as u32);
         let row_scale = RowScale::new(&row_scale);
         let (dx, dy) = (m.cell_size.dx, m.cell_size.dy);

@@ -56,11 +56,6 @@ impl std::str::FromStr for Method {
 impl Method {
     pub const ALL: [Method; 3] = [Method::Line, Method::Sector, Method::Sampled];
 
-    /// The command line's parser: the names listed in `--help`.
-    pub fn parser() -> impl clap::builder::TypedValueParser<Value = Method> {
-        crate::stage::args::named(&Self::ALL, Self::name)
-    }
-
     pub fn name(self) -> &'static str {
         match self {
             Method::Line => "line",

@@ -1249,7 +1249,7 @@ pub fn rows_within(max_distance: f64, dy: f64) -> usize {
 /// vector code (libm's was 4 % of the tree's time).
 #[inline(always)]
 fn elevation_deg(best: f64, c: f64, tp: f64) -> f32 {
-    let angle = crate::algorithms::horizon::sky::atan(best + 2.0 * c * tp).to_degrees() as f32;
+    let angle = crate::terrain::atan(best + 2.0 * c * tp).to_degrees() as f32;
     if best == f64::NEG_INFINITY {
         -90.0
     } else {

@@ -20,7 +20,7 @@
 //! - **`openness`** (Yokoyama et al. 2002, positive): `sum w_i (90 -
 //!   h_i)` degrees, negative horizons included (so above 90 on summits).
 
-use crate::terrain::compass;
+use crate::terrain::{atan, compass};
 
 /// What the derived layers need of one band `[lo, hi]` (degrees): its
 /// share of the circle and the azimuth integrals of the tilt term.
@@ -183,53 +183,6 @@ pub fn sin_cos_deg(deg: f64) -> (f64, f64) {
         c = c * z + COS[i];
     }
     (x + x * z * s, 1.0 + z * c)
-}
-
-/// `atan(x)` in radians: Cephes' double-precision `atan` (Moshier), its
-/// reduction to `|x| <= 0.66` and rational approximation, within a few
-/// units in the last place of libm's, with its three ranges as selects
-/// instead of branches (the sky stage's loop vectorises).
-#[inline(always)]
-pub fn atan(x: f64) -> f64 {
-    const P: [f64; 5] = [
-        -8.750_608_600_031_904e-1,
-        -1.615_753_718_733_365e1,
-        -7.500_855_792_314_705e1,
-        -1.228_866_684_490_136_2e2,
-        -6.485_021_904_942_025e1,
-    ];
-    const Q: [f64; 5] = [
-        2.485_846_490_142_306_3e1,
-        1.650_270_098_316_988_6e2,
-        4.328_810_604_912_902_5e2,
-        4.853_903_996_359_137e2,
-        1.945_506_571_482_614e2,
-    ];
-    const TAN_3PI_8: f64 = 2.414_213_562_373_095;
-    const MORE_BITS: f64 = 6.123_233_995_736_766e-17;
-    let a = x.abs();
-    let (far, mid) = (a > TAN_3PI_8, a > 0.66);
-    // One division for the three ranges (`a / 1` is `a`): a division is
-    // the dearest vector operation here.
-    let (num, den) = if far {
-        (-1.0, a)
-    } else if mid {
-        (a - 1.0, a + 1.0)
-    } else {
-        (a, 1.0)
-    };
-    let r = num / den;
-    let (base, more) = if far {
-        (std::f64::consts::FRAC_PI_2, MORE_BITS)
-    } else if mid {
-        (std::f64::consts::FRAC_PI_4, 0.5 * MORE_BITS)
-    } else {
-        (0.0, 0.0)
-    };
-    let z = r * r;
-    let p = (((P[0] * z + P[1]) * z + P[2]) * z + P[3]) * z + P[4];
-    let q = ((((z + Q[0]) * z + Q[1]) * z + Q[2]) * z + Q[3]) * z + Q[4];
-    (base + (r * (z * p / q) + r + more)).copysign(x)
 }
 
 /// The sums of a post with unit `normal` whose horizon is `horizons`

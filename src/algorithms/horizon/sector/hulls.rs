@@ -780,7 +780,7 @@ mod tests {
     /// stage's margin.
     #[test]
     fn well_below_one_hull_is_below_every_hull_over_more_points() {
-        let mut rng = crate::io::synth::SplitMix64(5);
+        let mut rng = crate::terrain::random::SplitMix64(5);
         let mut random = move || rng.unit();
         let (mut skipped, mut tries) = (0, 0);
         for round in 0..400 {
@@ -844,7 +844,7 @@ mod tests {
     #[test]
     fn steepest_shift_scans_and_moves_alike_in_every_store() {
         use crate::plumbing::simd::Level;
-        let mut rng = crate::io::synth::SplitMix64(5);
+        let mut rng = crate::terrain::random::SplitMix64(5);
         let mut random = move || rng.unit();
         type Shift = fn(&mut [f64], &mut [f64], (f64, f64)) -> Steepest<u32>;
         let mut stores: Vec<(&str, Shift)> = vec![("heap", Heap::<()>::steepest_shift)];
@@ -886,7 +886,7 @@ mod tests {
     }
 
     fn walk<K: Kernel>() {
-        let mut rng = crate::io::synth::SplitMix64(17);
+        let mut rng = crate::terrain::random::SplitMix64(17);
         let mut random = move || rng.unit();
         const NODES: usize = 4;
         let mut heap = Heap::<Option<u32>>::with_nodes(NODES);
