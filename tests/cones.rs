@@ -14,7 +14,9 @@ mod common;
 
 use std::path::Path;
 
-use terrabake::algorithms::planes::{brute_force_slopes, neighbourhood_max};
+use terrabake::algorithms::planes::exact::brute_force_slopes;
+
+use terrabake::algorithms::planes::neighbourhood_max;
 use terrabake::io::synth::SynthKind;
 use terrabake::plumbing::progress::Progress;
 use terrabake::stage::run_stage;

@@ -30,9 +30,9 @@ use terrabake_format::cones::{
 };
 use terrabake_format::{Asset, Codec, Element, LayerEntry, LayerSpec, LayerWriter, Mmap};
 
-use crate::algorithms::planes::{
-    exact_planes, neighbourhood_max, sliced_planes, Cap, Planes, Slices,
-};
+use crate::algorithms::planes::exact::exact_planes;
+
+use crate::algorithms::planes::{neighbourhood_max, sliced_planes, Cap, Planes, Slices};
 use crate::plumbing::progress::Progress;
 use crate::stage::Stage;
 use crate::terrain::tiling::push_tile_row;

@@ -17,7 +17,8 @@
 use std::arch::x86_64::*;
 
 #[cfg(target_arch = "x86_64")]
-use super::{each_awake_block, open_block, Kept, RowCells, Scan, Span, BLOCK};
+use super::scan::{open_block, RowCells, Scan, BLOCK};
+use super::{each_awake_block, Kept, Span};
 
 /// For each mask of `MASKS` (2^lanes) lanes, the 32-bit lanes that pack
 /// the lanes set to the front of a vector, in order, one byte each (the
