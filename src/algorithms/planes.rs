@@ -681,8 +681,8 @@ pub mod exact;
 mod lanes;
 mod scan;
 
-use scan::{open_cells_scalar, Floor, Open, RowCells, Scan, BLOCK};
 use crate::plumbing::simd::Level;
+use scan::{open_cells_scalar, Floor, Open, RowCells, Scan, BLOCK};
 
 /// Asks for `values` in the cache ahead of their use, where the hardware
 /// prefetchers cannot: the open-cell scan reads the scattered blocks that

@@ -52,11 +52,20 @@
 
 pub mod budget;
 pub mod check;
+mod command;
+mod models;
 pub mod reference;
+
+pub use command::{describe, PlanArgs, RequestArgs};
+use models::{
+    LineCosts, BASE_MIB, CONES_BYTES_PER_POST, CONES_SECONDS_PER_POST, CONE_SLICES,
+    PYRAMID_SECONDS_PER_POST,
+};
+pub use models::{TimeModels, TIME_MODELS_VAR};
 
 use std::time::Instant;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use serde::{Deserialize, Serialize};
 use terrabake_format::cones::ConeEncoding;
 use terrabake_format::horizons::{bands_around, between, AngleEncoding};
@@ -102,111 +111,6 @@ const DECISION_QUANTILE: f64 = 0.995;
 /// The pilot's seed: apart from `check`'s default, so that a check of a
 /// planned bake measures posts the plan never saw.
 pub const PILOT_SEED: u64 = 0x504c_414e;
-/// The environment variable naming a JSON file of [`TimeModels`] fitted on
-/// the machine that bakes (`OUT=FILE pipelines/fit_plan_models.sh` writes
-/// one); unset or empty, the planner takes the defaults.
-pub const TIME_MODELS_VAR: &str = "TERRABAKE_TIME_MODELS";
-
-/// The time models of the horizons and sky stages (docs/PLANNING.md, "Cost
-/// models"): `fixed_seconds` and, for sweeps to the edge, `posts *
-/// S^sweep_exponent / sweep_rate` seconds, for bounded lines `posts * S *
-/// (bounded_per_line + bounded_per_cell * D / cell)`. Each is fitted by
-/// `pipelines/fit_plan_models.sh` and raised until no fit run took longer,
-/// so it is an upper bound on the machine it was fitted on, not on every
-/// machine: the defaults are the Zen 4 machine's (2 cores), whose fit had
-/// no fixed term.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct TimeModels {
-    /// What a bake of a few posts takes: starting, opening, writing.
-    pub fixed_seconds: f64,
-    pub sweep_exponent: f64,
-    pub sweep_rate: f64,
-    pub bounded_per_line: f64,
-    pub bounded_per_cell: f64,
-}
-
-impl Default for TimeModels {
-    fn default() -> Self {
-        Self {
-            fixed_seconds: 0.0,
-            sweep_exponent: 1.66,
-            sweep_rate: 2.85e8,
-            bounded_per_line: 5.79e-9,
-            bounded_per_cell: 5.81e-9,
-        }
-    }
-}
-
-impl TimeModels {
-    /// The models [`TIME_MODELS_VAR`] names, else the defaults; once read,
-    /// kept for the process, so that the check before an ingest, the plans
-    /// after it and `terrabake-bench plan`'s plans all use the same file's models. A
-    /// file that fails is not kept: its error ends the command.
-    pub fn from_env() -> Result<Self> {
-        static MODELS: std::sync::OnceLock<TimeModels> = std::sync::OnceLock::new();
-        if let Some(models) = MODELS.get() {
-            return Ok(*models);
-        }
-        let models = match std::env::var_os(TIME_MODELS_VAR).filter(|v| !v.is_empty()) {
-            None => Self::default(),
-            Some(path) => Self::read(std::path::Path::new(&path))?,
-        };
-        Ok(*MODELS.get_or_init(|| models))
-    }
-
-    /// The models in the JSON file `path`: every field given, each a
-    /// positive number (the fixed seconds may be 0).
-    pub fn read(path: &std::path::Path) -> Result<Self> {
-        // A file of five numbers; anything larger is not one.
-        const MAX_BYTES: u64 = 64 << 10;
-        let named = || format!("{} ({TIME_MODELS_VAR})", path.display());
-        // A regular file only: a FIFO there would hang the plan.
-        let bytes = terrabake_format::fsio::read_regular(path, MAX_BYTES + 1)
-            .with_context(|| format!("{}: cannot read the time models", named()))?;
-        if bytes.len() as u64 > MAX_BYTES {
-            bail!("{}: over {MAX_BYTES} bytes, not time models", named());
-        }
-        let models: Self = serde_json::from_slice(&bytes).with_context(|| {
-            format!(
-                "{}: not time models as fit_plan_models.sh writes them",
-                named()
-            )
-        })?;
-        let m = &models;
-        for (key, value, may_be_zero) in [
-            ("fixed_seconds", m.fixed_seconds, true),
-            ("sweep_exponent", m.sweep_exponent, false),
-            ("sweep_rate", m.sweep_rate, false),
-            ("bounded_per_line", m.bounded_per_line, false),
-            ("bounded_per_cell", m.bounded_per_cell, false),
-        ] {
-            if !(value.is_finite() && (value > 0.0 || may_be_zero && value == 0.0)) {
-                let least = if may_be_zero { "0 or more" } else { "positive" };
-                bail!("{}: {key} is {value}; it must be {least}", named());
-            }
-        }
-        Ok(models)
-    }
-}
-
-/// Seconds per post of the pyramid and of the cone planes at
-/// CONE_SLICES slices, measured on the bundled tile (2 cores, 0.13 s and
-/// 0.46 s; docs/BENCHMARKS.md, cone planes).
-const PYRAMID_SECONDS_PER_POST: f64 = 9.0e-8;
-const CONES_SECONDS_PER_POST: f64 = 3.2e-7;
-/// The cone planes' slices: within 6 % of the exact cones' steps per ray on
-/// the bundled tile at 37 % of the bake time of 256 slices (1.3 %).
-const CONE_SLICES: usize = 64;
-/// Peak memory, measured on the bundled tile: a base of 40 MiB, 10.7 bytes
-/// per post and band of a tile row of horizons in flight (97 MiB at 16
-/// directions, 463 MiB at 120), the DEM itself (4 bytes a post) for bounded
-/// lines, and 32 bytes a post for in-core cone planes; the pilot's own is
-/// counted exactly (`plan`).
-const BASE_MIB: f64 = 40.0;
-const LINE_BYTES_PER_ROW_POST_BAND: f64 = 10.7;
-const CONES_BYTES_PER_POST: f64 = 32.0;
-
 /// One count of directions, distance limit and encoding, predicted.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Candidate {
@@ -572,50 +476,6 @@ fn round_up(x: f64, decimals: i32) -> f64 {
 /// `w x h` grid in `tile`-post tiles (raw; edge tiles are whole).
 fn layer_bytes(w: usize, h: usize, tile: usize, size: usize, bands: usize) -> u64 {
     (w.div_ceil(tile) * h.div_ceil(tile) * tile * tile * size * bands) as u64
-}
-
-/// Costs of the horizons and sky stages.
-#[derive(Clone, Copy)]
-struct LineCosts {
-    posts: f64,
-    width: usize,
-    height: usize,
-    tile: usize,
-    /// Sky layers baked from the horizons.
-    sky_layers: usize,
-    /// Mean post spacing, metres.
-    cell: f64,
-    models: TimeModels,
-}
-
-impl LineCosts {
-    /// Posts of a tile row (edge tiles whole).
-    fn row_posts(&self) -> f64 {
-        (self.width.div_ceil(self.tile) * self.tile * self.tile) as f64
-    }
-
-    fn layer_bytes(&self, size: usize, bands: usize) -> u64 {
-        layer_bytes(self.width, self.height, self.tile, size, bands)
-    }
-
-    fn seconds(&self, sectors: usize, distance: Option<f64>) -> f64 {
-        let (s, m) = (sectors as f64, &self.models);
-        let work = match distance {
-            None => self.posts * s.powf(m.sweep_exponent) / m.sweep_rate,
-            Some(d) => self.posts * s * (m.bounded_per_line + m.bounded_per_cell * d / self.cell),
-        };
-        m.fixed_seconds + work
-    }
-
-    fn memory_mib(&self, sectors: usize, distance: Option<f64>) -> f64 {
-        let held = if distance.is_some() {
-            4.0 * self.posts
-        } else {
-            0.0
-        };
-        BASE_MIB
-            + (LINE_BYTES_PER_ROW_POST_BAND * self.row_posts() * sectors as f64 + held) / 1048576.0
-    }
 }
 
 /// Plans what `asset` needs for `request`.
@@ -1207,158 +1067,8 @@ fn plan_horizons(
     })
 }
 
-/// The plan as a table for people.
-pub fn describe(plan: &Plan) -> String {
-    let s = &plan.scene;
-    let mut out = format!(
-        "budget {}\nneeds  {}{}\nscene  {} x {} posts, cells {:.1} x {:.1} m, relief {:.0} m, nodata {:.2} %, curvature {}\n",
-        plan.budget,
-        plan.needs,
-        if plan.sun.is_empty() {
-            String::new()
-        } else {
-            format!(" ({} sun positions)", plan.sun.len())
-        },
-        s.width,
-        s.height,
-        s.cell_size.0,
-        s.cell_size.1,
-        s.relief_m,
-        100.0 * s.nodata_share,
-        if s.curvature { "on" } else { "off" },
-    );
-    if let (Some(p50), Some(p90), Some((top, bottom))) =
-        (s.slope_p50_deg, s.slope_p90_deg, s.dx_range_m)
-    {
-        out += &format!(
-            "       slope p50 {p50:.1} deg, p90 {p90:.1} deg at the pilot's posts; east-west spacing {top:.1} m (first row) to {bottom:.1} m (last)\n"
-        );
-    }
-    if s.pilot_posts > 0 {
-        // (A plan recorded before the pilot measured the stored
-        // directions too says 0 for them.)
-        let reference = match s.pilot_reference_directions {
-            0 => PILOT_DIRECTIONS,
-            n => n,
-        };
-        let stored = s.pilot_directions.saturating_sub(reference);
-        out += &format!(
-            "pilot  exact horizons in {reference} reference directions and {stored} that the candidates store, at {} posts ({:.1} s)\n",
-            s.pilot_posts, s.pilot_seconds,
-        );
-    }
-    out += "\n";
-    for c in &plan.choices {
-        out += &format!("{:<11} {:<34} {}\n", c.what, c.chosen, c.why);
-        if let Some(r) = &c.rejected {
-            out += &format!("{:<11} {:<34} rejected: {r}\n", "", "");
-        }
-    }
-    let mut predicted = Vec::new();
-    if let Some(c) = &plan.chosen {
-        predicted.push(format!("horizon p99 {:.3} deg", c.horizon_p99_deg));
-        predicted.push(format!("svf p99 {:.4}", c.svf_p99));
-        if let Some(share) = c.shade_share {
-            predicted.push(format!("shade {share:.4}"));
-        }
-    }
-    predicted.push(if plan.time_models == TimeModels::default() {
-        format!("time {:.1} s (2 cores)", plan.seconds)
-    } else {
-        format!("time {:.1} s (by {TIME_MODELS_VAR}'s models)", plan.seconds)
-    });
-    predicted.push(format!("bytes {:.1} MiB", plan.bytes as f64 / 1048576.0));
-    predicted.push(format!("memory {:.0} MiB", plan.memory_mib));
-    out + "\npredicted  " + &predicted.join("   ") + "\n"
-}
-
 /// The plan recorded by a planned bake, if the heights are still those it
 /// planned for.
 pub fn recorded(asset: &Asset<Mmap>) -> Option<Plan> {
     crate::stage::recorded_params(asset.manifest(), "plan")
-}
-
-/// The request of a command line: `--budget`, `--needs`, `--sun`,
-/// `--sun-day`.
-#[derive(clap::Args, Debug, Clone)]
-pub struct RequestArgs {
-    /// The budget: horizon=DEG[,svf=X][,shade=FRACTION][,time=SECONDS][,bytes=SIZE][,memory=MIB].
-    #[arg(long)]
-    pub budget: Option<Budget>,
-    /// What the scene needs, a comma list: horizons, svf, sky, sun, tracing, fast_tracing
-    /// (default: horizons,svf).
-    #[arg(long, requires = "budget")]
-    pub needs: Option<Needs>,
-    /// Sun positions for `sun` and the shade budget: AZ,EL;AZ,EL;... degrees (azimuth
-    /// clockwise from north).
-    #[arg(long, requires = "budget", allow_hyphen_values = true)]
-    pub sun: Option<crate::plan::budget::SunPositions>,
-    /// A day of the year (1-366) for `sun`: the sun every 15 minutes while it is up, at the
-    /// scene's central latitude.
-    #[arg(long, requires = "budget", value_parser = clap::value_parser!(u32).range(1..=366))]
-    pub sun_day: Option<u32>,
-}
-
-impl RequestArgs {
-    /// The request, when a budget was given.
-    pub fn request(&self) -> Option<Request> {
-        Some(Request {
-            budget: self.budget?,
-            needs: self.needs.clone().unwrap_or_default(),
-            sun: self.sun.clone().map(|s| s.0).unwrap_or_default(),
-            sun_day: self.sun_day,
-        })
-    }
-}
-
-/// `terrabake plan`: its arguments.
-#[derive(clap::Args, Debug)]
-#[command(
-    mut_arg("budget", |a| a.required(true)),
-    after_help = "Examples:\n  terrabake plan dem.tif --budget horizon=0.5,svf=0.01\n  \
-terrabake plan dem.tbake --budget horizon=1,shade=0.01 --needs horizons,sun --sun-day 172\n  \
-terrabake bake dem.tif -o dem.tbake --budget horizon=0.5   # bake what the plan says\n\n\
-The budget (docs/PLANNING.md): horizon=DEG is the 99th percentile over posts and azimuths of the \
-absolute horizon angle error, interpolation between stored directions included; svf=X the 99th \
-percentile over posts of the absolute sky-view factor error; shade=F the share of (post, sun \
-position) pairs whose sun/shade state is wrong; bytes=SIZE, time=SECONDS and memory=MIB limit the \
-bake. Its time is predicted by models fitted on a 2-core machine; on another, \
-OUT=models.json pipelines/fit_plan_models.sh fits that machine's, and TERRABAKE_TIME_MODELS=models.json \
-makes the planner use them."
-)]
-pub struct PlanArgs {
-    /// A DEM (ingested into a temporary asset to be measured) or an ingested asset.
-    pub src: std::path::PathBuf,
-    #[command(flatten)]
-    pub request: RequestArgs,
-    /// Print the plan as JSON (every candidate with its predicted error, time and bytes).
-    #[arg(long)]
-    pub json: bool,
-}
-
-impl PlanArgs {
-    pub fn run(&self, progress: Progress) -> Result<()> {
-        let request = self.request.request().expect("clap requires --budget");
-        // The time models are checked before a source DEM's ingest.
-        TimeModels::from_env()?;
-        let plan = if self.src.is_dir() {
-            plan(&crate::stage::asset::open(&self.src)?, &request, progress)?
-        } else {
-            // A source DEM: measured through a temporary ingest (default
-            // options), removed afterwards.
-            let scratch = tempfile::Builder::new()
-                .prefix("terrabake-plan")
-                .tempdir()?;
-            crate::plumbing::interrupt::scratch(scratch.path().to_path_buf());
-            let dir = scratch.path().join("scene.tbake");
-            crate::stages::ingest::ingest(&self.src, &dir, &Default::default(), progress)?;
-            plan(&crate::stage::asset::open(&dir)?, &request, progress)?
-        };
-        if self.json {
-            println!("{}", serde_json::to_string_pretty(&plan)?);
-        } else {
-            print!("{}", describe(&plan));
-        }
-        Ok(())
-    }
 }

@@ -87,8 +87,7 @@ fn open_cells_with_wakes_are_the_definition() {
                 };
                 let blocks = wakes.len() as u64;
                 let found = open_cells(&member, &slope, &floor, scan, wakes, room);
-                (blocks_seen, slept) =
-                    (blocks_seen + blocks, slept + blocks - found.blocks_read);
+                (blocks_seen, slept) = (blocks_seen + blocks, slept + blocks - found.blocks_read);
                 assert_eq!(found.targets, open, "{lanes:?}, {len} cells, slice {k}");
                 assert_eq!(
                     found.reach.to_bits(),

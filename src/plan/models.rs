@@ -1,0 +1,158 @@
+//! The planner's cost models: the time models of the horizons and sky
+//! stages (the defaults, or the machine's own from [`TIME_MODELS_VAR`]),
+//! and the time, memory and bytes of the other stages (docs/PLANNING.md,
+//! "Cost models").
+
+use anyhow::{bail, Context, Result};
+use serde::{Deserialize, Serialize};
+
+use super::layer_bytes;
+
+/// The environment variable naming a JSON file of [`TimeModels`] fitted on
+/// the machine that bakes (`OUT=FILE pipelines/fit_plan_models.sh` writes
+/// one); unset or empty, the planner takes the defaults.
+pub const TIME_MODELS_VAR: &str = "TERRABAKE_TIME_MODELS";
+
+/// The time models of the horizons and sky stages (docs/PLANNING.md, "Cost
+/// models"): `fixed_seconds` and, for sweeps to the edge, `posts *
+/// S^sweep_exponent / sweep_rate` seconds, for bounded lines `posts * S *
+/// (bounded_per_line + bounded_per_cell * D / cell)`. Each is fitted by
+/// `pipelines/fit_plan_models.sh` and raised until no fit run took longer,
+/// so it is an upper bound on the machine it was fitted on, not on every
+/// machine: the defaults are the Zen 4 machine's (2 cores), whose fit had
+/// no fixed term.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TimeModels {
+    /// What a bake of a few posts takes: starting, opening, writing.
+    pub fixed_seconds: f64,
+    pub sweep_exponent: f64,
+    pub sweep_rate: f64,
+    pub bounded_per_line: f64,
+    pub bounded_per_cell: f64,
+}
+
+impl Default for TimeModels {
+    fn default() -> Self {
+        Self {
+            fixed_seconds: 0.0,
+            sweep_exponent: 1.66,
+            sweep_rate: 2.85e8,
+            bounded_per_line: 5.79e-9,
+            bounded_per_cell: 5.81e-9,
+        }
+    }
+}
+
+impl TimeModels {
+    /// The models [`TIME_MODELS_VAR`] names, else the defaults; once read,
+    /// kept for the process, so that the check before an ingest, the plans
+    /// after it and `terrabake-bench plan`'s plans all use the same file's models. A
+    /// file that fails is not kept: its error ends the command.
+    pub fn from_env() -> Result<Self> {
+        static MODELS: std::sync::OnceLock<TimeModels> = std::sync::OnceLock::new();
+        if let Some(models) = MODELS.get() {
+            return Ok(*models);
+        }
+        let models = match std::env::var_os(TIME_MODELS_VAR).filter(|v| !v.is_empty()) {
+            None => Self::default(),
+            Some(path) => Self::read(std::path::Path::new(&path))?,
+        };
+        Ok(*MODELS.get_or_init(|| models))
+    }
+
+    /// The models in the JSON file `path`: every field given, each a
+    /// positive number (the fixed seconds may be 0).
+    pub fn read(path: &std::path::Path) -> Result<Self> {
+        // A file of five numbers; anything larger is not one.
+        const MAX_BYTES: u64 = 64 << 10;
+        let named = || format!("{} ({TIME_MODELS_VAR})", path.display());
+        // A regular file only: a FIFO there would hang the plan.
+        let bytes = terrabake_format::fsio::read_regular(path, MAX_BYTES + 1)
+            .with_context(|| format!("{}: cannot read the time models", named()))?;
+        if bytes.len() as u64 > MAX_BYTES {
+            bail!("{}: over {MAX_BYTES} bytes, not time models", named());
+        }
+        let models: Self = serde_json::from_slice(&bytes).with_context(|| {
+            format!(
+                "{}: not time models as fit_plan_models.sh writes them",
+                named()
+            )
+        })?;
+        let m = &models;
+        for (key, value, may_be_zero) in [
+            ("fixed_seconds", m.fixed_seconds, true),
+            ("sweep_exponent", m.sweep_exponent, false),
+            ("sweep_rate", m.sweep_rate, false),
+            ("bounded_per_line", m.bounded_per_line, false),
+            ("bounded_per_cell", m.bounded_per_cell, false),
+        ] {
+            if !(value.is_finite() && (value > 0.0 || may_be_zero && value == 0.0)) {
+                let least = if may_be_zero { "0 or more" } else { "positive" };
+                bail!("{}: {key} is {value}; it must be {least}", named());
+            }
+        }
+        Ok(models)
+    }
+}
+
+/// Seconds per post of the pyramid and of the cone planes at
+/// CONE_SLICES slices, measured on the bundled tile (2 cores, 0.13 s and
+/// 0.46 s; docs/BENCHMARKS.md, cone planes).
+pub(super) const PYRAMID_SECONDS_PER_POST: f64 = 9.0e-8;
+pub(super) const CONES_SECONDS_PER_POST: f64 = 3.2e-7;
+/// The cone planes' slices: within 6 % of the exact cones' steps per ray on
+/// the bundled tile at 37 % of the bake time of 256 slices (1.3 %).
+pub(super) const CONE_SLICES: usize = 64;
+/// Peak memory, measured on the bundled tile: a base of 40 MiB, 10.7 bytes
+/// per post and band of a tile row of horizons in flight (97 MiB at 16
+/// directions, 463 MiB at 120), the DEM itself (4 bytes a post) for bounded
+/// lines, and 32 bytes a post for in-core cone planes; the pilot's own is
+/// counted exactly (`plan`).
+pub(super) const BASE_MIB: f64 = 40.0;
+pub(super) const LINE_BYTES_PER_ROW_POST_BAND: f64 = 10.7;
+pub(super) const CONES_BYTES_PER_POST: f64 = 32.0;
+
+/// Costs of the horizons and sky stages.
+#[derive(Clone, Copy)]
+pub(super) struct LineCosts {
+    pub(super) posts: f64,
+    pub(super) width: usize,
+    pub(super) height: usize,
+    pub(super) tile: usize,
+    /// Sky layers baked from the horizons.
+    pub(super) sky_layers: usize,
+    /// Mean post spacing, metres.
+    pub(super) cell: f64,
+    pub(super) models: TimeModels,
+}
+
+impl LineCosts {
+    /// Posts of a tile row (edge tiles whole).
+    pub(super) fn row_posts(&self) -> f64 {
+        (self.width.div_ceil(self.tile) * self.tile * self.tile) as f64
+    }
+
+    pub(super) fn layer_bytes(&self, size: usize, bands: usize) -> u64 {
+        layer_bytes(self.width, self.height, self.tile, size, bands)
+    }
+
+    pub(super) fn seconds(&self, sectors: usize, distance: Option<f64>) -> f64 {
+        let (s, m) = (sectors as f64, &self.models);
+        let work = match distance {
+            None => self.posts * s.powf(m.sweep_exponent) / m.sweep_rate,
+            Some(d) => self.posts * s * (m.bounded_per_line + m.bounded_per_cell * d / self.cell),
+        };
+        m.fixed_seconds + work
+    }
+
+    pub(super) fn memory_mib(&self, sectors: usize, distance: Option<f64>) -> f64 {
+        let held = if distance.is_some() {
+            4.0 * self.posts
+        } else {
+            0.0
+        };
+        BASE_MIB
+            + (LINE_BYTES_PER_ROW_POST_BAND * self.row_posts() * sectors as f64 + held) / 1048576.0
+    }
+}
