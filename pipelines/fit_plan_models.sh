@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Fits the planner's time models (src/plan.rs, TimeModels). First a bake's
+# Fits the planner's time models (src/plan/models.rs, TimeModels). First a bake's
 # fixed cost, then the line sweeps to the edge (seconds = fixed + posts *
 # S^EXPONENT / RATE) to the horizons and sky stages on the bundled tile (the wall time
 # of `terrabake horizons`, which runs both), planned the way the planner

@@ -3,9 +3,9 @@
 //! The pipeline that turns DEMs into terrabake assets. The asset format and
 //! its reader live in `terrabake-format`; this crate reads sources, runs the
 //! bake stages and writes their layers, and hosts the CLI (`src/main.rs`).
-//! Its rooms, from the bottom up (a room imports only rooms above it in
-//! this list; ARCHITECTURE.md maps them, `tests/architecture.rs` holds the
-//! order):
+//! Its rooms, from the bottom up (a room imports only the rooms listed
+//! before it; ARCHITECTURE.md maps them, and `tests/architecture.rs` holds
+//! the order and checks the map against the folders):
 //!
 //! - [`plumbing`]: the process's edges: files written whole or not at all,
 //!   parallel work in a fixed order, Ctrl-C, free disk and memory, progress.

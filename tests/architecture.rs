@@ -1,7 +1,9 @@
-//! The rules of ARCHITECTURE.md that a test can hold: the pipeline's module
-//! graph has no circle, the format crate knows nothing of the pipeline, the
-//! CLI's `main.rs` stays thin, and the test build shares the release
-//! build's compiled crates.
+//! The rules of ARCHITECTURE.md that a test can hold: the pipeline's
+//! file-level import graph has no circle, at most 11 levels, and no import
+//! from a room above (nor from one stage to another); ARCHITECTURE.md maps
+//! the rooms there are; no file outgrows 1,100 lines; the format crate
+//! knows nothing of the pipeline; the CLI's `main.rs` stays thin; and the
+//! test build shares the release build's compiled crates.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
@@ -27,80 +29,298 @@ fn code(path: &Path) -> String {
         .join("\n")
 }
 
-#[test]
-fn the_module_graph_has_no_circle() {
+/// A file's module path under `src/` (`src/stages/horizons.rs` is
+/// `stages::horizons`, `src/plan/mod.rs` is `plan`).
+fn module_of(src: &Path, file: &Path) -> Vec<String> {
+    let rel = file.strip_prefix(src).unwrap().with_extension("");
+    let mut path: Vec<String> = rel
+        .components()
+        .map(|c| c.as_os_str().to_string_lossy().into_owned())
+        .collect();
+    if path.last().is_some_and(|l| l == "mod") {
+        path.pop();
+    }
+    path
+}
+
+/// The byte ranges of `text` inside inline modules (`mod tests {`, a
+/// kernel's `mod avx2 {`), where `super` names the file itself.
+fn inline_modules(text: &str) -> Vec<std::ops::Range<usize>> {
+    let mut out = Vec::new();
+    let mut at = 0;
+    for line in text.split_inclusive('\n') {
+        let t = line.trim_start_matches("pub ");
+        if line.starts_with("mod ") || line.starts_with("pub mod ") {
+            if t.trim_end().ends_with('{') {
+                let end = text[at..].find("\n}\n").map_or(text.len(), |e| at + e);
+                out.push(at..end);
+            }
+        }
+        at += line.len();
+    }
+    out
+}
+
+/// Every path `text` names from `super`, `self` or `crate`, or through a
+/// child module it declares, as a module path from the crate root (its
+/// last segments may be items, not modules).
+fn named_paths(text: &str, me: &[String]) -> Vec<Vec<String>> {
+    let inline = inline_modules(text);
+    let children: Vec<&str> = text
+        .lines()
+        .filter_map(|l| {
+            let l = l
+                .trim_start_matches("pub ")
+                .trim_start_matches("pub(crate) ");
+            l.strip_prefix("mod ")?.strip_suffix(';')
+        })
+        .collect();
+    let word = |c: char| c.is_alphanumeric() || c == '_';
+    let mut out = Vec::new();
+    let bytes = text.as_bytes();
+    let mut i = 0;
+    while i < text.len() {
+        let starts_word = i == 0 || !(word(bytes[i - 1] as char) || bytes[i - 1] == b':');
+        let rest = &text[i..];
+        let first: String = rest.chars().take_while(|&c| word(c)).collect();
+        if !starts_word || first.is_empty() {
+            i += 1;
+            continue;
+        }
+        let is_root = matches!(first.as_str(), "crate" | "super" | "self");
+        if !(is_root || children.contains(&first.as_str()))
+            || !rest[first.len()..].starts_with("::")
+        {
+            i += first.len().max(1);
+            continue;
+        }
+        // The path's segments; a `{` group contributes each member's first.
+        let mut segs = vec![first.clone()];
+        let mut tail = &rest[first.len()..];
+        let mut groups = Vec::new();
+        while let Some(t) = tail.strip_prefix("::") {
+            if let Some(g) = t.strip_prefix('{') {
+                let body = &g[..g.find('}').unwrap_or(g.len())];
+                groups = body
+                    .split(',')
+                    .map(|m| m.trim().split("::").next().unwrap_or("").to_string())
+                    .filter(|m| !m.is_empty() && m != "self")
+                    .collect();
+                break;
+            }
+            let seg: String = t.chars().take_while(|&c| word(c)).collect();
+            if seg.is_empty() {
+                break;
+            }
+            tail = &t[seg.len()..];
+            segs.push(seg);
+        }
+        let inside_inline = inline.iter().any(|r| r.contains(&i));
+        let mut base: Vec<String> = me.to_vec();
+        let mut k = 0;
+        match first.as_str() {
+            "crate" => {
+                base.clear();
+                k = 1;
+            }
+            "super" | "self" => {
+                // In an inline module the first `super` is the file itself.
+                let mut skip_one = inside_inline;
+                while k < segs.len() && (segs[k] == "super" || segs[k] == "self") {
+                    if segs[k] == "super" && !std::mem::take(&mut skip_one) {
+                        base.pop();
+                    }
+                    k += 1;
+                }
+            }
+            _ => {}
+        }
+        let mut path = base;
+        path.extend(segs[k..].iter().cloned());
+        if groups.is_empty() {
+            out.push(path);
+        } else {
+            for g in groups {
+                let mut p = path.clone();
+                p.push(g);
+                out.push(p);
+            }
+        }
+        i += first.len();
+    }
+    out
+}
+
+/// The pipeline's file-level import graph: each module (one file) and the
+/// modules it names. A module naming its own ancestor is not an edge: a
+/// child lives inside its parent's scope (`super::` is Rust's nesting);
+/// every other name is.
+fn import_graph() -> BTreeMap<String, BTreeSet<String>> {
     let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
     let mut files = Vec::new();
     rust_files(&src, &mut files);
-    // Top-level module -> the top-level modules its code names.
-    let mut graph: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
-    for file in &files {
-        let rel = file.strip_prefix(&src).unwrap();
-        let top = rel
-            .components()
-            .next()
-            .unwrap()
-            .as_os_str()
-            .to_string_lossy();
-        let top = top.trim_end_matches(".rs").to_string();
-        if top == "lib" || top == "main" {
-            continue;
-        }
-        let text = code(file);
-        let deps = graph.entry(top.clone()).or_default();
-        for (i, _) in text.match_indices("crate::") {
-            let name: String = text[i + 7..]
-                .chars()
-                .take_while(|c| c.is_alphanumeric() || *c == '_')
-                .collect();
-            if name != top
-                && files.iter().any(|f| {
-                    f.file_stem().is_some_and(|s| s == name.as_str()) && f.parent() == Some(&src)
-                        || f.parent().is_some_and(|p| p == src.join(&name))
-                })
-            {
-                deps.insert(name);
+    let modules: BTreeMap<Vec<String>, &std::path::PathBuf> = files
+        .iter()
+        .map(|f| (module_of(&src, f), f))
+        .filter(|(m, _)| m != &["lib"] && m != &["main"])
+        .collect();
+    let mut graph = BTreeMap::new();
+    for (me, file) in &modules {
+        let mut deps = BTreeSet::new();
+        for path in named_paths(&code(file), me) {
+            let target = (1..=path.len())
+                .rev()
+                .map(|n| &path[..n])
+                .find(|p| modules.contains_key(*p));
+            if let Some(t) = target {
+                if t != me.as_slice() && !me.starts_with(t) {
+                    deps.insert(t.join("::"));
+                }
             }
         }
+        graph.insert(me.join("::"), deps);
     }
-    // Depth-first search for a back edge.
-    fn visit(
+    graph
+}
+
+/// The rooms of `src/` and its top files, bottom up, as ARCHITECTURE.md's
+/// `src/` section lists them (`- **`plumbing/`**: ...`).
+fn rooms() -> Vec<String> {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let doc = std::fs::read_to_string(root.join("ARCHITECTURE.md")).unwrap();
+    let section = doc.split("\n## `src/`").nth(1).expect("a `src/` section");
+    let section = section.split("\n## ").next().unwrap();
+    section
+        .lines()
+        .filter_map(|l| l.strip_prefix("- **`")?.split_once("`**"))
+        .map(|(name, _)| {
+            name.trim_end_matches('/')
+                .trim_end_matches(".rs")
+                .to_string()
+        })
+        .collect()
+}
+
+#[test]
+fn the_import_graph_has_no_circle_and_no_import_running_back_up() {
+    let graph = import_graph();
+    assert!(
+        graph["bake::recipe"].contains("stages::cones"),
+        "the scan sees dependencies: {:?}",
+        graph["bake::recipe"]
+    );
+    // Depth-first search for a back edge, and each module's level (one
+    // above everything it imports).
+    fn level(
         node: &str,
         graph: &BTreeMap<String, BTreeSet<String>>,
         path: &mut Vec<String>,
-        done: &mut BTreeSet<String>,
-    ) -> Option<Vec<String>> {
+        levels: &mut BTreeMap<String, usize>,
+    ) -> usize {
         if let Some(i) = path.iter().position(|p| p == node) {
-            let mut cycle = path[i..].to_vec();
-            cycle.push(node.to_string());
-            return Some(cycle);
+            panic!("module circle: {} -> {node}", path[i..].join(" -> "));
         }
-        if done.contains(node) {
-            return None;
+        if let Some(&l) = levels.get(node) {
+            return l;
         }
         path.push(node.to_string());
+        let mut l = 1;
         for dep in graph.get(node).into_iter().flatten() {
-            if let Some(c) = visit(dep, graph, path, done) {
-                return Some(c);
-            }
+            l = l.max(1 + level(dep, graph, path, levels));
         }
         path.pop();
-        done.insert(node.to_string());
-        None
+        levels.insert(node.to_string(), l);
+        l
     }
-    let mut done = BTreeSet::new();
+    let mut levels = BTreeMap::new();
     for node in graph.keys() {
-        let cycle = visit(node, &graph, &mut Vec::new(), &mut done);
+        level(node, &graph, &mut Vec::new(), &mut levels);
+    }
+    let (deepest, depth) = levels.iter().max_by_key(|(_, &l)| l).unwrap();
+    assert!(
+        depth <= &11,
+        "the import graph is {depth} levels deep at {deepest}"
+    );
+    // A room imports only the rooms below it (ARCHITECTURE.md lists them
+    // bottom up).
+    let rooms = rooms();
+    let rank = |m: &str| {
+        let room = m.split("::").next().unwrap();
+        rooms
+            .iter()
+            .position(|r| r == room)
+            .unwrap_or_else(|| panic!("{m} is in no room that ARCHITECTURE.md lists"))
+    };
+    for (m, deps) in &graph {
+        for d in deps {
+            assert!(
+                rank(d) <= rank(m),
+                "{m} imports {d}, a room above its own (ARCHITECTURE.md lists the rooms bottom up)"
+            );
+            // No stage imports another stage.
+            let stage_of = |p: &str| {
+                p.strip_prefix("stages::")
+                    .map(|s| s.split("::").next().unwrap().to_string())
+            };
+            if let (Some(a), Some(b)) = (stage_of(m), stage_of(d)) {
+                assert_eq!(a, b, "the {a} stage ({m}) imports the {b} stage ({d})");
+            }
+        }
+    }
+}
+
+/// ARCHITECTURE.md maps the rooms that are there: its `src/` section names
+/// each folder and file at the top of `src/` (lib.rs aside), and `src/`
+/// stays small at its top.
+#[test]
+fn architecture_md_lists_the_rooms_of_src() {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut top: Vec<String> = std::fs::read_dir(&src)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    top.sort();
+    assert!(
+        top.len() <= 16,
+        "src/ has {} entries at its top: {top:?}",
+        top.len()
+    );
+    let mut there: Vec<String> = top
+        .iter()
+        .map(|n| n.trim_end_matches(".rs").to_string())
+        .filter(|n| n != "lib")
+        .collect();
+    let mut listed = rooms();
+    listed.sort();
+    there.sort();
+    assert_eq!(listed, there, "ARCHITECTURE.md's rooms against src/");
+}
+
+/// No source file over 1,100 lines but the per-ISA kernels (files with
+/// `#[target_feature]` functions, whose scalar twins the tests hold them to).
+#[test]
+fn no_source_file_is_over_1100_lines() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut files = Vec::new();
+    for dir in [
+        "src",
+        "formats/src",
+        "capi/src",
+        "python/src",
+        "gpu/src",
+        "benches",
+    ] {
+        rust_files(&root.join(dir), &mut files);
+    }
+    for file in files {
+        let text = std::fs::read_to_string(&file).unwrap();
+        let lines = text.lines().count();
         assert!(
-            cycle.is_none(),
-            "module circle: {}",
-            cycle.unwrap().join(" -> ")
+            lines <= 1100 || text.contains("#[target_feature("),
+            "{} has {lines} lines: split it at a seam",
+            file.display()
         );
     }
-    assert!(
-        graph["recipe"].contains("cones"),
-        "the scan sees dependencies"
-    );
 }
 
 #[test]

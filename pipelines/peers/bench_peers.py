@@ -9,7 +9,7 @@ our conventions by run_peer.py, or here for GRASS and SAGA, then scored by
 `terrabake-bench horizons --peers`), and its whole process on the whole DEM
 under /usr/bin/time (wall seconds, peak RSS), stopped at --limit seconds.
 Our own whole-DEM stage is timed the same way, before and after the peers.
-Writes DIR/peers.json (src/bench/peers.rs reads it). Standard library only:
+Writes DIR/peers.json (benches/src/peers.rs reads it). Standard library only:
 it runs under the system Python, the peers under the venv's.
 """
 

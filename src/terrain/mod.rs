@@ -1,5 +1,9 @@
-//! The DEM as the horizon algorithms see it: posts in metres, nodata, and
-//! the earth's curvature.
+//! The shared terrain kernel: the DEM as the algorithms see it
+//! ([`Terrain`]: posts in metres, nodata, the earth's curvature, and the
+//! `atan` every horizon angle goes through), a whole DEM held in memory
+//! ([`held`]), what a horizon search keeps of its steepest point
+//! ([`steepest`]), geodesy ([`geo`]), tile rows ([`tiling`]), the sun
+//! ([`sun`]) and the seeded random stream of every sample ([`random`]).
 
 pub mod geo;
 pub mod held;

@@ -1,7 +1,9 @@
-//! Viewsheds: what one observer sees ([`observer`]: `terrabake viewshed`,
-//! the `viewshed` stage for a list of observers) and how much terrain every
-//! post sees ([`total`]: the `total_viewshed` stage, Timonen 2013's sweeps
-//! with the convex hull tree). docs/VISIBILITY.md is the long form: the
+//! The viewshed stages ([`stage`]): what observers see (the `viewshed`
+//! stage, over [`crate::algorithms::viewshed::observer`]; `terrabake
+//! viewshed` writes one observer's as a GeoTIFF) and how much terrain every
+//! post sees (the `total_viewshed` stage, Timonen 2013's sweeps with the
+//! convex hull tree, [`crate::algorithms::viewshed::total`]); and here, how
+//! an observer's position and height are given. docs/VISIBILITY.md is the long form: the
 //! surface model, the comparison with GRASS `r.viewshed`, and Timonen's
 //! tables on our DEMs.
 //!
