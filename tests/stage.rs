@@ -381,7 +381,7 @@ fn a_misspelled_recipe_key_is_refused_by_name() {
 }
 
 /// The command line's defaults are the stage types' defaults (what a recipe
-/// that leaves a key out gets).
+/// that leaves a key out gets), for every stage with parameters.
 #[test]
 fn command_line_defaults_are_the_stage_defaults() {
     use clap::Parser;
@@ -405,14 +405,48 @@ fn command_line_defaults_are_the_stage_defaults() {
         #[command(flatten)]
         stage: terrabake::stages::sky::SkyStage,
     }
+    #[derive(Parser)]
+    struct TotalViewshed {
+        #[command(flatten)]
+        stage: terrabake::stages::viewshed::stage::TotalViewshedStage,
+    }
+    #[derive(Parser)]
+    struct Viewshed {
+        #[command(flatten)]
+        stage: terrabake::stages::viewshed::stage::ViewshedStage,
+    }
     assert_eq!(Ingest::parse_from(["x"]).opts, Default::default());
     assert_eq!(Sky::parse_from(["x"]).stage, Default::default());
     assert_eq!(Cones::parse_from(["x"]).stage, Default::default());
     assert_eq!(Horizons::parse_from(["x"]).stage, Default::default());
-    let empty = toml::Table::new();
-    let from_recipe: terrabake::stages::horizons::HorizonsStage =
-        toml::Value::Table(empty).try_into().unwrap();
-    assert_eq!(from_recipe, Default::default());
+    assert_eq!(TotalViewshed::parse_from(["x"]).stage, Default::default());
+    // A recipe's table that leaves every key out gets the same.
+    fn from_recipe<T: serde::de::DeserializeOwned>(text: &str) -> T {
+        toml::from_str(text).unwrap()
+    }
+    assert_eq!(
+        from_recipe::<terrabake::stages::horizons::HorizonsStage>(""),
+        Default::default()
+    );
+    assert_eq!(
+        from_recipe::<terrabake::stages::cones::ConesStage>(""),
+        Default::default()
+    );
+    assert_eq!(
+        from_recipe::<terrabake::stages::sky::SkyStage>(""),
+        Default::default()
+    );
+    assert_eq!(
+        from_recipe::<terrabake::stages::ingest::IngestOptions>(""),
+        Default::default()
+    );
+    // The viewshed stage has no default observers: with one given, the
+    // command line and a recipe agree on everything else. (The pyramid
+    // stage has no parameters.)
+    assert_eq!(
+        Viewshed::parse_from(["x", "--observer", "1,2"]).stage,
+        from_recipe("observers = [[1.0, 2.0]]")
+    );
 }
 
 /// Every stage's declared reach is honest: a region baked from a crop of

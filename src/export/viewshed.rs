@@ -32,7 +32,7 @@ pub struct ViewshedArgs {
     #[arg(long, value_enum, default_value = "native")]
     pub crs: Crs,
     /// The observer's eye above the ground, metres.
-    #[arg(long, default_value_t = 1.7, allow_hyphen_values = true)]
+    #[arg(long, default_value_t = crate::stages::viewshed::DEFAULT_EYE_HEIGHT, allow_hyphen_values = true)]
     pub observer_height: f64,
     /// The target above the ground at every post, metres.
     #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]

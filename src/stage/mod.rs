@@ -569,6 +569,11 @@ pub fn post_layer(
 pub mod mib {
     use serde::{Deserialize, Deserializer, Serializer};
 
+    /// The working memory a stage takes unless told (`--max-memory`, MiB):
+    /// 8 GiB. [`STAGE_DEFAULT_BYTES`] is the same in bytes, for `Default`.
+    pub const STAGE_DEFAULT: &str = "8192";
+    pub const STAGE_DEFAULT_BYTES: u64 = 8192 << 20;
+
     /// `--max-memory MIB` as bytes.
     pub fn parse(s: &str) -> Result<u64, String> {
         match s.trim().parse::<u64>() {

@@ -184,7 +184,7 @@ impl SliceChoice {
 #[serde(deny_unknown_fields, default)]
 pub struct ConesStage {
     /// A slice count K (1..=65535), auto, or exact.
-    #[arg(long, default_value = "auto")]
+    #[arg(long, default_value_t = Self::DEFAULT_SLICES)]
     pub slices: SliceChoice,
     /// With slices auto: how far (metres) the apex may sit above a cell's
     /// neighbourhood; default relief / 255, i.e. 256 slices unless the data
@@ -197,18 +197,23 @@ pub struct ConesStage {
     pub encoding: ConeEncoding,
     /// Working memory in MiB; a DEM that needs more is baked in windows
     /// (whose halos cap the slopes, so it is recorded).
-    #[arg(long = "max-memory", value_name = "MIB", default_value = "8192", value_parser = crate::stage::mib::parse)]
+    #[arg(long = "max-memory", value_name = "MIB", default_value = crate::stage::mib::STAGE_DEFAULT, value_parser = crate::stage::mib::parse)]
     #[serde(rename = "max_memory_mib", with = "crate::stage::mib")]
     pub max_memory: u64,
+}
+
+impl ConesStage {
+    /// Slices unless told: chosen from the DEM's relief and height step.
+    pub const DEFAULT_SLICES: SliceChoice = SliceChoice::Auto;
 }
 
 impl Default for ConesStage {
     fn default() -> Self {
         Self {
-            slices: SliceChoice::Auto,
+            slices: Self::DEFAULT_SLICES,
             apex_gap: None,
             encoding: ConeEncoding::F32,
-            max_memory: 8 << 30,
+            max_memory: crate::stage::mib::STAGE_DEFAULT_BYTES,
         }
     }
 }

@@ -47,10 +47,10 @@ use crate::terrain::{self, RowScale, Terrain};
 #[serde(deny_unknown_fields, default)]
 pub struct HorizonsStage {
     /// Number of azimuths (bands), 3..=4096; band i is centred on i * 360 / S degrees.
-    #[arg(long, visible_alias = "directions", default_value_t = 16, value_parser = crate::stage::args::parse_sectors)]
+    #[arg(long, visible_alias = "directions", default_value_t = Self::DEFAULT_SECTORS, value_parser = crate::stage::args::parse_sectors)]
     pub sectors: usize,
     /// line (exact sight lines), sector (Stewart's wedges) or sampled (baseline).
-    #[arg(long, default_value = "line", value_parser = crate::stage::args::named(&Method::ALL, Method::name))]
+    #[arg(long, default_value = Self::DEFAULT_METHOD.name(), value_parser = crate::stage::args::named(&Method::ALL, Method::name))]
     pub method: Method,
     /// Look no farther than this many metres (default: the whole DEM, exact). Bounded
     /// line and sector horizons walk or scan each post's reach: O(M) and O(M^2 / S) per post;
@@ -69,7 +69,7 @@ pub struct HorizonsStage {
     pub aoi: Option<Aoi>,
     /// Largest angular error of the stored angles, degrees: picks u8 (0.354), u16 (0.0014) or
     /// f32.
-    #[arg(long, default_value_t = 0.5, conflicts_with = "encoding", allow_hyphen_values = true, value_parser = crate::stage::args::parse_positive)]
+    #[arg(long, default_value_t = Self::DEFAULT_MAX_ERROR_DEG, conflicts_with = "encoding", allow_hyphen_values = true, value_parser = crate::stage::args::parse_positive)]
     #[serde(rename = "max_error_deg")]
     pub max_error: f64,
     /// Store angles as u8, u16 or f32 regardless of --max-error.
@@ -95,7 +95,7 @@ pub struct HorizonsStage {
     /// without --max-distance, sampled, line with --max-distance); a DEM that needs more
     /// is refused with the out-of-core routes named. Out of core, line's SIMD lanes take
     /// at most a sixteenth of it. Results do not depend on it, so it is not recorded.
-    #[arg(long = "max-memory", value_name = "MIB", default_value = "8192", value_parser = crate::stage::mib::parse)]
+    #[arg(long = "max-memory", value_name = "MIB", default_value = crate::stage::mib::STAGE_DEFAULT, value_parser = crate::stage::mib::parse)]
     #[serde(
         rename = "max_memory_mib",
         with = "crate::stage::mib",
@@ -105,6 +105,14 @@ pub struct HorizonsStage {
 }
 
 impl HorizonsStage {
+    /// Bands (azimuths) unless told: 16.
+    pub const DEFAULT_SECTORS: usize = 16;
+    /// The largest angular error of the stored angles unless told: 0.5
+    /// degrees (u8 angles, 0.354).
+    pub const DEFAULT_MAX_ERROR_DEG: f64 = 0.5;
+    /// The method unless told: exact sight lines.
+    pub const DEFAULT_METHOD: Method = Method::Line;
+
     /// The encoding of the stored angles: `encoding`, else the smallest
     /// within `max_error`.
     pub fn angle_encoding(&self) -> AngleEncoding {
@@ -126,18 +134,18 @@ pub const SECTOR_BYTES_PER_POST: u64 = 96;
 impl Default for HorizonsStage {
     fn default() -> Self {
         Self {
-            sectors: 16,
-            method: Method::Line,
+            sectors: Self::DEFAULT_SECTORS,
+            method: Self::DEFAULT_METHOD,
             max_distance: None,
             curvature: None,
             refraction: terrain::DEFAULT_REFRACTION,
             aoi: None,
-            max_error: 0.5,
+            max_error: Self::DEFAULT_MAX_ERROR_DEG,
             encoding: None,
             narrow_check: true,
             direction_tolerance: None,
             distance: false,
-            max_memory: 8 << 30,
+            max_memory: crate::stage::mib::STAGE_DEFAULT_BYTES,
         }
     }
 }
@@ -221,7 +229,7 @@ impl HorizonsStage {
                 sector: (index, count),
                 narrow: self.narrow_check,
                 max_distance,
-                halo: sector::rows_within(max_distance, spacing.1),
+                halo: terrain::posts_within(max_distance, spacing.1),
                 height: dims.1,
                 cols: {
                     let [x0, _, x1, _] = self.area(dims.0, dims.1);
@@ -323,7 +331,7 @@ impl Stage for HorizonsStage {
         );
         let halo = self
             .max_distance
-            .map_or(0, |d| sector::rows_within(d, m.cell_size.dy) as u64);
+            .map_or(0, |d| terrain::posts_within(d, m.cell_size.dy) as u64);
         let window = (ts + 2 * halo).min(h);
         let threads = rayon::current_num_threads() as u64;
         let outputs = if self.distance { 2 } else { 1 };
@@ -341,8 +349,10 @@ impl Stage for HorizonsStage {
         let scale = crate::terrain::geo::row_scale(m.georef.as_ref(), m.height);
         let narrowest = scale.iter().copied().fold(1.0f64, f64::min);
         let spacing = (m.cell_size.dx * narrowest).min(m.cell_size.dy);
-        let posts = (d / spacing).ceil() + 1.0;
-        if posts >= f64::from(m.width.max(m.height)) {
+        // A post of margin: the sight line's surface between the last post
+        // within the distance and the next.
+        let posts = terrain::posts_within(d, spacing) + 1;
+        if posts >= m.width.max(m.height) as usize {
             crate::stage::Reach::Whole
         } else {
             crate::stage::Reach::Posts(posts as u32)

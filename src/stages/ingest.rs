@@ -72,7 +72,7 @@ pub struct IngestOptions {
     /// only a DEM stored as a few huge strips or tiles (or an OpenEXR, read
     /// whole) comes near it; such a source is refused from its header. Not
     /// a parameter of the result, so not recorded.
-    #[arg(long = "max-memory", value_name = "MIB", default_value = "1024", value_parser = crate::stage::mib::parse)]
+    #[arg(long = "max-memory", value_name = "MIB", default_value = DEFAULT_INGEST_MIB, value_parser = crate::stage::mib::parse)]
     #[serde(
         rename = "max_memory_mib",
         with = "crate::stage::mib",
@@ -107,6 +107,8 @@ impl IngestOptions {
 /// Default of [`IngestOptions::max_memory`]: 1 GiB. Ingest streams, so
 /// only a source cut into huge strips or tiles (or an EXR) comes near it.
 pub const DEFAULT_INGEST_MEMORY: u64 = 1 << 30;
+/// [`DEFAULT_INGEST_MEMORY`] as `--max-memory` gives it, MiB.
+pub const DEFAULT_INGEST_MIB: &str = "1024";
 
 impl Default for IngestOptions {
     fn default() -> Self {

@@ -19,6 +19,14 @@ pub const EARTH_RADIUS: f64 = 6_371_000.0;
 /// (Gauss's 0.13; surveyors use 0.13-0.14).
 pub const DEFAULT_REFRACTION: f64 = 0.13;
 
+/// Posts of `spacing` metres within `metres` along one axis: the `k` with
+/// `k * spacing <= metres`. The one rounding rule of every reach, halo and
+/// window a distance limit sets (each adds its own margin, named where it
+/// is added).
+pub fn posts_within(metres: f64, spacing: f64) -> usize {
+    (metres.max(0.0) / spacing).floor() as usize
+}
+
 /// `c` in the curvature drop `c * d^2`: `(1 - k) / (2 R)` for refraction
 /// coefficient `k`.
 pub fn curvature_coefficient(refraction: f64) -> f64 {

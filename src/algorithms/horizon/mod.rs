@@ -56,7 +56,7 @@ impl std::str::FromStr for Method {
 impl Method {
     pub const ALL: [Method; 3] = [Method::Line, Method::Sector, Method::Sampled];
 
-    pub fn name(self) -> &'static str {
+    pub const fn name(self) -> &'static str {
         match self {
             Method::Line => "line",
             Method::Sector => "sector",

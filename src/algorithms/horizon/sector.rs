@@ -72,7 +72,7 @@
 mod bounded;
 mod hulls;
 
-pub use bounded::{rows_within, sector_horizons_within};
+pub use bounded::sector_horizons_within;
 
 use crate::terrain::steepest::{Steepest, Tag};
 use crate::terrain::Terrain;

@@ -19,6 +19,10 @@ use terrabake_format::Manifest;
 
 use crate::terrain::held::HeldDem;
 
+/// An observer's eye above the ground unless told, metres: a standing
+/// person's.
+pub const DEFAULT_EYE_HEIGHT: f64 = 1.7;
+
 /// How an observer's `X,Y` is given.
 #[derive(
     Debug,

@@ -50,7 +50,7 @@ pub struct ViewshedStage {
     #[serde(default)]
     pub crs: Crs,
     /// Every observer's eye above the ground, metres.
-    #[arg(long, default_value_t = 1.7, allow_hyphen_values = true)]
+    #[arg(long, default_value_t = super::DEFAULT_EYE_HEIGHT, allow_hyphen_values = true)]
     #[serde(default = "default_eye")]
     pub observer_height: f64,
     /// The target above the ground at every post, metres.
@@ -72,7 +72,7 @@ pub struct ViewshedStage {
 }
 
 fn default_eye() -> f64 {
-    1.7
+    super::DEFAULT_EYE_HEIGHT
 }
 
 fn default_refraction() -> f64 {
@@ -178,10 +178,10 @@ impl Stage for ViewshedStage {
 #[serde(deny_unknown_fields, default)]
 pub struct TotalViewshedStage {
     /// Number of azimuthal directions K (each a grid direction within 1/8 of the spacing).
-    #[arg(long, default_value_t = 32, value_parser = crate::stage::args::parse_sectors)]
+    #[arg(long, default_value_t = Self::DEFAULT_DIRECTIONS, value_parser = crate::stage::args::parse_sectors)]
     pub directions: usize,
     /// The eye above every post, metres.
-    #[arg(long, default_value_t = 1.7, allow_hyphen_values = true)]
+    #[arg(long, default_value_t = super::DEFAULT_EYE_HEIGHT, allow_hyphen_values = true)]
     pub observer_height: f64,
     /// Count terrain within this many metres (default: the whole DEM).
     #[arg(long, allow_hyphen_values = true, value_parser = crate::stage::args::parse_positive)]
@@ -203,7 +203,7 @@ pub struct TotalViewshedStage {
     #[serde(skip, default = "yes")]
     pub safe_zone: bool,
     /// Working memory in MiB: the DEM and one sum per post and worker.
-    #[arg(long = "max-memory", value_name = "MIB", default_value = "8192", value_parser = crate::stage::mib::parse)]
+    #[arg(long = "max-memory", value_name = "MIB", default_value = crate::stage::mib::STAGE_DEFAULT, value_parser = crate::stage::mib::parse)]
     #[serde(
         rename = "max_memory_mib",
         with = "crate::stage::mib",
@@ -216,17 +216,22 @@ fn yes() -> bool {
     true
 }
 
+impl TotalViewshedStage {
+    /// Directions unless told: 32.
+    pub const DEFAULT_DIRECTIONS: usize = 32;
+}
+
 impl Default for TotalViewshedStage {
     fn default() -> Self {
         Self {
-            directions: 32,
-            observer_height: 1.7,
+            directions: Self::DEFAULT_DIRECTIONS,
+            observer_height: super::DEFAULT_EYE_HEIGHT,
             max_distance: None,
             curvature: None,
             refraction: DEFAULT_REFRACTION,
             method: TotalMethod::Auto,
             safe_zone: true,
-            max_memory: 8 << 30,
+            max_memory: crate::stage::mib::STAGE_DEFAULT_BYTES,
         }
     }
 }

@@ -4,7 +4,7 @@
 
 use super::{elevation_deg, NarrowStencil, SectorFrame, SectorStats};
 use crate::terrain::steepest::{Steepest, Tag};
-use crate::terrain::{angle_between, Terrain};
+use crate::terrain::{angle_between, posts_within, Terrain};
 
 /// Sector horizons looking no farther than `max_distance` metres (the
 /// horizontal distance from the post), for the posts of output rows `rows`
@@ -77,10 +77,9 @@ fn scan<T: Tag<f64>>(
     } else {
         norths[0].min(norths[1])
     };
-    let halo = rows_within(max_distance, terrain.dy);
-    let reach_rows = |north: f64| {
-        (((max_distance * north / terrain.dy).ceil() + 1.0).max(0.0) as usize).min(halo)
-    };
+    let halo = posts_within(max_distance, terrain.dy);
+    // A row of margin for the rounding of the wedge's north components.
+    let reach_rows = |north: f64| (posts_within(max_distance * north, terrain.dy) + 1).min(halo);
     let (rows_north, rows_south) = (reach_rows(north_max), reach_rows(-north_min));
     let (a, b) = (frame.lo, frame.hi);
     let centre = terrain.centre_column();
@@ -167,10 +166,4 @@ fn scan<T: Tag<f64>>(
         }
     }
     stats
-}
-
-/// Rows of `dy` metres within `max_distance` of a post: the halo a bounded
-/// sector band reads either side.
-pub fn rows_within(max_distance: f64, dy: f64) -> usize {
-    (max_distance / dy).floor() as usize
 }
