@@ -6,7 +6,7 @@ BENCH := target/release/terrabake-bench
 DEMO_DEM := data/srtm3_n07w006_geographic_int16.tif
 OUT ?= out
 
-.PHONY: all build build-bench demo test test-full capi capi-header test-page bake-parts bake-slurm test-slurm fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-visibility bench-plan time-models bench-cog bench-peers bench-targets bench-reader fixtures fmt lint clean
+.PHONY: all build build-bench demo test test-bindings test-full capi capi-header test-page bake-parts bake-slurm test-slurm fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-visibility bench-plan time-models bench-cog bench-peers bench-targets bench-reader fixtures fmt lint clean
 
 all: build
 
@@ -60,10 +60,17 @@ demo: build
 	@echo "check:    $(OUT)/srtm.check.txt (achieved horizon error; cones and rays against the brute force)"
 	@echo "viewshed: $(OUT)/srtm_total_viewshed.png $(OUT)/srtm_viewshed.tif (from 5.5 W 7.5 N, eye 10 m: band 1 visible, band 2 angle)"
 
-## Every test, in the release profile that `make demo` (and `make build`)
-## already built: the dependencies are compiled once for both.
+## Every test of the pipeline, the loader crate and the C ABI's crate, in
+## the release profile that `make demo` (and `make build`) already built:
+## the dependencies are compiled once for both.
 test:
 	$(CARGO) test --release --locked
+
+## The bindings through their real clients, which CI runs after `make test`:
+## the C ABI through gcc, the wgpu shader (lavapipe installed where there is
+## no Vulkan driver), the Python wheel in a fresh virtual environment (with
+## GDAL, xarray and rioxarray), and GRASS r.sun on exported horizons.
+test-bindings: build
 	bash pipelines/capi/test.sh target/release/terrabake
 	bash pipelines/gpu/test.sh
 	bash pipelines/python/test.sh

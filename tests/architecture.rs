@@ -49,12 +49,11 @@ fn inline_modules(text: &str) -> Vec<std::ops::Range<usize>> {
     let mut out = Vec::new();
     let mut at = 0;
     for line in text.split_inclusive('\n') {
-        let t = line.trim_start_matches("pub ");
-        if line.starts_with("mod ") || line.starts_with("pub mod ") {
-            if t.trim_end().ends_with('{') {
-                let end = text[at..].find("\n}\n").map_or(text.len(), |e| at + e);
-                out.push(at..end);
-            }
+        if (line.starts_with("mod ") || line.starts_with("pub mod "))
+            && line.trim_end().ends_with('{')
+        {
+            let end = text[at..].find("\n}\n").map_or(text.len(), |e| at + e);
+            out.push(at..end);
         }
         at += line.len();
     }

@@ -254,6 +254,9 @@ impl From<Error> for Failure {
             | Error::Malformed { .. }
             | Error::Manifest { .. }
             | Error::Decompress { .. } => TbStatus::TbCorrupt,
+            // A kind this boundary does not know yet (the enum may grow):
+            // refused as damage, its message saying which.
+            _ => TbStatus::TbCorrupt,
         };
         Self::new(status, e.to_string())
     }

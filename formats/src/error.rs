@@ -27,6 +27,7 @@ impl std::fmt::Display for Location {
 }
 
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum Error {
     #[error("{at}: {source}")]
     Io {

@@ -39,6 +39,7 @@ pub const CHUNK_ALIGN: u64 = 64;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 #[repr(u16)]
+#[non_exhaustive]
 pub enum ElemType {
     F32 = 1,
     U16 = 2,
@@ -84,6 +85,7 @@ impl ElemType {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 #[repr(u8)]
+#[non_exhaustive]
 pub enum Codec {
     /// The tile's bytes as they are: a reader views them in place.
     Raw = 0,

@@ -56,6 +56,7 @@ pub struct CellSize {
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
+#[non_exhaustive]
 pub enum CrsKind {
     Geographic,
     Projected,

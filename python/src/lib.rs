@@ -199,12 +199,16 @@ impl Asset {
                 // array, and neither is ever written.
                 let (slice, owner): (&[$t], Bound<'py, PyAny>) = match tile {
                     Tile::Borrowed(s) => {
+                        // SAFETY: the mapping outlives the array (above).
                         let s: &'static [$t] = unsafe { std::mem::transmute(s) };
                         (s, slf.clone().into_any())
                     }
                     Tile::Cached(buf, _) => {
                         let cached: Tile<'static, u8> = Tile::Cached(buf, std::marker::PhantomData);
                         let bytes: &[u8] = &cached;
+                        // SAFETY: the buffer moves into `owner`, which outlives
+                        // the array (above); the reader aligned it for `$t`
+                        // and its length is whole values.
                         let s: &'static [$t] = unsafe {
                             std::slice::from_raw_parts(
                                 bytes.as_ptr().cast::<$t>(),
@@ -216,6 +220,8 @@ impl Asset {
                 };
                 let view = ArrayView2::from_shape((t, t), slice)
                     .map_err(|e| PyValueError::new_err(e.to_string()))?;
+                // SAFETY: `owner` keeps the viewed values alive and unwritten
+                // as long as the array (above).
                 let array = unsafe { PyArray2::<$t>::borrow_from_array(&view, owner) };
                 array.getattr("flags")?.setattr("writeable", false)?;
                 array.into_any().cast_into::<PyUntypedArray>()?
@@ -227,6 +233,12 @@ impl Asset {
             ElemType::U8 => view!(u8),
             ElemType::I16 => view!(i16),
             ElemType::U32 => view!(u32),
+            other => {
+                return Err(PyValueError::new_err(format!(
+                    "layer {:?} holds {other:?} values, which this package cannot view yet",
+                    layer.entry().name
+                )))
+            }
         })
     }
 

@@ -832,10 +832,11 @@ fn keep_in_reach<G: ColumnDistance>(
     n: usize,
 ) -> usize {
     match (test.lanes, G::as_u16(g)) {
-        // SAFETY (both): the CPU has the features (`crate::plumbing::simd::level`);
+        // SAFETY: the CPU has AVX-512 (`crate::plumbing::simd::level`);
         // `kept` has a vector's room past every column.
         #[cfg(target_arch = "x86_64")]
         (Level::Avx512, Some(g)) => unsafe { lanes::keep_in_reach_avx512(g, c0, test, kept, n) },
+        // SAFETY: the same, for AVX2.
         #[cfg(target_arch = "x86_64")]
         (Level::Avx2, Some(g)) => unsafe { lanes::keep_in_reach_avx2(g, c0, test, kept, n) },
         _ => {
@@ -937,12 +938,13 @@ fn open_cells<'t>(
     if room.len() < cells.len() + 8 {
         room.resize(cells.len() + 8, 0);
     }
-    // SAFETY (both): the CPU has the features (`crate::plumbing::simd::level`); `room`
-    // has room for every cell and a vector more; the slices agree in
-    // length, and every member indexes `rise_of`.
     let (n, reach, blocks_read) = match scan.lanes {
+        // SAFETY: the CPU has AVX-512 (`crate::plumbing::simd::level`);
+        // `room` has room for every cell and a vector more; the slices agree
+        // in length, and every member indexes `rise_of`.
         #[cfg(target_arch = "x86_64")]
         Level::Avx512 => unsafe { lanes::open_cells_avx512(cells, scan, wakes, room) },
+        // SAFETY: the same, for AVX2.
         #[cfg(target_arch = "x86_64")]
         Level::Avx2 => unsafe { lanes::open_cells_avx2(cells, scan, wakes, room) },
         _ => open_cells_scalar(cells, scan, wakes, room),

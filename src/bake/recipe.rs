@@ -384,10 +384,7 @@ fn plan_ingested(
             "codec",
             plan.codec != ingest.codec,
             "bytes",
-            match plan.codec {
-                terrabake_format::Codec::Raw => "\"raw\"".to_string(),
-                terrabake_format::Codec::Zstd => "\"zstd\"".to_string(),
-            },
+            serde_json::to_string(&plan.codec).expect("a codec serialises"),
         ),
     ] {
         if differs && given(key) {

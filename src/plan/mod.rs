@@ -17,9 +17,9 @@
 //! (linear between the two nearest), and measures the error: the
 //! prediction is the error of that very bake at those posts. The svf and
 //! the sun/shade state at the sun positions are predicted the same way.
-//! (Until 2026-11-26 the bake stored reference directions, within 0.1
-//! degree of nominal: grid steps of 20 to 120 crossings, the stage 2.9x to
-//! 10x slower at 72 to 16 directions for the same error.)
+//! (The bake does not store reference directions: within 0.1 degree of
+//! nominal they are grid steps of 20 to 120 crossings, and the stage takes
+//! 2.9x to 10x the time at 72 to 16 directions for the same error.)
 //!
 //! **Choice.** Each decision takes a fixed share of the budget, measured
 //! on its own: the directions (interpolation alone, 0.6), the distance

@@ -895,6 +895,7 @@ fn quantise_row_at<T, F: Fn(u32) -> T>(
         // SAFETY: the CPU runs `level`.
         #[cfg(target_arch = "x86_64")]
         Level::Avx512 => unsafe { avx512(enc, degs, narrow) },
+        // SAFETY: the CPU runs `level`.
         #[cfg(target_arch = "x86_64")]
         Level::Avx2 => unsafe { avx2(enc, degs, narrow) },
         _ => enc.quantise_row(degs, narrow),

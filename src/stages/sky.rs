@@ -351,11 +351,12 @@ impl PostRow {
     /// machine has, the same bits on every machine (no fused multiply-adds).
     fn add_band(&mut self, band: &BandIntegrals, angles: &[f32], edge: &EdgeTest) {
         use crate::plumbing::simd::Level;
-        // SAFETY (both): `simd::level` found the features the functions
-        // are compiled for.
         match crate::plumbing::simd::level() {
+            // SAFETY: `simd::level` found AVX-512, which the function is
+            // compiled for.
             #[cfg(target_arch = "x86_64")]
             Level::Avx512 => unsafe { self.add_band_avx512(band, angles, edge) },
+            // SAFETY: the same, for AVX2.
             #[cfg(target_arch = "x86_64")]
             Level::Avx2 => unsafe { self.add_band_avx2(band, angles, edge) },
             _ => self.add_band_portable(band, angles, edge),

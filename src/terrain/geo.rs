@@ -42,7 +42,7 @@ pub fn georef_from_keys(
     let code = match crs_kind {
         CrsKind::Projected => geo_key(&dir, PROJECTED_CS_TYPE),
         CrsKind::Geographic => geo_key(&dir, GEOGRAPHIC_TYPE),
-        CrsKind::Unknown => None,
+        _ => None,
     };
     // 32767 is "user-defined" and 0 "undefined": no EPSG code.
     let epsg = code.filter(|&c| c != 0 && c != 32767).map(u32::from);

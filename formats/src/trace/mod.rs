@@ -101,6 +101,7 @@ impl std::ops::AddAssign for Counters {
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[non_exhaustive]
 pub enum Method {
     Incremental,
     Runs,

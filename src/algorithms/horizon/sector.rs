@@ -55,19 +55,15 @@
 //! `w` in arrays of their own. And the sorts are shared: a sector's
 //! processing order is the previous sector's rank order, and its ranks the
 //! opposite sector's reversed ([`Ranks`]), sorted by buckets
-//! ([`sort_keyed`]). Together 1.47x faster at 64 sectors, the same bits;
-//! then 1.26x more with the bucket sort and the walk up the tree by the
-//! bucket index's bits (a branch a level no longer mispredicted), and 1.08x
-//! with the stencil in lanes. A thread's sectors sort and sweep in one room
-//! of arrays, each taking it from the one before ([`Scratch`]): 1.24x at 64
-//! sectors of 1.44 M posts, whose arrays glibc mapped anew every sector.
+//! ([`sort_keyed`]); the walk up the tree follows the bucket index's bits,
+//! without a branch a level to mispredict. A thread's sectors sort and
+//! sweep in one room of arrays, each taking it from the one before
+//! ([`Scratch`]), rather than glibc mapping them anew every sector. Each
+//! of these keeps the bits; docs/BENCHMARKS.md has what each saves.
 //! And where Stewart updates each hull on its path on its own, a post's
 //! insertions stop at the first hull it lies well below: those further up
-//! hold supersets of its posts ([`hulls::well_below`]; 1.09x, 42 % fewer
-//! insertion attempts at 64 sectors). The buckets in rank order and the
-//! opposite sectors' shared sorts: 1.11x more at 64 sectors of a million
-//! posts, 1.13x at 4.2 M (docs/BENCHMARKS.md, "Fewer divisions, and one
-//! sort for two sectors").
+//! hold supersets of its posts ([`hulls::well_below`]: 42 % fewer
+//! insertion attempts at 64 sectors).
 
 mod bounded;
 mod hulls;

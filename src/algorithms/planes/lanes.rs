@@ -349,8 +349,9 @@ pub(super) unsafe fn keep_in_reach_avx2(
         let keep = near & some & !(hidden >> j) as u8;
         let low = (keep & 15).count_ones() as usize;
         // Stored whole, and only where a lane is kept, as in
-        // `keep_in_reach_avx512`. SAFETY: `n + 8` within both.
+        // `keep_in_reach_avx512`.
         if keep != 0 {
+            // SAFETY: `n + 8` within both.
             unsafe {
                 _mm256_storeu_si256(
                     kept.columns.as_mut_ptr().add(n).cast(),
@@ -440,9 +441,9 @@ pub(super) unsafe fn keep_in_reach_avx512(
         // Compressed in registers, as in `open_cells_avx512`, and not
         // stored where no lane is kept: runs of hidden plane cells would
         // store at one unaligned place again and again, each store split
-        // across cache lines (1.2x slower in all). SAFETY: `n + 8` within
-        // both.
+        // across cache lines (1.2x slower in all).
         if keep != 0 {
+            // SAFETY: `n + 8` within both.
             unsafe {
                 _mm256_storeu_si256(
                     kept.columns.as_mut_ptr().add(n).cast(),

@@ -86,9 +86,8 @@ pub const MIN_DEPTH: usize = 32;
 /// `depth - HEADROOM` vertices takes the scalar sweep. A line whose hull
 /// could outgrow the depth in its next step leaves the lanes (for the
 /// scalar sweep, the same bits), so a long step in lanes costs only those
-/// lines: directions within 0.1 degree (the planner's until 2026-11-26)
-/// are steps of 20 to 120 vertices, and allowing them all (a quarter of the depth, 32, was
-/// the limit) bakes the bundled tile 2.0x faster at 16 and 36 directions.
+/// lines, and steps of 20 to 120 vertices (directions within 0.1 degree of
+/// nominal) stay in lanes.
 pub const HEADROOM: usize = 8;
 
 /// The most the lanes' hulls of one direction take (bytes) unless told
@@ -320,9 +319,11 @@ impl Lines {
                 // from `part` stays on the DEM, whose rows the window holds.
                 #[cfg(target_arch = "x86_64")]
                 match self.level {
+                    // SAFETY: as above, for AVX-512.
                     Level::Avx512 => unsafe {
                         kernel.row_avx512(self, terrain, row, part, out, stats)
                     },
+                    // SAFETY: as above, for AVX2.
                     Level::Avx2 => unsafe { kernel.row_avx2(self, terrain, row, part, out, stats) },
                     Level::Scalar => unreachable!("`Lanes::new` makes no lanes for scalar code"),
                 }
@@ -450,9 +451,11 @@ impl Rows {
         // are in the window and in `out`, and the storage holds a row.
         #[cfg(target_arch = "x86_64")]
         match self.level {
+            // SAFETY: as above, for AVX-512.
             Level::Avx512 => unsafe {
                 kernel.rows_avx512(terrain, band, east, out, stats, hull_t, hull_w)
             },
+            // SAFETY: as above, for AVX2.
             Level::Avx2 => unsafe {
                 kernel.rows_avx2(terrain, band, east, out, stats, hull_t, hull_w)
             },
@@ -587,8 +590,8 @@ mod avx512 {
                 if groups.iter().all(|g| g.hulls.active == 0) {
                     continue;
                 }
-                // SAFETY (loads): the caller keeps every crossing on the
-                // DEM; lanes off the row are masked.
+                // SAFETY: every load is of a crossing, which the caller
+                // keeps on the DEM; lanes off the row are masked.
                 let load = |g: &Group, off: isize| unsafe {
                     _mm512_cvtps_pd(_mm256_maskz_loadu_ps(
                         g.on_row,
@@ -1119,8 +1122,9 @@ mod avx2 {
                 if groups.iter().all(|g| bits(g.hulls.active) == 0) {
                     continue;
                 }
-                // SAFETY (loads): the caller keeps every crossing on the
-                // DEM; lanes off the row are masked (and do not fault).
+                // SAFETY: every load is of a crossing, which the caller
+                // keeps on the DEM; lanes off the row are masked (and do not
+                // fault).
                 let load = |g: &Group, off: isize| unsafe {
                     _mm256_cvtps_pd(_mm_maskload_ps(
                         z.as_ptr().wrapping_offset(g.near + off),

@@ -17,10 +17,10 @@
 //!   new post lands below it. A hull that outgrows `CAP` points (a dome's
 //!   every post is on it) moves to the heap.
 //!
-//! The slab made the tree 1.2x faster at 64 sectors (docs/BENCHMARKS.md,
-//! "Sector hulls in one array"): a level's cost was its fixed part (a
-//! node, two data-dependent branches, a pointer to a hull of six to nine
-//! points: "Per level of the tree" there), not moving points.
+//! A level's cost is its fixed part (a node, two data-dependent branches,
+//! a pointer to a hull of six to nine points), not moving points: that
+//! fixed part is what the slab shrinks (docs/BENCHMARKS.md, "Bounded
+//! sectors, and the sector tree's constant factor").
 //!
 //! Why the masks give the scalar pops: a point left of the new post `p` is
 //! popped when it lies on or below the segment from its left neighbour to
