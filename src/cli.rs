@@ -5,14 +5,12 @@
 use std::path::PathBuf;
 
 use clap::{ArgMatches, CommandFactory, FromArgMatches, Parser, Subcommand};
-use terrabake_format::trace::Method;
 
 use crate::io::synth::SynthKind;
-use crate::stage::args::{parse_point, parse_size, parse_sun};
+use crate::stage::args::parse_size;
 use crate::stages::cones::ConesStage;
 use crate::stages::horizons::HorizonsStage;
 use crate::stages::ingest::IngestOptions;
-use crate::terrain::sun::Sun;
 
 /// A stage run on its own: the asset, the stage's flags, and what every
 /// stage command takes.
@@ -210,63 +208,7 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
     /// Coordinates are local metres: x east and y north from the DEM's south-west post, z the
     /// heights' metres (`terrabake info` gives the extent). Use --view 1..16 for the built-in
     /// oblique views of the tracing benchmark, or --camera and --look-at.
-    Render {
-        /// The asset directory (made by `terrabake ingest` or `terrabake bake`).
-        asset: PathBuf,
-        /// Instead of a perspective view: an overhead map shaded from the stored horizons alone,
-        /// `sky` (overcast sky, radiosity) or `sun:AZ,EL` (sun disc and Stewart's sky); needs the
-        /// horizons stage.
-        #[arg(long, conflicts_with_all = ["view", "camera"])]
-        shade: Option<crate::present::shade::Shade>,
-        /// Camera position X,Y,Z (local metres).
-        #[arg(long, value_parser = parse_point, allow_hyphen_values = true, requires = "look_at", conflicts_with = "view")]
-        camera: Option<[f64; 3]>,
-        /// Point the camera looks at, X,Y,Z (local metres).
-        #[arg(long, value_parser = parse_point, allow_hyphen_values = true, requires = "camera")]
-        look_at: Option<[f64; 3]>,
-        /// One of the sixteen built-in oblique views (1..=16).
-        #[arg(long, value_parser = clap::value_parser!(u32).range(1..=16))]
-        view: Option<u32>,
-        /// Horizontal field of view, degrees (built-in views use 104).
-        #[arg(long, allow_hyphen_values = true, value_parser = crate::stage::args::parse_fov)]
-        fov: Option<f64>,
-        /// Image size WIDTHxHEIGHT.
-        #[arg(long, value_parser = parse_size, default_value = "800x600")]
-        size: (u32, u32),
-        /// Tracer: incremental, runs, hierarchical, parametric, brute-force (all give the same picture;
-        /// hierarchical needs the pyramid stage, parametric the cones stage).
-        #[arg(long, default_value = "hierarchical")]
-        method: Method,
-        /// Sun azimuth (clockwise from north) and elevation, degrees.
-        #[arg(long, value_parser = parse_sun, default_value = "135,35")]
-        sun: Sun,
-        /// Trace every N-th pixel only (others copy the nearest traced one).
-        #[arg(long, default_value_t = 1)]
-        every: u32,
-        /// No shadow rays.
-        #[arg(long)]
-        no_shadows: bool,
-        /// Sun shadows from the stored horizons (lit_fraction, soft, no shadow rays; needs the
-        /// horizons stage) instead of shadow rays.
-        #[arg(long, conflicts_with = "no_shadows")]
-        horizon_shadows: bool,
-        /// Vertical exaggeration (camera heights are then in exaggerated metres).
-        #[arg(long, default_value_t = 1.0, allow_hyphen_values = true, value_parser = crate::stage::args::parse_positive)]
-        exaggerate: f64,
-        /// Shading normals: smooth (post normals interpolated across cells) or flat (each
-        /// triangle's own, facets showing). Hits and shadows are exact either way.
-        #[arg(long, value_enum, default_value = "smooth")]
-        normals: crate::present::render::Normals,
-        /// The PNG to write (its directory is created).
-        #[arg(short, long)]
-        output: PathBuf,
-        /// Print rays per second and mean steps per ray.
-        #[arg(long)]
-        stats: bool,
-        /// Print the statistics as JSON.
-        #[arg(long)]
-        json: bool,
-    },
+    Render(crate::present::render::RenderArgs),
     /// Plan the horizons a budget needs: directions, encoding, predicted error, time and bytes.
     Plan(crate::plan::PlanArgs),
     /// Measure the horizon and sky-view factor errors a bake achieved against exact references,

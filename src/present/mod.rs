@@ -3,6 +3,7 @@
 //! page ([`page`]), the text the command line prints ([`report`]) and one
 //! point's exact horizon ([`profile`]).
 
+pub mod image;
 pub mod legend;
 pub mod page;
 pub mod profile;

@@ -11,6 +11,7 @@ use serde::Serialize;
 use terrabake_format::trace::{Counters, Method, Ray, Tracer};
 use terrabake_format::{Asset, Mmap};
 
+use crate::present::image::{write_png, Image};
 use crate::terrain::sun::Sun;
 
 /// A pinhole camera: horizontal field of view, up is +z.
@@ -36,14 +37,6 @@ pub struct RenderStats {
     pub mean_steps: f64,
     pub mean_cells: f64,
     pub mean_nodes_pushed: f64,
-}
-
-/// An RGB image, row-major from the top.
-#[derive(Debug, Clone)]
-pub struct Image {
-    pub width: u32,
-    pub height: u32,
-    pub rgb: Vec<u8>,
 }
 
 fn normalize(v: [f64; 3]) -> [f64; 3] {
@@ -450,17 +443,6 @@ pub fn builtin_views(tracer: &Tracer<'_, Mmap>, asset: &Asset<Mmap>) -> Vec<Came
         .collect()
 }
 
-/// Writes an RGB PNG (through a temporary file).
-pub fn write_png(path: &std::path::Path, image: &Image) -> anyhow::Result<()> {
-    crate::plumbing::output::write_atomically(path, |file| {
-        let mut enc = png::Encoder::new(file, image.width, image.height);
-        enc.set_color(png::ColorType::Rgb);
-        enc.set_depth(png::BitDepth::Eight);
-        enc.write_header()?.write_image_data(&image.rgb)?;
-        Ok(())
-    })
-}
-
 /// Refuses `method` on an asset without the layers it walks, naming the
 /// asset and the command that adds them.
 pub fn require_layers(
@@ -481,4 +463,132 @@ pub fn require_layers(
         ),
         None => Ok(()),
     }
+}
+
+/// `terrabake render`: a perspective view traced through an asset, or an
+/// overhead map shaded from its horizons (`--shade`).
+#[derive(clap::Args, Debug)]
+pub struct RenderArgs {
+    /// The asset directory (made by `terrabake ingest` or `terrabake bake`).
+    pub asset: std::path::PathBuf,
+    /// Instead of a perspective view: an overhead map shaded from the stored horizons alone,
+    /// `sky` (overcast sky, radiosity) or `sun:AZ,EL` (sun disc and Stewart's sky); needs the
+    /// horizons stage.
+    #[arg(long, conflicts_with_all = ["view", "camera"])]
+    pub shade: Option<crate::present::shade::Shade>,
+    /// Camera position X,Y,Z (local metres).
+    #[arg(long, value_parser = crate::stage::args::parse_point, allow_hyphen_values = true, requires = "look_at", conflicts_with = "view")]
+    pub camera: Option<[f64; 3]>,
+    /// Point the camera looks at, X,Y,Z (local metres).
+    #[arg(long, value_parser = crate::stage::args::parse_point, allow_hyphen_values = true, requires = "camera")]
+    pub look_at: Option<[f64; 3]>,
+    /// One of the sixteen built-in oblique views (1..=16).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=16))]
+    pub view: Option<u32>,
+    /// Horizontal field of view, degrees (built-in views use 104).
+    #[arg(long, allow_hyphen_values = true, value_parser = crate::stage::args::parse_fov)]
+    pub fov: Option<f64>,
+    /// Image size WIDTHxHEIGHT.
+    #[arg(long, value_parser = crate::stage::args::parse_size, default_value = "800x600")]
+    pub size: (u32, u32),
+    /// Tracer: incremental, runs, hierarchical, parametric, brute-force (all give the same picture;
+    /// hierarchical needs the pyramid stage, parametric the cones stage).
+    #[arg(long, default_value = "hierarchical")]
+    pub method: Method,
+    /// Sun azimuth (clockwise from north) and elevation, degrees.
+    #[arg(long, value_parser = crate::stage::args::parse_sun, default_value = "135,35")]
+    pub sun: Sun,
+    /// Trace every N-th pixel only (others copy the nearest traced one).
+    #[arg(long, default_value_t = 1)]
+    pub every: u32,
+    /// No shadow rays.
+    #[arg(long)]
+    pub no_shadows: bool,
+    /// Sun shadows from the stored horizons (lit_fraction, soft, no shadow rays; needs the
+    /// horizons stage) instead of shadow rays.
+    #[arg(long, conflicts_with = "no_shadows")]
+    pub horizon_shadows: bool,
+    /// Vertical exaggeration (camera heights are then in exaggerated metres).
+    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true, value_parser = crate::stage::args::parse_positive)]
+    pub exaggerate: f64,
+    /// Shading normals: smooth (post normals interpolated across cells) or flat (each
+    /// triangle's own, facets showing). Hits and shadows are exact either way.
+    #[arg(long, value_enum, default_value = "smooth")]
+    pub normals: crate::present::render::Normals,
+    /// The PNG to write (its directory is created).
+    #[arg(short, long)]
+    pub output: std::path::PathBuf,
+    /// Print rays per second and mean steps per ray.
+    #[arg(long)]
+    pub stats: bool,
+    /// Print the statistics as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `terrabake render`: an overhead map shaded from the horizons, or a
+/// perspective view traced through the asset.
+impl RenderArgs {
+    /// Renders and writes the PNG; `say` gets the message for people.
+    pub fn run(&self, say: &dyn Fn(String)) -> anyhow::Result<()> {
+        let a = self;
+        let opened = crate::stage::asset::open(&a.asset)?;
+        if let Some(shade) = a.shade {
+            crate::present::shade::write_shade_png(&opened, shade, &a.output, 4096)?;
+            say(format!("wrote {}", a.output.display()));
+            return Ok(());
+        }
+        let tracer = Tracer::new(&opened)?;
+        crate::present::render::require_layers(&tracer, a.method, &a.asset)?;
+        let mut cam = match (a.view, a.camera, a.look_at) {
+            (Some(v), _, _) => builtin_views(&tracer, &opened)[v as usize - 1],
+            (None, Some(eye), Some(look_at)) => Camera {
+                eye,
+                look_at,
+                fov: 60.0,
+            },
+            _ => anyhow::bail!("give --view N, or --camera X,Y,Z and --look-at X,Y,Z"),
+        };
+        cam.fov = a.fov.unwrap_or(cam.fov);
+        let opts = RenderOptions {
+            width: a.size.0,
+            height: a.size.1,
+            method: a.method,
+            sun: a.sun,
+            every: a.every,
+            shadows: match (a.no_shadows, a.horizon_shadows) {
+                (true, _) => Shadows::Off,
+                (false, true) => Shadows::Horizons,
+                (false, false) => Shadows::Rays,
+            },
+            exaggeration: a.exaggerate,
+            normals: a.normals,
+        };
+        let (image, st) = render(&opened, &tracer, &cam, &opts)?;
+        write_png(&a.output, &image)?;
+        let method = a.method.name();
+        if a.json {
+            let v = serde_json::json!({ "camera": cam, "method": method, "stats": st });
+            println!("{}", serde_json::to_string_pretty(&v)?);
+        } else if a.stats {
+            println!("{}", render_stats(method, &st));
+        }
+        say(format!("wrote {}", a.output.display()));
+        Ok(())
+    }
+}
+
+/// `render --stats`: rays, speed and the work per primary ray.
+pub fn render_stats(method: &str, st: &RenderStats) -> String {
+    format!(
+        "{method}: {} primary + {} shadow rays in {:.3} s on {} threads: {:.0} rays/s; per primary ray {:.2} steps, {:.2} cells, {:.2} nodes pushed",
+        st.primary_rays,
+        st.shadow_rays,
+        st.seconds,
+        st.threads,
+        st.rays_per_second,
+        st.mean_steps,
+        st.mean_cells,
+        st.mean_nodes_pushed
+    )
 }

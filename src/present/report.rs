@@ -213,21 +213,6 @@ pub fn verify(
     Ok(s)
 }
 
-/// `render --stats`: rays, speed and the work per primary ray.
-pub fn render_stats(method: &str, st: &crate::present::render::RenderStats) -> String {
-    format!(
-        "{method}: {} primary + {} shadow rays in {:.3} s on {} threads: {:.0} rays/s; per primary ray {:.2} steps, {:.2} cells, {:.2} nodes pushed",
-        st.primary_rays,
-        st.shadow_rays,
-        st.seconds,
-        st.threads,
-        st.rays_per_second,
-        st.mean_steps,
-        st.mean_cells,
-        st.mean_nodes_pushed
-    )
-}
-
 /// `horizons --json`: the stage's outcome and what its layer holds.
 pub fn horizons_json(
     outcome: &StageOutcome,

@@ -19,8 +19,8 @@ use terrabake_format::{Asset, Mmap};
 
 use crate::algorithms::horizon::band_bounds;
 use crate::algorithms::horizon::sky::{radiosity, sun_glow, SkyTable};
+use crate::present::image::Image;
 use crate::present::legend::{Legend, Ramp, Stretch};
-use crate::present::render::Image;
 use crate::stages::horizons::read_horizons;
 use crate::terrain::held::read_heights;
 use crate::terrain::sun::Sun;
@@ -161,5 +161,5 @@ pub fn write_shade_png(asset: &Asset<Mmap>, shade: Shade, out: &Path, max_side: 
         height: ph as u32 + legend_rows,
         rgb,
     };
-    crate::present::render::write_png(out, &map)
+    crate::present::image::write_png(out, &map)
 }
