@@ -198,145 +198,19 @@ impl<D: AsRef<[u8]>> Layer<D> {
     ) -> Result<Self> {
         let at = Location::layer(&path, entry.key());
         let data = bytes.as_ref();
-        let bad = |what: String| Err(Error::malformed(at.clone(), what));
-        if data.len() < HEADER_LEN + FOOTER_LEN {
-            return bad(format!(
-                "{} bytes is shorter than header and footer",
-                data.len()
-            ));
-        }
-        let header = LayerHeader::read_from_bytes(&data[..HEADER_LEN]).expect("sized");
-        if header.magic != LAYER_MAGIC {
-            return Err(Error::Magic {
-                at,
-                expected: LAYER_MAGIC,
-                got: header.magic,
-            });
-        }
-        if header.version.get() != FORMAT_VERSION {
-            return Err(Error::Version {
-                at,
-                expected: FORMAT_VERSION,
-                got: header.version.get(),
-            });
-        }
-        let computed = header.compute_xxh3();
-        if computed != header.header_xxh3.get() {
-            return Err(Error::Checksum {
-                at,
-                what: "layer header",
-                expected: header.header_xxh3.get(),
-                got: computed,
-            });
-        }
-        let footer = LayerFooter::read_from_bytes(&data[data.len() - FOOTER_LEN..]).expect("sized");
-        if footer.magic != FOOTER_MAGIC {
-            return bad("footer magic missing (file truncated or overwritten)".into());
-        }
-        if footer.version.get() != FORMAT_VERSION {
-            return Err(Error::Version {
-                at,
-                expected: FORMAT_VERSION,
-                got: footer.version.get(),
-            });
-        }
-        if footer.header_xxh3 != header.header_xxh3 {
-            return bad("footer does not belong to this header".into());
-        }
-        if header.reserved0.get() != 0 || header.reserved1.get() != 0 || footer.reserved != [0; 20]
-        {
-            return bad("reserved header or footer bytes are not zero".into());
-        }
-        if data.len() as u64 != entry.file_len {
-            return bad(format!(
-                "file is {} bytes, manifest says {}",
-                data.len(),
-                entry.file_len
-            ));
-        }
-        let elem = ElemType::from_code(header.elem_type.get());
-        let (w, h, ts, bands) = (
-            header.width.get(),
-            header.height.get(),
-            header.tile_size.get(),
-            header.bands.get(),
-        );
-        if elem != Some(entry.elem)
-            || w != entry.width
-            || h != entry.height
-            || ts != entry.tile_size
-            || bands != entry.bands
-            || header.level.get() != entry.level
-        {
-            return bad("header disagrees with the manifest's layer entry".into());
-        }
-        if !ts.is_power_of_two() || w == 0 || h == 0 || bands == 0 {
-            return bad(format!("invalid grid {w} x {h} x {bands}, tile {ts}"));
-        }
-        let (tx, ty) = (header.tiles_x.get(), header.tiles_y.get());
-        if tx != tiles_for(w, ts) || ty != tiles_for(h, ts) {
-            return bad(format!(
-                "tile grid {tx} x {ty} does not cover {w} x {h} with {ts}"
-            ));
-        }
-        let chunks = u64::from(bands) * u64::from(tx) * u64::from(ty);
-        let index_offset = footer.index_offset.get();
-        let index_end = data.len() as u64 - FOOTER_LEN as u64;
-        if footer.chunk_count.get() != chunks
-            || index_offset < HEADER_LEN as u64
-            || index_offset.checked_add(chunks * ENTRY_LEN as u64) != Some(index_end)
-        {
-            return bad(format!(
-                "chunk index ({} chunks at {index_offset}) does not fit the file",
-                footer.chunk_count.get()
-            ));
-        }
-        let index_bytes = &data[index_offset as usize..index_end as usize];
-        let index_xxh3 = xxh3(index_bytes);
-        if index_xxh3 != footer.index_xxh3.get() {
-            return Err(Error::Checksum {
-                at,
-                what: "chunk index",
-                expected: footer.index_xxh3.get(),
-                got: index_xxh3,
-            });
-        }
-        if format!("{index_xxh3:016x}") != entry.index_xxh3 {
-            return bad(format!(
-                "chunk index checksum {index_xxh3:016x} is not the manifest's {}",
-                entry.index_xxh3
-            ));
-        }
-        let tile_bytes = ts as u64 * ts as u64 * entry.elem.size() as u64;
-        let index = <[ChunkEntry]>::ref_from_bytes(index_bytes).expect("unaligned records");
-        for (i, c) in index.iter().enumerate() {
-            let (off, len) = (c.offset.get(), c.stored_len.get());
-            let codec = Codec::from_code(c.codec);
-            let ok = codec.is_some()
-                && c.reserved == [0; 3]
-                && u64::from(c.raw_len.get()) == tile_bytes
-                && off >= HEADER_LEN as u64
-                && off % CHUNK_ALIGN == 0
-                && off.checked_add(len).is_some_and(|end| end <= index_offset)
-                && match codec {
-                    Some(Codec::Raw) => len == tile_bytes,
-                    _ => len > 0,
-                };
-            if !ok {
-                let tile = chunk_tile(i as u64, tx, ty);
-                return Err(Error::malformed(
-                    at.with_tile(tile),
-                    format!(
-                        "chunk entry {i} is invalid (offset {off}, length {len}, codec {})",
-                        c.codec
-                    ),
-                ));
-            }
-        }
+        let (header, footer) = header_and_footer(&at, data)?;
+        let [tx, ty] = check_grid(&at, data.len(), &header, &entry)?;
+        let chunks = u64::from(header.bands.get()) * u64::from(tx) * u64::from(ty);
+        let index_offset = check_index(&at, data, &footer, chunks, &entry)?;
+        let index_end = data.len() - FOOTER_LEN;
+        let index = <[ChunkEntry]>::ref_from_bytes(&data[index_offset..index_end])
+            .expect("unaligned records");
+        let tile_bytes = u64::from(header.tile_size.get()).pow(2) * entry.elem.size() as u64;
+        check_chunks(&at, index, index_offset as u64, tile_bytes, [tx, ty])?;
         Ok(Self {
             id,
             checked: (0..chunks).map(|_| AtomicBool::new(false)).collect(),
-            index_offset: index_offset as usize,
+            index_offset,
             entry,
             path,
             bytes,
@@ -1041,3 +915,179 @@ const _: () = {
     send_sync::<Asset<Vec<u8>>>();
     send_sync::<Tile<'static, f32>>();
 };
+
+/// A layer file's header and footer, each checked: magic, version,
+/// checksum, the footer belonging to the header, reserved bytes zero.
+fn header_and_footer(at: &Location, data: &[u8]) -> Result<(LayerHeader, LayerFooter)> {
+    let at = at.clone();
+    let bad = |what: String| Err(Error::malformed(at.clone(), what));
+    if data.len() < HEADER_LEN + FOOTER_LEN {
+        return bad(format!(
+            "{} bytes is shorter than header and footer",
+            data.len()
+        ));
+    }
+    let header = LayerHeader::read_from_bytes(&data[..HEADER_LEN]).expect("sized");
+    if header.magic != LAYER_MAGIC {
+        return Err(Error::Magic {
+            at,
+            expected: LAYER_MAGIC,
+            got: header.magic,
+        });
+    }
+    if header.version.get() != FORMAT_VERSION {
+        return Err(Error::Version {
+            at,
+            expected: FORMAT_VERSION,
+            got: header.version.get(),
+        });
+    }
+    let computed = header.compute_xxh3();
+    if computed != header.header_xxh3.get() {
+        return Err(Error::Checksum {
+            at,
+            what: "layer header",
+            expected: header.header_xxh3.get(),
+            got: computed,
+        });
+    }
+    let footer = LayerFooter::read_from_bytes(&data[data.len() - FOOTER_LEN..]).expect("sized");
+    if footer.magic != FOOTER_MAGIC {
+        return bad("footer magic missing (file truncated or overwritten)".into());
+    }
+    if footer.version.get() != FORMAT_VERSION {
+        return Err(Error::Version {
+            at,
+            expected: FORMAT_VERSION,
+            got: footer.version.get(),
+        });
+    }
+    if footer.header_xxh3 != header.header_xxh3 {
+        return bad("footer does not belong to this header".into());
+    }
+    if header.reserved0.get() != 0 || header.reserved1.get() != 0 || footer.reserved != [0; 20] {
+        return bad("reserved header or footer bytes are not zero".into());
+    }
+    Ok((header, footer))
+}
+
+/// The file's length and the header's grid against the manifest's entry;
+/// the tile grid's size.
+fn check_grid(
+    at: &Location,
+    data_len: usize,
+    header: &LayerHeader,
+    entry: &LayerEntry,
+) -> Result<[u32; 2]> {
+    let bad = |what: String| Err(Error::malformed(at.clone(), what));
+    if data_len as u64 != entry.file_len {
+        return bad(format!(
+            "file is {} bytes, manifest says {}",
+            data_len, entry.file_len
+        ));
+    }
+    let elem = ElemType::from_code(header.elem_type.get());
+    let (w, h, ts, bands) = (
+        header.width.get(),
+        header.height.get(),
+        header.tile_size.get(),
+        header.bands.get(),
+    );
+    if elem != Some(entry.elem)
+        || w != entry.width
+        || h != entry.height
+        || ts != entry.tile_size
+        || bands != entry.bands
+        || header.level.get() != entry.level
+    {
+        return bad("header disagrees with the manifest's layer entry".into());
+    }
+    if !ts.is_power_of_two() || w == 0 || h == 0 || bands == 0 {
+        return bad(format!("invalid grid {w} x {h} x {bands}, tile {ts}"));
+    }
+    let (tx, ty) = (header.tiles_x.get(), header.tiles_y.get());
+    if tx != tiles_for(w, ts) || ty != tiles_for(h, ts) {
+        return bad(format!(
+            "tile grid {tx} x {ty} does not cover {w} x {h} with {ts}"
+        ));
+    }
+    Ok([tx, ty])
+}
+
+/// Where the chunk index of `chunks` entries starts, checked to fill the
+/// file up to the footer and to match its checksums (the footer's and the
+/// manifest's).
+fn check_index(
+    at: &Location,
+    data: &[u8],
+    footer: &LayerFooter,
+    chunks: u64,
+    entry: &LayerEntry,
+) -> Result<usize> {
+    let bad = |what: String| Err(Error::malformed(at.clone(), what));
+    let at = at.clone();
+    let index_offset = footer.index_offset.get();
+    let index_end = data.len() as u64 - FOOTER_LEN as u64;
+    if footer.chunk_count.get() != chunks
+        || index_offset < HEADER_LEN as u64
+        || index_offset.checked_add(chunks * ENTRY_LEN as u64) != Some(index_end)
+    {
+        return bad(format!(
+            "chunk index ({} chunks at {index_offset}) does not fit the file",
+            footer.chunk_count.get()
+        ));
+    }
+    let index_bytes = &data[index_offset as usize..index_end as usize];
+    let index_xxh3 = xxh3(index_bytes);
+    if index_xxh3 != footer.index_xxh3.get() {
+        return Err(Error::Checksum {
+            at,
+            what: "chunk index",
+            expected: footer.index_xxh3.get(),
+            got: index_xxh3,
+        });
+    }
+    if format!("{index_xxh3:016x}") != entry.index_xxh3 {
+        return bad(format!(
+            "chunk index checksum {index_xxh3:016x} is not the manifest's {}",
+            entry.index_xxh3
+        ));
+    }
+    Ok(index_offset as usize)
+}
+
+/// Every chunk entry in bounds: a known codec, whole tiles, aligned,
+/// before the index.
+fn check_chunks(
+    at: &Location,
+    index: &[ChunkEntry],
+    index_offset: u64,
+    tile_bytes: u64,
+    [tx, ty]: [u32; 2],
+) -> Result<()> {
+    for (i, c) in index.iter().enumerate() {
+        let (off, len) = (c.offset.get(), c.stored_len.get());
+        let codec = Codec::from_code(c.codec);
+        let ok = codec.is_some()
+            && c.reserved == [0; 3]
+            && u64::from(c.raw_len.get()) == tile_bytes
+            && off >= HEADER_LEN as u64
+            && off % CHUNK_ALIGN == 0
+            && off.checked_add(len).is_some_and(|end| end <= index_offset)
+            && match codec {
+                Some(Codec::Raw) => len == tile_bytes,
+                _ => len > 0,
+            };
+        if !ok {
+            let tile = chunk_tile(i as u64, tx, ty);
+            return Err(Error::malformed(
+                at.clone().with_tile(tile),
+                format!(
+                    "chunk entry {i} is invalid (offset {off}, length {len}, codec {})",
+                    c.codec
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
