@@ -263,75 +263,36 @@ pub fn render(
         _ => None,
     };
     let m = asset.manifest();
-    let (cell, rows_max) = ((m.cell_size.dx, m.cell_size.dy), f64::from(m.height - 1));
-    let height = asset.height()?;
+    let shading = Shading {
+        tracer,
+        opts,
+        height: asset.height()?,
+        cell: (m.cell_size.dx, m.cell_size.dy),
+        rows_max: f64::from(m.height - 1),
+        range,
+        sun,
+        sun_true,
+        e,
+        horizons,
+    };
     let start = std::time::Instant::now();
     let projector = camera.projector(w, h);
     let traced_rows: Vec<u32> = (0..h).step_by(every as usize).collect();
     let rows: Vec<anyhow::Result<TracedRow>> = traced_rows
         .par_iter()
         .map(|&py| {
-            let mut row = Vec::with_capacity(w.div_ceil(every) as usize);
-            let (mut counters, mut hits, mut shadow_rays) = (Counters::default(), 0u64, 0u64);
+            let mut row = TracedRow {
+                pixels: Vec::with_capacity(w.div_ceil(every) as usize),
+                counters: Counters::default(),
+                hits: 0,
+                shadow_rays: 0,
+            };
             for px in (0..w).step_by(every as usize) {
                 let ray = projector.ray(f64::from(px), f64::from(py));
-                // Exaggerating the terrain by e is tracing the ray with its z
-                // divided by e: the hit's t is the same.
-                let (hit, c) = tracer.trace(&squash(&ray, e), opts.method)?;
-                counters += c;
-                let colour = match hit {
-                    None => sky(&ray),
-                    Some(hit) => {
-                        hits += 1;
-                        let n = match opts.normals {
-                            Normals::Flat => hit.normal.map(f64::from),
-                            Normals::Smooth => smooth_normal_at(height, &hit, cell, rows_max)?,
-                        };
-                        let n = normalize([n[0] * e, n[1] * e, n[2]]);
-                        let lambert = (n[0] * sun[0] + n[1] * sun[1] + n[2] * sun[2]).max(0.0);
-                        let lit = if lambert <= 0.0 {
-                            0.0
-                        } else {
-                            match (opts.shadows, &horizons) {
-                                (Shadows::Rays, _) => {
-                                    shadow_rays += 1;
-                                    // Start just above the hit so the ray leaves its own triangle.
-                                    let lift = 1e-3 * (range.1 - range.0).max(1.0);
-                                    let origin = [hit.point[0], hit.point[1], hit.point[2] + lift];
-                                    let shadow = Ray {
-                                        origin,
-                                        dir: sun_true.direction(),
-                                        t_min: 0.0,
-                                        t_max: f64::INFINITY,
-                                    };
-                                    if tracer.trace(&shadow, opts.method)?.0.is_none() {
-                                        1.0
-                                    } else {
-                                        0.0
-                                    }
-                                }
-                                (Shadows::Horizons, Some(map)) => {
-                                    let (col, row) =
-                                        (hit.point[0] / cell.0, rows_max - hit.point[1] / cell.1);
-                                    lit_between_posts(map, (col, row), sun_true)?
-                                }
-                                _ => 1.0,
-                            }
-                        };
-                        let t = ((hit.point[2] - range.0) / (range.1 - range.0).max(1e-9)) as f32;
-                        let tint = crate::present::legend::hypsometric(t);
-                        let light = 0.25 + 0.75 * (lit * lambert) as f32;
-                        tint.map(|c| (c * light).clamp(0.0, 255.0) as u8)
-                    }
-                };
-                row.push(colour);
+                let colour = shading.pixel(&ray, &mut row)?;
+                row.pixels.push(colour);
             }
-            Ok(TracedRow {
-                pixels: row,
-                counters,
-                hits,
-                shadow_rays,
-            })
+            Ok(row)
         })
         .collect();
     let seconds = start.elapsed().as_secs_f64();
@@ -377,6 +338,82 @@ pub fn render(
         },
         stats,
     ))
+}
+
+/// What colouring a pixel needs, the same for every pixel of a view.
+struct Shading<'a> {
+    tracer: &'a Tracer<'a, Mmap>,
+    opts: &'a RenderOptions,
+    height: &'a terrabake_format::Layer<Mmap>,
+    cell: (f64, f64),
+    rows_max: f64,
+    /// The heights' range, for the hypsometric tint.
+    range: (f64, f64),
+    /// Unit vector towards the sun over the exaggerated surface.
+    sun: [f64; 3],
+    /// The sun over the true heights (lower by the exaggeration).
+    sun_true: Sun,
+    e: f64,
+    horizons: Option<terrabake_format::horizons::HorizonMap<'a, Mmap>>,
+}
+
+impl Shading<'_> {
+    /// The colour of the pixel whose ray is `ray`; what it cost goes into
+    /// `row`.
+    fn pixel(&self, ray: &Ray, row: &mut TracedRow) -> anyhow::Result<[u8; 3]> {
+        let (opts, e) = (self.opts, self.e);
+        // Exaggerating the terrain by e is tracing the ray with its z
+        // divided by e: the hit's t is the same.
+        let (hit, c) = self.tracer.trace(&squash(ray, e), opts.method)?;
+        row.counters += c;
+        let Some(hit) = hit else {
+            return Ok(sky(ray));
+        };
+        row.hits += 1;
+        let n = match opts.normals {
+            Normals::Flat => hit.normal.map(f64::from),
+            Normals::Smooth => smooth_normal_at(self.height, &hit, self.cell, self.rows_max)?,
+        };
+        let n = normalize([n[0] * e, n[1] * e, n[2]]);
+        let sun = self.sun;
+        let lambert = (n[0] * sun[0] + n[1] * sun[1] + n[2] * sun[2]).max(0.0);
+        let lit = if lambert <= 0.0 {
+            0.0
+        } else {
+            match (opts.shadows, &self.horizons) {
+                (Shadows::Rays, _) => {
+                    row.shadow_rays += 1;
+                    // Start just above the hit so the ray leaves its own triangle.
+                    let lift = 1e-3 * (self.range.1 - self.range.0).max(1.0);
+                    let origin = [hit.point[0], hit.point[1], hit.point[2] + lift];
+                    let shadow = Ray {
+                        origin,
+                        dir: self.sun_true.direction(),
+                        t_min: 0.0,
+                        t_max: f64::INFINITY,
+                    };
+                    if self.tracer.trace(&shadow, opts.method)?.0.is_none() {
+                        1.0
+                    } else {
+                        0.0
+                    }
+                }
+                (Shadows::Horizons, Some(map)) => {
+                    let (col, row) = (
+                        hit.point[0] / self.cell.0,
+                        self.rows_max - hit.point[1] / self.cell.1,
+                    );
+                    lit_between_posts(map, (col, row), self.sun_true)?
+                }
+                _ => 1.0,
+            }
+        };
+        let (lo, hi) = self.range;
+        let t = ((hit.point[2] - lo) / (hi - lo).max(1e-9)) as f32;
+        let tint = crate::present::legend::hypsometric(t);
+        let light = 0.25 + 0.75 * (lit * lambert) as f32;
+        Ok(tint.map(|c| (c * light).clamp(0.0, 255.0) as u8))
+    }
 }
 
 /// One traced row of pixels and what it cost.

@@ -454,7 +454,6 @@ impl Stage for HorizonsStage {
         let mine = share.bands(bands.len());
         // Tile rows outside the share's rows (all of them for bands outside
         // its bands) hold the fill value.
-        let wanted = |y0: usize| y0 < rows.end && y0 + ts > rows.start;
         for b in (0..bands.len()).filter(|b| !mine.contains(b)) {
             for y0 in (0..h).step_by(ts) {
                 out.push(b, y0, None)?;
@@ -471,178 +470,26 @@ impl Stage for HorizonsStage {
         let nodata = m.nodata.count > 0;
         // No post is higher: what lets a line's hull drop far vertices.
         let highest = m.height_range.map_or(f64::INFINITY, |r| f64::from(r.max));
+        let run = Run {
+            height,
+            dims: (w, h, ts),
+            rows,
+            cols,
+            window,
+            spacing: (dx, dy),
+            row_scale,
+            curvature,
+            bands: &bands,
+            mine,
+            out: &out,
+            distances: distances.as_ref(),
+            opts,
+            bar: &bar,
+        };
         if self.out_of_core() {
-            // Bands in batches of a fixed size, each batch's sweeps run tile
-            // row by tile row on every core and written in a fixed order
-            // (crate::plumbing::ordered): the layer's bytes are the same on every run
-            // and any number of threads.
-            let threads = rayon::current_num_threads();
-            let first = mine.start;
-            for (b, batch) in bands[mine.clone()].chunks(OUT_OF_CORE_BATCH).enumerate() {
-                // Each sweep with its row bands, in the order it must take them.
-                let sweeps: Vec<_> = batch
-                    .iter()
-                    .map(|band| {
-                        let sweep =
-                            self.row_bands(band, (w, h), (dx, dy), row_scale, nodata, highest);
-                        let rows = sweep.bands(ts);
-                        (sweep, rows)
-                    })
-                    .collect();
-                let steps = crate::terrain::tiling::row_bands(h, ts).len();
-                crate::plumbing::ordered::steps_in_order(
-                    sweeps,
-                    steps,
-                    threads,
-                    |(sweep, bands), k| {
-                        let rows = bands[k].clone();
-                        if sweep.independent() && !wanted(rows.start) {
-                            return Ok((rows.start, None, None));
-                        }
-                        let window = sweep.window(&rows);
-                        let rows_buf = read_rows(height, window.clone())?;
-                        let terrain = Terrain::window(&rows_buf, (w, h), window.start, (dx, dy))
-                            .with_row_scale(row_scale)
-                            .with_curvature(curvature);
-                        let mut angles = vec![0f32; rows.len() * w];
-                        let mut metres = distances.as_ref().map(|_| vec![0f32; rows.len() * w]);
-                        sweep.sweep(&terrain, rows.clone(), &mut angles, metres.as_deref_mut());
-                        let metres = distances
-                            .as_ref()
-                            .zip(metres.as_mut())
-                            .map(|(d, m)| d.encode(rows.start, m));
-                        Ok((
-                            rows.start,
-                            Some(out.encode(rows.start, &mut angles)),
-                            metres,
-                        ))
-                    },
-                    |j, k, (y0, tiles, metres)| {
-                        let band = first + b * OUT_OF_CORE_BATCH + j;
-                        if let Some(d) = &distances {
-                            d.push(band, y0, metres)?;
-                        }
-                        out.push(band, y0, tiles)?;
-                        if k + 1 == steps {
-                            bar.inc(1);
-                        }
-                        Ok(())
-                    },
-                )?;
-            }
+            self.sweep_out_of_core(&run, nodata, highest)?;
         } else {
-            let z = read_rows(height, window.clone())?;
-            let terrain = Terrain::window(&z, (w, h), window.start, (dx, dy))
-                .with_row_scale(row_scale)
-                .with_curvature(curvature);
-            let threads = rayon::current_num_threads().max(1);
-            let mut tile_row = vec![0f32; ts * w];
-            // A band's values over the window into `writer`, tile row by
-            // tile row (NaN outside the window, fill outside the share).
-            let mut write_band = |writer: &BandWriter, band: usize, values: &[f32]| -> Result<()> {
-                for y0 in (0..h).step_by(ts) {
-                    if !wanted(y0) {
-                        writer.push(band, y0, None)?;
-                        continue;
-                    }
-                    let tile_row = &mut tile_row[..ts.min(h - y0) * w];
-                    for (r, row) in tile_row.chunks_mut(w).enumerate() {
-                        match (y0 + r)
-                            .checked_sub(window.start)
-                            .filter(|&i| i < window.len())
-                        {
-                            Some(i) => row.copy_from_slice(&values[i * w..(i + 1) * w]),
-                            None => row.fill(f32::NAN),
-                        }
-                    }
-                    writer.write(band, y0, tile_row)?;
-                }
-                Ok(())
-            };
-            // Unbounded sectors hand their sorted orders on: each sweeps
-            // beside its opposite (whose ranks are its own reversed), a
-            // batch's pairs sort their ranks side by side, and each sector
-            // takes its processing order from the sector before
-            // (`sector::Ranks`).
-            let sector = |band: &Band| match band.kind {
-                BandKind::Sector { index, count } if opts.max_distance.is_none() => {
-                    Some((index, count))
-                }
-                _ => None,
-            };
-            let posts = bands[mine.clone()]
-                .iter()
-                .any(|b| sector(b).is_some())
-                .then(|| sector::DataPosts::of(&terrain));
-            // The last pair's ranks, for the first pair of the next batch.
-            let mut previous: Vec<sector::Ranks> = Vec::new();
-            // Each of a batch's pairs sorts and sweeps in the room the same
-            // place in the batch before left (`sector::Scratch`).
-            let rooms: Vec<sector::Scratch> = (0..threads).map(|_| Default::default()).collect();
-            for batch in opposite_pairs(&bands, mine.clone()).chunks(threads) {
-                let ranks: Vec<Vec<sector::Ranks>> = batch
-                    .par_iter()
-                    .zip(&rooms)
-                    .map(|(pair, room)| {
-                        let Some(posts) = posts.as_ref() else {
-                            return Vec::new();
-                        };
-                        let sort = |s| sector::Ranks::of_in(&terrain, posts, s, room);
-                        let first = sector(&bands[pair[0]]).map(sort);
-                        // The second is the first's opposite ([`opposite_pairs`]).
-                        let second = pair.get(1).and_then(|&b| sector(&bands[b])).map(|s| {
-                            first
-                                .as_ref()
-                                .and_then(sector::Ranks::opposite)
-                                .unwrap_or_else(|| sort(s))
-                        });
-                        first.into_iter().chain(second).collect()
-                    })
-                    .collect();
-                let known: Vec<&sector::Ranks> = ranks.iter().flatten().chain(&previous).collect();
-                let find = |s: Option<(usize, usize)>| {
-                    let s = s?;
-                    known.iter().copied().find(|r| r.sector() == s)
-                };
-                type Swept = (usize, Vec<f32>, Option<Vec<f32>>);
-                let results: Vec<Vec<Swept>> = batch
-                    .par_iter()
-                    .zip(&rooms)
-                    .map(|(pair, room)| {
-                        let sweep = |&b: &usize| {
-                            let band = &bands[b];
-                            let mut angles = vec![0f32; terrain.z.len()];
-                            let mut metres = distances.as_ref().map(|_| vec![0f32; angles.len()]);
-                            let s = sector(band);
-                            let shared = sector::Shared {
-                                posts: posts.as_ref(),
-                                ranks: find(s),
-                                previous: find(s.map(|(i, n)| ((i + n - 1) % n, n))),
-                                scratch: Some(room),
-                            };
-                            band_horizons_into(
-                                &terrain,
-                                band,
-                                opts,
-                                [rows.clone(), cols.clone()],
-                                (&mut angles, metres.as_deref_mut()),
-                                shared,
-                            );
-                            (b, angles, metres)
-                        };
-                        pair.iter().map(sweep).collect()
-                    })
-                    .collect();
-                drop(known);
-                previous = ranks.into_iter().next_back().unwrap_or_default();
-                for (band, angles, metres) in results.into_iter().flatten() {
-                    write_band(&out, band, &angles)?;
-                    if let (Some(d), Some(metres)) = (&distances, metres) {
-                        write_band(d, band, &metres)?;
-                    }
-                    bar.inc(1);
-                }
-            }
+            self.sweep_in_core(&run)?;
         }
         bar.finish_and_clear();
         let azimuths: Vec<f64> = bands.iter().map(|b| b.azimuth).collect();
@@ -651,6 +498,232 @@ impl Stage for HorizonsStage {
             layers.push(d.finish(&azimuths)?);
         }
         Ok(layers)
+    }
+}
+
+/// One run of the stage: what its two routes, out of core and in memory,
+/// share.
+struct Run<'a> {
+    height: &'a terrabake_format::Layer<Mmap>,
+    /// Width, height and tile size, posts.
+    dims: (usize, usize, usize),
+    /// The rows and columns computed (the share's, within the area of
+    /// interest), and the rows held (those and their reach).
+    rows: std::ops::Range<usize>,
+    cols: std::ops::Range<usize>,
+    window: std::ops::Range<usize>,
+    spacing: (f64, f64),
+    row_scale: RowScale<'a>,
+    curvature: f64,
+    bands: &'a [Band],
+    /// The share's bands.
+    mine: std::ops::Range<usize>,
+    out: &'a BandWriter,
+    distances: Option<&'a BandWriter>,
+    opts: BandOptions,
+    bar: &'a indicatif::ProgressBar,
+}
+
+impl Run<'_> {
+    /// Whether the tile row at `y0` holds rows of the share (the others
+    /// hold the fill value).
+    fn wanted(&self, y0: usize) -> bool {
+        y0 < self.rows.end && y0 + self.dims.2 > self.rows.start
+    }
+}
+
+impl HorizonsStage {
+    /// Bands in batches of a fixed size, each batch's sweeps run tile row
+    /// by tile row on every core and written in a fixed order
+    /// (`crate::plumbing::ordered`): the layer's bytes are the same on
+    /// every run and any number of threads.
+    fn sweep_out_of_core(&self, run: &Run, nodata: bool, highest: f64) -> Result<()> {
+        let (w, h, ts) = run.dims;
+        let (dx, dy) = run.spacing;
+        let (height, row_scale, curvature) = (run.height, run.row_scale, run.curvature);
+        let (bands, mine, out, distances, bar) =
+            (run.bands, run.mine.clone(), run.out, run.distances, run.bar);
+        let wanted = |y0: usize| run.wanted(y0);
+        let threads = rayon::current_num_threads();
+        let first = mine.start;
+        for (b, batch) in bands[mine.clone()].chunks(OUT_OF_CORE_BATCH).enumerate() {
+            // Each sweep with its row bands, in the order it must take them.
+            let sweeps: Vec<_> = batch
+                .iter()
+                .map(|band| {
+                    let sweep = self.row_bands(band, (w, h), (dx, dy), row_scale, nodata, highest);
+                    let rows = sweep.bands(ts);
+                    (sweep, rows)
+                })
+                .collect();
+            let steps = crate::terrain::tiling::row_bands(h, ts).len();
+            crate::plumbing::ordered::steps_in_order(
+                sweeps,
+                steps,
+                threads,
+                |(sweep, bands), k| {
+                    let rows = bands[k].clone();
+                    if sweep.independent() && !wanted(rows.start) {
+                        return Ok((rows.start, None, None));
+                    }
+                    let window = sweep.window(&rows);
+                    let rows_buf = read_rows(height, window.clone())?;
+                    let terrain = Terrain::window(&rows_buf, (w, h), window.start, (dx, dy))
+                        .with_row_scale(row_scale)
+                        .with_curvature(curvature);
+                    let mut angles = vec![0f32; rows.len() * w];
+                    let mut metres = distances.as_ref().map(|_| vec![0f32; rows.len() * w]);
+                    sweep.sweep(&terrain, rows.clone(), &mut angles, metres.as_deref_mut());
+                    let metres = distances
+                        .as_ref()
+                        .zip(metres.as_mut())
+                        .map(|(d, m)| d.encode(rows.start, m));
+                    Ok((
+                        rows.start,
+                        Some(out.encode(rows.start, &mut angles)),
+                        metres,
+                    ))
+                },
+                |j, k, (y0, tiles, metres)| {
+                    let band = first + b * OUT_OF_CORE_BATCH + j;
+                    if let Some(d) = &distances {
+                        d.push(band, y0, metres)?;
+                    }
+                    out.push(band, y0, tiles)?;
+                    if k + 1 == steps {
+                        bar.inc(1);
+                    }
+                    Ok(())
+                },
+            )?;
+        }
+        Ok(())
+    }
+
+    /// Every band of the share over the DEM (or the window of it bounded
+    /// lines need) held in memory, the bands of a batch in parallel.
+    fn sweep_in_core(&self, run: &Run) -> Result<()> {
+        let (w, h, ts) = run.dims;
+        let (dx, dy) = run.spacing;
+        let (height, row_scale, curvature, opts) =
+            (run.height, run.row_scale, run.curvature, run.opts);
+        let (bands, mine, out, distances, bar) =
+            (run.bands, run.mine.clone(), run.out, run.distances, run.bar);
+        let (rows, cols, window) = (&run.rows, &run.cols, &run.window);
+        let wanted = |y0: usize| run.wanted(y0);
+        let z = read_rows(height, window.clone())?;
+        let terrain = Terrain::window(&z, (w, h), window.start, (dx, dy))
+            .with_row_scale(row_scale)
+            .with_curvature(curvature);
+        let threads = rayon::current_num_threads().max(1);
+        let mut tile_row = vec![0f32; ts * w];
+        // A band's values over the window into `writer`, tile row by
+        // tile row (NaN outside the window, fill outside the share).
+        let mut write_band = |writer: &BandWriter, band: usize, values: &[f32]| -> Result<()> {
+            for y0 in (0..h).step_by(ts) {
+                if !wanted(y0) {
+                    writer.push(band, y0, None)?;
+                    continue;
+                }
+                let tile_row = &mut tile_row[..ts.min(h - y0) * w];
+                for (r, row) in tile_row.chunks_mut(w).enumerate() {
+                    match (y0 + r)
+                        .checked_sub(window.start)
+                        .filter(|&i| i < window.len())
+                    {
+                        Some(i) => row.copy_from_slice(&values[i * w..(i + 1) * w]),
+                        None => row.fill(f32::NAN),
+                    }
+                }
+                writer.write(band, y0, tile_row)?;
+            }
+            Ok(())
+        };
+        // Unbounded sectors hand their sorted orders on: each sweeps
+        // beside its opposite (whose ranks are its own reversed), a
+        // batch's pairs sort their ranks side by side, and each sector
+        // takes its processing order from the sector before
+        // (`sector::Ranks`).
+        let sector = |band: &Band| match band.kind {
+            BandKind::Sector { index, count } if opts.max_distance.is_none() => {
+                Some((index, count))
+            }
+            _ => None,
+        };
+        let posts = bands[mine.clone()]
+            .iter()
+            .any(|b| sector(b).is_some())
+            .then(|| sector::DataPosts::of(&terrain));
+        // The last pair's ranks, for the first pair of the next batch.
+        let mut previous: Vec<sector::Ranks> = Vec::new();
+        // Each of a batch's pairs sorts and sweeps in the room the same
+        // place in the batch before left (`sector::Scratch`).
+        let rooms: Vec<sector::Scratch> = (0..threads).map(|_| Default::default()).collect();
+        for batch in opposite_pairs(bands, mine.clone()).chunks(threads) {
+            let ranks: Vec<Vec<sector::Ranks>> = batch
+                .par_iter()
+                .zip(&rooms)
+                .map(|(pair, room)| {
+                    let Some(posts) = posts.as_ref() else {
+                        return Vec::new();
+                    };
+                    let sort = |s| sector::Ranks::of_in(&terrain, posts, s, room);
+                    let first = sector(&bands[pair[0]]).map(sort);
+                    // The second is the first's opposite ([`opposite_pairs`]).
+                    let second = pair.get(1).and_then(|&b| sector(&bands[b])).map(|s| {
+                        first
+                            .as_ref()
+                            .and_then(sector::Ranks::opposite)
+                            .unwrap_or_else(|| sort(s))
+                    });
+                    first.into_iter().chain(second).collect()
+                })
+                .collect();
+            let known: Vec<&sector::Ranks> = ranks.iter().flatten().chain(&previous).collect();
+            let find = |s: Option<(usize, usize)>| {
+                let s = s?;
+                known.iter().copied().find(|r| r.sector() == s)
+            };
+            type Swept = (usize, Vec<f32>, Option<Vec<f32>>);
+            let results: Vec<Vec<Swept>> = batch
+                .par_iter()
+                .zip(&rooms)
+                .map(|(pair, room)| {
+                    let sweep = |&b: &usize| {
+                        let band = &bands[b];
+                        let mut angles = vec![0f32; terrain.z.len()];
+                        let mut metres = distances.as_ref().map(|_| vec![0f32; angles.len()]);
+                        let s = sector(band);
+                        let shared = sector::Shared {
+                            posts: posts.as_ref(),
+                            ranks: find(s),
+                            previous: find(s.map(|(i, n)| ((i + n - 1) % n, n))),
+                            scratch: Some(room),
+                        };
+                        band_horizons_into(
+                            &terrain,
+                            band,
+                            opts,
+                            [rows.clone(), cols.clone()],
+                            (&mut angles, metres.as_deref_mut()),
+                            shared,
+                        );
+                        (b, angles, metres)
+                    };
+                    pair.iter().map(sweep).collect()
+                })
+                .collect();
+            drop(known);
+            previous = ranks.into_iter().next_back().unwrap_or_default();
+            for (band, angles, metres) in results.into_iter().flatten() {
+                write_band(out, band, &angles)?;
+                if let (Some(d), Some(metres)) = (&distances, metres) {
+                    write_band(d, band, &metres)?;
+                }
+                bar.inc(1);
+            }
+        }
+        Ok(())
     }
 }
 
