@@ -492,65 +492,27 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
     let curvature = HorizonsStage::default().curvature_coefficient(asset);
     let (dx, dy) = (m.cell_size.dx, m.cell_size.dy);
     let start = Instant::now();
-    let dem = if needs.horizons() {
-        Some(crate::terrain::held::HeldDem::read(asset)?)
-    } else {
-        None
+    let dem = needs
+        .horizons()
+        .then(|| crate::terrain::held::HeldDem::read(asset))
+        .transpose()?;
+    let sampling = Sampling {
+        samples: 240,
+        seed: PILOT_SEED,
+        directions: PILOT_DIRECTIONS,
+        cuts: &DISTANCES,
     };
-    let mut pilot = if let Some(dem) = &dem {
-        Some(Pilot::measure(
-            asset,
-            dem,
-            curvature,
-            [0, 0, w, h],
-            &Sampling {
-                samples: 240,
-                seed: PILOT_SEED,
-                directions: PILOT_DIRECTIONS,
-                cuts: &DISTANCES,
-            },
-            progress,
-        )?)
-    } else {
-        None
-    };
-    let relief_m = m
-        .height_range
-        .map_or(0.0, |r| f64::from(r.max) - f64::from(r.min));
-    let mut scene = Scene {
-        width: m.width,
-        height: m.height,
-        cell_size: (dx, dy),
-        relief_m,
-        nodata_share: m.nodata.count as f64 / posts.max(1) as f64,
-        curvature: curvature > 0.0,
-        extent_m: ((w.saturating_sub(1)) as f64 * dx).hypot((h.saturating_sub(1)) as f64 * dy),
-        latitude_deg: m
-            .georef
-            .as_ref()
-            .and_then(|g| crate::terrain::geo::central_latitude(g, m.width, m.height)),
-        dx_range_m: pilot.as_ref().map(|p| p.dx_range),
-        slope_p50_deg: pilot
-            .as_ref()
-            .map(|p| quantile_unsorted(&mut p.slope_deg.clone(), 0.5)),
-        slope_p90_deg: pilot
-            .as_ref()
-            .map(|p| quantile_unsorted(&mut p.slope_deg.clone(), 0.9)),
-        pilot_posts: pilot.as_ref().map_or(0, |p| p.posts.len()),
-        pilot_directions: pilot.as_ref().map_or(0, Pilot::directions_measured),
-        pilot_reference_directions: pilot.as_ref().map_or(0, |p| p.reference.len()),
-        pilot_seconds: start.elapsed().as_secs_f64(),
-    };
-    let mut sun = request.sun.clone();
-    if let Some(day) = request.sun_day {
-        let Some(latitude) = scene.latitude_deg else {
-            bail!(
-                "{}: --sun-day needs the scene's latitude, and this DEM is neither geographic nor WGS 84 UTM; give the sun positions with --sun AZ,EL;AZ,EL...",
-                asset.dir().display()
-            );
-        };
-        sun.extend(crate::terrain::sun::sun_path(latitude, day));
-    }
+    let mut pilot = dem
+        .as_ref()
+        .map(|dem| Pilot::measure(asset, dem, curvature, [0, 0, w, h], &sampling, progress))
+        .transpose()?;
+    let mut scene = describe_scene(
+        asset,
+        pilot.as_ref(),
+        curvature,
+        start.elapsed().as_secs_f64(),
+    );
+    let sun = sun_positions(asset, request, &scene)?;
     let mut sky_layers = Vec::new();
     if needs.svf() {
         sky_layers.push(SkyLayer::Svf);
@@ -610,28 +572,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
     let planes = |size: usize| 2 * layer_bytes(cells.0, cells.1, tile, size, 1);
     let cones_bytes = planes(2);
     if pyramid {
-        choices.push(Choice {
-            what: "tracing".into(),
-            chosen: if cones {
-                "pyramid and cone planes".into()
-            } else {
-                "max/min pyramid".into()
-            },
-            why: if cones {
-                "fast tracing: parametric steps through the cone planes, the pyramid's exact hits in fewer steps".into()
-            } else {
-                "exact hierarchical tracing needs only the pyramid".into()
-            },
-            rejected: Some(if cones {
-                "the pyramid alone: the same hits, more steps per ray (docs/TRACING.md)".into()
-            } else {
-                format!(
-                    "cone planes as well: faster rays for {:.1} MiB more and {:.1} s (ask for fast_tracing)",
-                    cones_bytes as f64 / 1048576.0,
-                    posts as f64 * CONES_SECONDS_PER_POST
-                )
-            }),
-        });
+        choices.push(tracing_choice(cones, cones_bytes, posts));
     }
     let mut seconds = 0.0;
     // The asset on disk: the heights (as stored, when they are zstd) and
@@ -639,15 +580,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
     let mut bytes = heights
         .filter(|l| l.codec == Codec::Zstd && l.tile_size as usize == tile)
         .map_or(layer_bytes(w, h, tile, 4, 1), |l| l.file_len);
-    // The pilot holds the DEM (4 bytes a post), its blocks' highest posts
-    // and, per post and reference direction, the exact horizon (8 bytes)
-    // and its cuts (4 bytes each).
-    let mut memory_mib = BASE_MIB;
-    if let Some(pilot) = &pilot {
-        let per_post = pilot.directions_measured() * (8 + 4 * DISTANCES.len());
-        let held = 4 * posts as usize + pilot.bounds_bytes() + pilot.posts.len() * per_post;
-        memory_mib += held as f64 / 1048576.0;
-    }
+    let mut memory_mib = BASE_MIB + pilot.as_ref().map_or(0.0, |p| p.memory_mib(posts));
     if let Some(c) = &chosen {
         seconds += c.seconds;
         bytes += c.bytes;
@@ -658,30 +591,162 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
         bytes += pyramid_bytes;
     }
     if cones {
-        choices.push(Choice {
-            what: "cone planes".into(),
-            chosen: format!("{CONE_SLICES} slices, u16"),
-            why: format!(
-                "{CONE_SLICES} slices step within 6 % of the exact cones on the bundled tile; u16 planes (conservative) step and trace as f32 do, in half the bytes (docs/BENCHMARKS.md, cone planes)"
-            ),
-            rejected: Some(format!(
-                "256 slices: within 1.3 % of exact, 2.7x the bake; f32 planes: {:.1} MiB more for the same steps",
-                (planes(4) - cones_bytes) as f64 / 1048576.0
-            )),
-        });
+        choices.push(cones_choice(planes(4) - cones_bytes));
         seconds += posts as f64 * CONES_SECONDS_PER_POST;
         bytes += cones_bytes;
         let in_core = BASE_MIB + CONES_BYTES_PER_POST * posts as f64 / 1048576.0;
         // Cones bake in windows within a memory limit.
         memory_mib = memory_mib.max(budget.memory.map_or(in_core, |l| in_core.min(l as f64)));
     }
-    let line_row = |t: usize| {
-        let at = LineCosts { tile: t, ..costs };
-        chosen
+    choices.push(tiles_choice(&costs, chosen.as_ref(), ingested_tile));
+    let (codec, bytes) = choose_codec(asset, budget, (w, h, tile), bytes, &mut choices)?;
+    check_limits(budget, chosen.is_some(), bytes, seconds, memory_mib)?;
+    Ok(Plan {
+        budget: *budget,
+        needs: needs.clone(),
+        sun,
+        scene,
+        chosen,
+        safe_distance,
+        sky_layers,
+        tile: tile as u32,
+        codec,
+        pyramid,
+        cones,
+        seconds,
+        time_models,
+        bytes,
+        memory_mib,
+        choices,
+        candidates,
+        overridden: Vec::new(),
+        baked: None,
+    })
+}
+
+/// The scene as the plan reports it: the DEM's grid, relief and nodata,
+/// and what the pilot measured of its slopes.
+fn describe_scene(
+    asset: &Asset<Mmap>,
+    pilot: Option<&Pilot>,
+    curvature: f64,
+    pilot_seconds: f64,
+) -> Scene {
+    let m = asset.manifest();
+    let (w, h) = (m.width as usize, m.height as usize);
+    let (dx, dy) = (m.cell_size.dx, m.cell_size.dy);
+    let posts = (w * h) as u64;
+    let relief_m = m
+        .height_range
+        .map_or(0.0, |r| f64::from(r.max) - f64::from(r.min));
+    Scene {
+        width: m.width,
+        height: m.height,
+        cell_size: (dx, dy),
+        relief_m,
+        nodata_share: m.nodata.count as f64 / posts.max(1) as f64,
+        curvature: curvature > 0.0,
+        extent_m: ((w.saturating_sub(1)) as f64 * dx).hypot((h.saturating_sub(1)) as f64 * dy),
+        latitude_deg: m
+            .georef
             .as_ref()
-            .map_or(0.0, |c| at.memory_mib(c.sectors, c.max_distance))
+            .and_then(|g| crate::terrain::geo::central_latitude(g, m.width, m.height)),
+        dx_range_m: pilot.map(|p| p.dx_range),
+        slope_p50_deg: pilot
+            .as_ref()
+            .map(|p| quantile_unsorted(&mut p.slope_deg.clone(), 0.5)),
+        slope_p90_deg: pilot
+            .as_ref()
+            .map(|p| quantile_unsorted(&mut p.slope_deg.clone(), 0.9)),
+        pilot_posts: pilot.map_or(0, |p| p.posts.len()),
+        pilot_directions: pilot.map_or(0, Pilot::directions_measured),
+        pilot_reference_directions: pilot.map_or(0, |p| p.reference.len()),
+        pilot_seconds,
+    }
+}
+
+/// The sun positions a request names: its own, and those of its day's path
+/// at the scene's latitude.
+fn sun_positions(
+    asset: &Asset<Mmap>,
+    request: &Request,
+    scene: &Scene,
+) -> Result<Vec<SunPosition>> {
+    let mut sun = request.sun.clone();
+    if let Some(day) = request.sun_day {
+        let Some(latitude) = scene.latitude_deg else {
+            bail!(
+                "{}: --sun-day needs the scene's latitude, and this DEM is neither geographic nor WGS 84 UTM; give the sun positions with --sun AZ,EL;AZ,EL...",
+                asset.dir().display()
+            );
+        };
+        sun.extend(crate::terrain::sun::sun_path(latitude, day));
+    }
+    Ok(sun)
+}
+
+/// Why the plan traces with the pyramid alone, or with the cone planes too.
+fn tracing_choice(cones: bool, cones_bytes: u64, posts: u64) -> Choice {
+    Choice {
+        what: "tracing".into(),
+        chosen: if cones {
+            "pyramid and cone planes".into()
+        } else {
+            "max/min pyramid".into()
+        },
+        why: if cones {
+            "fast tracing: parametric steps through the cone planes, the pyramid's exact hits in fewer steps".into()
+        } else {
+            "exact hierarchical tracing needs only the pyramid".into()
+        },
+        rejected: Some(if cones {
+            "the pyramid alone: the same hits, more steps per ray (docs/TRACING.md)".into()
+        } else {
+            format!(
+                "cone planes as well: faster rays for {:.1} MiB more and {:.1} s (ask for fast_tracing)",
+                cones_bytes as f64 / 1048576.0,
+                posts as f64 * CONES_SECONDS_PER_POST
+            )
+        }),
+    }
+}
+
+impl Pilot {
+    /// What the pilot holds, MiB: the DEM (4 bytes a post), its blocks'
+    /// highest posts and, per post and reference direction, the exact
+    /// horizon (8 bytes) and its cuts (4 bytes each).
+    fn memory_mib(&self, posts: u64) -> f64 {
+        let per_post = self.directions_measured() * (8 + 4 * DISTANCES.len());
+        let held = 4 * posts as usize + self.bounds_bytes() + self.posts.len() * per_post;
+        held as f64 / 1048576.0
+    }
+}
+
+/// Why the cone planes have the slices and encoding they have; `f32_more`
+/// is what f32 planes would add, bytes.
+fn cones_choice(f32_more: u64) -> Choice {
+    Choice {
+        what: "cone planes".into(),
+        chosen: format!("{CONE_SLICES} slices, u16"),
+        why: format!(
+            "{CONE_SLICES} slices step within 6 % of the exact cones on the bundled tile; u16 planes (conservative) step and trace as f32 do, in half the bytes (docs/BENCHMARKS.md, cone planes)"
+        ),
+        rejected: Some(format!(
+            "256 slices: within 1.3 % of exact, 2.7x the bake; f32 planes: {:.1} MiB more for the same steps",
+            f32_more as f64 / 1048576.0
+        )),
+    }
+}
+
+/// Why the tiles are the ingest's, or smaller (`costs.tile`) for the line
+/// sweeps' tile rows to fit the memory limit.
+fn tiles_choice(costs: &LineCosts, chosen: Option<&Candidate>, ingested_tile: usize) -> Choice {
+    let tile = costs.tile;
+    let line_row = |t: usize| {
+        let at = LineCosts { tile: t, ..*costs };
+        chosen.map_or(0.0, |c| at.memory_mib(c.sectors, c.max_distance))
     };
-    choices.push(if tile == ingested_tile {
+    if tile == ingested_tile {
         Choice {
             what: "tiles".into(),
             chosen: format!("{tile} posts"),
@@ -701,9 +766,19 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
                 line_row(ingested_tile)
             )),
         }
-    });
-    // The heights' codec: raw (read in place), or zstd when only that fits
-    // the bytes limit.
+    }
+}
+
+/// The heights' codec: raw (read in place), or zstd when only that fits
+/// the bytes limit; with the plan's bytes so far, its bytes then.
+fn choose_codec(
+    asset: &Asset<Mmap>,
+    budget: &Budget,
+    (w, h, tile): (usize, usize, usize),
+    mut bytes: u64,
+    choices: &mut Vec<Choice>,
+) -> Result<(Codec, u64)> {
+    let heights = asset.manifest().layer(terrabake_format::HEIGHT_LAYER, 0);
     let ingested_codec = heights.map_or(Codec::Raw, |l| l.codec);
     let mut codec = ingested_codec;
     if let Some(limit) = budget.bytes {
@@ -741,7 +816,19 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
             rejected: Some("zstd heights: fewer bytes, a decode on every tile read (chosen when only it fits the bytes limit)".into()),
         });
     }
-    let what_to_relax = if chosen.is_some() {
+    Ok((codec, bytes))
+}
+
+/// Refuses a plan whose predicted bytes, time or memory pass the budget's
+/// limits, naming what to relax.
+fn check_limits(
+    budget: &Budget,
+    horizons: bool,
+    bytes: u64,
+    seconds: f64,
+    memory_mib: f64,
+) -> Result<()> {
+    let what_to_relax = if horizons {
         ", or horizon (fewer directions)"
     } else {
         ", or drop fast_tracing"
@@ -759,27 +846,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Resul
             }
         }
     }
-    Ok(Plan {
-        budget: *budget,
-        needs: needs.clone(),
-        sun,
-        scene,
-        chosen,
-        safe_distance,
-        sky_layers,
-        tile: tile as u32,
-        codec,
-        pyramid,
-        cones,
-        seconds,
-        time_models,
-        bytes,
-        memory_mib,
-        choices,
-        candidates,
-        overridden: Vec::new(),
-        baked: None,
-    })
+    Ok(())
 }
 
 /// What [`plan_horizons`] decided.
@@ -788,6 +855,191 @@ struct HorizonPlan {
     safe_distance: Option<f64>,
     choices: Vec<Choice>,
     candidates: Vec<Candidate>,
+}
+
+/// Why the plan's horizons are exact sight lines.
+fn method_choice() -> Choice {
+    Choice {
+        what: "method".into(),
+        chosen: "line (exact sight lines)".into(),
+        why: "exact at every stored direction; the only errors left are between directions, the distance cut and the encoding".into(),
+        rejected: Some(
+            "sector (Stewart's wedges: biased high by definition, its RMS error levels off at 0.67 deg however many sectors) and sampled (nearest-post rounding: levels off at 0.41 deg); 16 lines (0.12 deg) beat both in less time than either's fastest (docs/BENCHMARKS.md, horizon methods on the SRTM crop)".into(),
+        ),
+    }
+}
+
+/// Why the directions' tolerance is what it is: `tolerance` (degrees, and
+/// the crossings a post its grid steps cost) against `at_default`
+/// crossings at the default, and the first wider one over the budget.
+fn tolerance_choice(
+    sectors: usize,
+    tolerance: (f64, usize),
+    at_default: usize,
+    too_wide: Option<(f64, usize, f64, f64)>,
+) -> Choice {
+    Choice {
+        what: "tolerance".into(),
+        chosen: format!("{:.2} deg", tolerance.0),
+        why: if tolerance.1 < at_default {
+            format!(
+                "the widest up to a third of the spacing whose error between directions stays within {SHARE_DIRECTIONS} of the budget: its grid steps cost {} crossings a post, against {at_default} within {:.2} deg (the default)",
+                tolerance.1,
+                default_tolerance(sectors),
+            )
+        } else {
+            format!(
+                "the stage's default, an eighth of the spacing: {at_default} crossings a post, and no wider tolerance up to a third both costs fewer and stays within {SHARE_DIRECTIONS} of the budget"
+            )
+        },
+        rejected: too_wide.map(|(tol, cost, horizon, svf)| {
+            format!(
+                "{tol:.2} deg: {cost} crossings a post, but its error between directions at p99.5, the quantile that decides (horizon {horizon:.3} deg, svf {svf:.4}), is over the share"
+            )
+        }),
+    }
+}
+
+/// Why the angles are stored as `encoding`, and the coarser ones over the
+/// budget.
+fn encoding_choice(encoding: AngleEncoding) -> Choice {
+    let finer = [AngleEncoding::U8, AngleEncoding::U16]
+        .into_iter()
+        .filter(|e| e.max_error_deg() > encoding.max_error_deg())
+        .map(|e| {
+            format!(
+                "{} (worst error {:.3} deg: over its share of the budget)",
+                e.name(),
+                e.max_error_deg()
+            )
+        })
+        .collect::<Vec<_>>();
+    Choice {
+        what: "encoding".into(),
+        chosen: encoding.name().into(),
+        why: format!(
+            "the coarsest whose worst error ({:.4} deg) is within {SHARE_QUANTISATION} of the budget",
+            encoding.max_error_deg()
+        ),
+        rejected: (!finer.is_empty()).then(|| finer.join("; ")),
+    }
+}
+
+/// Why the horizons look no farther than `safe_distance` (or to the edge).
+fn distance_choice(scene: &Scene, curvature: f64, safe_distance: Option<f64>) -> Choice {
+    // Relief and curvature bound what lies beyond D: no post sees terrain
+    // there above atan(relief / D - c D); past sqrt(relief / c) it lies
+    // below every post's horizontal plane.
+    let relief = scene.relief_m;
+    let bound = |d: f64| (relief / d - curvature * d).atan().to_degrees();
+    let below_horizontal = (curvature > 0.0).then(|| (relief / curvature).sqrt());
+    let distance_why = match safe_distance {
+        Some(d) => format!(
+            "beyond {:.1} km the terrain moves the pilot's horizons by at most {} of the budget (p99.5); relief and curvature allow at most {:.2} deg there{}",
+            d / 1000.0,
+            SHARE_DISTANCE,
+            bound(d),
+            below_horizontal.map_or(String::new(), |b| format!(
+                ", and nothing past {:.0} km rises above a post's horizontal",
+                b / 1000.0
+            )),
+        ),
+        None => "every distance within the DEM moves some horizon by more than its share of the budget".into(),
+    };
+    Choice {
+        what: "distance".into(),
+        chosen: safe_distance.map_or("the whole DEM".into(), |d| format!("{:.1} km", d / 1000.0)),
+        why: distance_why,
+        rejected: safe_distance
+            .and_then(|d| DISTANCES.into_iter().rev().find(|&x| x < d))
+            .map(|d| format!("{:.2} km: the terrain beyond moves the horizons by more than {SHARE_DISTANCE} of the budget", d / 1000.0)),
+    }
+}
+
+/// Why the sweeps run bounded in core, or to the edge out of core.
+fn route_choice(
+    costs: &LineCosts,
+    sectors: usize,
+    safe_distance: Option<f64>,
+    bounded: Option<f64>,
+) -> Choice {
+    let route_rejected = match (safe_distance, bounded) {
+        (Some(d), None) => Some(format!(
+            "bounded to {:.1} km: {:.1} s and {:.0} MiB (the DEM held) against {:.1} s and {:.0} MiB to the edge",
+            d / 1000.0,
+            costs.seconds(sectors, Some(d)),
+            costs.memory_mib(sectors, Some(d)),
+            costs.seconds(sectors, None),
+            costs.memory_mib(sectors, None),
+        )),
+        (_, Some(d)) => Some(format!(
+            "sweeps to the edge: {:.1} s against {:.1} s bounded to {:.1} km",
+            costs.seconds(sectors, None),
+            costs.seconds(sectors, Some(d)),
+            d / 1000.0
+        )),
+        (None, None) => None,
+    };
+    Choice {
+        what: "route".into(),
+        chosen: match bounded {
+            Some(d) => format!("bounded lines, {:.1} km, in core", d / 1000.0),
+            None => "line sweeps to the edge, out of core".into(),
+        },
+        why: match bounded {
+            Some(_) => {
+                "faster than the sweeps: each post walks only its reach (the DEM held in memory)"
+                    .into()
+            }
+            None => "the sweeps stream tile rows: memory grows with the width, not the DEM".into(),
+        },
+        rejected: route_rejected,
+    }
+}
+
+/// The encoding: the coarsest whose worst error is within its share of
+/// the budget, in degrees and (for the svf, which a change of h radians in
+/// every direction moves by at most h) in radians, and whose rounding alone
+/// flips few enough sun/shade states.
+fn choose_encoding(pilot: &Pilot, suns: &[PilotSun], budget: &Budget) -> AngleEncoding {
+    let share = SHARE_QUANTISATION;
+    let every_reference: Vec<usize> = (0..pilot.reference.len()).collect();
+    [AngleEncoding::U8, AngleEncoding::U16, AngleEncoding::F32]
+        .into_iter()
+        .find(|&e| {
+            e.max_error_deg() <= share * budget.horizon
+                && budget
+                    .svf
+                    .is_none_or(|s| e.max_error_deg().to_radians() <= share * s)
+                && (budget.shade.is_none()
+                    || errors(pilot, &every_reference, suns, |i, j| {
+                        stored_as(e, pilot.exact[i][j])
+                    })
+                    .within(budget, share))
+        })
+        .unwrap_or(AngleEncoding::F32)
+}
+
+/// Why no count of directions meets the budget: what the most directions
+/// (`closest`) leave, and what to relax to, from what they leave at the
+/// quantile that decides (`deciding`: horizon, svf) over the share of the
+/// budget it gets.
+fn unmet(budget: &Budget, closest: &Candidate, deciding: (f64, f64)) -> anyhow::Error {
+    anyhow::anyhow!(
+        "budget {budget} cannot be met with up to {} line directions on this scene: {} directions leave a horizon p99 of {:.3} degrees and an svf p99 of {:.4} between them{}; relax horizon to at least {:.3}{}",
+        closest.sectors,
+        closest.sectors,
+        closest.horizon_p99_deg,
+        closest.svf_p99,
+        closest
+            .shade_share
+            .map_or(String::new(), |s| format!(", and {:.4} of the sun/shade states wrong", s)),
+        round_up(deciding.0 / SHARE_DIRECTIONS, 3),
+        budget.svf.map_or(String::new(), |_| format!(
+            " and svf to at least {:.4}",
+            round_up(deciding.1 / SHARE_DIRECTIONS, 4)
+        )),
+    )
 }
 
 /// The horizons: encoding, distance limit, directions and route, each from
@@ -801,26 +1053,8 @@ fn plan_horizons(
     scene: &Scene,
     curvature: f64,
 ) -> Result<HorizonPlan> {
-    // The encoding: the coarsest whose worst error is within its share of
-    // the budget, in degrees and (for the svf, which a change of h radians
-    // in every direction moves by at most h) in radians, and whose rounding
-    // alone flips few enough sun/shade states.
-    let share = SHARE_QUANTISATION;
+    let encoding = choose_encoding(pilot, suns, budget);
     let every_reference: Vec<usize> = (0..pilot.reference.len()).collect();
-    let encoding = [AngleEncoding::U8, AngleEncoding::U16, AngleEncoding::F32]
-        .into_iter()
-        .find(|&e| {
-            e.max_error_deg() <= share * budget.horizon
-                && budget
-                    .svf
-                    .is_none_or(|s| e.max_error_deg().to_radians() <= share * s)
-                && (budget.shade.is_none()
-                    || errors(pilot, &every_reference, suns, |i, j| {
-                        stored_as(e, pilot.exact[i][j])
-                    })
-                    .within(budget, share))
-        })
-        .unwrap_or(AngleEncoding::F32);
     // The distance: the shortest beyond which the terrain moves the
     // horizons (in all 720 directions, f32) by at most its share.
     let safe_cut = (0..DISTANCES.len())
@@ -870,23 +1104,7 @@ fn plan_horizons(
     }
     let Some(sectors) = sectors else {
         let closest = candidates.last().expect("candidates");
-        // What to relax to: what the most directions leave, at the
-        // quantile that decides, over the share of the budget it gets.
-        bail!(
-            "budget {budget} cannot be met with up to {} line directions on this scene: {} directions leave a horizon p99 of {:.3} degrees and an svf p99 of {:.4} between them{}; relax horizon to at least {:.3}{}",
-            closest.sectors,
-            closest.sectors,
-            closest.horizon_p99_deg,
-            closest.svf_p99,
-            closest
-                .shade_share
-                .map_or(String::new(), |s| format!(", and {:.4} of the sun/shade states wrong", s)),
-            round_up(deciding.0 / SHARE_DIRECTIONS, 3),
-            budget.svf.map_or(String::new(), |_| format!(
-                " and svf to at least {:.4}",
-                round_up(deciding.1 / SHARE_DIRECTIONS, 4)
-            )),
-        );
+        return Err(unmet(budget, closest, deciding));
     };
     // The tolerance: of those directions' grid steps within ever wider
     // tolerances, the ones a post sweeps in the fewest crossings whose
@@ -944,62 +1162,8 @@ fn plan_horizons(
         encoding,
         &mut predict(pilot, suns, &stored, bounded_cut, encoding),
     );
-    let finer = [AngleEncoding::U8, AngleEncoding::U16]
-        .into_iter()
-        .filter(|e| e.max_error_deg() > encoding.max_error_deg())
-        .map(|e| {
-            format!(
-                "{} (worst error {:.3} deg: over its share of the budget)",
-                e.name(),
-                e.max_error_deg()
-            )
-        })
-        .collect::<Vec<_>>();
-    // Relief and curvature bound what lies beyond D: no post sees terrain
-    // there above atan(relief / D - c D); past sqrt(relief / c) it lies
-    // below every post's horizontal plane.
-    let relief = scene.relief_m;
-    let bound = |d: f64| (relief / d - curvature * d).atan().to_degrees();
-    let below_horizontal = (curvature > 0.0).then(|| (relief / curvature).sqrt());
-    let distance_why = match safe_distance {
-        Some(d) => format!(
-            "beyond {:.1} km the terrain moves the pilot's horizons by at most {} of the budget (p99.5); relief and curvature allow at most {:.2} deg there{}",
-            d / 1000.0,
-            SHARE_DISTANCE,
-            bound(d),
-            below_horizontal.map_or(String::new(), |b| format!(
-                ", and nothing past {:.0} km rises above a post's horizontal",
-                b / 1000.0
-            )),
-        ),
-        None => "every distance within the DEM moves some horizon by more than its share of the budget".into(),
-    };
-    let route_rejected = match (safe_distance, bounded) {
-        (Some(d), None) => Some(format!(
-            "bounded to {:.1} km: {:.1} s and {:.0} MiB (the DEM held) against {:.1} s and {:.0} MiB to the edge",
-            d / 1000.0,
-            costs.seconds(sectors, Some(d)),
-            costs.memory_mib(sectors, Some(d)),
-            costs.seconds(sectors, None),
-            costs.memory_mib(sectors, None),
-        )),
-        (_, Some(d)) => Some(format!(
-            "sweeps to the edge: {:.1} s against {:.1} s bounded to {:.1} km",
-            costs.seconds(sectors, None),
-            costs.seconds(sectors, Some(d)),
-            d / 1000.0
-        )),
-        (None, None) => None,
-    };
     let choices = vec![
-        Choice {
-            what: "method".into(),
-            chosen: "line (exact sight lines)".into(),
-            why: "exact at every stored direction; the only errors left are between directions, the distance cut and the encoding".into(),
-            rejected: Some(
-                "sector (Stewart's wedges: biased high by definition, its RMS error levels off at 0.67 deg however many sectors) and sampled (nearest-post rounding: levels off at 0.41 deg); 16 lines (0.12 deg) beat both in less time than either's fastest (docs/BENCHMARKS.md, horizon methods on the SRTM crop)".into(),
-            ),
-        },
+        method_choice(),
         Choice {
             what: "directions".into(),
             chosen: sectors.to_string(),
@@ -1009,55 +1173,10 @@ fn plan_horizons(
             ),
             rejected: fewer.map(|c| format!("{} directions: {}", c.sectors, c.errors_text())),
         },
-        Choice {
-            what: "tolerance".into(),
-            chosen: format!("{:.2} deg", tolerance.0),
-            why: if tolerance.1 < at_default {
-                format!(
-                    "the widest up to a third of the spacing whose error between directions stays within {SHARE_DIRECTIONS} of the budget: its grid steps cost {} crossings a post, against {at_default} within {:.2} deg (the default)",
-                    tolerance.1,
-                    default_tolerance(sectors),
-                )
-            } else {
-                format!(
-                    "the stage's default, an eighth of the spacing: {at_default} crossings a post, and no wider tolerance up to a third both costs fewer and stays within {SHARE_DIRECTIONS} of the budget"
-                )
-            },
-            rejected: too_wide.map(|(tol, cost, horizon, svf)| {
-                format!(
-                    "{tol:.2} deg: {cost} crossings a post, but its error between directions at p99.5, the quantile that decides (horizon {horizon:.3} deg, svf {svf:.4}), is over the share"
-                )
-            }),
-        },
-        Choice {
-            what: "encoding".into(),
-            chosen: encoding.name().into(),
-            why: format!(
-                "the coarsest whose worst error ({:.4} deg) is within {SHARE_QUANTISATION} of the budget",
-                encoding.max_error_deg()
-            ),
-            rejected: (!finer.is_empty()).then(|| finer.join("; ")),
-        },
-        Choice {
-            what: "distance".into(),
-            chosen: safe_distance.map_or("the whole DEM".into(), |d| format!("{:.1} km", d / 1000.0)),
-            why: distance_why,
-            rejected: safe_distance
-                .and_then(|d| DISTANCES.into_iter().rev().find(|&x| x < d))
-                .map(|d| format!("{:.2} km: the terrain beyond moves the horizons by more than {SHARE_DISTANCE} of the budget", d / 1000.0)),
-        },
-        Choice {
-            what: "route".into(),
-            chosen: match bounded {
-                Some(d) => format!("bounded lines, {:.1} km, in core", d / 1000.0),
-                None => "line sweeps to the edge, out of core".into(),
-            },
-            why: match bounded {
-                Some(_) => "faster than the sweeps: each post walks only its reach (the DEM held in memory)".into(),
-                None => "the sweeps stream tile rows: memory grows with the width, not the DEM".into(),
-            },
-            rejected: route_rejected,
-        },
+        tolerance_choice(sectors, tolerance, at_default, too_wide),
+        encoding_choice(encoding),
+        distance_choice(scene, curvature, safe_distance),
+        route_choice(costs, sectors, safe_distance, bounded),
     ];
     Ok(HorizonPlan {
         chosen,
