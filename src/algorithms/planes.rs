@@ -328,7 +328,7 @@ fn sliced_planes_with<G: ColumnDistance>(
     member_u8.par_extend(member.par_iter().map(|&m| m.min(u16::from(u8::MAX)) as u8));
     let mut slope = pages::filled(cw * ch, f32::INFINITY);
     // Distances in units of dx: a column distance of g cells is g * dy / dx.
-    let (aspect, dx2) = (dy / dx, dx * dx);
+    let aspect = dy / dx;
     let hidden = Span::hidden(aspect);
     // Per cell, a lower bound on its distance to the plane of the slices
     // still to come (see [`Floor`]).
@@ -395,6 +395,15 @@ fn sliced_planes_with<G: ColumnDistance>(
         let rise_of = &slices.rise_of(k);
         let member = &member;
         let scan = Scan::new(slices, k, floor.unit, rise_of);
+        let pass = RowPass {
+            scan,
+            rise_of,
+            floor,
+            keeps_floor,
+            dx,
+            aspect,
+            hidden,
+        };
         stats.scan_blocks += (blocks * ch) as u64;
         let (read, open) = slope
             .par_chunks_mut(cw * BAND)
@@ -407,8 +416,7 @@ fn sliced_planes_with<G: ColumnDistance>(
                     let room = (Envelope::default(), Vec::<u32>::new(), Kept::default());
                     (room, Vec::<G>::new(), Vec::<G>::new())
                 },
-                |((envelope, room, kept), down, column),
-                 (b, (((slopes, floors), wakes), band_ends))| {
+                |(room_of, down, column), (b, (((slopes, floors), wakes), band_ends))| {
                     plane.band_columns(b, (cw, ch), carries.of(b), down, column);
                     if let Some(next) = next {
                         next.band_ends(b, (cw, ch), band_ends);
@@ -422,48 +430,10 @@ fn sliced_planes_with<G: ColumnDistance>(
                     for (i, (((row, row_floor), row_wakes), column)) in rows.enumerate() {
                         let r = b * BAND + i;
                         let m = &member[r * cw..(r + 1) * cw];
-                        // The cells this slice can narrow (outside the plane,
-                        // with a cone still open), and the reach: the widest of
-                        // them, the farthest that a plane cell can be and still
-                        // narrow a cone of this row.
-                        let Open {
-                            targets,
-                            reach,
-                            blocks_read,
-                        } = open_cells(m, row, row_floor, scan, row_wakes, room);
-                        counts.0 += blocks_read;
-                        counts.1 += targets.len() as u64;
-                        if targets.is_empty() {
-                            continue;
-                        }
-                        // Only the parabolas that come within the reach of the
-                        // targets: at high slices, where plane cells are few and
-                        // far, that leaves out most of them.
-                        let span = (targets[0], targets[targets.len() - 1]);
-                        let scale = (reach / dx, aspect, hidden);
-                        let n = columns_in_reach(column, span, scale, scan.lanes, kept);
-                        envelope.clear();
-                        for (&c, &offset) in kept.columns[..n].iter().zip(&kept.offsets[..n]) {
-                            envelope.push(f64::from(c), offset);
-                        }
-                        // (No plane cell in reach: nothing to update.)
-                        if envelope.is_empty() {
-                            continue;
-                        }
-                        envelope.evaluate_at(targets.iter().map(|&c| c as usize), |c, d2| {
-                            let rise = rise_of[usize::from(m[c])];
-                            // Compare squares; one root only where the slope drops.
-                            let d2 = d2 * dx2;
-                            let bound = f64::from(row[c]) * rise;
-                            if d2 < bound * bound {
-                                row[c] = round_down_f32(d2.sqrt() / rise * SLOPE_MARGIN);
-                            }
-                            // Parabolas left out are `reach` or farther, so the
-                            // envelope is the distance only below it.
-                            if keeps_floor {
-                                row_floor[c] = floor.of(d2.min(reach * reach));
-                            }
-                        });
+                        let (read, open) =
+                            pass.row(m, (row, row_floor, row_wakes), column, room_of);
+                        counts.0 += read;
+                        counts.1 += open;
                     }
                     counts
                 },
@@ -473,16 +443,26 @@ fn sliced_planes_with<G: ColumnDistance>(
         stats.cells_open += open;
         on_slice();
     }
-    // A cell in every slice has nothing above the top.
-    let apex: Vec<f32> = member
+    let apex = apexes(&member, slices);
+    cap_slopes(&mut slope, &apex, cap);
+    Planes { apex, slope, stats }
+}
+
+/// Each cell's apex: the height of its apex slice, conservatively rounded
+/// to f32; a cell in every slice has nothing above the top.
+fn apexes(member: &[u16], slices: &Slices) -> Vec<f32> {
+    member
         .par_iter()
         .map(|&m| round_up_f32(slices.z.get(usize::from(m)).copied().unwrap_or(slices.top)))
-        .collect();
+        .collect()
+}
+
+/// The slopes no wider than `cap` allows at each cell's apex.
+fn cap_slopes(slope: &mut [f32], apex: &[f32], cap: Option<Cap>) {
     slope
         .par_iter_mut()
-        .zip(&apex)
+        .zip(apex)
         .for_each(|(s, &a)| *s = s.min(round_down_f32(Cap::slope(cap, f64::from(a)))));
-    Planes { apex, slope, stats }
 }
 
 /// Slice `k`'s plane, the cells with `member > k`, as the column
@@ -953,6 +933,78 @@ fn open_cells<'t>(
         targets: &room[..n],
         reach,
         blocks_read,
+    }
+}
+
+/// One slice's row pass, the same for every row: the open-cell scan, and
+/// what narrowing a cell's cone needs.
+#[derive(Clone, Copy)]
+struct RowPass<'a> {
+    scan: Scan<'a>,
+    rise_of: &'a [f64],
+    floor: Floor,
+    /// Whether slices above this one remain to read the floors.
+    keeps_floor: bool,
+    dx: f64,
+    aspect: f64,
+    hidden: u16,
+}
+
+impl RowPass<'_> {
+    /// The slope update of one row's cells outside the slice's plane (`m`,
+    /// their apex slices; `column`, each column's distance to the plane):
+    /// the blocks the scan read and the cells it found open.
+    #[inline]
+    fn row<G: ColumnDistance>(
+        &self,
+        m: &[u16],
+        (row, row_floor, row_wakes): (&mut [f32], &mut [u16], &mut [u16]),
+        column: &[G],
+        (envelope, room, kept): &mut (Envelope, Vec<u32>, Kept),
+    ) -> (u64, u64) {
+        let (scan, rise_of, dx) = (self.scan, self.rise_of, self.dx);
+        // The cells this slice can narrow (outside the plane, with a cone
+        // still open), and the reach: the widest of them, the farthest that
+        // a plane cell can be and still narrow a cone of this row.
+        let Open {
+            targets,
+            reach,
+            blocks_read,
+        } = open_cells(m, row, row_floor, scan, row_wakes, room);
+        let open = targets.len() as u64;
+        if targets.is_empty() {
+            return (blocks_read, open);
+        }
+        // Only the parabolas that come within the reach of the targets: at
+        // high slices, where plane cells are few and far, that leaves out
+        // most of them.
+        let span = (targets[0], targets[targets.len() - 1]);
+        let scale = (reach / dx, self.aspect, self.hidden);
+        let n = columns_in_reach(column, span, scale, scan.lanes, kept);
+        envelope.clear();
+        for (&c, &offset) in kept.columns[..n].iter().zip(&kept.offsets[..n]) {
+            envelope.push(f64::from(c), offset);
+        }
+        // (No plane cell in reach: nothing to update.)
+        if envelope.is_empty() {
+            return (blocks_read, open);
+        }
+        let dx2 = dx * dx;
+        envelope.evaluate_at(targets.iter().map(|&c| c as usize), |c, d2| {
+            let rise = rise_of[usize::from(m[c])];
+            // Compare squares; one root only where the slope drops.
+            let d2 = d2 * dx2;
+            let bound = f64::from(row[c]) * rise;
+            if d2 < bound * bound {
+                row[c] = round_down_f32(d2.sqrt() / rise * SLOPE_MARGIN);
+            }
+            // Parabolas left out are `reach` or farther, so the envelope is
+            // the distance only below it.
+            if self.keeps_floor {
+                row_floor[c] = self.floor.of(d2.min(reach * reach));
+            }
+        });
+        (blocks_read, open)
     }
 }
 

@@ -51,7 +51,7 @@
 //! in its order from a copy gathered beforehand, leaving the stencil and
 //! the angles to a pass row by row: a post's lookups in the sweep's order
 //! are cache misses on its critical path. That pass takes each offset of
-//! the stencil across a whole row in vector lanes ([`narrow_row`]), `t` and
+//! the stencil across a whole row in vector lanes ([`narrow`]), `t` and
 //! `w` in arrays of their own. And the sorts are shared: a sector's
 //! processing order is the previous sector's rank order, and its ranks the
 //! opposite sector's reversed ([`Ranks`]), sorted by buckets
@@ -67,6 +67,7 @@
 
 mod bounded;
 mod hulls;
+mod narrow;
 
 pub use bounded::sector_horizons_within;
 
@@ -846,7 +847,7 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
     let (gathered, planes) = room.take(n, w * h);
     // Centre-plane coordinates (t, w) per post (NaN where nodata), each
     // row-major, so that a row of either is lanes of the IV-E pass
-    // ([`narrow_row`]); and the steepest slope the tree finds from each.
+    // ([`narrow`]); and the steepest slope the tree finds from each.
     let planes = <[f64]>::mut_from_bytes(planes.as_mut_bytes()).expect("24-byte records");
     let (ts, planes) = planes.split_at_mut(w * h);
     let (ws, slopes) = planes.split_at_mut(w * h);
@@ -880,6 +881,29 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
     }
     drop(rank);
 
+    let stencil = narrow.then(|| NarrowStencil::new(&frame, count, terrain.dx, terrain.dy));
+    let mut stats = SectorStats::default();
+    climb_tree::<T, H>(order, margin, slopes, &mut tags, &mut stats);
+    if let Some(d) = distances.as_deref_mut() {
+        d.fill(f32::NAN);
+    }
+    let planes = (&*ts, &*ws, &mut *slopes, &mut tags[..]);
+    narrow::narrow_and_angles(terrain, stencil.as_ref(), planes, out, distances);
+    stats
+}
+
+/// Stewart's tree over the posts in processing order (`order`, with their
+/// ranks and centre-plane coordinates): each post's steepest slope and its
+/// tag, from its own bucket and the hulls of its path's left siblings, and
+/// then its place in the hulls of the right ones.
+fn climb_tree<T: Tag<u32>, H: Hulls<T>>(
+    order: &[Gathered],
+    margin: f64,
+    slopes: &mut [f64],
+    tags: &mut [T],
+    stats: &mut SectorStats,
+) {
+    let n = order.len();
     // The tree: per node, what is left of it to process ([`Node`]) and
     // how many points its hull holds, packed so that a query's walk up
     // the tree touches one small array (the hulls themselves are read only
@@ -903,17 +927,12 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
             .filter(|c| c.remaining > 0)
             .count() as u32;
     }
-    let stencil = narrow.then(|| NarrowStencil::new(&frame, count, terrain.dx, terrain.dy));
-    let mut stats = SectorStats::default();
-    if let Some(d) = distances.as_deref_mut() {
-        d.fill(f32::NAN);
-    }
     for &Gathered {
         post,
         rank: k,
         t: tp,
         w: wp,
-    } in &*order
+    } in order
     {
         let post = post as usize;
         let me = Point {
@@ -996,80 +1015,6 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
                 }
             }
         }
-    }
-    // Stewart's IV-E stencil, then the angles: row by row, in the order of
-    // memory (in the sweep's order each of the stencil's posts was a cache
-    // miss), each a loop without calls (vector code).
-    let rows = ts.chunks(w).zip(ws.chunks(w));
-    let outputs = slopes
-        .chunks_mut(w)
-        .zip(tags.chunks_mut(w))
-        .zip(out.chunks_mut(w));
-    for (row, ((tp, wp), ((best, tag), out_row))) in rows.zip(outputs).enumerate() {
-        for &(dc, dr) in stencil.as_ref().map_or(&[][..], |s| &s.offsets[..]) {
-            // The columns whose post `(col + dc, qr)` is in the grid.
-            let qr = row as i64 + dr;
-            let (c0, c1) = ((-dc).max(0), (w as i64 - dc).min(w as i64));
-            if !terrain.contains(0, qr) || c0 >= c1 {
-                continue;
-            }
-            let cols = c0 as usize..c1 as usize;
-            let first = qr as usize * w + (cols.start as i64 + dc) as usize;
-            let q = first..first + cols.len();
-            let lanes = Lanes {
-                p: (&tp[cols.clone()], &wp[cols.clone()]),
-                q: (&ts[q.clone()], &ws[q]),
-                first: first as u32,
-            };
-            narrow_row(lanes, &mut best[cols.clone()], &mut tag[cols]);
-        }
-        for (col, ((v, &slope), &tp)) in out_row.iter_mut().zip(&*best).zip(tp).enumerate() {
-            *v = if tp.is_nan() {
-                f32::NAN
-            } else {
-                elevation_deg(slope, c, tp)
-            };
-            if let (Some(d), Some(q)) = (distances.as_deref_mut(), tag[col].get()) {
-                let post = row * w + col;
-                d[post] = terrain.key_distance(position(post as u32), position(q)) as f32;
-            }
-        }
-    }
-    stats
-}
-
-/// A row of posts `p` (`t` and `w`) and, for one offset of the IV-E
-/// stencil, the posts `q` at that offset from each, the first of them post
-/// `first` of the grid.
-struct Lanes<'a> {
-    p: (&'a [f64], &'a [f64]),
-    q: (&'a [f64], &'a [f64]),
-    first: u32,
-}
-
-/// Each post's steepest slope `best` (and its `tag`) raised to the slope to
-/// its post `q` where `q` lies in front (`t` beyond it): lane by lane, so
-/// that the loop is vector code; each post meets the stencil's offsets in
-/// the same order as a post-by-post loop, and so keeps the same tag.
-#[inline(always)]
-fn narrow_row<T: Tag<u32>>(lanes: Lanes, best: &mut [f64], tag: &mut [T]) {
-    let Lanes {
-        p: (tp, wp),
-        q: (tq, wq),
-        first,
-    } = lanes;
-    let n = best.len();
-    let (tp, wp, tq, wq, tag) = (&tp[..n], &wp[..n], &tq[..n], &wq[..n], &mut tag[..n]);
-    for i in 0..n {
-        let slope = (wq[i] - wp[i]) / (tq[i] - tp[i]);
-        // A post behind, nodata (NaN) on either side, or no steeper: kept.
-        let steeper = tq[i] > tp[i] && slope > best[i];
-        best[i] = if steeper { slope } else { best[i] };
-        tag[i] = if steeper {
-            T::of(first + i as u32)
-        } else {
-            tag[i]
-        };
     }
 }
 
