@@ -9,6 +9,8 @@
 //!
 //! - [`plumbing`]: the process's edges: files written whole or not at all,
 //!   parallel work in a fixed order, Ctrl-C, free disk and memory, progress.
+//! - [`error`]: the library's [`Error`] and its [`ErrorKind`], which the
+//!   entry points return (anyhow inside, with its chain of causes).
 //! - [`terrain`]: the shared terrain kernel: the grid the algorithms see
 //!   ([`terrain::Terrain`]), a DEM held in memory, geodesy, tile rows, the sun.
 //! - [`io`]: DEM readers row band by row band, the one GeoTIFF writer,
@@ -28,6 +30,7 @@
 pub mod algorithms;
 pub mod bake;
 pub mod cli;
+pub mod error;
 pub mod export;
 pub mod io;
 pub mod plan;
@@ -36,6 +39,8 @@ pub mod present;
 pub mod stage;
 pub mod stages;
 pub mod terrain;
+
+pub use error::{Error, ErrorKind, Result};
 
 /// `terrabake <version>`, recorded in every manifest.
 pub fn tool_version() -> String {

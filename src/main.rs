@@ -54,12 +54,8 @@ impl Session {
     }
 
     fn run_stage(&self, asset: &Path, stage: &dyn Stage, force: bool) -> Result<StageOutcome> {
-        run_stage_in(
-            &AssetWriter::open(asset, self.wait)?,
-            stage,
-            force,
-            self.progress,
-        )
+        let writer = AssetWriter::open(asset, self.wait)?;
+        Ok(run_stage_in(&writer, stage, force, self.progress)?)
     }
 
     /// A stage's outcome: its JSON record on stdout (with --json), a line

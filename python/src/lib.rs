@@ -30,6 +30,7 @@ use rayon::prelude::*;
 use terrabake::algorithms::horizon::sky::{svf_of_horizons, BandIntegrals};
 use terrabake::algorithms::horizon::{band_bounds, band_horizons, plan_bands, BandOptions, Method};
 use terrabake::terrain::{curvature_coefficient, Terrain, DEFAULT_REFRACTION};
+use terrabake::ErrorKind;
 use terrabake_format::{ElemType, Mmap, Tile};
 
 pyo3::create_exception!(
@@ -39,8 +40,43 @@ pyo3::create_exception!(
     "A terrabake operation failed; the message is the command line's."
 );
 
-fn raise(e: anyhow::Error) -> PyErr {
-    Error::new_err(terrabake::present::report::error_chain(&e))
+pyo3::create_exception!(
+    _native,
+    AssetError,
+    Error,
+    "The asset is missing, damaged, of another format version, or lacks a layer the call needs."
+);
+pyo3::create_exception!(
+    _native,
+    SourceError,
+    Error,
+    "The source DEM cannot be read: missing, unreadable, or a header or value terrabake refuses."
+);
+pyo3::create_exception!(
+    _native,
+    ParameterError,
+    Error,
+    "A parameter or budget that makes no sense, refused before any work."
+);
+pyo3::create_exception!(
+    _native,
+    ResourceError,
+    Error,
+    "The work needs more memory or disk than the machine has; refused before it starts."
+);
+
+/// The library's error as the exception of its kind, with the command
+/// line's message.
+fn raise(e: impl Into<terrabake::Error>) -> PyErr {
+    let e: terrabake::Error = e.into();
+    let message = e.to_string();
+    match e.kind() {
+        ErrorKind::Asset => AssetError::new_err(message),
+        ErrorKind::Source => SourceError::new_err(message),
+        ErrorKind::Parameters => ParameterError::new_err(message),
+        ErrorKind::Resources => ResourceError::new_err(message),
+        _ => Error::new_err(message),
+    }
 }
 
 /// Runs `f`, turning a panic into `terrabake.Error` naming `what`.
@@ -61,7 +97,7 @@ fn guarded<T>(what: &str, f: impl FnOnce() -> PyResult<T>) -> PyResult<T> {
 }
 
 fn raise_format(e: terrabake_format::Error) -> PyErr {
-    raise(anyhow::Error::new(e))
+    raise(e)
 }
 
 /// An asset open for reading: its layers as numpy arrays.
@@ -115,7 +151,7 @@ impl Asset {
 
     /// The manifest as JSON text.
     fn manifest_json(&self) -> PyResult<String> {
-        serde_json::to_string(self.inner.manifest()).map_err(|e| raise(e.into()))
+        serde_json::to_string(self.inner.manifest()).map_err(|e| raise(anyhow::Error::new(e)))
     }
 
     /// Layer `name` at `level`, every band, decoded to float32 (quantised
@@ -676,7 +712,7 @@ fn bake(
         return Err(e);
     }
     let outcomes = result.map_err(raise)?;
-    serde_json::to_string(&outcomes).map_err(|e| raise(e.into()))
+    serde_json::to_string(&outcomes).map_err(|e| raise(anyhow::Error::new(e)))
 }
 
 #[pymodule]
@@ -687,6 +723,10 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(sky_view_factor, m)?)?;
     m.add_function(wrap_pyfunction!(bake, m)?)?;
     m.add("Error", m.py().get_type::<Error>())?;
+    m.add("AssetError", m.py().get_type::<AssetError>())?;
+    m.add("SourceError", m.py().get_type::<SourceError>())?;
+    m.add("ParameterError", m.py().get_type::<ParameterError>())?;
+    m.add("ResourceError", m.py().get_type::<ResourceError>())?;
     // The exception's first name, kept: `except terrabake.TerrabakeError` works.
     m.add("TerrabakeError", m.py().get_type::<Error>())?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;

@@ -14,16 +14,36 @@ angles are degrees above the horizontal; NaN is nodata; arrays are
 layers of several bands. Every failure raises ``terrabake.Error`` (a
 subclass of ``Exception``) with the command line's message, or
 ``ValueError`` for an argument that is wrong before any work starts.
+``terrabake.Error`` has a subclass a kind of failure: ``AssetError`` (the
+asset missing or damaged), ``SourceError`` (the DEM unreadable or
+refused), ``ParameterError`` (a stage parameter or budget refused) and
+``ResourceError`` (not enough memory or disk); anything else is
+``terrabake.Error`` itself.
 """
 
 import typing as _typing
 
 from . import _native
-from ._native import Asset, Error, TerrabakeError, __version__, bake, open
+from ._native import (
+    Asset,
+    AssetError,
+    Error,
+    ParameterError,
+    ResourceError,
+    SourceError,
+    TerrabakeError,
+    __version__,
+    bake,
+    open,
+)
 
 __all__ = [
     "Asset",
+    "AssetError",
     "Error",
+    "ParameterError",
+    "ResourceError",
+    "SourceError",
     "TerrabakeError",
     "__version__",
     "bake",

@@ -12,6 +12,18 @@ Progress = Callable[[int, int], Any]
 class Error(Exception):
     """A terrabake operation failed; the message is the command line's."""
 
+class AssetError(Error):
+    """The asset is missing, damaged, of another format version, or lacks a layer the call needs."""
+
+class SourceError(Error):
+    """The source DEM cannot be read: missing, unreadable, or a header or value terrabake refuses."""
+
+class ParameterError(Error):
+    """A parameter or budget that makes no sense, refused before any work."""
+
+class ResourceError(Error):
+    """The work needs more memory or disk than the machine has; refused before it starts."""
+
 TerrabakeError = Error
 
 class Asset:

@@ -205,18 +205,26 @@ def test_a_dem_past_memory_is_refused_before_any_work() -> None:
         dem = np.empty((20_000, 20_000), dtype=np.float32)
     except MemoryError:
         pytest.skip("this machine will not even reserve 1.6 GB of address space")
-    with pytest.raises(terrabake.Error, match="needs about .* of memory"):
+    with pytest.raises(terrabake.ResourceError, match="needs about .* of memory"):
         terrabake.horizons(dem, (30.0, 30.0), sectors=4096)
 
 
-def test_errors_carry_the_cli_message(tmp: Path) -> None:
-    with pytest.raises(terrabake.Error, match="no-such.tbake"):
+def test_errors_carry_the_cli_message_and_their_kind(tmp: Path) -> None:
+    with pytest.raises(terrabake.AssetError, match="no-such.tbake"):
         terrabake.open(tmp / "no-such.tbake")
     bad = tmp / "bad.tif"
     bad.write_bytes(b"II*\x00garbage")
-    with pytest.raises(terrabake.Error, match="bad.tif"):
+    with pytest.raises(terrabake.SourceError, match="bad.tif"):
         terrabake.bake(bad, tmp / "bad.tbake")
     assert not (tmp / "bad.tbake" / "manifest.tba").exists()
+    # A stage parameter a recipe gives that the stage refuses.
+    recipe = tmp / "two.toml"
+    recipe.write_text('[[stage]]\nname = "horizons"\nsectors = 2\n')
+    baked(tmp, "line")
+    with pytest.raises(terrabake.ParameterError, match="sectors = 2"):
+        terrabake.bake(tmp / "dem.tif", tmp / "two.tbake", recipe=recipe)
+    for kind in (terrabake.AssetError, terrabake.SourceError, terrabake.ParameterError, terrabake.ResourceError):
+        assert issubclass(kind, terrabake.Error)
 
 
 def test_bake_from_python_equals_the_cli(tmp: Path, line_asset: terrabake.Asset) -> None:

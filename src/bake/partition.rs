@@ -236,88 +236,92 @@ pub fn bake_part(
     part: Part,
     wait: Wait,
     progress: Progress,
-) -> Result<Vec<StageOutcome>> {
-    if recipe.plan.is_some() {
-        bail!(
-            "{}: a recipe with a [plan] bakes on one machine (the plan measures the whole scene); run `terrabake plan`, then write the stages it chooses into the recipe to bake it in parts",
-            recipe.path.display()
-        );
-    }
-    let (ingest, m) = recipe.describe(src)?;
-    let plan = Plan::new(recipe, &m)?;
-    let fingerprint = plan.fingerprint(ingest.params());
-    let parts = parts_dir(asset);
-    std::fs::create_dir_all(&parts)
-        .with_context(|| format!("{}: cannot create the parts directory", parts.display()))?;
-    let dir = parts.join(part.name());
-    let record_path = parts.join(format!("{}.json", part.name()));
-    // Every chunk checksummed: a part whose files were damaged since is
-    // baked again, not trusted.
-    let intact = || Asset::open(&dir).is_ok_and(|a| a.verify().problems.is_empty());
-    if read_record(&record_path).is_ok_and(|r| r.plan == fingerprint) && intact() {
-        return Ok(Vec::new());
-    }
-    // From here on the part is unfinished until its record is back.
-    match std::fs::remove_file(&record_path) {
-        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
-            return Err(e).with_context(|| format!("{}: cannot remove", record_path.display()))
+) -> crate::Result<Vec<StageOutcome>> {
+    // The work in anyhow, its causes kept; the kind at the surface.
+    let run = move || -> Result<Vec<StageOutcome>> {
+        if recipe.plan.is_some() {
+            bail!(
+                "{}: a recipe with a [plan] bakes on one machine (the plan measures the whole scene); run `terrabake plan`, then write the stages it chooses into the recipe to bake it in parts",
+                recipe.path.display()
+            );
         }
-        _ => {}
-    }
-    let (computes, heights) = plan.rows(&m, part);
-    let writer = AssetWriter::create(&dir, wait)?;
-    if dir.join(MANIFEST_FILE).exists() && !intact() {
-        // Damaged: nothing in it is kept (the next commit reclaims its files).
-        std::fs::remove_file(dir.join(MANIFEST_FILE))
-            .with_context(|| format!("{}: cannot reset a damaged part", dir.display()))?;
-    }
-    let mut outcomes = vec![run_share_in(
-        &writer,
-        &ingest,
-        &Share::Rows(heights),
-        false,
-        progress,
-    )?];
-    for ((stage, split), rows) in plan.stages.iter().zip(computes) {
-        let share = match split {
-            Split::Join => continue,
-            Split::Rows { .. } => Share::Rows(rows),
-            Split::Bands => Share::Bands {
-                part: part.index,
-                parts: part.count,
-            },
-        };
-        outcomes.push(run_share_in(
+        let (ingest, m) = recipe.describe(src)?;
+        let plan = Plan::new(recipe, &m)?;
+        let fingerprint = plan.fingerprint(ingest.params());
+        let parts = parts_dir(asset);
+        std::fs::create_dir_all(&parts)
+            .with_context(|| format!("{}: cannot create the parts directory", parts.display()))?;
+        let dir = parts.join(part.name());
+        let record_path = parts.join(format!("{}.json", part.name()));
+        // Every chunk checksummed: a part whose files were damaged since is
+        // baked again, not trusted.
+        let intact = || Asset::open(&dir).is_ok_and(|a| a.verify().problems.is_empty());
+        if read_record(&record_path).is_ok_and(|r| r.plan == fingerprint) && intact() {
+            return Ok(Vec::new());
+        }
+        // From here on the part is unfinished until its record is back.
+        match std::fs::remove_file(&record_path) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(e).with_context(|| format!("{}: cannot remove", record_path.display()))
+            }
+            _ => {}
+        }
+        let (computes, heights) = plan.rows(&m, part);
+        let writer = AssetWriter::create(&dir, wait)?;
+        if dir.join(MANIFEST_FILE).exists() && !intact() {
+            // Damaged: nothing in it is kept (the next commit reclaims its files).
+            std::fs::remove_file(dir.join(MANIFEST_FILE))
+                .with_context(|| format!("{}: cannot reset a damaged part", dir.display()))?;
+        }
+        let mut outcomes = vec![run_share_in(
             &writer,
-            stage.as_ref(),
-            &share,
+            &ingest,
+            &Share::Rows(heights),
             false,
             progress,
-        )?);
-    }
-    // The part's own asset says which part it is: a directory copied
-    // over another part's is refused at the join, whatever its record says.
-    crate::stage::record_measurement_in(
-        &writer,
-        PART_RECORD,
-        identity(part, &fingerprint),
-        vec![format!("{HEIGHT_LAYER}@0")],
-    )?;
-    let stats = own_height_stats(&Asset::open(&dir)?, part)?;
-    drop(writer);
-    write_record(
-        &record_path,
-        &PartRecord {
-            part: part.index,
-            parts: part.count,
-            plan: fingerprint,
-            recipe: recipe.text.clone(),
-            nodata: stats.nodata,
-            height_range: stats.range(),
-            tool: crate::tool_version(),
-        },
-    )?;
-    Ok(outcomes)
+        )?];
+        for ((stage, split), rows) in plan.stages.iter().zip(computes) {
+            let share = match split {
+                Split::Join => continue,
+                Split::Rows { .. } => Share::Rows(rows),
+                Split::Bands => Share::Bands {
+                    part: part.index,
+                    parts: part.count,
+                },
+            };
+            outcomes.push(run_share_in(
+                &writer,
+                stage.as_ref(),
+                &share,
+                false,
+                progress,
+            )?);
+        }
+        // The part's own asset says which part it is: a directory copied
+        // over another part's is refused at the join, whatever its record says.
+        crate::stage::record_measurement_in(
+            &writer,
+            PART_RECORD,
+            identity(part, &fingerprint),
+            vec![format!("{HEIGHT_LAYER}@0")],
+        )?;
+        let stats = own_height_stats(&Asset::open(&dir)?, part)?;
+        drop(writer);
+        write_record(
+            &record_path,
+            &PartRecord {
+                part: part.index,
+                parts: part.count,
+                plan: fingerprint,
+                recipe: recipe.text.clone(),
+                nodata: stats.nodata,
+                height_range: stats.range(),
+                tool: crate::tool_version(),
+            },
+        )?;
+        Ok(outcomes)
+    };
+    Ok(run()?)
 }
 
 /// The name of the record, in a part's own manifest, of which part it is.
@@ -555,57 +559,62 @@ pub fn assemble(
     keep: bool,
     wait: Wait,
     progress: Progress,
-) -> Result<Vec<StageOutcome>> {
-    let writer = AssetWriter::create(asset, wait)?;
-    let joined = joined_plan(asset);
-    let dir = parts_dir(asset);
-    let result = (|| -> Result<Vec<StageOutcome>> {
-        remove_removed_parts(asset)?;
-        if joined.is_some() && !dir.exists() {
-            return Ok(vec![StageOutcome {
-                stage: "assemble".into(),
-                skipped: true,
-                outputs: Vec::new(),
-                seconds: 0.0,
-            }]);
-        }
-        let parts = check_parts(asset)?;
-        let n = parts.len();
-        let first = &parts[0];
-        let recipe = Recipe::parse(
-            &dir.join(format!("part-0-of-{n}.json")),
-            first.0.recipe.clone(),
-        )?;
-        let m = first.1.manifest();
-        let plan = Plan::new(&recipe, m)?;
-        let ingest = crate::stage::record_of(m, "ingest").context("part 0 has no ingest record")?;
-        if plan.fingerprint(ingest.params.clone()) != first.0.plan {
-            bail!(
-                "{}: the parts' records and their assets disagree; bake the parts again",
-                dir.display()
-            );
-        }
-        let identity = joined_identity(n, &first.0.plan);
-        if joined.as_ref() != Some(&identity) {
-            commit_parts(&writer, &parts, &plan, identity, progress)?;
-        }
-        let mut outcomes = Vec::new();
-        for (stage, split) in &plan.stages {
-            if *split == Split::Join {
-                outcomes.push(run_stage_in(&writer, stage.as_ref(), false, progress)?);
+) -> crate::Result<Vec<StageOutcome>> {
+    // The work in anyhow, its causes kept; the kind at the surface.
+    let run = move || -> Result<Vec<StageOutcome>> {
+        let writer = AssetWriter::create(asset, wait)?;
+        let joined = joined_plan(asset);
+        let dir = parts_dir(asset);
+        let result = (|| -> Result<Vec<StageOutcome>> {
+            remove_removed_parts(asset)?;
+            if joined.is_some() && !dir.exists() {
+                return Ok(vec![StageOutcome {
+                    stage: "assemble".into(),
+                    skipped: true,
+                    outputs: Vec::new(),
+                    seconds: 0.0,
+                }]);
             }
+            let parts = check_parts(asset)?;
+            let n = parts.len();
+            let first = &parts[0];
+            let recipe = Recipe::parse(
+                &dir.join(format!("part-0-of-{n}.json")),
+                first.0.recipe.clone(),
+            )?;
+            let m = first.1.manifest();
+            let plan = Plan::new(&recipe, m)?;
+            let ingest =
+                crate::stage::record_of(m, "ingest").context("part 0 has no ingest record")?;
+            if plan.fingerprint(ingest.params.clone()) != first.0.plan {
+                bail!(
+                    "{}: the parts' records and their assets disagree; bake the parts again",
+                    dir.display()
+                );
+            }
+            let identity = joined_identity(n, &first.0.plan);
+            if joined.as_ref() != Some(&identity) {
+                commit_parts(&writer, &parts, &plan, identity, progress)?;
+            }
+            let mut outcomes = Vec::new();
+            for (stage, split) in &plan.stages {
+                if *split == Split::Join {
+                    outcomes.push(run_stage_in(&writer, stage.as_ref(), false, progress)?);
+                }
+            }
+            Ok(outcomes)
+        })();
+        if result.is_err() {
+            writer.fail();
         }
+        let outcomes = result?;
+        if !keep {
+            remove_parts(asset)?;
+        }
+        drop(writer);
         Ok(outcomes)
-    })();
-    if result.is_err() {
-        writer.fail();
-    }
-    let outcomes = result?;
-    if !keep {
-        remove_parts(asset)?;
-    }
-    drop(writer);
-    Ok(outcomes)
+    };
+    Ok(run()?)
 }
 
 /// The record, in an assembled asset's manifest, of the join that made it.

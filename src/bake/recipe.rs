@@ -102,7 +102,9 @@ impl Recipe {
     /// write, from the source's header alone.
     pub fn describe(&self, src: &Path) -> Result<(IngestStage, terrabake_format::Manifest)> {
         let ingest = self.ingest_stage(src);
-        ingest.check()?;
+        ingest
+            .check()
+            .map_err(|e| crate::error::mark(crate::ErrorKind::Parameters, e))?;
         let opts = &self.ingest;
         let source =
             crate::io::source::open(src, opts.raw().as_ref(), opts.tile_size, opts.max_memory)?;
@@ -197,7 +199,9 @@ pub fn stage_from_recipe(step: &RecipeStage) -> Result<Box<dyn Stage>> {
         T: Stage + serde::de::DeserializeOwned + 'static,
     {
         let stage: T = toml::Value::Table(table.clone()).try_into()?;
-        stage.check()?;
+        stage
+            .check()
+            .map_err(|e| crate::error::mark(crate::ErrorKind::Parameters, e))?;
         Ok(Box::new(stage))
     }
     match step.name.as_str() {
@@ -234,7 +238,7 @@ pub fn bake(
     recipe: &Recipe,
     wait: Wait,
     progress: Progress,
-) -> Result<Vec<StageOutcome>> {
+) -> crate::Result<Vec<StageOutcome>> {
     bake_with(src, dir, recipe, wait, progress, &mut |_, _, _| Ok(()))
 }
 
@@ -250,95 +254,103 @@ pub fn bake_with(
     wait: Wait,
     progress: Progress,
     on_stage: &mut dyn FnMut(&StageOutcome, usize, usize) -> Result<()>,
-) -> Result<Vec<StageOutcome>> {
-    let (ingest, described) = recipe.describe(src)?;
-    let resolved = recipe.resolve_stages()?;
-    recipe.check_order(&resolved, &described)?;
-    let mut explicit: Vec<Option<Box<dyn Stage>>> = resolved.into_iter().map(Some).collect();
-    if let Some(request) = &recipe.plan {
-        request
-            .validate()
-            .map_err(anyhow::Error::msg)
-            .with_context(|| format!("{}: [plan]", recipe.path.display()))?;
-        // The planner's time models, checked before the ingest as the plan is.
-        crate::plan::TimeModels::from_env()?;
-    }
-    let created = !dir.exists();
-    let writer = AssetWriter::create(dir, wait)?;
-    let mut outcomes = vec![run_stage_in(&writer, &ingest, false, progress)?];
-    let planned = recipe
-        .plan
-        .as_ref()
-        .map(|request| plan_ingested(dir, recipe, src, request, &writer, &mut outcomes, progress))
-        .transpose();
-    let mut plan = match planned {
-        Ok(plan) => plan,
-        Err(e) => {
-            abandon(writer, dir, created);
-            return Err(e);
+) -> crate::Result<Vec<StageOutcome>> {
+    // The work in anyhow, its causes kept; the kind at the surface.
+    let mut run = move || -> Result<Vec<StageOutcome>> {
+        let (ingest, described) = recipe.describe(src)?;
+        let resolved = recipe.resolve_stages()?;
+        recipe.check_order(&resolved, &described)?;
+        let mut explicit: Vec<Option<Box<dyn Stage>>> = resolved.into_iter().map(Some).collect();
+        if let Some(request) = &recipe.plan {
+            request
+                .validate()
+                .map_err(anyhow::Error::msg)
+                .with_context(|| format!("{}: [plan]", recipe.path.display()))?;
+            // The planner's time models, checked before the ingest as the plan is.
+            crate::plan::TimeModels::from_env()?;
         }
-    };
-    // The planned stages, each replaced by an explicit one of its name,
-    // then the explicit stages the plan does not name, in recipe order.
-    let mut stages: Vec<Box<dyn Stage>> = Vec::new();
-    for planned in plan.as_ref().map(|p| p.stages()).unwrap_or_default() {
-        let given = explicit
-            .iter_mut()
-            .find(|s| s.as_ref().is_some_and(|s| s.name() == planned.name()))
-            .and_then(Option::take);
-        match given {
-            Some(stage) => {
-                if let Some(p) = plan.as_mut() {
-                    p.overridden.push(stage.name().to_string());
-                }
-                stages.push(stage);
-            }
-            None => stages.push(planned),
-        }
-    }
-    stages.extend(explicit.into_iter().flatten());
-    let start = std::time::Instant::now();
-    let total = outcomes.len() + stages.len();
-    for (i, outcome) in outcomes.iter().enumerate() {
-        on_stage(outcome, i + 1, total)?;
-    }
-    let sequence: Vec<(&dyn Stage, bool)> = stages.iter().map(|s| (s.as_ref(), false)).collect();
-    let mut n = outcomes.len();
-    let mut stopped_by_caller = false;
-    let ran = run_stages_in(&writer, &sequence, progress, &mut |outcome| {
-        n += 1;
-        let told = on_stage(outcome, n, total);
-        stopped_by_caller = told.is_err();
-        told
-    });
-    match ran {
-        Ok(ran) => outcomes.extend(ran),
-        Err(e) => {
-            if created && plan.is_some() && !stopped_by_caller {
+        let created = !dir.exists();
+        let writer = AssetWriter::create(dir, wait)?;
+        let mut outcomes = vec![run_stage_in(&writer, &ingest, false, progress)?];
+        let planned = recipe
+            .plan
+            .as_ref()
+            .map(|request| {
+                plan_ingested(dir, recipe, src, request, &writer, &mut outcomes, progress)
+            })
+            .transpose();
+        let mut plan = match planned {
+            Ok(plan) => plan,
+            Err(e) => {
                 abandon(writer, dir, created);
-                return Err(e.context(format!(
-                    "{}: removed the asset this planned bake created",
-                    dir.display()
-                )));
+                return Err(e);
             }
-            return Err(e);
+        };
+        // The planned stages, each replaced by an explicit one of its name,
+        // then the explicit stages the plan does not name, in recipe order.
+        let mut stages: Vec<Box<dyn Stage>> = Vec::new();
+        for planned in plan.as_ref().map(|p| p.stages()).unwrap_or_default() {
+            let given = explicit
+                .iter_mut()
+                .find(|s| s.as_ref().is_some_and(|s| s.name() == planned.name()))
+                .and_then(Option::take);
+            match given {
+                Some(stage) => {
+                    if let Some(p) = plan.as_mut() {
+                        p.overridden.push(stage.name().to_string());
+                    }
+                    stages.push(stage);
+                }
+                None => stages.push(planned),
+            }
         }
-    }
-    if let Some(mut plan) = plan {
-        plan.baked = Some(crate::plan::Baked {
-            seconds: start.elapsed().as_secs_f64(),
-            peak_memory_mib: crate::plumbing::resources::peak_memory().unwrap_or(0) as f64
-                / 1048576.0,
-        });
-        // Under the lock the bake holds: `--no-wait` is not waited past.
-        crate::stage::record_measurement_in(
-            &writer,
-            "plan",
-            serde_json::to_value(&plan)?,
-            vec![format!("{}@0", terrabake_format::layers::HEIGHT)],
-        )?;
-    }
-    Ok(outcomes)
+        stages.extend(explicit.into_iter().flatten());
+        let start = std::time::Instant::now();
+        let total = outcomes.len() + stages.len();
+        for (i, outcome) in outcomes.iter().enumerate() {
+            on_stage(outcome, i + 1, total)?;
+        }
+        let sequence: Vec<(&dyn Stage, bool)> =
+            stages.iter().map(|s| (s.as_ref(), false)).collect();
+        let mut n = outcomes.len();
+        let mut stopped_by_caller = false;
+        let ran = run_stages_in(&writer, &sequence, progress, &mut |outcome| {
+            n += 1;
+            let told = on_stage(outcome, n, total);
+            stopped_by_caller = told.is_err();
+            told
+        })
+        .map_err(crate::Error::into_anyhow);
+        match ran {
+            Ok(ran) => outcomes.extend(ran),
+            Err(e) => {
+                if created && plan.is_some() && !stopped_by_caller {
+                    abandon(writer, dir, created);
+                    return Err(e.context(format!(
+                        "{}: removed the asset this planned bake created",
+                        dir.display()
+                    )));
+                }
+                return Err(e);
+            }
+        }
+        if let Some(mut plan) = plan {
+            plan.baked = Some(crate::plan::Baked {
+                seconds: start.elapsed().as_secs_f64(),
+                peak_memory_mib: crate::plumbing::resources::peak_memory().unwrap_or(0) as f64
+                    / 1048576.0,
+            });
+            // Under the lock the bake holds: `--no-wait` is not waited past.
+            crate::stage::record_measurement_in(
+                &writer,
+                "plan",
+                serde_json::to_value(&plan)?,
+                vec![format!("{}@0", terrabake_format::layers::HEIGHT)],
+            )?;
+        }
+        Ok(outcomes)
+    };
+    Ok(run()?)
 }
 
 /// Releases the writer lock of a planned bake that failed and removes the
@@ -401,5 +413,9 @@ fn plan_ingested(
     again.options.tile_size = plan.tile;
     again.options.codec = plan.codec;
     outcomes.push(run_stage_in(writer, &again, false, progress)?);
-    crate::plan::plan(&crate::stage::asset::open(dir)?, request, progress)
+    Ok(crate::plan::plan(
+        &crate::stage::asset::open(dir)?,
+        request,
+        progress,
+    )?)
 }

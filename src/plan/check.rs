@@ -165,57 +165,61 @@ pub fn check(
     budget: Option<&Budget>,
     sun: &[SunPosition],
     progress: Progress,
-) -> Result<CheckReport> {
-    let start = Instant::now();
-    let dir = asset.dir();
-    let plan = crate::plan::recorded(asset);
-    let sun = if sun.is_empty() {
-        plan.as_ref().map_or(&[][..], |p| &p.sun[..])
-    } else {
-        sun
+) -> crate::Result<CheckReport> {
+    // The work in anyhow, its causes kept; the kind at the surface.
+    let run = move || -> Result<CheckReport> {
+        let start = Instant::now();
+        let dir = asset.dir();
+        let plan = crate::plan::recorded(asset);
+        let sun = if sun.is_empty() {
+            plan.as_ref().map_or(&[][..], |p| &p.sun[..])
+        } else {
+            sun
+        };
+        if budget.is_some_and(|b| b.shade.is_some()) && sun.is_empty() {
+            bail!(
+                "{}: a shade budget needs sun positions, and neither --sun nor a recorded plan gives any (--sun AZ,EL;AZ,EL)",
+                dir.display()
+            );
+        }
+        // The heights, read once for both references.
+        let dem = HeldDem::read(asset)?;
+        let horizons = match HorizonMap::open(asset) {
+            Ok(map) => Some(check_horizons(asset, &dem, &map, opts, sun, progress)?),
+            Err(_) => None,
+        };
+        let tracing = check_tracing(asset, &dem, opts)?;
+        if horizons.is_none() && tracing.is_none() {
+            bail!(
+                "{}: nothing to check: the asset has no horizon layer, pyramid or cone planes (terrabake horizons {})",
+                dir.display(),
+                dir.display()
+            );
+        }
+        let mut report = CheckReport {
+            horizons,
+            tracing,
+            bytes: asset_bytes(asset),
+            seconds: start.elapsed().as_secs_f64(),
+            seed: opts.seed,
+            budget: budget.copied(),
+            predicted: None,
+            baked: None,
+            verdicts: Vec::new(),
+        };
+        if report.budget.is_none() {
+            report.budget = plan.as_ref().map(|p| p.budget);
+        }
+        if let Some(plan) = plan {
+            report.predicted = plan.chosen;
+            report.baked = plan.baked;
+        }
+        if let Some(b) = report.budget {
+            report.verdicts = verdicts(&report, &b);
+        }
+        Ok(report)
     };
-    if budget.is_some_and(|b| b.shade.is_some()) && sun.is_empty() {
-        bail!(
-            "{}: a shade budget needs sun positions, and neither --sun nor a recorded plan gives any (--sun AZ,EL;AZ,EL)",
-            dir.display()
-        );
-    }
-    // The heights, read once for both references.
-    let dem = HeldDem::read(asset)?;
-    let horizons = match HorizonMap::open(asset) {
-        Ok(map) => Some(check_horizons(asset, &dem, &map, opts, sun, progress)?),
-        Err(_) => None,
-    };
-    let tracing = check_tracing(asset, &dem, opts)?;
-    if horizons.is_none() && tracing.is_none() {
-        bail!(
-            "{}: nothing to check: the asset has no horizon layer, pyramid or cone planes (terrabake horizons {})",
-            dir.display(),
-            dir.display()
-        );
-    }
-    let mut report = CheckReport {
-        horizons,
-        tracing,
-        bytes: asset_bytes(asset),
-        seconds: start.elapsed().as_secs_f64(),
-        seed: opts.seed,
-        budget: budget.copied(),
-        predicted: None,
-        baked: None,
-        verdicts: Vec::new(),
-    };
-    if report.budget.is_none() {
-        report.budget = plan.as_ref().map(|p| p.budget);
-    }
-    if let Some(plan) = plan {
-        report.predicted = plan.chosen;
-        report.baked = plan.baked;
-    }
-    if let Some(b) = report.budget {
-        report.verdicts = verdicts(&report, &b);
-    }
-    Ok(report)
+    Ok(run()?)
 }
 
 /// The horizons against exact line horizons at sampled posts.

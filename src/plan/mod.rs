@@ -479,8 +479,10 @@ fn layer_bytes(w: usize, h: usize, tile: usize, size: usize, bands: usize) -> u6
 }
 
 /// Plans what `asset` needs for `request`.
-pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> Result<Plan> {
-    request.validate().map_err(anyhow::Error::msg)?;
+pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate::Result<Plan> {
+    request
+        .validate()
+        .map_err(|e| crate::error::mark(crate::ErrorKind::Parameters, anyhow::Error::msg(e)))?;
     let time_models = TimeModels::from_env()?;
     let budget = &request.budget;
     let needs = &request.needs;

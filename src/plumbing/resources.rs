@@ -5,7 +5,7 @@
 
 use std::path::Path;
 
-use anyhow::{bail, Result};
+use anyhow::Result;
 
 /// Bytes an unprivileged process may still write on the file system that
 /// holds `dir` (`statvfs`), or `None` where it cannot be told.
@@ -62,13 +62,14 @@ pub fn ensure_disk(path: &Path, bytes: u64, what: &str) -> Result<()> {
         .unwrap_or(Path::new("."));
     if let Some(free) = free_disk(existing) {
         if bytes > free {
-            bail!(
-                "{}: {what} needs {}, and {} has {} free",
-                path.display(),
-                gib(bytes),
-                existing.display(),
-                gib(free)
-            );
+            return Err(Shortage {
+                what: format!("{}: {what}", path.display()),
+                resource: "disk",
+                needed: bytes,
+                available: free,
+                place: Some(existing.to_path_buf()),
+            }
+            .into());
         }
     }
     Ok(())
@@ -79,15 +80,53 @@ pub fn ensure_disk(path: &Path, bytes: u64, what: &str) -> Result<()> {
 pub fn ensure_memory(bytes: u64, what: &str) -> Result<()> {
     if let Some(available) = available_memory() {
         if bytes > available {
-            bail!(
-                "{what} needs about {} of memory, and {} is available",
-                gib(bytes),
-                gib(available)
-            );
+            return Err(Shortage {
+                what: what.to_string(),
+                resource: "memory",
+                needed: bytes,
+                available,
+                place: None,
+            }
+            .into());
         }
     }
     Ok(())
 }
+
+/// Work refused before it starts: it needs more memory or disk than the
+/// machine has (a [`crate::ErrorKind::Resources`] failure).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Shortage {
+    /// The work, as the message names it.
+    pub what: String,
+    /// `memory` or `disk`.
+    pub resource: &'static str,
+    /// Bytes it needs, and bytes there are.
+    pub needed: u64,
+    pub available: u64,
+    /// The file system's directory, for disk.
+    pub place: Option<std::path::PathBuf>,
+}
+
+impl std::fmt::Display for Shortage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (what, needed, available) = (&self.what, gib(self.needed), gib(self.available));
+        match &self.place {
+            Some(dir) => write!(
+                f,
+                "{what} needs {needed}, and {} has {available} free",
+                dir.display()
+            ),
+            None => write!(
+                f,
+                "{what} needs about {needed} of {}, and {available} is available",
+                self.resource
+            ),
+        }
+    }
+}
+
+impl std::error::Error for Shortage {}
 
 fn gib(bytes: u64) -> String {
     format!("{:.1} GiB", bytes as f64 / f64::from(1u32 << 30))

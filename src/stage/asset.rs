@@ -143,10 +143,12 @@ fn is_asset_file(name: &str) -> bool {
 }
 
 /// Opens the asset `path` for reading, with the command line's messages.
-pub fn open(path: &Path) -> Result<terrabake_format::Asset<terrabake_format::Mmap>> {
-    expect_directory(path)?;
-    terrabake_format::Asset::open(path)
-        .with_context(|| format!("{}: cannot open asset", path.display()))
+pub fn open(path: &Path) -> crate::Result<terrabake_format::Asset<terrabake_format::Mmap>> {
+    let opened = expect_directory(path).and_then(|()| {
+        terrabake_format::Asset::open(path)
+            .with_context(|| format!("{}: cannot open asset", path.display()))
+    });
+    Ok(opened.map_err(|e| crate::error::mark(crate::ErrorKind::Asset, e))?)
 }
 
 /// Refuses `path` unless it is a directory: missing, or a file (a DEM,

@@ -236,7 +236,7 @@ pub fn run_stage(
     stage: &dyn Stage,
     force: bool,
     progress: Progress,
-) -> Result<StageOutcome> {
+) -> crate::Result<StageOutcome> {
     let writer = AssetWriter::open(dir, Wait::Wait)?;
     run_stage_in(&writer, stage, force, progress)
 }
@@ -248,8 +248,8 @@ pub fn run_stage_in(
     stage: &dyn Stage,
     force: bool,
     progress: Progress,
-) -> Result<StageOutcome> {
-    run_share_in(writer, stage, &Share::All, force, progress)
+) -> crate::Result<StageOutcome> {
+    Ok(run_share_in(writer, stage, &Share::All, force, progress)?)
 }
 
 /// [`run_stage_in`] for one share of the stage's outputs (a part of a
@@ -287,7 +287,7 @@ pub fn run_stages_in(
     stages: &[(&dyn Stage, bool)],
     progress: Progress,
     on_stage: &mut dyn FnMut(&StageOutcome) -> Result<()>,
-) -> Result<Vec<StageOutcome>> {
+) -> crate::Result<Vec<StageOutcome>> {
     let mut held: Option<terrabake_format::Manifest> = None;
     let mut outcomes = Vec::new();
     let mut run = || -> Result<()> {
@@ -351,7 +351,9 @@ fn write_stage(
         dir.display()
     ));
     let start = std::time::Instant::now();
-    stage.check()?;
+    stage
+        .check()
+        .map_err(|e| crate::error::mark(crate::ErrorKind::Parameters, e))?;
     let opened = match held {
         Some(m) => Asset::open_uncommitted(dir, m.clone()),
         None => Asset::open(dir),

@@ -272,7 +272,7 @@ pub fn ingest(
     asset_dir: &Path,
     opts: &IngestOptions,
     progress: Progress,
-) -> Result<Manifest> {
+) -> crate::Result<Manifest> {
     let writer = AssetWriter::create(asset_dir, Wait::Wait)?;
     let stage = IngestStage {
         src: src.to_path_buf(),
@@ -352,7 +352,8 @@ fn write_heights(
             let (read, below) = read.split_at_mut((r1 - r0) * width);
             source
                 .read_rows(r0 as u32, read, &map)
-                .with_context(|| format!("{}: reading rows {r0}..{r1}", src.display()))?;
+                .with_context(|| format!("{}: reading rows {r0}..{r1}", src.display()))
+                .map_err(|e| crate::error::mark(crate::ErrorKind::Source, e))?;
             above.fill(f32::NAN);
             below.fill(f32::NAN);
             stats.add(band);

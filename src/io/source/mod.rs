@@ -103,6 +103,16 @@ pub fn open(
     rows: u32,
     budget: u64,
 ) -> Result<Box<dyn RasterSource>> {
+    open_unmarked(path, raw, rows, budget)
+        .map_err(|e| crate::error::mark(crate::ErrorKind::Source, e))
+}
+
+fn open_unmarked(
+    path: &Path,
+    raw: Option<&RawSpec>,
+    rows: u32,
+    budget: u64,
+) -> Result<Box<dyn RasterSource>> {
     let memory = Memory { rows, budget };
     let meta =
         std::fs::metadata(path).with_context(|| format!("{}: cannot read", path.display()))?;

@@ -1,0 +1,184 @@
+//! The library's error: what went wrong, with its chain of causes, and a
+//! kind a caller can act on without reading the message, as
+//! `std::io::Error` pairs an `ErrorKind` with its payload.
+//!
+//! Inside the pipeline, work returns `anyhow::Result` and adds context as
+//! it unwinds; the kinds come from typed errors in that chain: the format
+//! crate's [`terrabake_format::Error`] (the asset), a
+//! [`Shortage`](crate::plumbing::resources::Shortage) of memory or disk,
+//! and the marks [`mark`] puts where a source DEM or a parameter is at
+//! fault. The entry points ([`crate::bake::recipe::bake`],
+//! [`crate::stage::run_stage`], [`crate::stages::ingest::ingest`],
+//! [`crate::plan::plan`], ...) return [`Result`], so that the Python
+//! package raises one exception class a kind, and the C ABI and a Rust
+//! caller can match on [`Error::kind`].
+
+use std::fmt;
+
+/// What kind of failure an [`Error`] is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum ErrorKind {
+    /// The asset is missing, damaged, of another format version, or lacks
+    /// a layer the work needs ([`Error::format_error`] has the details).
+    Asset,
+    /// The source DEM cannot be read: missing, unreadable, or a header or
+    /// value that terrabake refuses.
+    Source,
+    /// A parameter or request that makes no sense (what a stage's check or
+    /// a budget's validation refuses), before any work.
+    Parameters,
+    /// Not enough memory or disk for the work asked.
+    Resources,
+    /// Anything else: the message says what.
+    Other,
+}
+
+/// A failure of the library, its causes and its [`ErrorKind`].
+#[derive(Debug)]
+pub struct Error {
+    kind: ErrorKind,
+    inner: anyhow::Error,
+}
+
+/// `Result` with [`Error`].
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+impl Error {
+    pub fn kind(&self) -> ErrorKind {
+        self.kind
+    }
+
+    /// The format crate's error behind an [`ErrorKind::Asset`] failure.
+    pub fn format_error(&self) -> Option<&terrabake_format::Error> {
+        self.inner.chain().find_map(|c| c.downcast_ref())
+    }
+
+    /// The whole chain as `anyhow` holds it (for `{:?}` and downcasts).
+    pub fn as_anyhow(&self) -> &anyhow::Error {
+        &self.inner
+    }
+
+    /// The chain, for work that goes on adding context to it.
+    pub fn into_anyhow(self) -> anyhow::Error {
+        self.inner
+    }
+}
+
+impl fmt::Display for Error {
+    /// The message and its causes, each once, joined by ": ".
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let mut said: Vec<String> = Vec::new();
+        for cause in self.inner.chain() {
+            let text = cause.to_string();
+            if said.iter().any(|s| s.contains(&text)) {
+                continue;
+            }
+            if !said.is_empty() {
+                f.write_str(": ")?;
+            }
+            f.write_str(&text)?;
+            said.push(text);
+        }
+        Ok(())
+    }
+}
+
+impl std::error::Error for Error {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        self.inner.source()
+    }
+}
+
+impl From<anyhow::Error> for Error {
+    /// The kind of the first mark in the chain, else of the first typed
+    /// error that has one.
+    fn from(inner: anyhow::Error) -> Self {
+        let kind = inner
+            .chain()
+            .find_map(|c| {
+                if let Some(m) = c.downcast_ref::<Marked>() {
+                    Some(m.kind)
+                } else if let Some(e) = c.downcast_ref::<Error>() {
+                    Some(e.kind)
+                } else if c.is::<terrabake_format::Error>() {
+                    Some(ErrorKind::Asset)
+                } else if c.is::<crate::plumbing::resources::Shortage>() {
+                    Some(ErrorKind::Resources)
+                } else {
+                    None
+                }
+            })
+            .unwrap_or(ErrorKind::Other);
+        Self { kind, inner }
+    }
+}
+
+impl From<terrabake_format::Error> for Error {
+    fn from(e: terrabake_format::Error) -> Self {
+        anyhow::Error::new(e).into()
+    }
+}
+
+/// `e`, marked as a failure of `kind` (a source DEM's, a parameter's):
+/// its message and causes unchanged.
+pub fn mark(kind: ErrorKind, e: anyhow::Error) -> anyhow::Error {
+    anyhow::Error::new(Marked { kind, inner: e })
+}
+
+/// An error marked with its kind; it reads as the error it carries.
+#[derive(Debug)]
+struct Marked {
+    kind: ErrorKind,
+    inner: anyhow::Error,
+}
+
+impl fmt::Display for Marked {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        fmt::Display::fmt(&self.inner, f)
+    }
+}
+
+impl std::error::Error for Marked {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        self.inner.source()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn kinds_come_from_marks_and_typed_causes_and_messages_stay() {
+        let plain = anyhow::anyhow!("a cause").context("what failed");
+        let e = Error::from(plain);
+        assert_eq!(e.kind(), ErrorKind::Other);
+        assert_eq!(e.to_string(), "what failed: a cause");
+        let marked = mark(
+            ErrorKind::Parameters,
+            anyhow::anyhow!("sectors = 2").context("horizons"),
+        );
+        let e = Error::from(marked.context("bake"));
+        assert_eq!(e.kind(), ErrorKind::Parameters);
+        assert_eq!(e.to_string(), "bake: horizons: sectors = 2");
+        let shortage = crate::plumbing::resources::Shortage {
+            what: "holding the DEM".into(),
+            resource: "memory",
+            needed: 8 << 30,
+            available: 1 << 30,
+            place: None,
+        };
+        let e = Error::from(anyhow::Error::new(shortage).context("horizons"));
+        assert_eq!(e.kind(), ErrorKind::Resources);
+        let format = terrabake_format::Error::NoLayer {
+            asset: "a.tbake".into(),
+            name: "horizon".into(),
+            level: 0,
+            available: Vec::new(),
+        };
+        let e = Error::from(anyhow::Error::new(format));
+        assert_eq!(e.kind(), ErrorKind::Asset);
+        assert!(e.format_error().is_some());
+    }
+}
