@@ -5,7 +5,7 @@
 //! Inside the pipeline, work returns `anyhow::Result` and adds context as
 //! it unwinds; the kinds come from typed errors in that chain: the format
 //! crate's [`terrabake_format::Error`] (the asset), a
-//! [`Shortage`](crate::plumbing::resources::Shortage) of memory or disk,
+//! [`Shortage`] of memory or disk,
 //! and the marks [`mark`] puts where a source DEM or a parameter is at
 //! fault. The entry points ([`crate::bake::recipe::bake`],
 //! [`crate::stage::run_stage`], [`crate::stages::ingest::ingest`],
@@ -103,7 +103,7 @@ impl From<anyhow::Error> for Error {
                     Some(e.kind)
                 } else if c.is::<terrabake_format::Error>() {
                     Some(ErrorKind::Asset)
-                } else if c.is::<crate::plumbing::resources::Shortage>() {
+                } else if c.is::<Shortage>() {
                     Some(ErrorKind::Resources)
                 } else {
                     None
@@ -145,6 +145,42 @@ impl std::error::Error for Marked {
     }
 }
 
+/// Work refused before it starts: it needs more memory or disk than the
+/// machine has (an [`ErrorKind::Resources`] failure).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Shortage {
+    /// The work, as the message names it.
+    pub what: String,
+    /// `memory` or `disk`.
+    pub resource: &'static str,
+    /// Bytes it needs, and bytes there are.
+    pub needed: u64,
+    pub available: u64,
+    /// The file system's directory, for disk.
+    pub place: Option<std::path::PathBuf>,
+}
+
+impl std::fmt::Display for Shortage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let gib = |b: u64| format!("{:.1} GiB", b as f64 / f64::from(1u32 << 30));
+        let (what, needed, available) = (&self.what, gib(self.needed), gib(self.available));
+        match &self.place {
+            Some(dir) => write!(
+                f,
+                "{what} needs {needed}, and {} has {available} free",
+                dir.display()
+            ),
+            None => write!(
+                f,
+                "{what} needs about {needed} of {}, and {available} is available",
+                self.resource
+            ),
+        }
+    }
+}
+
+impl std::error::Error for Shortage {}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -162,7 +198,7 @@ mod tests {
         let e = Error::from(marked.context("bake"));
         assert_eq!(e.kind(), ErrorKind::Parameters);
         assert_eq!(e.to_string(), "bake: horizons: sectors = 2");
-        let shortage = crate::plumbing::resources::Shortage {
+        let shortage = Shortage {
             what: "holding the DEM".into(),
             resource: "memory",
             needed: 8 << 30,

@@ -7,10 +7,10 @@
 //! before it; ARCHITECTURE.md maps them, and `tests/architecture.rs` holds
 //! the order and checks the map against the folders):
 //!
-//! - [`plumbing`]: the process's edges: files written whole or not at all,
-//!   parallel work in a fixed order, Ctrl-C, free disk and memory, progress.
 //! - [`error`]: the library's [`Error`] and its [`ErrorKind`], which the
 //!   entry points return (anyhow inside, with its chain of causes).
+//! - [`plumbing`]: the process's edges: files written whole or not at all,
+//!   parallel work in a fixed order, Ctrl-C, free disk and memory, progress.
 //! - [`terrain`]: the shared terrain kernel: the grid the algorithms see
 //!   ([`terrain::Terrain`]), a DEM held in memory, geodesy, tile rows, the sun.
 //! - [`io`]: DEM readers row band by row band, the one GeoTIFF writer,

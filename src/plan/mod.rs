@@ -52,10 +52,15 @@
 
 pub mod budget;
 pub mod check;
+mod choices;
 mod command;
 mod models;
 pub mod reference;
 
+use choices::{
+    cones_choice, distance_choice, encoding_choice, method_choice, route_choice, tiles_choice,
+    tolerance_choice, tracing_choice, unmet,
+};
 pub use command::{describe, PlanArgs, RequestArgs};
 use models::{
     LineCosts, BASE_MIB, CONES_BYTES_PER_POST, CONES_SECONDS_PER_POST, CONE_SLICES,
@@ -687,32 +692,6 @@ fn sun_positions(
     Ok(sun)
 }
 
-/// Why the plan traces with the pyramid alone, or with the cone planes too.
-fn tracing_choice(cones: bool, cones_bytes: u64, posts: u64) -> Choice {
-    Choice {
-        what: "tracing".into(),
-        chosen: if cones {
-            "pyramid and cone planes".into()
-        } else {
-            "max/min pyramid".into()
-        },
-        why: if cones {
-            "fast tracing: parametric steps through the cone planes, the pyramid's exact hits in fewer steps".into()
-        } else {
-            "exact hierarchical tracing needs only the pyramid".into()
-        },
-        rejected: Some(if cones {
-            "the pyramid alone: the same hits, more steps per ray (docs/TRACING.md)".into()
-        } else {
-            format!(
-                "cone planes as well: faster rays for {:.1} MiB more and {:.1} s (ask for fast_tracing)",
-                cones_bytes as f64 / 1048576.0,
-                posts as f64 * CONES_SECONDS_PER_POST
-            )
-        }),
-    }
-}
-
 impl Pilot {
     /// What the pilot holds, MiB: the DEM (4 bytes a post), its blocks'
     /// highest posts and, per post and reference direction, the exact
@@ -721,53 +700,6 @@ impl Pilot {
         let per_post = self.directions_measured() * (8 + 4 * DISTANCES.len());
         let held = 4 * posts as usize + self.bounds_bytes() + self.posts.len() * per_post;
         held as f64 / 1048576.0
-    }
-}
-
-/// Why the cone planes have the slices and encoding they have; `f32_more`
-/// is what f32 planes would add, bytes.
-fn cones_choice(f32_more: u64) -> Choice {
-    Choice {
-        what: "cone planes".into(),
-        chosen: format!("{CONE_SLICES} slices, u16"),
-        why: format!(
-            "{CONE_SLICES} slices step within 6 % of the exact cones on the bundled tile; u16 planes (conservative) step and trace as f32 do, in half the bytes (docs/BENCHMARKS.md, cone planes)"
-        ),
-        rejected: Some(format!(
-            "256 slices: within 1.3 % of exact, 2.7x the bake; f32 planes: {:.1} MiB more for the same steps",
-            f32_more as f64 / 1048576.0
-        )),
-    }
-}
-
-/// Why the tiles are the ingest's, or smaller (`costs.tile`) for the line
-/// sweeps' tile rows to fit the memory limit.
-fn tiles_choice(costs: &LineCosts, chosen: Option<&Candidate>, ingested_tile: usize) -> Choice {
-    let tile = costs.tile;
-    let line_row = |t: usize| {
-        let at = LineCosts { tile: t, ..*costs };
-        chosen.map_or(0.0, |c| at.memory_mib(c.sectors, c.max_distance))
-    };
-    if tile == ingested_tile {
-        Choice {
-            what: "tiles".into(),
-            chosen: format!("{tile} posts"),
-            why: "the ingest's: the line sweeps' tile rows fit the memory".into(),
-            rejected: None,
-        }
-    } else {
-        Choice {
-            what: "tiles".into(),
-            chosen: format!("{tile} posts (ingest again)"),
-            why: format!(
-                "the line sweeps hold a tile row of every direction: {:.0} MiB at {tile} posts fits the memory limit",
-                line_row(tile)
-            ),
-            rejected: Some(format!(
-                "{ingested_tile} posts (the ingest's): {:.0} MiB, over the limit",
-                line_row(ingested_tile)
-            )),
-        }
     }
 }
 
@@ -859,146 +791,6 @@ struct HorizonPlan {
     candidates: Vec<Candidate>,
 }
 
-/// Why the plan's horizons are exact sight lines.
-fn method_choice() -> Choice {
-    Choice {
-        what: "method".into(),
-        chosen: "line (exact sight lines)".into(),
-        why: "exact at every stored direction; the only errors left are between directions, the distance cut and the encoding".into(),
-        rejected: Some(
-            "sector (Stewart's wedges: biased high by definition, its RMS error levels off at 0.67 deg however many sectors) and sampled (nearest-post rounding: levels off at 0.41 deg); 16 lines (0.12 deg) beat both in less time than either's fastest (docs/BENCHMARKS.md, horizon methods on the SRTM crop)".into(),
-        ),
-    }
-}
-
-/// Why the directions' tolerance is what it is: `tolerance` (degrees, and
-/// the crossings a post its grid steps cost) against `at_default`
-/// crossings at the default, and the first wider one over the budget.
-fn tolerance_choice(
-    sectors: usize,
-    tolerance: (f64, usize),
-    at_default: usize,
-    too_wide: Option<(f64, usize, f64, f64)>,
-) -> Choice {
-    Choice {
-        what: "tolerance".into(),
-        chosen: format!("{:.2} deg", tolerance.0),
-        why: if tolerance.1 < at_default {
-            format!(
-                "the widest up to a third of the spacing whose error between directions stays within {SHARE_DIRECTIONS} of the budget: its grid steps cost {} crossings a post, against {at_default} within {:.2} deg (the default)",
-                tolerance.1,
-                default_tolerance(sectors),
-            )
-        } else {
-            format!(
-                "the stage's default, an eighth of the spacing: {at_default} crossings a post, and no wider tolerance up to a third both costs fewer and stays within {SHARE_DIRECTIONS} of the budget"
-            )
-        },
-        rejected: too_wide.map(|(tol, cost, horizon, svf)| {
-            format!(
-                "{tol:.2} deg: {cost} crossings a post, but its error between directions at p99.5, the quantile that decides (horizon {horizon:.3} deg, svf {svf:.4}), is over the share"
-            )
-        }),
-    }
-}
-
-/// Why the angles are stored as `encoding`, and the coarser ones over the
-/// budget.
-fn encoding_choice(encoding: AngleEncoding) -> Choice {
-    let finer = [AngleEncoding::U8, AngleEncoding::U16]
-        .into_iter()
-        .filter(|e| e.max_error_deg() > encoding.max_error_deg())
-        .map(|e| {
-            format!(
-                "{} (worst error {:.3} deg: over its share of the budget)",
-                e.name(),
-                e.max_error_deg()
-            )
-        })
-        .collect::<Vec<_>>();
-    Choice {
-        what: "encoding".into(),
-        chosen: encoding.name().into(),
-        why: format!(
-            "the coarsest whose worst error ({:.4} deg) is within {SHARE_QUANTISATION} of the budget",
-            encoding.max_error_deg()
-        ),
-        rejected: (!finer.is_empty()).then(|| finer.join("; ")),
-    }
-}
-
-/// Why the horizons look no farther than `safe_distance` (or to the edge).
-fn distance_choice(scene: &Scene, curvature: f64, safe_distance: Option<f64>) -> Choice {
-    // Relief and curvature bound what lies beyond D: no post sees terrain
-    // there above atan(relief / D - c D); past sqrt(relief / c) it lies
-    // below every post's horizontal plane.
-    let relief = scene.relief_m;
-    let bound = |d: f64| (relief / d - curvature * d).atan().to_degrees();
-    let below_horizontal = (curvature > 0.0).then(|| (relief / curvature).sqrt());
-    let distance_why = match safe_distance {
-        Some(d) => format!(
-            "beyond {:.1} km the terrain moves the pilot's horizons by at most {} of the budget (p99.5); relief and curvature allow at most {:.2} deg there{}",
-            d / 1000.0,
-            SHARE_DISTANCE,
-            bound(d),
-            below_horizontal.map_or(String::new(), |b| format!(
-                ", and nothing past {:.0} km rises above a post's horizontal",
-                b / 1000.0
-            )),
-        ),
-        None => "every distance within the DEM moves some horizon by more than its share of the budget".into(),
-    };
-    Choice {
-        what: "distance".into(),
-        chosen: safe_distance.map_or("the whole DEM".into(), |d| format!("{:.1} km", d / 1000.0)),
-        why: distance_why,
-        rejected: safe_distance
-            .and_then(|d| DISTANCES.into_iter().rev().find(|&x| x < d))
-            .map(|d| format!("{:.2} km: the terrain beyond moves the horizons by more than {SHARE_DISTANCE} of the budget", d / 1000.0)),
-    }
-}
-
-/// Why the sweeps run bounded in core, or to the edge out of core.
-fn route_choice(
-    costs: &LineCosts,
-    sectors: usize,
-    safe_distance: Option<f64>,
-    bounded: Option<f64>,
-) -> Choice {
-    let route_rejected = match (safe_distance, bounded) {
-        (Some(d), None) => Some(format!(
-            "bounded to {:.1} km: {:.1} s and {:.0} MiB (the DEM held) against {:.1} s and {:.0} MiB to the edge",
-            d / 1000.0,
-            costs.seconds(sectors, Some(d)),
-            costs.memory_mib(sectors, Some(d)),
-            costs.seconds(sectors, None),
-            costs.memory_mib(sectors, None),
-        )),
-        (_, Some(d)) => Some(format!(
-            "sweeps to the edge: {:.1} s against {:.1} s bounded to {:.1} km",
-            costs.seconds(sectors, None),
-            costs.seconds(sectors, Some(d)),
-            d / 1000.0
-        )),
-        (None, None) => None,
-    };
-    Choice {
-        what: "route".into(),
-        chosen: match bounded {
-            Some(d) => format!("bounded lines, {:.1} km, in core", d / 1000.0),
-            None => "line sweeps to the edge, out of core".into(),
-        },
-        why: match bounded {
-            Some(_) => {
-                "faster than the sweeps: each post walks only its reach (the DEM held in memory)"
-                    .into()
-            }
-            None => "the sweeps stream tile rows: memory grows with the width, not the DEM".into(),
-        },
-        rejected: route_rejected,
-    }
-}
-
 /// The encoding: the coarsest whose worst error is within its share of
 /// the budget, in degrees and (for the svf, which a change of h radians in
 /// every direction moves by at most h) in radians, and whose rounding alone
@@ -1020,28 +812,6 @@ fn choose_encoding(pilot: &Pilot, suns: &[PilotSun], budget: &Budget) -> AngleEn
                     .within(budget, share))
         })
         .unwrap_or(AngleEncoding::F32)
-}
-
-/// Why no count of directions meets the budget: what the most directions
-/// (`closest`) leave, and what to relax to, from what they leave at the
-/// quantile that decides (`deciding`: horizon, svf) over the share of the
-/// budget it gets.
-fn unmet(budget: &Budget, closest: &Candidate, deciding: (f64, f64)) -> anyhow::Error {
-    anyhow::anyhow!(
-        "budget {budget} cannot be met with up to {} line directions on this scene: {} directions leave a horizon p99 of {:.3} degrees and an svf p99 of {:.4} between them{}; relax horizon to at least {:.3}{}",
-        closest.sectors,
-        closest.sectors,
-        closest.horizon_p99_deg,
-        closest.svf_p99,
-        closest
-            .shade_share
-            .map_or(String::new(), |s| format!(", and {:.4} of the sun/shade states wrong", s)),
-        round_up(deciding.0 / SHARE_DIRECTIONS, 3),
-        budget.svf.map_or(String::new(), |_| format!(
-            " and svf to at least {:.4}",
-            round_up(deciding.1 / SHARE_DIRECTIONS, 4)
-        )),
-    )
 }
 
 /// The horizons: encoding, distance limit, directions and route, each from

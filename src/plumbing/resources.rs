@@ -7,6 +7,8 @@ use std::path::Path;
 
 use anyhow::Result;
 
+pub use crate::error::Shortage;
+
 /// Bytes an unprivileged process may still write on the file system that
 /// holds `dir` (`statvfs`), or `None` where it cannot be told.
 pub fn free_disk(dir: &Path) -> Option<u64> {
@@ -91,45 +93,6 @@ pub fn ensure_memory(bytes: u64, what: &str) -> Result<()> {
         }
     }
     Ok(())
-}
-
-/// Work refused before it starts: it needs more memory or disk than the
-/// machine has (a [`crate::ErrorKind::Resources`] failure).
-#[derive(Debug, Clone, PartialEq)]
-pub struct Shortage {
-    /// The work, as the message names it.
-    pub what: String,
-    /// `memory` or `disk`.
-    pub resource: &'static str,
-    /// Bytes it needs, and bytes there are.
-    pub needed: u64,
-    pub available: u64,
-    /// The file system's directory, for disk.
-    pub place: Option<std::path::PathBuf>,
-}
-
-impl std::fmt::Display for Shortage {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let (what, needed, available) = (&self.what, gib(self.needed), gib(self.available));
-        match &self.place {
-            Some(dir) => write!(
-                f,
-                "{what} needs {needed}, and {} has {available} free",
-                dir.display()
-            ),
-            None => write!(
-                f,
-                "{what} needs about {needed} of {}, and {available} is available",
-                self.resource
-            ),
-        }
-    }
-}
-
-impl std::error::Error for Shortage {}
-
-fn gib(bytes: u64) -> String {
-    format!("{:.1} GiB", bytes as f64 / f64::from(1u32 << 30))
 }
 
 /// `n` bytes in binary units, one decimal: "1.5 GiB".
