@@ -303,7 +303,7 @@ impl Cli {
     }
 
     /// [`Self::parse_checked`] of `args` (the program's name first).
-    pub fn try_parse_checked<I, T>(args: I) -> Result<Self, clap::Error>
+    pub(crate) fn try_parse_checked<I, T>(args: I) -> Result<Self, clap::Error>
     where
         I: IntoIterator<Item = T>,
         T: Into<std::ffi::OsString> + Clone,

@@ -122,7 +122,7 @@ impl From<terrabake_format::Error> for Error {
 
 /// `e`, marked as a failure of `kind` (a source DEM's, a parameter's):
 /// its message and causes unchanged.
-pub fn mark(kind: ErrorKind, e: anyhow::Error) -> anyhow::Error {
+pub(crate) fn mark(kind: ErrorKind, e: anyhow::Error) -> anyhow::Error {
     anyhow::Error::new(Marked { kind, inner: e })
 }
 

@@ -43,6 +43,6 @@ pub mod terrain;
 pub use error::{Error, ErrorKind, Result};
 
 /// `terrabake <version>`, recorded in every manifest.
-pub fn tool_version() -> String {
+pub(crate) fn tool_version() -> String {
     format!("terrabake {}", env!("CARGO_PKG_VERSION"))
 }

@@ -71,7 +71,7 @@ impl Envelope {
     /// Calls `visit(p, d)` for every `p` of `positions` (increasing) with
     /// `d` the envelope at `p`; the envelope must not be empty.
     #[inline]
-    pub fn evaluate_at(
+    pub(crate) fn evaluate_at(
         &self,
         positions: impl Iterator<Item = usize>,
         mut visit: impl FnMut(usize, f64),
@@ -104,7 +104,7 @@ impl Envelope {
 /// 1-D squared distance transform: `out[p] = min_q (spacing (p - q))^2 + f[q]`,
 /// `f[q] = inf` where there is no sample; `out` is `inf` where `f` is all
 /// `inf`.
-pub fn squared_1d(f: &[f64], spacing: f64, out: &mut [f64], envelope: &mut Envelope) {
+pub(crate) fn squared_1d(f: &[f64], spacing: f64, out: &mut [f64], envelope: &mut Envelope) {
     let s2 = spacing * spacing;
     envelope.clear();
     for (q, &fq) in f.iter().enumerate() {

@@ -163,7 +163,7 @@ impl Slices {
     /// apex to the height above slice `k` (`z_k+1`; the top above the last
     /// slice), since cells in slice `k` and not in `k + 1` are below it;
     /// `0` for the cells in slice `k`'s plane, which it does not bound.
-    pub fn rise_of(&self, k: usize) -> Vec<f64> {
+    pub(crate) fn rise_of(&self, k: usize) -> Vec<f64> {
         let z_next = self.z.get(k + 1).copied().unwrap_or(self.top);
         (0..=self.len())
             .map(|a| if a <= k { z_next - self.z[a] } else { 0.0 })

@@ -88,7 +88,7 @@ impl Part {
 
     /// Tile rows `T I / N .. T (I + 1) / N` of `T`, as rows of posts of an
     /// `h`-row grid with tiles of `ts` rows.
-    pub fn own_rows(self, h: usize, ts: usize) -> Range<usize> {
+    pub(crate) fn own_rows(self, h: usize, ts: usize) -> Range<usize> {
         let tiles = h.div_ceil(ts);
         let at = |i: u32| (tiles * i as usize / self.count as usize * ts).min(h);
         at(self.index)..at(self.index + 1)

@@ -91,7 +91,7 @@ impl Recipe {
     }
 
     /// The ingest stage of this recipe for `src`.
-    pub fn ingest_stage(&self, src: &Path) -> IngestStage {
+    pub(crate) fn ingest_stage(&self, src: &Path) -> IngestStage {
         IngestStage {
             src: src.to_path_buf(),
             options: self.ingest.clone(),
@@ -100,7 +100,7 @@ impl Recipe {
 
     /// The recipe's ingest of `src`, checked, and the manifest it will
     /// write, from the source's header alone.
-    pub fn describe(&self, src: &Path) -> Result<(IngestStage, terrabake_format::Manifest)> {
+    pub(crate) fn describe(&self, src: &Path) -> Result<(IngestStage, terrabake_format::Manifest)> {
         let ingest = self.ingest_stage(src);
         ingest
             .check()
@@ -115,7 +115,7 @@ impl Recipe {
     /// Refuses `stages` (this recipe's, resolved) in an order where one
     /// reads a layer that a later one writes (`sky` before `horizons`):
     /// the bake would ingest and then fail. `m` describes the DEM.
-    pub fn check_order(
+    pub(crate) fn check_order(
         &self,
         stages: &[Box<dyn Stage>],
         m: &terrabake_format::Manifest,
@@ -193,7 +193,7 @@ pub const STAGES: [&str; 6] = [
 
 /// The stage a recipe step names, its table deserialised into the stage's
 /// parameter type (unknown keys refused by name) and checked.
-pub fn stage_from_recipe(step: &RecipeStage) -> Result<Box<dyn Stage>> {
+pub(crate) fn stage_from_recipe(step: &RecipeStage) -> Result<Box<dyn Stage>> {
     fn typed<T>(table: &toml::Table) -> Result<Box<dyn Stage>>
     where
         T: Stage + serde::de::DeserializeOwned + 'static,

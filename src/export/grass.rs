@@ -45,7 +45,7 @@ pub struct GrassHorizon {
 
 /// Decimals of `step` as GRASS counts them from the number as typed: we
 /// type it with the fewest that say it exactly (up to 6).
-pub fn step_decimals(step: f64) -> usize {
+pub(crate) fn step_decimals(step: f64) -> usize {
     (0..=6)
         .find(|&d| {
             let scale = 10f64.powi(d as i32);
@@ -55,7 +55,7 @@ pub fn step_decimals(step: f64) -> usize {
 }
 
 /// `G_generate_basename(basename, angle, 3, decimals)`.
-pub fn map_name(angle: f64, decimals: usize) -> String {
+pub(crate) fn map_name(angle: f64, decimals: usize) -> String {
     let width = 3 + if decimals > 0 { decimals + 1 } else { 0 };
     let number = format!("{angle:0width$.decimals$}").replace('.', "_");
     format!("{BASENAME}_{number}")
@@ -84,7 +84,7 @@ pub fn directions(dir: &Path, step: f64) -> Result<Vec<GrassHorizon>> {
 /// Writes the horizon layer of `asset` into `dir`, one file per direction
 /// `step` degrees apart (360 / bands when `None`). Returns the files and
 /// the `r.sun` step to give with them.
-pub fn export_horizons(
+pub(crate) fn export_horizons(
     asset: &Asset<Mmap>,
     dir: &Path,
     step: Option<f64>,

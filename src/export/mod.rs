@@ -46,7 +46,7 @@ pub enum ExportKind {
 }
 
 impl ExportKind {
-    pub fn from_path(path: &Path) -> Result<Self> {
+    pub(crate) fn from_path(path: &Path) -> Result<Self> {
         match path
             .extension()
             .and_then(|e| e.to_str())
@@ -83,7 +83,7 @@ pub enum PngStyle {
 
 impl PngStyle {
     /// The style for `layer` when none is asked for.
-    pub fn default_for(layer: &str) -> Self {
+    pub(crate) fn default_for(layer: &str) -> Self {
         if is_height_like(layer) {
             PngStyle::Relief
         } else {
@@ -98,7 +98,7 @@ fn is_height_like(layer: &str) -> bool {
 }
 
 /// What a layer's map shows, with its unit, for legends.
-pub fn layer_title(layer: &str, band: u32, bands: u32) -> String {
+pub(crate) fn layer_title(layer: &str, band: u32, bands: u32) -> String {
     use terrabake_format::layers as l;
     let band = if bands > 1 {
         format!(", band {band} of {bands}")
@@ -157,7 +157,7 @@ impl Default for TiffOptions {
 
 /// Overviews that suit a layer: averages of continuous quantities, the
 /// nearest post for angles, codes and counts.
-pub fn default_resampling(layer: &str) -> Resampling {
+pub(crate) fn default_resampling(layer: &str) -> Resampling {
     use terrabake_format::layers as l;
     if is_height_like(layer) || [l::SVF, l::SVF_COSINE, l::TOTAL_VIEWSHED].contains(&layer) {
         Resampling::Average
@@ -439,13 +439,13 @@ impl ExportArgs {
 }
 
 /// A step as GRASS should be given it: the fewest decimals that say it.
-pub fn format_step(step: f64) -> String {
+pub(crate) fn format_step(step: f64) -> String {
     format!("{step:.*}", grass::step_decimals(step))
 }
 
 /// Exports `layer` to `out`: every band to GeoTIFF (one TIFF band each) and
 /// OpenEXR (one channel each, `B0`, `B1`, ...), band `band` to a PNG.
-pub fn export_layer(
+pub(crate) fn export_layer(
     asset: &Asset<Mmap>,
     layer: &Layer<Mmap>,
     out: &Path,

@@ -64,7 +64,7 @@ pub struct Ktx2 {
 impl Ktx2 {
     /// The file's bytes (KTX 2.0 spec, sec. 3: identifier, header, index,
     /// level index, data format descriptor, key/value data, level data).
-    pub fn to_bytes(&self) -> Vec<u8> {
+    pub(crate) fn to_bytes(&self) -> Vec<u8> {
         let type_size = (self.bits / 8).max(1);
         let texel = type_size * self.channels;
         // Data format descriptor: its total size, then one basic block of
@@ -271,7 +271,7 @@ pub fn texture_for_layer(asset: &Asset<Mmap>, layer: &Layer<Mmap>) -> Result<Ktx
 /// The planes dilated for bilinear filtering: per cell the highest apex
 /// and the least slope of the 3 x 3 cells around it (edges clamped), NaN
 /// apexes left out, infinite values made finite (1e30).
-pub fn conservative_cones(
+pub(crate) fn conservative_cones(
     apex: &[f32],
     slope: &[f32],
     (w, h): (usize, usize),
@@ -307,7 +307,7 @@ pub fn conservative_cones(
 /// ([`crate::algorithms::horizon::fourier`]): an `R32_SFLOAT` array texture, layer `j`
 /// coefficient `j` (`c_0`, then `cos` and `sin` of each harmonic), NaN for
 /// nodata.
-pub fn fourier_texture(asset: &Asset<Mmap>, harmonics: usize) -> Result<Ktx2> {
+pub(crate) fn fourier_texture(asset: &Asset<Mmap>, harmonics: usize) -> Result<Ktx2> {
     let layer = asset.layer(terrabake_format::layers::HORIZON, 0)?;
     let e = layer.entry();
     let held = u64::from(e.bands).max(2 * harmonics as u64 + 1);
@@ -353,7 +353,7 @@ pub fn fourier_texture(asset: &Asset<Mmap>, harmonics: usize) -> Result<Ktx2> {
 }
 
 /// Writes `texture` to `path` (atomically).
-pub fn write_ktx2(path: &Path, texture: &Ktx2) -> Result<()> {
+pub(crate) fn write_ktx2(path: &Path, texture: &Ktx2) -> Result<()> {
     let bytes = texture.to_bytes();
     write_atomically(path, |f| Ok(f.write_all(&bytes)?))
 }

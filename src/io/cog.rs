@@ -57,7 +57,7 @@ pub struct GeoTags {
 
 impl GeoTags {
     /// Tags for a layer at `level`: each post of level L covers 2^L posts.
-    pub fn for_level(georef: Option<&Georef>, nodata: Option<String>, level: u32) -> Self {
+    pub(crate) fn for_level(georef: Option<&Georef>, nodata: Option<String>, level: u32) -> Self {
         let georef = georef.map(|g| {
             let mut g = g.clone();
             let f = f64::from(1u32 << level.min(30));
@@ -461,7 +461,7 @@ pub fn write_f32(
 
 impl Metadata {
     /// GDAL's `<GDALMetadata>` document; empty when there is nothing to say.
-    pub fn xml(&self) -> String {
+    pub(crate) fn xml(&self) -> String {
         let mut items = String::new();
         let mut item = |name: &str, sample: Option<usize>, role: Option<&str>, value: &str| {
             items += &format!("  <Item name=\"{}\"", escape(name));

@@ -46,7 +46,7 @@ pub struct Budget {
 impl Budget {
     /// Every limit positive and finite, the share at most 1: the message
     /// names the key and the value.
-    pub fn validate(&self) -> Result<(), String> {
+    pub(crate) fn validate(&self) -> Result<(), String> {
         let positive = |key: &str, v: f64| {
             if v.is_finite() && v > 0.0 {
                 Ok(())
@@ -365,7 +365,7 @@ pub struct Request {
 impl Request {
     /// The budget and the needs agree: a shade budget needs the sun and its
     /// positions, the sun needs positions; the message says what to add.
-    pub fn validate(&self) -> Result<(), String> {
+    pub(crate) fn validate(&self) -> Result<(), String> {
         self.budget.validate()?;
         let positions = !self.sun.is_empty() || self.sun_day.is_some();
         if self.needs.has(Need::Sun) && !positions {

@@ -554,7 +554,7 @@ pub fn record(dir: &std::path::Path, report: &CheckReport) -> Result<()> {
 }
 
 /// The report as a table for people.
-pub fn describe(report: &CheckReport) -> String {
+pub(crate) fn describe(report: &CheckReport) -> String {
     let mut out = String::new();
     if let Some(h) = &report.horizons {
         out += &format!(

@@ -8,7 +8,7 @@ use super::{plan, Plan, TimeModels, PILOT_DIRECTIONS, TIME_MODELS_VAR};
 use crate::plumbing::progress::Progress;
 
 /// The plan as a table for people.
-pub fn describe(plan: &Plan) -> String {
+pub(crate) fn describe(plan: &Plan) -> String {
     let s = &plan.scene;
     let mut out = format!(
         "budget {}\nneeds  {}{}\nscene  {} x {} posts, cells {:.1} x {:.1} m, relief {:.0} m, nodata {:.2} %, curvature {}\n",

@@ -61,7 +61,7 @@ use choices::{
     cones_choice, distance_choice, encoding_choice, method_choice, route_choice, tiles_choice,
     tolerance_choice, tracing_choice, unmet,
 };
-pub use command::{describe, PlanArgs, RequestArgs};
+pub use command::{PlanArgs, RequestArgs};
 use models::{
     LineCosts, BASE_MIB, CONES_BYTES_PER_POST, CONES_SECONDS_PER_POST, CONE_SLICES,
     PYRAMID_SECONDS_PER_POST,

@@ -49,7 +49,7 @@ impl TimeModels {
     /// kept for the process, so that the check before an ingest, the plans
     /// after it and `terrabake-bench plan`'s plans all use the same file's models. A
     /// file that fails is not kept: its error ends the command.
-    pub fn from_env() -> Result<Self> {
+    pub(crate) fn from_env() -> Result<Self> {
         static MODELS: std::sync::OnceLock<TimeModels> = std::sync::OnceLock::new();
         if let Some(models) = MODELS.get() {
             return Ok(*models);

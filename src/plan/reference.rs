@@ -223,7 +223,7 @@ impl Pilot {
     }
 
     /// The memory the blocks bounding its sight lines hold, bytes.
-    pub fn bounds_bytes(&self) -> usize {
+    pub(crate) fn bounds_bytes(&self) -> usize {
         self.heights.bytes()
     }
 
@@ -290,7 +290,7 @@ impl Pilot {
     }
 
     /// Directions measured: the reference's and those added.
-    pub fn directions_measured(&self) -> usize {
+    pub(crate) fn directions_measured(&self) -> usize {
         self.steps.len()
     }
 
@@ -302,7 +302,7 @@ impl Pilot {
 
     /// The reference direction nearest azimuth `az` (degrees, any turn):
     /// where a sun at `az` is compared.
-    pub fn nearest_direction(&self, az: f64) -> usize {
+    pub(crate) fn nearest_direction(&self, az: f64) -> usize {
         let gap = |b: &Band| {
             let d = (b.azimuth - az).rem_euclid(360.0);
             d.min(360.0 - d)
@@ -324,7 +324,7 @@ impl Pilot {
 
 /// Whether a sun `elevation` degrees up is lit under one horizon and not
 /// under the other (a wrong sun/shade state; the sun is a point).
-pub fn shade_differs(elevation: f64, served: f64, exact: f64) -> bool {
+pub(crate) fn shade_differs(elevation: f64, served: f64, exact: f64) -> bool {
     (elevation > served) != (elevation > exact)
 }
 
@@ -339,7 +339,7 @@ pub fn percentile(v: &[f64], p: usize) -> f64 {
 /// The value at quantile `q` (0..1) of `v` once sorted, without sorting
 /// it all (0 when empty); `v` is left reordered, so that several
 /// quantiles of one slice cost a selection each.
-pub fn quantile_unsorted(v: &mut [f64], q: f64) -> f64 {
+pub(crate) fn quantile_unsorted(v: &mut [f64], q: f64) -> f64 {
     if v.is_empty() {
         return 0.0;
     }

@@ -22,7 +22,7 @@ pub fn scratch(dir: PathBuf) {
 static DOING: Mutex<Option<String>> = Mutex::new(None);
 
 /// Says what the process is doing from now on (`None`: nothing to name).
-pub fn doing(what: Option<String>) {
+pub(crate) fn doing(what: Option<String>) {
     *DOING.lock().unwrap_or_else(|e| e.into_inner()) = what;
 }
 

@@ -35,7 +35,7 @@ struct State<S, R, W> {
 /// Runs `steps` steps of every job (`step(&mut job, k)`) on `threads`
 /// workers and calls `write(job, k, result)` in step-major, job-minor
 /// order. The first error stops all workers and is returned.
-pub fn steps_in_order<S, R, W>(
+pub(crate) fn steps_in_order<S, R, W>(
     jobs: Vec<S>,
     steps: usize,
     threads: usize,

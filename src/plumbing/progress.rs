@@ -46,7 +46,7 @@ impl Progress {
 
 /// A rate as people read it: whole numbers from 10 up (`434`, not
 /// `434.4949`), one decimal below.
-pub fn human_rate(per_sec: f64) -> String {
+pub(crate) fn human_rate(per_sec: f64) -> String {
     if per_sec >= 10.0 {
         format!("{per_sec:.0}")
     } else {

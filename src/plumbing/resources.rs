@@ -11,7 +11,7 @@ pub use crate::error::Shortage;
 
 /// Bytes an unprivileged process may still write on the file system that
 /// holds `dir` (`statvfs`), or `None` where it cannot be told.
-pub fn free_disk(dir: &Path) -> Option<u64> {
+pub(crate) fn free_disk(dir: &Path) -> Option<u64> {
     use std::os::unix::ffi::OsStrExt;
     let c = std::ffi::CString::new(dir.as_os_str().as_bytes()).ok()?;
     let mut st = std::mem::MaybeUninit::<libc::statvfs>::uninit();
@@ -28,7 +28,7 @@ pub fn free_disk(dir: &Path) -> Option<u64> {
 
 /// Memory the kernel says it can give without swapping (`MemAvailable`),
 /// or `None` where it does not say.
-pub fn available_memory() -> Option<u64> {
+pub(crate) fn available_memory() -> Option<u64> {
     let text = std::fs::read_to_string("/proc/meminfo").ok()?;
     let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
     let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
@@ -37,7 +37,7 @@ pub fn available_memory() -> Option<u64> {
 
 /// The process's peak resident memory so far, bytes (`getrusage`), or
 /// `None` where it cannot be told.
-pub fn peak_memory() -> Option<u64> {
+pub(crate) fn peak_memory() -> Option<u64> {
     let mut usage = std::mem::MaybeUninit::<libc::rusage>::uninit();
     // SAFETY: a buffer getrusage fills on success.
     if unsafe { libc::getrusage(libc::RUSAGE_SELF, usage.as_mut_ptr()) } != 0 {
@@ -52,7 +52,7 @@ pub fn peak_memory() -> Option<u64> {
 
 /// Refuses to write `bytes` to `path` (`what` it is) when the file system
 /// has less free.
-pub fn ensure_disk(path: &Path, bytes: u64, what: &str) -> Result<()> {
+pub(crate) fn ensure_disk(path: &Path, bytes: u64, what: &str) -> Result<()> {
     let dir = path
         .parent()
         .filter(|p| !p.as_os_str().is_empty())
@@ -96,7 +96,7 @@ pub fn ensure_memory(bytes: u64, what: &str) -> Result<()> {
 }
 
 /// `n` bytes in binary units, one decimal: "1.5 GiB".
-pub fn human_bytes(n: u64) -> String {
+pub(crate) fn human_bytes(n: u64) -> String {
     let units = ["B", "KiB", "MiB", "GiB", "TiB"];
     let mut v = n as f64;
     let mut u = 0;

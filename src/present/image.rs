@@ -9,7 +9,7 @@ pub struct Image {
 }
 
 /// Writes an RGB PNG (through a temporary file).
-pub fn write_png(path: &std::path::Path, image: &Image) -> anyhow::Result<()> {
+pub(crate) fn write_png(path: &std::path::Path, image: &Image) -> anyhow::Result<()> {
     crate::plumbing::output::write_atomically(path, |file| {
         let mut enc = png::Encoder::new(file, image.width, image.height);
         enc.set_color(png::ColorType::Rgb);

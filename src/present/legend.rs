@@ -69,7 +69,7 @@ impl Stretch {
     /// Linear from the 1st to the 99th percentile of the values that are
     /// not NaN (a sky-view factor's few pits would otherwise leave the rest
     /// of the map one colour); `None` when all are NaN.
-    pub fn percentiles(values: Vec<f32>) -> Option<Self> {
+    pub(crate) fn percentiles(values: Vec<f32>) -> Option<Self> {
         let p = sorted_percentiles(values)?;
         Some(Self::linear(
             p[1],
@@ -80,7 +80,7 @@ impl Stretch {
 
     /// Equalised between the 1st and the 99th percentile: knots at every
     /// percentile between, so that the middle of the ramp is the median.
-    pub fn equalised(values: Vec<f32>) -> Option<Self> {
+    pub(crate) fn equalised(values: Vec<f32>) -> Option<Self> {
         let p = sorted_percentiles(values)?;
         let mut knots = p[1..=99].to_vec();
         // Equal percentiles would divide by zero: keep knots increasing.
@@ -119,7 +119,7 @@ impl Stretch {
     }
 
     /// The value at position `t` in 0..1.
-    pub fn value_at(&self, t: f32) -> f32 {
+    pub(crate) fn value_at(&self, t: f32) -> f32 {
         let last = self.knots.len() - 1;
         let x = t.clamp(0.0, 1.0) * last as f32;
         let i = (x.floor() as usize).min(last.saturating_sub(1));
@@ -143,7 +143,7 @@ fn sorted_percentiles(mut values: Vec<f32>) -> Option<Vec<f32>> {
 }
 
 /// A hypsometric tint for t in 0..1 (lowland green, upland tan, peaks white).
-pub fn hypsometric(t: f32) -> [f32; 3] {
+pub(crate) fn hypsometric(t: f32) -> [f32; 3] {
     const STOPS: [(f32, [f32; 3]); 5] = [
         (0.0, [62.0, 128.0, 72.0]),
         (0.3, [150.0, 180.0, 100.0]),

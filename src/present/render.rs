@@ -54,7 +54,7 @@ fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
 
 impl Camera {
     /// The camera's basis for a `w x h` image, computed once per image.
-    pub fn projector(&self, w: u32, h: u32) -> Projector {
+    pub(crate) fn projector(&self, w: u32, h: u32) -> Projector {
         let forward = normalize([
             self.look_at[0] - self.eye[0],
             self.look_at[1] - self.eye[1],
@@ -482,7 +482,7 @@ pub fn builtin_views(tracer: &Tracer<'_, Mmap>, asset: &Asset<Mmap>) -> Vec<Came
 
 /// Refuses `method` on an asset without the layers it walks, naming the
 /// asset and the command that adds them.
-pub fn require_layers(
+pub(crate) fn require_layers(
     tracer: &Tracer<'_, Mmap>,
     method: Method,
     asset: &std::path::Path,
@@ -616,7 +616,7 @@ impl RenderArgs {
 }
 
 /// `render --stats`: rays, speed and the work per primary ray.
-pub fn render_stats(method: &str, st: &RenderStats) -> String {
+pub(crate) fn render_stats(method: &str, st: &RenderStats) -> String {
     format!(
         "{method}: {} primary + {} shadow rays in {:.3} s on {} threads: {:.0} rays/s; per primary ray {:.2} steps, {:.2} cells, {:.2} nodes pushed",
         st.primary_rays,

@@ -28,7 +28,7 @@ pub fn info(path: &Path, json: bool) -> anyhow::Result<String> {
     })
 }
 
-pub fn describe(path: &Path, m: &terrabake_format::Manifest) -> String {
+pub(crate) fn describe(path: &Path, m: &terrabake_format::Manifest) -> String {
     use std::fmt::Write;
     let mut s = String::new();
     let posts = u64::from(m.width) * u64::from(m.height);

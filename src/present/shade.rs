@@ -51,7 +51,7 @@ const SUN_RADIUS: f64 = 0.27;
 
 /// The light on every post as a share of what a flat, open plain receives
 /// under the same sky and sun (NaN for nodata or no horizon), row-major.
-pub fn shade_posts(asset: &Asset<Mmap>, shade: Shade) -> Result<(Vec<f32>, usize, usize)> {
+pub(crate) fn shade_posts(asset: &Asset<Mmap>, shade: Shade) -> Result<(Vec<f32>, usize, usize)> {
     use std::f64::consts::PI;
     // The stage's cosine sky-view factor is the uniform sky's irradiance / pi.
     let svf_layer = asset
@@ -128,7 +128,12 @@ pub fn shade_posts(asset: &Asset<Mmap>, shade: Shade) -> Result<(Vec<f32>, usize
 /// percentile (the map shows relative light, as Stewart's figures do, and
 /// most posts of a real DEM crowd near an open plain's light; nodata
 /// black).
-pub fn write_shade_png(asset: &Asset<Mmap>, shade: Shade, out: &Path, max_side: u32) -> Result<()> {
+pub(crate) fn write_shade_png(
+    asset: &Asset<Mmap>,
+    shade: Shade,
+    out: &Path,
+    max_side: u32,
+) -> Result<()> {
     let (values, w, h) = shade_posts(asset, shade)?;
     let step = (w.max(h) as u32).div_ceil(max_side).max(1) as usize;
     let (pw, ph) = (w.div_ceil(step), h.div_ceil(step));

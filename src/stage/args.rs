@@ -6,7 +6,7 @@ use terrabake_format::Codec;
 
 use crate::terrain::sun::Sun;
 
-pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
+pub(crate) fn parse_size(s: &str) -> Result<(u32, u32), String> {
     let (w, h) = s
         .split_once(['x', 'X'])
         .ok_or("expected WIDTHxHEIGHT, e.g. 1024x768")?;
@@ -17,7 +17,7 @@ pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
     Ok((parse(w)?, parse(h)?))
 }
 
-pub fn parse_cell_size(s: &str) -> Result<(f64, f64), String> {
+pub(crate) fn parse_cell_size(s: &str) -> Result<(f64, f64), String> {
     let parse = |v: &str| match v.trim().parse::<f64>() {
         Ok(f) if f.is_finite() && f > 0.0 => Ok(f),
         _ => Err(format!("{v:?} is not a positive number of metres")),
@@ -28,7 +28,7 @@ pub fn parse_cell_size(s: &str) -> Result<(f64, f64), String> {
     }
 }
 
-pub fn parse_point(s: &str) -> Result<[f64; 3], String> {
+pub(crate) fn parse_point(s: &str) -> Result<[f64; 3], String> {
     let v: Vec<f64> = s
         .split(',')
         .map(|p| p.trim().parse::<f64>().map_err(|e| format!("{p:?}: {e}")))
@@ -40,7 +40,7 @@ pub fn parse_point(s: &str) -> Result<[f64; 3], String> {
 }
 
 /// `X,Y`: two finite numbers (a position in some coordinates).
-pub fn parse_xy(s: &str) -> Result<(f64, f64), String> {
+pub(crate) fn parse_xy(s: &str) -> Result<(f64, f64), String> {
     let v: Vec<f64> = s
         .split(',')
         .map(|p| p.trim().parse::<f64>().map_err(|e| format!("{p:?}: {e}")))
@@ -51,7 +51,7 @@ pub fn parse_xy(s: &str) -> Result<(f64, f64), String> {
     }
 }
 
-pub fn parse_sun(s: &str) -> Result<Sun, String> {
+pub(crate) fn parse_sun(s: &str) -> Result<Sun, String> {
     let (az, el) = s
         .split_once(',')
         .ok_or("expected AZIMUTH,ELEVATION in degrees")?;
@@ -72,14 +72,14 @@ pub fn parse_positive(s: &str) -> Result<f64, String> {
 }
 
 /// A field of view in degrees, strictly between 0 and 180.
-pub fn parse_fov(s: &str) -> Result<f64, String> {
+pub(crate) fn parse_fov(s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
         Ok(v) if v > 0.0 && v < 180.0 => Ok(v),
         _ => Err(format!("{s:?} is not between 0 and 180 degrees")),
     }
 }
 
-pub fn parse_on_off(s: &str) -> Result<bool, String> {
+pub(crate) fn parse_on_off(s: &str) -> Result<bool, String> {
     match s {
         "on" => Ok(true),
         "off" => Ok(false),
@@ -87,7 +87,7 @@ pub fn parse_on_off(s: &str) -> Result<bool, String> {
     }
 }
 
-pub fn parse_aoi(s: &str) -> Result<[u32; 4], String> {
+pub(crate) fn parse_aoi(s: &str) -> Result<[u32; 4], String> {
     let v: Vec<u32> = s
         .split(',')
         .map(|p| p.trim().parse::<u32>())
@@ -105,7 +105,7 @@ pub fn parse_aoi(s: &str) -> Result<[u32; 4], String> {
 }
 
 /// A tile edge: a power of two from 16 to 4096.
-pub fn parse_tile(s: &str) -> Result<u32, String> {
+pub(crate) fn parse_tile(s: &str) -> Result<u32, String> {
     match s.trim().parse::<u32>() {
         Ok(t) if t.is_power_of_two() && (16..=4096).contains(&t) => Ok(t),
         _ => Err(format!("{s:?} is not a power of two from 16 to 4096")),
@@ -114,7 +114,7 @@ pub fn parse_tile(s: &str) -> Result<u32, String> {
 
 /// A number of horizon directions: 3 to 4096 (a sector must be narrower
 /// than 180 degrees).
-pub fn parse_sectors(s: &str) -> Result<usize, String> {
+pub(crate) fn parse_sectors(s: &str) -> Result<usize, String> {
     match s.trim().parse::<usize>() {
         Ok(n) if (3..=4096).contains(&n) => Ok(n),
         _ => Err(format!("{s:?}: give 3 to 4096 directions")),
@@ -122,12 +122,12 @@ pub fn parse_sectors(s: &str) -> Result<usize, String> {
 }
 
 /// Degrees between azimuths for `terrabake profile`: 0.01 to 360.
-pub fn parse_profile_step(s: &str) -> Result<f64, String> {
+pub(crate) fn parse_profile_step(s: &str) -> Result<f64, String> {
     parse_within(s, 0.01, 360.0, "degrees (at most 36000 azimuths)")
 }
 
 /// Degrees between the directions of `export --for grass`: 0.1 to 360.
-pub fn parse_grass_step(s: &str) -> Result<f64, String> {
+pub(crate) fn parse_grass_step(s: &str) -> Result<f64, String> {
     parse_within(s, 0.1, 360.0, "degrees (at most 3600 files)")
 }
 
@@ -146,14 +146,14 @@ fn parse_within(s: &str, lo: f64, hi: f64, unit: &str) -> Result<f64, String> {
 pub const NAN_MEANS_SOMETHING: [&str; 1] = ["nodata"];
 
 /// Any finite number (not NaN, not infinite).
-pub fn parse_finite(s: &str) -> Result<f64, String> {
+pub(crate) fn parse_finite(s: &str) -> Result<f64, String> {
     match s.trim().parse::<f64>() {
         Ok(v) if v.is_finite() => Ok(v),
         _ => Err(format!("{s:?} is not a finite number")),
     }
 }
 
-pub fn parse_codec(s: &str) -> Result<Codec, String> {
+pub(crate) fn parse_codec(s: &str) -> Result<Codec, String> {
     match s {
         "raw" => Ok(Codec::Raw),
         "zstd" => Ok(Codec::Zstd),
@@ -177,7 +177,7 @@ pub type Aoi = [u32; 4];
 
 /// The area of interest `aoi` as `[x0, y0, x1, y1]` posts, or the whole
 /// `w x h` DEM.
-pub fn area_of(aoi: Option<Aoi>, w: usize, h: usize) -> [usize; 4] {
+pub(crate) fn area_of(aoi: Option<Aoi>, w: usize, h: usize) -> [usize; 4] {
     aoi.unwrap_or([0, 0, w as u32, h as u32])
         .map(|v| v as usize)
 }

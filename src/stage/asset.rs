@@ -121,7 +121,7 @@ impl AssetWriter {
         &self.path
     }
 
-    pub fn lock_held(&self) -> &WriteLock {
+    pub(crate) fn lock_held(&self) -> &WriteLock {
         &self.lock
     }
 

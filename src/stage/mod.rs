@@ -162,7 +162,7 @@ impl Share {
 
     /// The rows of a `height`-row layer this share computes within `area`
     /// (an area of interest's rows; empty where they do not meet).
-    pub fn rows_within(
+    pub(crate) fn rows_within(
         &self,
         height: usize,
         area: std::ops::Range<usize>,
@@ -194,7 +194,7 @@ pub struct StageOutcome {
 }
 
 /// The latest record of `stage` in `manifest`.
-pub fn record_of<'m>(
+pub(crate) fn record_of<'m>(
     manifest: &'m terrabake_format::Manifest,
     stage: &str,
 ) -> Option<&'m StageRecord> {
@@ -216,7 +216,7 @@ pub fn recorded_params<T: serde::de::DeserializeOwned>(
 
 /// Whether `stages` already holds a record of `stage` with `params` whose
 /// outputs the asset still has.
-pub fn already_done(
+pub(crate) fn already_done(
     manifest: &terrabake_format::Manifest,
     stage: &str,
     params: &serde_json::Value,
@@ -254,7 +254,7 @@ pub fn run_stage_in(
 
 /// [`run_stage_in`] for one share of the stage's outputs (a part of a
 /// partitioned bake, in the part's own asset).
-pub fn run_share_in(
+pub(crate) fn run_share_in(
     writer: &AssetWriter,
     stage: &dyn Stage,
     share: &Share,
@@ -484,7 +484,7 @@ fn drop_dependents(manifest: &mut terrabake_format::Manifest, stage: &str, rewri
 /// check`): one record named `name` replacing any earlier one, with
 /// `inputs` so that rewriting any of them drops it, committed under the
 /// writer lock.
-pub fn record_measurement(
+pub(crate) fn record_measurement(
     dir: &Path,
     name: &str,
     params: serde_json::Value,
@@ -495,7 +495,7 @@ pub fn record_measurement(
 }
 
 /// [`record_measurement`] under a writer the caller holds.
-pub fn record_measurement_in(
+pub(crate) fn record_measurement_in(
     writer: &AssetWriter,
     name: &str,
     params: serde_json::Value,
@@ -512,7 +512,7 @@ pub fn record_measurement_in(
 }
 
 /// Replaces the record of `stage` in `manifest` with one made now.
-pub fn put_record(
+pub(crate) fn put_record(
     manifest: &mut terrabake_format::Manifest,
     stage: &str,
     params: serde_json::Value,
@@ -531,14 +531,14 @@ pub fn put_record(
 }
 
 /// Seconds since the Unix epoch (stage records).
-pub fn unix_now() -> u64 {
+pub(crate) fn unix_now() -> u64 {
     std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.as_secs())
 }
 
 /// A layer of the stage: one element per post, raw tiles like the heights.
-pub fn post_layer(
+pub(crate) fn post_layer(
     (name, stage): (&str, &str),
     elem: terrabake_format::ElemType,
     bands: u32,
@@ -584,11 +584,11 @@ pub mod mib {
         }
     }
 
-    pub fn serialize<S: Serializer>(bytes: &u64, s: S) -> Result<S::Ok, S::Error> {
+    pub(crate) fn serialize<S: Serializer>(bytes: &u64, s: S) -> Result<S::Ok, S::Error> {
         s.serialize_f64(*bytes as f64 / (1u64 << 20) as f64)
     }
 
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<u64, D::Error> {
+    pub(crate) fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<u64, D::Error> {
         let mib = f64::deserialize(d)?;
         if !(mib > 0.0 && mib < (1u64 << 40) as f64) {
             return Err(serde::de::Error::custom(format!(

@@ -115,7 +115,7 @@ impl HorizonsStage {
 
     /// The encoding of the stored angles: `encoding`, else the smallest
     /// within `max_error`.
-    pub fn angle_encoding(&self) -> AngleEncoding {
+    pub(crate) fn angle_encoding(&self) -> AngleEncoding {
         self.encoding
             .unwrap_or_else(|| AngleEncoding::for_error(self.max_error))
     }
@@ -185,7 +185,7 @@ impl HorizonsStage {
     /// tree's tags (the post of every hull point and bucket entry: 12
     /// bytes per post measured, 30-46 MiB more at 1.44 M posts and two
     /// sectors in flight).
-    pub fn in_core_bytes(&self, posts: u64, threads: u64) -> Option<u64> {
+    pub(crate) fn in_core_bytes(&self, posts: u64, threads: u64) -> Option<u64> {
         let per_band = match (self.method, self.distance) {
             (Method::Sector, false) => SECTOR_BYTES_PER_POST,
             (Method::Sector, true) => SECTOR_BYTES_PER_POST + 16,
@@ -197,7 +197,7 @@ impl HorizonsStage {
 
     /// Whether the bands run out of core: `line` without a maximum
     /// distance, `sector` with one (see `row_bands`).
-    pub fn out_of_core(&self) -> bool {
+    pub(crate) fn out_of_core(&self) -> bool {
         matches!(
             (self.method, self.max_distance),
             (Method::Line, None) | (Method::Sector, Some(_))

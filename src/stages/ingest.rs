@@ -133,7 +133,7 @@ impl Default for IngestOptions {
 /// DEM. The identity is the content (`source_xxh3`, a hash of the whole
 /// file), besides its path, length and modification time: a file replaced
 /// by another of the same length, its time set back, is another source.
-pub fn ingest_params(src: &Path, opts: &IngestOptions) -> Result<serde_json::Value> {
+pub(crate) fn ingest_params(src: &Path, opts: &IngestOptions) -> Result<serde_json::Value> {
     let meta = fs::metadata(src).with_context(|| format!("{}: cannot read", src.display()))?;
     let mtime = meta
         .modified()
@@ -381,7 +381,11 @@ fn write_heights(
 /// before its layer and the heights' statistics: geometry, georeferencing,
 /// vertical units and provenance, from the header alone. A partitioned bake
 /// plans its parts from it before any part reads a row.
-pub fn describe(src: &Path, info: &source::SourceInfo, opts: &IngestOptions) -> Result<Manifest> {
+pub(crate) fn describe(
+    src: &Path,
+    info: &source::SourceInfo,
+    opts: &IngestOptions,
+) -> Result<Manifest> {
     let nodata_text = match opts.nodata {
         Some(v) => Some(v.to_string()),
         None => info.nodata.clone(),
@@ -474,7 +478,7 @@ impl HeightStats {
         }
     }
 
-    pub fn merge(self, other: Self) -> Self {
+    pub(crate) fn merge(self, other: Self) -> Self {
         Self {
             nodata: self.nodata.saturating_add(other.nodata),
             min: self.min.min(other.min),
@@ -483,7 +487,7 @@ impl HeightStats {
     }
 
     /// Statistics of `nodata` nodata posts and heights over `range`.
-    pub fn from_range(nodata: u64, range: Option<HeightRange>) -> Self {
+    pub(crate) fn from_range(nodata: u64, range: Option<HeightRange>) -> Self {
         let (min, max) = range.map_or((f32::INFINITY, f32::NEG_INFINITY), |r| (r.min, r.max));
         Self { nodata, min, max }
     }

@@ -31,7 +31,7 @@ use crate::terrain::tiling::push_tile_row;
 
 /// Level-0 bounding heights of one row of cells from its two rows of posts
 /// (`north` and `south`, `n + 1` posts each): `max[i]` and `min[i]` of cell `i`.
-pub fn cell_bounds_row(north: &[f32], south: &[f32], max: &mut [f32], min: &mut [f32]) {
+pub(crate) fn cell_bounds_row(north: &[f32], south: &[f32], max: &mut [f32], min: &mut [f32]) {
     for i in 0..max.len() {
         let cell = Cell {
             nw: north[i],
@@ -46,7 +46,7 @@ pub fn cell_bounds_row(north: &[f32], south: &[f32], max: &mut [f32], min: &mut 
 
 /// The cells of each stored level of a `w x h`-post DEM: level 0 has one per
 /// cell, each level above halves them, up to the first that fits a tile.
-pub fn level_dims(w: u32, h: u32, ts: u32) -> Vec<(u32, u32)> {
+pub(crate) fn level_dims(w: u32, h: u32, ts: u32) -> Vec<(u32, u32)> {
     let mut dims = vec![(w.saturating_sub(1), h.saturating_sub(1))];
     while dims.last().is_some_and(|&(x, y)| x > ts || y > ts) {
         let &(x, y) = dims.last().expect("non-empty");
@@ -57,7 +57,7 @@ pub fn level_dims(w: u32, h: u32, ts: u32) -> Vec<(u32, u32)> {
 
 /// One row of level `l + 1` from two rows of level `l` (`lower` is `None` for
 /// a last odd row): 2 x 2 maxima into `max`, minima into `min`.
-pub fn reduce_rows(
+pub(crate) fn reduce_rows(
     upper: (&[f32], &[f32]),
     lower: Option<(&[f32], &[f32])>,
     max: &mut [f32],

@@ -15,7 +15,7 @@ const WGS84_E2: f64 = 6.694_379_990_14e-3;
 
 /// One key's SHORT value from a GeoKeyDirectory (values stored in other tags
 /// are not SHORT and are ignored here).
-pub fn geo_key(dir: &[u16], key: u16) -> Option<u16> {
+pub(crate) fn geo_key(dir: &[u16], key: u16) -> Option<u16> {
     let count = usize::from(*dir.get(3)?);
     dir.get(4..4 + 4 * count)?
         .chunks_exact(4)
@@ -58,7 +58,7 @@ pub fn georef_from_keys(
 }
 
 /// Metres per unit of a projected CRS's ProjLinearUnitsGeoKey (EPSG codes).
-pub fn linear_unit_metres(dir: &[u16]) -> f64 {
+pub(crate) fn linear_unit_metres(dir: &[u16]) -> f64 {
     match geo_key(dir, PROJ_LINEAR_UNITS) {
         Some(9002) => 0.3048,
         Some(9003) => 1200.0 / 3937.0,
@@ -123,7 +123,7 @@ pub fn row_scale(georef: Option<&Georef>, height: u32) -> Vec<f64> {
 /// geographic grids; on WGS 84 UTM grids the footpoint latitude of the
 /// centre's northing on a sphere of the rectifying radius (within 0.2
 /// degrees: enough for a sun path); `None` otherwise.
-pub fn central_latitude(georef: &Georef, w: u32, h: u32) -> Option<f64> {
+pub(crate) fn central_latitude(georef: &Georef, w: u32, h: u32) -> Option<f64> {
     let (_, y) = georef.post_to_world(f64::from(w) / 2.0, f64::from(h) / 2.0);
     match georef.crs_kind {
         CrsKind::Geographic => Some(y),
@@ -138,7 +138,7 @@ pub fn central_latitude(georef: &Georef, w: u32, h: u32) -> Option<f64> {
 
 /// The UTM zone of an EPSG code on WGS 84 (326zz north, 327zz south):
 /// `(zone, south)`.
-pub fn utm_zone(epsg: u32) -> Option<(u32, bool)> {
+pub(crate) fn utm_zone(epsg: u32) -> Option<(u32, bool)> {
     match epsg {
         32601..=32660 => Some((epsg - 32600, false)),
         32701..=32760 => Some((epsg - 32700, true)),
@@ -169,7 +169,7 @@ pub fn wkt(epsg: u32) -> Option<String> {
 /// and its neighbours' first degrees. One projection, for placing
 /// observers given in longitude and latitude on a UTM DEM; terrabake does
 /// not otherwise reproject.
-pub fn lonlat_to_utm(lon: f64, lat: f64, (zone, south): (u32, bool)) -> (f64, f64) {
+pub(crate) fn lonlat_to_utm(lon: f64, lat: f64, (zone, south): (u32, bool)) -> (f64, f64) {
     const A: f64 = 6_378_137.0;
     const F: f64 = 1.0 / 298.257_223_563;
     const K0: f64 = 0.9996;
@@ -200,7 +200,7 @@ pub fn lonlat_to_utm(lon: f64, lat: f64, (zone, south): (u32, bool)) -> (f64, f6
 
 /// A GeoKey directory for a local metric grid with no named CRS (synthetic
 /// terrains): projected, user-defined, metres.
-pub fn local_metric_keys(raster_type: RasterType) -> Vec<u16> {
+pub(crate) fn local_metric_keys(raster_type: RasterType) -> Vec<u16> {
     let rt = match raster_type {
         RasterType::Area => 1,
         RasterType::Point => 2,

@@ -23,7 +23,7 @@ pub const DEFAULT_REFRACTION: f64 = 0.13;
 /// `k * spacing <= metres`. The one rounding rule of every reach, halo and
 /// window a distance limit sets (each adds its own margin, named where it
 /// is added).
-pub fn posts_within(metres: f64, spacing: f64) -> usize {
+pub(crate) fn posts_within(metres: f64, spacing: f64) -> usize {
     (metres.max(0.0) / spacing).floor() as usize
 }
 
@@ -36,7 +36,7 @@ pub fn curvature_coefficient(refraction: f64) -> f64 {
 /// Refuses a refraction coefficient that is not a finite number (a NaN
 /// made every horizon -90 and every post seen): what each stage's check
 /// and the Python functions ask before anything bends a sight line.
-pub fn check_refraction(refraction: f64) -> anyhow::Result<()> {
+pub(crate) fn check_refraction(refraction: f64) -> anyhow::Result<()> {
     anyhow::ensure!(
         refraction.is_finite(),
         "refraction = {refraction} (--refraction {refraction}): give a finite coefficient (0.13 is the usual, 0 none)"
@@ -67,7 +67,7 @@ impl<'a> RowScale<'a> {
         Self { half_rows }
     }
 
-    pub fn is_uniform(&self) -> bool {
+    pub(crate) fn is_uniform(&self) -> bool {
         self.half_rows.is_empty()
     }
 
@@ -90,7 +90,7 @@ impl<'a> RowScale<'a> {
     /// The scale at half row `half` (row `half / 2`), clamped to the DEM's
     /// rows (a line's first step may reach past the edge).
     #[inline]
-    pub fn at_half(&self, half: i64) -> f64 {
+    pub(crate) fn at_half(&self, half: i64) -> f64 {
         match self.half_rows.len() {
             0 => 1.0,
             n => self.half_rows[half.clamp(0, n as i64 - 1) as usize],
@@ -171,7 +171,7 @@ impl<'a> Terrain<'a> {
 
     /// Whether cell `(c, r)` (between posts `(c, r)` and `(c + 1, r + 1)`)
     /// has a surface: inside the grid and no nodata corner.
-    pub fn cell_exists(&self, c: i64, r: i64) -> bool {
+    pub(crate) fn cell_exists(&self, c: i64, r: i64) -> bool {
         self.contains(c, r)
             && self.contains(c + 1, r + 1)
             && [(0, 0), (1, 0), (0, 1), (1, 1)]
@@ -182,7 +182,7 @@ impl<'a> Terrain<'a> {
     /// Whether post `(col, row)` lies on the surface: a corner of a cell
     /// with a surface (its own height is then not nodata). A line that only
     /// grazes such a corner between two holes still meets the terrain there.
-    pub fn post_on_surface(&self, col: i64, row: i64) -> bool {
+    pub(crate) fn post_on_surface(&self, col: i64, row: i64) -> bool {
         [(-1, -1), (0, -1), (-1, 0), (0, 0)]
             .iter()
             .any(|&(c, r)| self.cell_exists(col + c, row + r))
@@ -194,13 +194,13 @@ impl<'a> Terrain<'a> {
 
     /// The column that key positions measure east from (an integer, so
     /// that uniform grids keep integer keys).
-    pub fn centre_column(&self) -> f64 {
+    pub(crate) fn centre_column(&self) -> f64 {
         (self.width / 2) as f64
     }
 
     /// Horizontal metres between two posts at key positions `p` and `q`
     /// ([`Self::key_position`]).
-    pub fn key_distance(&self, p: (f64, f64), q: (f64, f64)) -> f64 {
+    pub(crate) fn key_distance(&self, p: (f64, f64), q: (f64, f64)) -> f64 {
         // Not `hypot`: its care for overflow (which key offsets of a DEM
         // cannot reach) cost a third of a bounded sector scan.
         let (de, dn) = (q.0 - p.0, q.1 - p.1);
@@ -216,7 +216,7 @@ impl<'a> Terrain<'a> {
     /// column and north of row 0. On a uniform grid both are integers times
     /// exact factors (east exactly `col - c`), so that posts on a grid
     /// diagonal tie exactly.
-    pub fn key_position(&self, col: usize, row: usize) -> (f64, f64) {
+    pub(crate) fn key_position(&self, col: usize, row: usize) -> (f64, f64) {
         let east = (col as f64 - self.centre_column()) * self.row_scale.at_half(2 * row as i64);
         (east, -(row as f64) * (self.dy / self.dx))
     }
@@ -259,7 +259,7 @@ impl<'a> Terrain<'a> {
 }
 
 /// The angle (degrees, 0..=180) between two compass azimuths.
-pub fn angle_between(a: f64, b: f64) -> f64 {
+pub(crate) fn angle_between(a: f64, b: f64) -> f64 {
     let d = (a - b).rem_euclid(360.0);
     d.min(360.0 - d)
 }

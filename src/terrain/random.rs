@@ -18,7 +18,7 @@ pub(crate) fn mix(mut z: u64) -> u64 {
 pub struct SplitMix64(pub u64);
 
 impl SplitMix64 {
-    pub fn next_u64(&mut self) -> u64 {
+    pub(crate) fn next_u64(&mut self) -> u64 {
         let v = mix(self.0);
         self.0 = self.0.wrapping_add(GAMMA);
         v

@@ -69,7 +69,7 @@ impl<T: Copy + Default> Steepest<T> {
     /// [`Self::take`], where of equally steep points the last taken stays
     /// (a walk outwards that keeps the farther).
     #[inline]
-    pub fn take_last(&mut self, slope: f64, tag: T) {
+    pub(crate) fn take_last(&mut self, slope: f64, tag: T) {
         let steeper = slope >= self.slope;
         self.slope = if steeper { slope } else { self.slope };
         self.tag = if steeper { tag } else { self.tag };
@@ -77,7 +77,7 @@ impl<T: Copy + Default> Steepest<T> {
 
     /// The steeper of two.
     #[inline]
-    pub fn steeper(mut self, other: Self) -> Self {
+    pub(crate) fn steeper(mut self, other: Self) -> Self {
         self.take(other.slope, other.tag);
         self
     }

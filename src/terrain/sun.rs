@@ -26,7 +26,7 @@ pub type SunPosition = [f64; 2];
 /// degrees: Cooper's declination and the hour angle of local solar time
 /// (no equation of time, no refraction): within about a degree of an
 /// ephemeris, which is what a plan for "this day's shadows" needs.
-pub fn sun_path(latitude: f64, day: u32) -> Vec<SunPosition> {
+pub(crate) fn sun_path(latitude: f64, day: u32) -> Vec<SunPosition> {
     let phi = latitude.to_radians();
     let declination =
         23.44f64.to_radians() * (std::f64::consts::TAU * (284.0 + f64::from(day)) / 365.0).sin();

@@ -9,7 +9,7 @@ use zerocopy::IntoBytes;
 
 /// Consecutive bands of at most `rows` rows covering `0..height`, north to
 /// south.
-pub fn row_bands(height: usize, rows: usize) -> Vec<std::ops::Range<usize>> {
+pub(crate) fn row_bands(height: usize, rows: usize) -> Vec<std::ops::Range<usize>> {
     (0..height)
         .step_by(rows)
         .map(|r0| r0..(r0 + rows).min(height))
@@ -35,7 +35,7 @@ pub fn push_tile_row<T: Element>(
 
 /// Appends one row of tiles of the layer's fill value: a row that another
 /// part of a partitioned bake computes.
-pub fn push_fill_row(writer: &mut LayerWriter) -> terrabake_format::Result<()> {
+pub(crate) fn push_fill_row(writer: &mut LayerWriter) -> terrabake_format::Result<()> {
     for _ in 0..writer.spec().tiles_x() {
         writer.push_fill_at(writer.chunks_written())?;
     }
@@ -44,7 +44,7 @@ pub fn push_fill_row(writer: &mut LayerWriter) -> terrabake_format::Result<()> {
 
 /// The tiles (west to east) of one row band, encoded in parallel: for
 /// [`LayerWriter::push_at`] when tile rows come out of order.
-pub fn encode_tile_row<T: Element>(
+pub(crate) fn encode_tile_row<T: Element>(
     band: &[T],
     width: usize,
     ts: usize,

@@ -59,7 +59,7 @@ pub fn line_horizon(
 /// The horizon of a sight line with these records from the terrain no
 /// farther than `max_distance` metres: the last record within it, degrees
 /// (-90 when none).
-pub fn horizon_within(records: &[HorizonRecord], max_distance: Option<f64>) -> f32 {
+pub(crate) fn horizon_within(records: &[HorizonRecord], max_distance: Option<f64>) -> f32 {
     // Records are nearest first: a binary search finds the last within.
     let within = max_distance.map_or(records.len(), |m| {
         records.partition_point(|r| r.distance <= m)
@@ -100,7 +100,7 @@ pub fn line_horizon_records(
 /// highest post (over the distances the line spends in it) lets the walk
 /// step over the whole block. The planner's pilot and `check`'s reference
 /// walk them so (docs/BENCHMARKS.md).
-pub fn line_horizon_records_below(
+pub(crate) fn line_horizon_records_below(
     t: &Terrain,
     post: (usize, usize),
     (a, b): (i64, i64),

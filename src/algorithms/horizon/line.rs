@@ -89,7 +89,7 @@ pub fn step_lengths(
 }
 
 /// Compass azimuth (degrees) of the grid step `(a, b)`.
-pub fn step_azimuth((a, b): (i64, i64), dx: f64, dy: f64) -> f64 {
+pub(crate) fn step_azimuth((a, b): (i64, i64), dx: f64, dy: f64) -> f64 {
     (a as f64 * dx)
         .atan2(-(b as f64) * dy)
         .to_degrees()
@@ -113,7 +113,12 @@ pub fn grid_direction(nominal: f64, dx: f64, dy: f64, tolerance: f64) -> GridDir
 
 /// `count` directions for nominal azimuths `i * 360 / count`, each within
 /// `tolerance` degrees where a step up to [`MAX_STEP`] allows.
-pub fn grid_directions(count: usize, dx: f64, dy: f64, tolerance: f64) -> Vec<GridDirection> {
+pub(crate) fn grid_directions(
+    count: usize,
+    dx: f64,
+    dy: f64,
+    tolerance: f64,
+) -> Vec<GridDirection> {
     let steps = Steps::new(dx, dy);
     (0..count)
         .map(|i| steps.direction(i as f64 * 360.0 / count as f64, tolerance))
@@ -445,7 +450,7 @@ const ATAN_POLY: [f64; 4] = [
 /// degrees, far below any stored encoding's step) and branch-light, where
 /// libm's `atan` is a third of a one-crossing sweep's time.
 #[inline]
-pub fn atan_deg(x: f64) -> f32 {
+pub(crate) fn atan_deg(x: f64) -> f32 {
     let (sign, x) = (x.signum(), x.abs());
     let (base, x) = if x > TAN_3PI_8 {
         (std::f64::consts::FRAC_PI_2, -1.0 / x)
@@ -773,14 +778,14 @@ impl BandedSweep {
     }
 
     /// Whether bands go from the south edge up.
-    pub fn from_south(&self) -> bool {
+    pub(crate) fn goes_north(&self) -> bool {
         self.stencil.step.1 > 0
     }
 
     /// The output row bands of `rows` rows each, in sweep order.
     pub fn bands(&self, rows: usize) -> Vec<std::ops::Range<usize>> {
         let mut bands = crate::terrain::tiling::row_bands(self.height, rows);
-        if self.from_south() {
+        if self.goes_north() {
             bands.reverse();
         }
         bands
@@ -890,7 +895,7 @@ pub struct ProfileVertex {
 /// each post after the crossings of the step behind it. `lengths` are the
 /// direction's [`step_lengths`]. The same vertices and heights the sweep
 /// of [`line_horizons`] pushes.
-pub fn line_profile(
+pub(crate) fn line_profile(
     terrain: &Terrain,
     stencil: &Stencil,
     lengths: &[f64],

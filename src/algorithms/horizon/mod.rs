@@ -144,7 +144,7 @@ pub fn plan_bands(
 /// tolerance (cells of 50 x 93 m at 57 N, near the axes), neighbouring
 /// azimuths fall back to one step, and a band per step, bounded half way
 /// to its distinct neighbours, is what a reference over them can index.
-pub fn distinct_line_bands(bands: Vec<Band>) -> Vec<Band> {
+pub(crate) fn distinct_line_bands(bands: Vec<Band>) -> Vec<Band> {
     let step = |b: &Band| match &b.kind {
         BandKind::Line(d) => Some(d.step),
         _ => None,
@@ -192,7 +192,7 @@ pub fn band_horizons(terrain: &Terrain, band: &Band, opts: BandOptions) -> (Vec<
 /// be given a window of the DEM's rows that holds them and the rows within
 /// reach (its output is then the window's rows); the other methods compute
 /// every post of a whole DEM.
-pub fn band_horizons_rows(
+pub(crate) fn band_horizons_rows(
     terrain: &Terrain,
     band: &Band,
     opts: BandOptions,

@@ -12,7 +12,7 @@ use crate::terrain::{compass, Terrain};
 /// degrees (NaN for nodata), looking at most `max_distance` metres; where
 /// `distances` is given, the distance (metres) of the steepest sample, NaN
 /// where none was taken.
-pub fn sampled_horizons(
+pub(crate) fn sampled_horizons(
     terrain: &Terrain,
     azimuth: f64,
     max_distance: f64,

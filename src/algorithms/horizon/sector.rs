@@ -145,7 +145,7 @@ impl SectorFrame {
     }
 
     /// Compass azimuth of the sector's centre, degrees.
-    pub fn centre_azimuth(index: usize, count: usize) -> f64 {
+    pub(crate) fn centre_azimuth(index: usize, count: usize) -> f64 {
         index as f64 * 360.0 / count as f64
     }
 

@@ -82,7 +82,7 @@ impl SkySums {
 
     /// The sums from their three parts: `1 - svf`, openness and `pi *
     /// svf_cosine` (what a row of posts keeps in columns).
-    pub fn from_parts(sin_sum: f64, zenith_sum: f64, cosine_sum: f64) -> Self {
+    pub(crate) fn from_parts(sin_sum: f64, zenith_sum: f64, cosine_sum: f64) -> Self {
         Self {
             sin_sum,
             zenith_sum,
@@ -111,7 +111,7 @@ impl SkySums {
 /// Branch-free (both sides of the clip computed, one kept), so that the
 /// sky stage's loop over a row of posts compiles to vector code.
 #[inline(always)]
-pub fn band_terms(
+pub(crate) fn band_terms(
     h_deg: f64,
     (sh, ch): (f64, f64),
     band: &BandIntegrals,
@@ -148,7 +148,7 @@ pub fn band_terms(
 /// neither calls nor branches, so that a loop of them compiles to vector
 /// code where libm's would not.
 #[inline(always)]
-pub fn sin_cos_deg(deg: f64) -> (f64, f64) {
+pub(crate) fn sin_cos_deg(deg: f64) -> (f64, f64) {
     // 1 / n! for n = 2..=21: the odd ones for the sine, the even ones for
     // the cosine, each with its alternating sign.
     const SIN: [f64; 10] = [
@@ -263,7 +263,7 @@ impl SkyTable {
 
     /// Direct sky irradiance `integral over visible sky of L(u) N.u dOmega`
     /// at a post with unit `normal` and band horizons `horizon_deg`.
-    pub fn irradiance(&self, normal: [f64; 3], horizon_deg: &[f32]) -> f64 {
+    pub(crate) fn irradiance(&self, normal: [f64; 3], horizon_deg: &[f32]) -> f64 {
         let mut total = 0.0;
         for (j, &((e, n), band)) in self.units.iter().enumerate() {
             let tilt = normal[0] * e + normal[1] * n;
@@ -281,13 +281,13 @@ impl SkyTable {
 /// radiance of a Lambertian post of albedo `rho` with direct irradiance
 /// `irradiance` and cosine sky-view factor `svf_cosine`, the terrain it sees
 /// assumed as bright as itself.
-pub fn radiosity(irradiance: f64, svf_cosine: f64, rho: f64) -> f64 {
+pub(crate) fn radiosity(irradiance: f64, svf_cosine: f64, rho: f64) -> f64 {
     rho * irradiance / std::f64::consts::PI / (1.0 - rho * (1.0 - svf_cosine))
 }
 
 /// Stewart's sky for Fig. 9: `L = cos^exponent(angle to the sun)` over the
 /// sky, plus a uniform `ambient`.
-pub fn sun_glow(
+pub(crate) fn sun_glow(
     sun_azimuth: f64,
     sun_elevation: f64,
     exponent: i32,

@@ -12,7 +12,7 @@ use super::{Cap, PlaneStats, Planes, SLOPE_MARGIN};
 /// The exact planes (the limit of infinitely many slices) over a `cw x ch`
 /// grid of `nmax` values; `z_floor` is the apex of cells with no surface
 /// around them (the DEM's lowest height). `on_row` is called after every row.
-pub fn exact_planes(
+pub(crate) fn exact_planes(
     nmax: &[f32],
     (cw, ch): (usize, usize),
     (dx, dy): (f64, f64),

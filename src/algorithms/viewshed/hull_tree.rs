@@ -96,7 +96,7 @@ const ZONE_STEPS: f64 = 8.0;
 /// repeated heights, an eye level with a far ridge), as rounded cross
 /// products do not.
 #[inline]
-pub fn orient([d0, h0]: [f64; 2], [d1, h1]: [f64; 2], [d2, h2]: [f64; 2]) -> f64 {
+pub(crate) fn orient([d0, h0]: [f64; 2], [d1, h1]: [f64; 2], [d2, h2]: [f64; 2]) -> f64 {
     robust::orient2d(
         robust::Coord { x: d0, y: h0 },
         robust::Coord { x: d1, y: h1 },
@@ -113,7 +113,7 @@ fn above(far: [f64; 2], mid: [f64; 2], near: [f64; 2]) -> bool {
 /// Whether, seen from `eye` (nearer than both), point `a` rises strictly
 /// higher than point `b`: a steeper sight line.
 #[inline]
-pub fn steeper(eye: [f64; 2], a: [f64; 2], b: [f64; 2]) -> bool {
+pub(crate) fn steeper(eye: [f64; 2], a: [f64; 2], b: [f64; 2]) -> bool {
     orient(eye, a, b) > 0.0
 }
 
@@ -123,7 +123,7 @@ impl HullTree {
     }
 
     /// A tree that replaces its root through the safe zone where it can.
-    pub fn with_safe_zone() -> Self {
+    pub(crate) fn with_safe_zone() -> Self {
         Self {
             safe_zone: true,
             ..Self::default()
@@ -132,7 +132,7 @@ impl HullTree {
 
     /// Empties the tree for a new profile, keeping its memory, its safe
     /// zone setting and its counters.
-    pub fn restart(&mut self) {
+    pub(crate) fn restart(&mut self) {
         self.points.clear();
         self.nodes.clear();
         self.convex.clear();
@@ -339,7 +339,7 @@ impl HullTree {
     /// eye at `(d, h)` beyond the newest point (`d` greater than its
     /// distance): Algorithm 1's tests against the eye, on a stack, without
     /// changing the tree. `stack` is scratch space; returns the tests run.
-    pub fn eye_horizons(
+    pub(crate) fn eye_horizons(
         &self,
         [d, h]: [f64; 2],
         out: &mut Vec<usize>,

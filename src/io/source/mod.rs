@@ -78,7 +78,7 @@ impl HeightMapping {
 /// in a million) is +-FLT_MAX: lidar products write `-3.402823e+38` for
 /// holes of exactly -FLT_MAX, which as written is 23 f32 steps from it, and
 /// GDAL masks those holes.
-pub fn parse_nodata(text: &str) -> Option<f64> {
+pub(crate) fn parse_nodata(text: &str) -> Option<f64> {
     let t = text.trim().trim_end_matches('\0');
     if t.eq_ignore_ascii_case("nan") {
         return Some(f64::NAN);

@@ -71,7 +71,7 @@ pub fn observer_post(
 
 /// The post nearest to `(x, y)` given in `crs` (as the flag `flag` gave
 /// it, for the messages); refused off the DEM or on nodata.
-pub fn post_at(
+pub(crate) fn post_at(
     m: &Manifest,
     dem: &HeldDem,
     flag: &str,
@@ -119,7 +119,7 @@ pub fn post_at(
 }
 
 /// Refuses a negative or non-finite height, naming it.
-pub fn check_height(flag: &str, value: f64) -> Result<()> {
+pub(crate) fn check_height(flag: &str, value: f64) -> Result<()> {
     if !(value >= 0.0 && value.is_finite()) {
         bail!("{flag} {value}: a height above the ground must be 0 or more metres");
     }
@@ -128,7 +128,7 @@ pub fn check_height(flag: &str, value: f64) -> Result<()> {
 
 /// Refuses a maximum distance that is not a positive number of metres (a
 /// recipe's; the command line's parser refuses its own).
-pub fn check_distance(max_distance: Option<f64>) -> Result<()> {
+pub(crate) fn check_distance(max_distance: Option<f64>) -> Result<()> {
     if let Some(d) = max_distance.filter(|d| !(*d > 0.0 && d.is_finite())) {
         bail!(
             "max_distance = {d} (--max-distance): a distance must be a positive number of metres"
