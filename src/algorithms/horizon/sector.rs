@@ -882,8 +882,7 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
     drop(rank);
 
     let stencil = narrow.then(|| NarrowStencil::new(&frame, count, terrain.dx, terrain.dy));
-    let mut stats = SectorStats::default();
-    climb_tree::<T, H>(order, margin, slopes, &mut tags, &mut stats);
+    let stats = climb_tree::<T, H>(order, margin, slopes, &mut tags);
     if let Some(d) = distances.as_deref_mut() {
         d.fill(f32::NAN);
     }
@@ -896,14 +895,15 @@ fn sweep<T: Tag<u32>, H: Hulls<T>>(
 /// ranks and centre-plane coordinates): each post's steepest slope and its
 /// tag, from its own bucket and the hulls of its path's left siblings, and
 /// then its place in the hulls of the right ones.
+#[inline(always)]
 fn climb_tree<T: Tag<u32>, H: Hulls<T>>(
     order: &[Gathered],
     margin: f64,
     slopes: &mut [f64],
     tags: &mut [T],
-    stats: &mut SectorStats,
-) {
+) -> SectorStats {
     let n = order.len();
+    let mut stats = SectorStats::default();
     // The tree: per node, what is left of it to process ([`Node`]) and
     // how many points its hull holds, packed so that a query's walk up
     // the tree touches one small array (the hulls themselves are read only
@@ -1016,6 +1016,7 @@ fn climb_tree<T: Tag<u32>, H: Hulls<T>>(
             }
         }
     }
+    stats
 }
 
 /// The horizon angle (degrees) of the steepest slope `best` of `w = z - c
