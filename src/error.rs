@@ -10,8 +10,8 @@
 //! fault. The entry points ([`crate::bake::recipe::bake`],
 //! [`crate::stage::run_stage`], [`crate::stages::ingest::ingest`],
 //! [`crate::plan::plan`], ...) return [`Result`], so that the Python
-//! package raises one exception class a kind, and the C ABI and a Rust
-//! caller can match on [`Error::kind`].
+//! package raises one exception class a kind and a Rust caller can match
+//! on [`Error::kind`].
 
 use std::fmt;
 

@@ -28,7 +28,7 @@ use terrabake_format::horizons::{AngleEncoding, HORIZON};
 use terrabake_format::layers::HORIZON_DISTANCE;
 use terrabake_format::{Asset, Codec, LayerEntry, LayerWriter, Mmap};
 
-use crate::algorithms::horizon::line::{self};
+use crate::algorithms::horizon::line;
 use crate::algorithms::horizon::{
     band_horizons_into, plan_bands, sector, Band, BandKind, BandOptions, Method,
 };

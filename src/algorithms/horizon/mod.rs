@@ -2,7 +2,6 @@
 //! `horizons` stage ([`crate::stages::horizons`]) runs, band by band.
 //! `docs/HORIZONS.md` is the long form.
 //!
-//!
 //! Three methods, each exact for its own definition (see the modules):
 //!
 //! - [`line`](mod@line): the steepest sight line along the straight line from the
