@@ -37,7 +37,7 @@
 //!   the scan for the cells left in reads only the blocks of eight cells
 //!   that can have opened since they were last read (their *wake*, from
 //!   each closed cell's apex slice, slope and floor; see [`Scan`]).
-//! - [`exact_planes`]: the limit `K -> infinity`, without slices: the apex at
+//! - [`exact::exact_planes`]: the limit `K -> infinity`, without slices: the apex at
 //!   the cell's own `nmax` (the lowest apex possible) and the least slope
 //!   over every taller cell, found by branch and bound over a max pyramid of
 //!   `nmax`: a node whose nearest point divided by its height above the apex

@@ -20,7 +20,7 @@ use crate::terrain::{angle_between, posts_within, Terrain};
 /// independent of everything beyond the distance, so the stage runs it
 /// band by band out of core. `distances`, where given (the shape of
 /// `out`), receives each post's horizontal distance to the post that sets
-/// its horizon, as [`sector_horizons_with_distances`].
+/// its horizon, as [`super::sector_horizons_with_distances`].
 pub fn sector_horizons_within(
     terrain: &Terrain,
     sector: (usize, usize),
