@@ -308,10 +308,7 @@ impl Cli {
         I: IntoIterator<Item = T>,
         T: Into<std::ffi::OsString> + Clone,
     {
-        let mut cmd = Self::command();
-        let matches = cmd.try_get_matches_from_mut(args)?;
-        refuse_non_finite(&mut cmd, &matches)?;
-        let cli = Self::from_arg_matches(&matches).map_err(|e| e.format(&mut cmd))?;
+        let cli: Self = parse_finite(args)?;
         if let Command::Bake {
             part: Some(i),
             parts: Some(n),
@@ -319,6 +316,7 @@ impl Cli {
         } = cli.command
         {
             if let Err(e) = crate::bake::partition::Part::new(i, n) {
+                let mut cmd = Self::command();
                 let bake = cmd.find_subcommand_mut("bake").expect("bake is a command");
                 return Err(bake.error(clap::error::ErrorKind::ValueValidation, e));
             }
@@ -327,9 +325,24 @@ impl Cli {
     }
 }
 
+/// `args` parsed as `C`, refusing NaN and the infinities in every number
+/// flag with clap's message (the rule of [`Cli::parse_checked`], for any
+/// command line: `terrabake-bench` takes it too).
+pub fn parse_finite<C, I, T>(args: I) -> Result<C, clap::Error>
+where
+    C: CommandFactory + FromArgMatches,
+    I: IntoIterator<Item = T>,
+    T: Into<std::ffi::OsString> + Clone,
+{
+    let mut cmd = C::command();
+    let matches = cmd.try_get_matches_from_mut(args)?;
+    refuse_non_finite(&mut cmd, &matches)?;
+    C::from_arg_matches(&matches).map_err(|e| e.format(&mut cmd))
+}
+
 /// The first flag of `matches` (or of its subcommands) holding a number
 /// that is not finite, as clap's validation error of that command.
-pub fn refuse_non_finite(cmd: &mut clap::Command, matches: &ArgMatches) -> Result<(), clap::Error> {
+fn refuse_non_finite(cmd: &mut clap::Command, matches: &ArgMatches) -> Result<(), clap::Error> {
     for id in matches.ids() {
         let id = id.as_str();
         let mut numbers: Vec<f64> = Vec::new();

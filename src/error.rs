@@ -66,22 +66,28 @@ impl Error {
 }
 
 impl fmt::Display for Error {
-    /// The message and its causes, each once, joined by ": ".
+    /// The message and its causes on one line ([`error_chain`]).
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let mut said: Vec<String> = Vec::new();
-        for cause in self.inner.chain() {
-            let text = cause.to_string();
-            if said.iter().any(|s| s.contains(&text)) {
-                continue;
-            }
-            if !said.is_empty() {
-                f.write_str(": ")?;
-            }
-            f.write_str(&text)?;
-            said.push(text);
-        }
-        Ok(())
+        f.write_str(&error_chain(&self.inner))
     }
+}
+
+/// An error and its causes on one line, each cause said once: a cause
+/// whose text an outer message already carries (an OS error that the
+/// format's message quotes) is not repeated.
+pub fn error_chain(e: &anyhow::Error) -> String {
+    let mut out = String::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if out.contains(&text) {
+            continue;
+        }
+        if !out.is_empty() {
+            out.push_str(": ");
+        }
+        out.push_str(&text);
+    }
+    out
 }
 
 impl std::error::Error for Error {
@@ -216,5 +222,17 @@ mod tests {
         let e = Error::from(anyhow::Error::new(format));
         assert_eq!(e.kind(), ErrorKind::Asset);
         assert!(e.format_error().is_some());
+    }
+
+    #[test]
+    fn an_error_chain_says_each_cause_once() {
+        let io = std::io::Error::new(std::io::ErrorKind::NotFound, "No such file or directory");
+        let e = anyhow::Error::new(io)
+            .context("x/manifest.tba: No such file or directory")
+            .context("x: cannot open asset");
+        assert_eq!(
+            error_chain(&e),
+            "x: cannot open asset: x/manifest.tba: No such file or directory"
+        );
     }
 }

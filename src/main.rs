@@ -32,7 +32,7 @@ fn main() -> ExitCode {
     match run(cli) {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {}", terrabake::present::report::error_chain(&e));
+            eprintln!("error: {}", terrabake::error::error_chain(&e));
             ExitCode::FAILURE
         }
     }

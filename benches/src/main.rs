@@ -5,7 +5,7 @@
 
 use std::process::ExitCode;
 
-use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
+use clap::{Parser, Subcommand};
 use terrabake::plumbing::progress::Progress;
 
 #[derive(Parser, Debug)]
@@ -56,14 +56,7 @@ enum Command {
 }
 
 fn main() -> ExitCode {
-    let mut cmd = Cli::command();
-    let cli = cmd
-        .try_get_matches_from_mut(std::env::args_os())
-        .and_then(|m| {
-            terrabake::cli::refuse_non_finite(&mut cmd, &m)?;
-            Cli::from_arg_matches(&m).map_err(|e| e.format(&mut cmd))
-        })
-        .unwrap_or_else(|e| e.exit());
+    let cli: Cli = terrabake::cli::parse_finite(std::env::args_os()).unwrap_or_else(|e| e.exit());
     terrabake::plumbing::interrupt::install();
     let say = |msg: String| {
         if !cli.quiet {
@@ -83,7 +76,7 @@ fn main() -> ExitCode {
     match run() {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {}", terrabake::present::report::error_chain(&e));
+            eprintln!("error: {}", terrabake::error::error_chain(&e));
             ExitCode::FAILURE
         }
     }

@@ -919,7 +919,6 @@ const _: () = {
 /// A layer file's header and footer, each checked: magic, version,
 /// checksum, the footer belonging to the header, reserved bytes zero.
 fn header_and_footer(at: &Location, data: &[u8]) -> Result<(LayerHeader, LayerFooter)> {
-    let at = at.clone();
     let bad = |what: String| Err(Error::malformed(at.clone(), what));
     if data.len() < HEADER_LEN + FOOTER_LEN {
         return bad(format!(
@@ -930,14 +929,14 @@ fn header_and_footer(at: &Location, data: &[u8]) -> Result<(LayerHeader, LayerFo
     let header = LayerHeader::read_from_bytes(&data[..HEADER_LEN]).expect("sized");
     if header.magic != LAYER_MAGIC {
         return Err(Error::Magic {
-            at,
+            at: at.clone(),
             expected: LAYER_MAGIC,
             got: header.magic,
         });
     }
     if header.version.get() != FORMAT_VERSION {
         return Err(Error::Version {
-            at,
+            at: at.clone(),
             expected: FORMAT_VERSION,
             got: header.version.get(),
         });
@@ -945,7 +944,7 @@ fn header_and_footer(at: &Location, data: &[u8]) -> Result<(LayerHeader, LayerFo
     let computed = header.compute_xxh3();
     if computed != header.header_xxh3.get() {
         return Err(Error::Checksum {
-            at,
+            at: at.clone(),
             what: "layer header",
             expected: header.header_xxh3.get(),
             got: computed,
@@ -957,7 +956,7 @@ fn header_and_footer(at: &Location, data: &[u8]) -> Result<(LayerHeader, LayerFo
     }
     if footer.version.get() != FORMAT_VERSION {
         return Err(Error::Version {
-            at,
+            at: at.clone(),
             expected: FORMAT_VERSION,
             got: footer.version.get(),
         });
@@ -1025,7 +1024,6 @@ fn check_index(
     entry: &LayerEntry,
 ) -> Result<usize> {
     let bad = |what: String| Err(Error::malformed(at.clone(), what));
-    let at = at.clone();
     let index_offset = footer.index_offset.get();
     let index_end = data.len() as u64 - FOOTER_LEN as u64;
     if footer.chunk_count.get() != chunks
@@ -1041,7 +1039,7 @@ fn check_index(
     let index_xxh3 = xxh3(index_bytes);
     if index_xxh3 != footer.index_xxh3.get() {
         return Err(Error::Checksum {
-            at,
+            at: at.clone(),
             what: "chunk index",
             expected: footer.index_xxh3.get(),
             got: index_xxh3,

@@ -96,10 +96,6 @@ fn guarded<T>(what: &str, f: impl FnOnce() -> PyResult<T>) -> PyResult<T> {
     }
 }
 
-fn raise_format(e: terrabake_format::Error) -> PyErr {
-    raise(e)
-}
-
 /// An asset open for reading: its layers as numpy arrays.
 #[pyclass(frozen, module = "terrabake")]
 struct Asset {
@@ -215,7 +211,7 @@ impl Asset {
     ) -> PyResult<Bound<'py, PyUntypedArray>> {
         let py = slf.py();
         let this = slf.get();
-        let layer = this.inner.layer(name, level).map_err(raise_format)?;
+        let layer = this.inner.layer(name, level).map_err(raise)?;
         let t = layer.tile_size() as usize;
         if tx >= layer.tiles_x() || ty >= layer.tiles_y() || band >= layer.bands() {
             return Err(PyValueError::new_err(format!(
@@ -228,7 +224,7 @@ impl Asset {
         }
         macro_rules! view {
             ($t:ty) => {{
-                let tile = layer.tile::<$t>(band, tx, ty).map_err(raise_format)?;
+                let tile = layer.tile::<$t>(band, tx, ty).map_err(raise)?;
                 // SAFETY: the slice lives in the mapping owned by `this.inner`
                 // (Borrowed) or in the cached buffer moved into `owner`
                 // (Cached); `container` keeps that owner alive as long as the
@@ -305,7 +301,7 @@ impl Asset {
     /// The compass azimuth (degrees clockwise from north) of each band of
     /// layer `name` at level 0; empty for layers without directions.
     fn band_azimuths(&self, name: &str) -> PyResult<Vec<f64>> {
-        let layer = self.inner.layer(name, 0).map_err(raise_format)?;
+        let layer = self.inner.layer(name, 0).map_err(raise)?;
         Ok(layer.entry().band_azimuths.clone())
     }
 
@@ -319,7 +315,7 @@ impl Asset {
         name: &str,
         level: u32,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let layer = self.inner.layer(name, level).map_err(raise_format)?;
+        let layer = self.inner.layer(name, level).map_err(raise)?;
         let cog = guarded("attributes", || {
             terrabake::export::cog_for_layer(&self.inner, layer, &Default::default()).map_err(raise)
         })?;

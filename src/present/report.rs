@@ -251,36 +251,3 @@ pub fn ingested(
         took.as_secs_f64()
     )
 }
-
-/// An error and its causes on one line, each cause said once: a cause
-/// whose text an outer message already carries (an OS error that the
-/// format's message quotes) is not repeated.
-pub fn error_chain(e: &anyhow::Error) -> String {
-    let mut out = String::new();
-    for cause in e.chain() {
-        let text = cause.to_string();
-        if out.contains(&text) {
-            continue;
-        }
-        if !out.is_empty() {
-            out.push_str(": ");
-        }
-        out.push_str(&text);
-    }
-    out
-}
-
-#[cfg(test)]
-mod tests {
-    #[test]
-    fn an_error_chain_says_each_cause_once() {
-        let io = std::io::Error::new(std::io::ErrorKind::NotFound, "No such file or directory");
-        let e = anyhow::Error::new(io)
-            .context("x/manifest.tba: No such file or directory")
-            .context("x: cannot open asset");
-        assert_eq!(
-            super::error_chain(&e),
-            "x: cannot open asset: x/manifest.tba: No such file or directory"
-        );
-    }
-}

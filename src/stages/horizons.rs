@@ -524,7 +524,24 @@ struct Run<'a> {
     bar: &'a indicatif::ProgressBar,
 }
 
-impl Run<'_> {
+impl<'a> Run<'a> {
+    /// The DEM's `rows`, whole (NaN for nodata).
+    fn read_rows(&self, rows: std::ops::Range<usize>) -> Result<Vec<f32>> {
+        read_rows(self.height, rows)
+    }
+
+    /// `z`, rows `row0..` of the DEM, as the algorithms see them: the
+    /// grid's spacing, row scales and curvature.
+    fn terrain<'z>(&self, z: &'z [f32], row0: usize) -> Terrain<'z>
+    where
+        'a: 'z,
+    {
+        let (w, h, _) = self.dims;
+        Terrain::window(z, (w, h), row0, self.spacing)
+            .with_row_scale(self.row_scale)
+            .with_curvature(self.curvature)
+    }
+
     /// Whether the tile row at `y0` holds rows of the share (the others
     /// hold the fill value).
     fn wanted(&self, y0: usize) -> bool {
@@ -540,7 +557,7 @@ impl HorizonsStage {
     fn sweep_out_of_core(&self, run: &Run, nodata: bool, highest: f64) -> Result<()> {
         let (w, h, ts) = run.dims;
         let (dx, dy) = run.spacing;
-        let (height, row_scale, curvature) = (run.height, run.row_scale, run.curvature);
+        let row_scale = run.row_scale;
         let (bands, mine, out, distances, bar) =
             (run.bands, run.mine.clone(), run.out, run.distances, run.bar);
         let wanted = |y0: usize| run.wanted(y0);
@@ -567,10 +584,8 @@ impl HorizonsStage {
                         return Ok((rows.start, None, None));
                     }
                     let window = sweep.window(&rows);
-                    let rows_buf = read_rows(height, window.clone())?;
-                    let terrain = Terrain::window(&rows_buf, (w, h), window.start, (dx, dy))
-                        .with_row_scale(row_scale)
-                        .with_curvature(curvature);
+                    let rows_buf = run.read_rows(window.clone())?;
+                    let terrain = run.terrain(&rows_buf, window.start);
                     let mut angles = vec![0f32; rows.len() * w];
                     let mut metres = distances.as_ref().map(|_| vec![0f32; rows.len() * w]);
                     sweep.sweep(&terrain, rows.clone(), &mut angles, metres.as_deref_mut());
@@ -604,17 +619,18 @@ impl HorizonsStage {
     /// lines need) held in memory, the bands of a batch in parallel.
     fn sweep_in_core(&self, run: &Run) -> Result<()> {
         let (w, h, ts) = run.dims;
-        let (dx, dy) = run.spacing;
-        let (height, row_scale, curvature, opts) =
-            (run.height, run.row_scale, run.curvature, run.opts);
-        let (bands, mine, out, distances, bar) =
-            (run.bands, run.mine.clone(), run.out, run.distances, run.bar);
+        let (bands, mine, out, distances, bar, opts) = (
+            run.bands,
+            run.mine.clone(),
+            run.out,
+            run.distances,
+            run.bar,
+            run.opts,
+        );
         let (rows, cols, window) = (&run.rows, &run.cols, &run.window);
         let wanted = |y0: usize| run.wanted(y0);
-        let z = read_rows(height, window.clone())?;
-        let terrain = Terrain::window(&z, (w, h), window.start, (dx, dy))
-            .with_row_scale(row_scale)
-            .with_curvature(curvature);
+        let z = run.read_rows(window.clone())?;
+        let terrain = run.terrain(&z, window.start);
         let threads = rayon::current_num_threads().max(1);
         let mut tile_row = vec![0f32; ts * w];
         // A band's values over the window into `writer`, tile row by

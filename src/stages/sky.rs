@@ -116,12 +116,8 @@ impl Default for SkyStage {
 struct HorizonsRecord {
     aoi: Option<crate::stage::args::Aoi>,
     curvature: Option<bool>,
-    #[serde(default = "default_refraction")]
+    #[serde(default = "crate::terrain::default_refraction")]
     refraction: f64,
-}
-
-fn default_refraction() -> f64 {
-    crate::terrain::DEFAULT_REFRACTION
 }
 
 impl Stage for SkyStage {

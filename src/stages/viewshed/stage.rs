@@ -67,16 +67,12 @@ pub struct ViewshedStage {
     pub curvature: Option<bool>,
     /// Refraction coefficient k of the curvature drop.
     #[arg(long, default_value_t = DEFAULT_REFRACTION)]
-    #[serde(default = "default_refraction")]
+    #[serde(default = "crate::terrain::default_refraction")]
     pub refraction: f64,
 }
 
 fn default_eye() -> f64 {
     super::DEFAULT_EYE_HEIGHT
-}
-
-fn default_refraction() -> f64 {
-    DEFAULT_REFRACTION
 }
 
 impl Stage for ViewshedStage {
