@@ -4,10 +4,10 @@
 //!
 //! Inside the pipeline, work returns `anyhow::Result` and adds context as
 //! it unwinds; the kinds come from typed errors in that chain: the format
-//! crate's [`terrabake_format::Error`] (the asset), a
-//! [`Shortage`] of memory or disk,
-//! and the marks [`mark`] puts where a source DEM or a parameter is at
-//! fault. The entry points ([`crate::bake::recipe::bake`],
+//! crate's [`terrabake_format::Error`] (the asset), a [`Shortage`] of
+//! memory or disk, and the marks [`mark`] puts where a source DEM or a
+//! parameter is at fault. [`error_chain`] is how the chain reads on one
+//! line, for the command line, Python and [`Error`]'s `Display` alike. The entry points ([`crate::bake::recipe::bake`],
 //! [`crate::stage::run_stage`], [`crate::stages::ingest::ingest`],
 //! [`crate::plan::plan`], ...) return [`Result`], so that the Python
 //! package raises one exception class a kind and a Rust caller can match

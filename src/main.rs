@@ -58,13 +58,20 @@ impl Session {
         Ok(run_stage_in(&writer, stage, force, self.progress)?)
     }
 
-    /// A stage's outcome: its JSON record on stdout (with --json), a line
-    /// on stderr.
-    fn report(&self, outcome: &StageOutcome, json: bool) -> Result<()> {
+    /// Runs `stage` on `asset` and reports its outcome: its JSON record on
+    /// stdout (with --json), a line on stderr.
+    fn run_and_report(
+        &self,
+        asset: &Path,
+        stage: &dyn Stage,
+        force: bool,
+        json: bool,
+    ) -> Result<()> {
+        let outcome = self.run_stage(asset, stage, force)?;
         if json {
-            println!("{}", serde_json::to_string_pretty(outcome)?);
+            println!("{}", serde_json::to_string_pretty(&outcome)?);
         }
-        self.say(describe_outcome(outcome));
+        self.say(describe_outcome(&outcome));
         Ok(())
     }
 
@@ -90,9 +97,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
         Command::Page(args) => args.run(&say)?,
         Command::Viewshed(args) => args.run(&say)?,
         Command::Profile(args) => args.run()?,
-        Command::TotalViewshed(c) => {
-            s.report(&s.run_stage(&c.asset, &c.stage, c.force)?, c.json)?
-        }
+        Command::TotalViewshed(c) => s.run_and_report(&c.asset, &c.stage, c.force, c.json)?,
         Command::Check(args) => return args.run(s.progress),
         Command::Plan(args) => args.run(s.progress)?,
         Command::Ingest {
@@ -134,7 +139,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
         }
         Command::Render(args) => args.run(&say)?,
         Command::Pyramid { asset, force, json } => {
-            s.report(&s.run_stage(&asset, &PyramidStage, force)?, json)?;
+            s.run_and_report(&asset, &PyramidStage, force, json)?;
         }
         Command::Cones {
             asset,
@@ -142,7 +147,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             force,
             json,
         } => cones(&s, &asset, &stage, force, json)?,
-        Command::Sky(c) => s.report(&s.run_stage(&c.asset, &c.stage, c.force)?, c.json)?,
+        Command::Sky(c) => s.run_and_report(&c.asset, &c.stage, c.force, c.json)?,
         Command::Horizons {
             asset,
             stage,
