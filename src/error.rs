@@ -2,16 +2,18 @@
 //! kind a caller can act on without reading the message, as
 //! `std::io::Error` pairs an `ErrorKind` with its payload.
 //!
-//! Inside the pipeline, work returns `anyhow::Result` and adds context as
-//! it unwinds; the kinds come from typed errors in that chain: the format
-//! crate's [`terrabake_format::Error`] (the asset), a [`Shortage`] of
-//! memory or disk, and the marks [`mark`] puts where a source DEM or a
-//! parameter is at fault. [`error_chain`] is how the chain reads on one
-//! line, for the command line, Python and [`Error`]'s `Display` alike. The entry points ([`crate::bake::recipe::bake`],
-//! [`crate::stage::run_stage`], [`crate::stages::ingest::ingest`],
-//! [`crate::plan::plan`], ...) return [`Result`], so that the Python
-//! package raises one exception class a kind and a Rust caller can match
-//! on [`Error::kind`].
+//! Everything public returns [`Result`]: the entry points, the
+//! [`Stage`](crate::stage::Stage) trait a stage implements and the
+//! [`Run`](crate::stage::session::Run) trait a command implements.
+//! Private work inside the pipeline returns `anyhow::Result` and adds
+//! context as it unwinds (`?` turns it into an [`Error`], and this module's
+//! `bail!` and `ensure!` serve both); the kinds come from typed errors in
+//! that chain: the format crate's [`terrabake_format::Error`] (the
+//! asset), a [`Shortage`] of memory or disk, and the marks [`mark`] puts
+//! where a source DEM or a parameter is at fault. [`error_chain`] is how
+//! the chain reads on one line, for the command line, Python and
+//! [`Error`]'s `Display` alike. The Python package raises one exception
+//! class a kind, and a Rust caller can match on [`Error::kind`].
 
 use std::fmt;
 
@@ -126,10 +128,51 @@ impl From<terrabake_format::Error> for Error {
     }
 }
 
+impl From<Shortage> for Error {
+    fn from(e: Shortage) -> Self {
+        anyhow::Error::new(e).into()
+    }
+}
+
+impl From<std::io::Error> for Error {
+    fn from(e: std::io::Error) -> Self {
+        anyhow::Error::new(e).into()
+    }
+}
+
+impl From<serde_json::Error> for Error {
+    fn from(e: serde_json::Error) -> Self {
+        anyhow::Error::new(e).into()
+    }
+}
+
+/// `anyhow::bail!` for a function that returns either [`Result`] or
+/// `anyhow::Result`: the message becomes the error the function returns.
+macro_rules! bail {
+    ($($message:tt)+) => {
+        return ::core::result::Result::Err(::anyhow::anyhow!($($message)+).into())
+    };
+}
+
+/// `anyhow::ensure!` for a function that returns either [`Result`] or
+/// `anyhow::Result`.
+macro_rules! ensure {
+    ($condition:expr, $($message:tt)+) => {
+        if !$condition {
+            $crate::error::bail!($($message)+);
+        }
+    };
+}
+
+pub(crate) use {bail, ensure};
+
 /// `e`, marked as a failure of `kind` (a source DEM's, a parameter's):
 /// its message and causes unchanged.
-pub(crate) fn mark(kind: ErrorKind, e: anyhow::Error) -> anyhow::Error {
-    anyhow::Error::new(Marked { kind, inner: e })
+pub(crate) fn mark(kind: ErrorKind, e: impl Into<anyhow::Error>) -> anyhow::Error {
+    anyhow::Error::new(Marked {
+        kind,
+        inner: e.into(),
+    })
 }
 
 /// An error marked with its kind; it reads as the error it carries.

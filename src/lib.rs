@@ -25,7 +25,7 @@
 //!   the command line prints.
 //! - [`export`]: layers out as GeoTIFF, OpenEXR, PNG, GRASS and engine
 //!   textures.
-//! - [`cli`]: the command line's grammar (the binary parses with it).
+//! - [`cli`]: the command line: its grammar and each command's run (the binary parses and runs with it).
 
 pub mod algorithms;
 pub mod bake;

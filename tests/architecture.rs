@@ -343,14 +343,45 @@ fn the_format_crate_knows_nothing_of_the_pipeline() {
     }
 }
 
+/// The binary parses, runs and prints; every command has one shape: a
+/// variant of `cli::Command` holding its arguments (`Name(NameArgs)`),
+/// whose type implements `Run`, dispatched in one line.
 #[test]
-fn main_rs_stays_thin() {
-    let main = Path::new(env!("CARGO_MANIFEST_DIR")).join("src/main.rs");
-    let lines = std::fs::read_to_string(main).unwrap().lines().count();
+fn main_rs_stays_thin_and_every_command_has_one_shape() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let main = std::fs::read_to_string(root.join("src/main.rs")).unwrap();
+    let lines = main.lines().count();
     assert!(
-        lines <= 300,
+        lines <= 60,
         "src/main.rs has {lines} lines: move work into the library"
     );
+    let cli = std::fs::read_to_string(root.join("src/cli/mod.rs")).unwrap();
+    let grammar = cli
+        .split("pub enum Command {")
+        .nth(1)
+        .and_then(|rest| rest.split("\n}\n").next())
+        .expect("cli::Command");
+    let variants: Vec<&str> = grammar
+        .lines()
+        .filter_map(|l| l.strip_prefix("    "))
+        .filter(|l| l.chars().next().is_some_and(|c| c.is_ascii_uppercase()))
+        .collect();
+    assert!(variants.len() >= 18, "{variants:?}");
+    let dispatch = cli
+        .split("fn args(&self) -> &dyn Run {")
+        .nth(1)
+        .expect("Command::args");
+    for v in variants {
+        let name = v.split('(').next().unwrap();
+        assert!(
+            v.ends_with("),") && !v.contains('{'),
+            "cli::Command::{name} is not a variant holding its arguments: {v}"
+        );
+        assert!(
+            dispatch.contains(&format!("Command::{name}(a) => a,")),
+            "Command::args does not dispatch {name} in one line"
+        );
+    }
 }
 
 /// `make test` reuses the library that `make demo` built: the normal build

@@ -408,6 +408,92 @@ fn profile_formats_and_refusals() {
     }
 }
 
+/// `profile --max-distance` looks as far as the bounded horizons stage: at
+/// the axes, where a line band's grid direction is its azimuth, the
+/// profile's horizon is the stage's stored angle (f32, curvature off), and
+/// never farther out than the distance.
+#[test]
+fn profile_within_a_distance_is_the_bounded_line_stage() {
+    let dir = tempfile::tempdir().unwrap();
+    let asset = synth_asset(dir.path());
+    let a = asset.to_str().unwrap();
+    let limit = ["--max-distance", "240", "--curvature", "off"];
+    let o = terrabake(
+        &[
+            &[
+                "horizons",
+                a,
+                "--sectors",
+                "4",
+                "--encoding",
+                "f32",
+                "--no-sky",
+                "--force",
+                "-q",
+            ][..],
+            &limit,
+        ]
+        .concat(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let opened = terrabake_format::Asset::open(&asset).unwrap();
+    let stored = terrabake_format::horizons::HorizonMap::open(&opened).unwrap();
+    let mut cut = 0;
+    for (col, row) in [(30, 20), (5, 40), (55, 3), (12, 12)] {
+        let at = format!("{col},{row}");
+        let args = [
+            &[
+                "profile", a, "--crs", "grid", "--at", &at, "--step", "90", "--format", "json",
+            ][..],
+            &limit,
+        ]
+        .concat();
+        let o = terrabake(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let whole = terrabake(&[
+            "profile",
+            a,
+            "--crs",
+            "grid",
+            "--at",
+            &at,
+            "--step",
+            "90",
+            "--format",
+            "json",
+            "--curvature",
+            "off",
+        ]);
+        let json: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+        let whole: serde_json::Value = serde_json::from_str(&stdout(&whole)).unwrap();
+        for (band, (p, q)) in json["points"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .zip(whole["points"].as_array().unwrap())
+            .enumerate()
+        {
+            let got = p["horizon_deg"].as_f64().unwrap();
+            let want = stored
+                .angle(col, row, band as u32)
+                .unwrap()
+                .expect("a post of the synthetic DEM");
+            assert!(
+                (got - want).abs() < 1e-4,
+                "({col}, {row}) band {band}: profile {got}, stage {want}"
+            );
+            if let Some(d) = p["distance_m"].as_f64() {
+                assert!(d <= 240.0, "({col}, {row}) band {band}: {d} m");
+            }
+            cut += usize::from(q["distance_m"].as_f64().is_some_and(|d| d > 240.0));
+        }
+    }
+    assert!(
+        cut > 0,
+        "no whole-DEM horizon lay beyond the distance: the test cuts nothing"
+    );
+}
+
 /// r.horizon's files: one per direction, counter-clockwise from east,
 /// radians; a direction on a stored (sector) band carries it exactly.
 #[test]

@@ -700,7 +700,7 @@ fn the_pilot_measures_the_directions_the_planned_bake_stores() {
     let plan = planned(&asset, &budget);
     let mut stage: HorizonsStage = plan.horizons_stage().expect("a horizons stage");
     stage.encoding = Some(AngleEncoding::F32);
-    stage.max_distance = None;
+    stage.sight.max_distance = None;
     run_stage(&asset, &stage, true, Progress::hidden()).unwrap();
 
     let opened = Asset::open(&asset).unwrap();

@@ -680,7 +680,7 @@ fn a_failed_stage_removes_its_own_files() {
             dir: &Path,
             _: &terrabake::stage::Share,
             _: terrabake::plumbing::progress::Progress,
-        ) -> anyhow::Result<Vec<LayerEntry>> {
+        ) -> terrabake::Result<Vec<LayerEntry>> {
             let h = asset.height()?;
             let spec = |name: &str| LayerSpec {
                 name: name.into(),
@@ -706,7 +706,7 @@ fn a_failed_stage_removes_its_own_files() {
             // As a full disk would, with the second layer half written
             // (and its writer leaked, as a panic or abort would).
             std::mem::forget(b);
-            anyhow::bail!("No space left on device (simulated)")
+            Err(anyhow::anyhow!("No space left on device (simulated)").into())
         }
     }
 

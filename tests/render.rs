@@ -232,7 +232,10 @@ fn horizon_shadows_agree_with_shadow_rays() {
     );
     let stage = terrabake::stages::horizons::HorizonsStage {
         sectors: 32,
-        curvature: Some(false),
+        sight: terrabake::stage::sight::SightLines {
+            curvature: Some(false),
+            ..Default::default()
+        },
         encoding: Some(terrabake_format::horizons::AngleEncoding::F32),
         ..Default::default()
     };

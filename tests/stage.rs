@@ -6,9 +6,9 @@ mod common;
 
 use std::path::Path;
 
-use anyhow::Result;
 use common::*;
 use terrabake::plumbing::progress::Progress;
+use terrabake::stage::sight::SightLines;
 use terrabake::stage::{run_stage, Stage};
 use terrabake::stages::ingest::{ingest, IngestOptions};
 use terrabake::terrain::tiling::push_tile_row;
@@ -37,7 +37,7 @@ impl Stage for Offset {
         dir: &Path,
         _: &terrabake::stage::Share,
         _progress: Progress,
-    ) -> Result<Vec<LayerEntry>> {
+    ) -> terrabake::Result<Vec<LayerEntry>> {
         let height = asset.height()?;
         let (w, h, ts) = (height.width(), height.height(), height.tile_size());
         let spec = LayerSpec {
@@ -56,7 +56,7 @@ impl Stage for Offset {
         let mut writer = LayerWriter::create(dir, spec)?;
         for y0 in (0..h).step_by(ts as usize) {
             if self.fail && y0 > 0 {
-                anyhow::bail!("offset stage failed on purpose at row {y0}");
+                return Err(anyhow::anyhow!("offset stage failed on purpose at row {y0}").into());
             }
             let rows = ts.min(h - y0);
             let mut band = vec![0f32; (w * rows) as usize];
@@ -506,7 +506,7 @@ fn a_region_baked_with_its_declared_reach_equals_the_whole() {
         (
             Box::new(HorizonsStage {
                 sectors: 8,
-                max_distance: Some(200.0),
+                sight: SightLines::within(Some(200.0)),
                 ..Default::default()
             }),
             vec!["horizon"],
@@ -515,7 +515,7 @@ fn a_region_baked_with_its_declared_reach_equals_the_whole() {
             Box::new(HorizonsStage {
                 sectors: 8,
                 method: Method::Sector,
-                max_distance: Some(150.0),
+                sight: SightLines::within(Some(150.0)),
                 ..Default::default()
             }),
             vec!["horizon"],
@@ -620,7 +620,7 @@ fn an_area_of_interest_equals_the_whole_inside_and_is_nodata_outside() {
         let stage = |aoi| HorizonsStage {
             sectors: 8,
             method,
-            max_distance,
+            sight: SightLines::within(max_distance),
             aoi,
             ..Default::default()
         };

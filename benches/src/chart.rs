@@ -183,8 +183,11 @@ pub fn log_log_svg_with_marks(
             .map_err(|e| err(&e))?;
         root.present().map_err(|e| err(&e))?;
     }
-    terrabake::plumbing::output::write_atomically(path, |out| {
-        use std::io::Write;
-        Ok(out.write_all(svg.as_bytes())?)
-    })
+    Ok(terrabake::plumbing::output::write_atomically(
+        path,
+        |out| {
+            use std::io::Write;
+            Ok(out.write_all(svg.as_bytes())?)
+        },
+    )?)
 }

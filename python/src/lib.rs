@@ -473,8 +473,11 @@ fn compute_horizons(
         let stage = terrabake::stages::horizons::HorizonsStage {
             sectors,
             method,
-            max_distance,
-            refraction,
+            sight: terrabake::stage::sight::SightLines {
+                max_distance,
+                curvature: Some(curvature),
+                refraction,
+            },
             ..Default::default()
         };
         terrabake::stage::Stage::check(&stage)
@@ -691,7 +694,7 @@ fn bake(
                             Ok(_) => Ok(()),
                             Err(e) => {
                                 raised = Some(e);
-                                anyhow::bail!("stopped by the progress callback")
+                                Err(anyhow::anyhow!("stopped by the progress callback").into())
                             }
                         }
                     })

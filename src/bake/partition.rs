@@ -43,13 +43,14 @@
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
 use terrabake_format::{
     Asset, LayerEntry, LayerSpec, LayerWriter, Manifest, Mmap, HEIGHT_LAYER, MANIFEST_FILE,
 };
 
 use crate::bake::recipe::Recipe;
+use crate::error::bail;
 use crate::plumbing::progress::Progress;
 use crate::stage::asset::{AssetWriter, Wait};
 use crate::stage::{run_share_in, run_stage_in, Share, Split, Stage, StageOutcome};
@@ -69,7 +70,7 @@ pub struct Part {
 
 impl Part {
     /// `--part I` of `--parts N`, refused unless `0 <= I < N`.
-    pub fn new(index: u32, count: u32) -> Result<Self> {
+    pub fn new(index: u32, count: u32) -> crate::Result<Self> {
         if !(1..=MAX_PARTS).contains(&count) {
             bail!("--parts {count}: give 1 to {MAX_PARTS} parts");
         }
@@ -829,7 +830,7 @@ fn adopt(
 /// other), with the manifest's statistics: one line per difference, the
 /// first post that differs in each band. What `verify --same-as` reports
 /// and the partitioned bake's tests hold the join to.
-pub fn differences(a: &Asset<Mmap>, b: &Asset<Mmap>) -> Result<Vec<String>> {
+pub fn differences(a: &Asset<Mmap>, b: &Asset<Mmap>) -> crate::Result<Vec<String>> {
     let (ma, mb) = (a.manifest(), b.manifest());
     let keys = |m: &Manifest| {
         let mut k: Vec<String> = m.layers.iter().map(LayerEntry::key).collect();

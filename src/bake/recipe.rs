@@ -27,9 +27,10 @@
 
 use std::path::Path;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use serde::Deserialize;
 
+use crate::error::bail;
 use crate::plumbing::progress::Progress;
 use crate::stage::asset::{AssetWriter, Wait};
 use crate::stage::{run_stage_in, run_stages_in, Stage, StageOutcome};
@@ -67,14 +68,14 @@ pub struct RecipeStage {
 }
 
 impl Recipe {
-    pub fn load(path: &Path) -> Result<Self> {
+    pub fn load(path: &Path) -> crate::Result<Self> {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("{}: cannot read recipe", path.display()))?;
         Self::parse(path, text)
     }
 
     /// The recipe `text`, read from `path` (named in messages).
-    pub fn parse(path: &Path, text: String) -> Result<Self> {
+    pub fn parse(path: &Path, text: String) -> crate::Result<Self> {
         let invalid = || format!("{}: invalid recipe", path.display());
         let mut recipe: Recipe = toml::from_str(&text).with_context(invalid)?;
         // TOML has `nan` and `inf`; no parameter of any stage means either.
@@ -139,7 +140,7 @@ impl Recipe {
 
     /// Every stage of the recipe, resolved before any work so that a typo
     /// fails in a second; errors name the file, the step and the key.
-    pub fn resolve_stages(&self) -> Result<Vec<Box<dyn Stage>>> {
+    pub fn resolve_stages(&self) -> crate::Result<Vec<Box<dyn Stage>>> {
         self.stages
             .iter()
             .enumerate()
@@ -153,7 +154,8 @@ impl Recipe {
                     )
                 })
             })
-            .collect()
+            .collect::<Result<_>>()
+            .map_err(Into::into)
     }
 }
 
@@ -253,7 +255,7 @@ pub fn bake_with(
     recipe: &Recipe,
     wait: Wait,
     progress: Progress,
-    on_stage: &mut dyn FnMut(&StageOutcome, usize, usize) -> Result<()>,
+    on_stage: &mut dyn FnMut(&StageOutcome, usize, usize) -> crate::Result<()>,
 ) -> crate::Result<Vec<StageOutcome>> {
     // The work in anyhow, its causes kept; the kind at the surface.
     let mut run = move || -> Result<Vec<StageOutcome>> {

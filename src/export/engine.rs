@@ -21,10 +21,11 @@
 
 use std::path::Path;
 
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{anyhow, Context, Result};
 use serde::Serialize;
 use terrabake_format::{Asset, Layer, Mmap};
 
+use crate::error::bail;
 use crate::plumbing::output::write_atomically;
 use crate::plumbing::progress::Progress;
 
@@ -60,7 +61,7 @@ impl Engine {
     /// tile)`, where `tile` is the posts per side of each file (the whole
     /// grid when it is one file). `max_tile` overrides the engine's limit
     /// (tests use it to reach tiling on small DEMs).
-    pub fn layout(self, (w, h): (u32, u32), max_tile: Option<u32>) -> Result<Layout> {
+    pub fn layout(self, (w, h): (u32, u32), max_tile: Option<u32>) -> crate::Result<Layout> {
         let fit = |sizes: &[u32], n: u32| sizes.iter().copied().find(|&s| s >= n);
         let tiled = |tile: u32| {
             let per = |n: u32| (n.max(2) - 1).div_ceil(tile - 1);
@@ -227,7 +228,7 @@ pub fn export_heightmap(
     dir: &Path,
     max_tile: Option<u32>,
     progress: Progress,
-) -> Result<Sidecar> {
+) -> crate::Result<Sidecar> {
     let height = asset.height()?;
     let m = asset.manifest();
     let (w, h) = (height.width(), height.height());
@@ -387,7 +388,7 @@ fn padded_window(height: &Layer<Mmap>, [x0, y0, w, h]: [u32; 4], fill: f32) -> R
 fn write_png16(path: &Path, (w, h): (u32, u32), values: impl Iterator<Item = u16>) -> Result<()> {
     // PNG stores 16-bit samples big-endian.
     let bytes: Vec<u8> = values.flat_map(u16::to_be_bytes).collect();
-    write_atomically(path, |file| {
+    Ok(write_atomically(path, |file| {
         let mut enc = png::Encoder::new(file, w, h);
         enc.set_color(png::ColorType::Grayscale);
         enc.set_depth(png::BitDepth::Sixteen);
@@ -395,11 +396,11 @@ fn write_png16(path: &Path, (w, h): (u32, u32), values: impl Iterator<Item = u16
         writer.write_image_data(&bytes)?;
         writer.finish()?;
         Ok(())
-    })
+    })?)
 }
 
 fn write_exr_r(path: &Path, (w, h): (u32, u32), heights: Vec<f32>) -> Result<()> {
-    write_atomically(path, |file| {
+    Ok(write_atomically(path, |file| {
         use exr::prelude::*;
         let channel = AnyChannel::new("R", FlatSamples::F32(heights));
         let image = Image::from_channels(
@@ -410,7 +411,7 @@ fn write_exr_r(path: &Path, (w, h): (u32, u32), heights: Vec<f32>) -> Result<()>
             .write()
             .to_buffered(file)
             .map_err(|e| anyhow!("writing EXR: {e}"))
-    })
+    })?)
 }
 
 #[cfg(test)]

@@ -22,11 +22,12 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use terrabake_format::horizons::{bands_around, between, HORIZON};
 use terrabake_format::{Asset, Mmap};
 
 use super::{cog_for_layer, TiffOptions};
+use crate::error::bail;
 use crate::io::cog::{BandMetadata, Cog, Metadata, Resampling};
 use crate::plumbing::progress::Progress;
 
@@ -63,7 +64,7 @@ pub(crate) fn map_name(angle: f64, decimals: usize) -> String {
 
 /// The directions for `step` degrees (360 / bands by default): 0, step, ...
 /// below 360, counter-clockwise from east.
-pub fn directions(dir: &Path, step: f64) -> Result<Vec<GrassHorizon>> {
+pub fn directions(dir: &Path, step: f64) -> crate::Result<Vec<GrassHorizon>> {
     if !(0.1..=360.0).contains(&step) {
         bail!("--step {step}: give 0.1 to 360 degrees (at most 3600 files)");
     }

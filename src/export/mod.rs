@@ -13,14 +13,17 @@ pub mod viewshed;
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::process::ExitCode;
 
-use anyhow::{anyhow, bail, Result};
+use anyhow::{anyhow, Result};
 use terrabake_format::{Asset, Layer, Mmap};
 
+use crate::error::bail;
 use crate::io::cog::{Cog, Compression, GeoTags, Resampling};
 use crate::plumbing::output::write_atomically;
 use crate::plumbing::progress::Progress;
 use crate::present::legend::{Legend, Ramp, Stretch};
+use crate::stage::session::{Run, Session};
 
 /// The command that makes layer `name`, for a message about its absence.
 fn stage_making(name: &str) -> Option<&'static str> {
@@ -169,7 +172,11 @@ pub(crate) fn default_resampling(layer: &str) -> Resampling {
 /// The COG for a layer: georeferencing at its level, nodata (the source's
 /// value for heights, NaN for the rest: a real horizon or svf could equal
 /// the source's), and GDAL metadata that says what each band is.
-pub fn cog_for_layer(asset: &Asset<Mmap>, layer: &Layer<Mmap>, tiff: &TiffOptions) -> Result<Cog> {
+pub fn cog_for_layer(
+    asset: &Asset<Mmap>,
+    layer: &Layer<Mmap>,
+    tiff: &TiffOptions,
+) -> crate::Result<Cog> {
     let manifest = asset.manifest();
     let entry = layer.entry();
     let name = entry.name.as_str();
@@ -333,8 +340,9 @@ pub enum ExportFor {
     Godot,
 }
 
-impl ExportArgs {
-    pub fn run(&self, progress: Progress, say: &dyn Fn(String)) -> Result<()> {
+impl Run for ExportArgs {
+    fn run(&self, s: &Session) -> crate::Result<ExitCode> {
+        let progress = s.progress;
         let asset = crate::stage::asset::open(&self.asset)?;
         if self.for_program == Some(ExportFor::Grass) {
             if self.layer != terrabake_format::layers::HORIZON || self.level != 0 {
@@ -342,20 +350,22 @@ impl ExportArgs {
             }
             let (files, step) =
                 grass::export_horizons(&asset, &self.output, self.step, &self.tiff, progress)?;
-            say(format!(
+            s.say(format!(
                 "wrote {} horizon files to {} (r.sun horizon_basename={} horizon_step={})",
                 files.len(),
                 self.output.display(),
                 grass::BASENAME,
                 format_step(step)
             ));
-            return Ok(());
+            return Ok(ExitCode::SUCCESS);
         }
         if let Some(program) = self.for_program {
-            return self.run_for_engine(&asset, program, progress, say);
+            self.run_for_engine(&asset, program, s)?;
+            return Ok(ExitCode::SUCCESS);
         }
         if let Some(harmonics) = self.fourier {
-            return self.run_fourier(&asset, harmonics, say);
+            self.run_fourier(&asset, harmonics, s)?;
+            return Ok(ExitCode::SUCCESS);
         }
         let layer =
             asset
@@ -376,20 +386,14 @@ impl ExportArgs {
             &self.tiff,
             progress,
         )?;
-        say(format!("wrote {}", self.output.display()));
-        Ok(())
+        s.say(format!("wrote {}", self.output.display()));
+        Ok(ExitCode::SUCCESS)
     }
 }
 
 impl ExportArgs {
     /// `--for unreal|unity|godot`: the heights as the engine imports them.
-    fn run_for_engine(
-        &self,
-        asset: &Asset<Mmap>,
-        program: ExportFor,
-        progress: Progress,
-        say: &dyn Fn(String),
-    ) -> Result<()> {
+    fn run_for_engine(&self, asset: &Asset<Mmap>, program: ExportFor, s: &Session) -> Result<()> {
         let engine = match program {
             ExportFor::Unreal => engine::Engine::Unreal,
             ExportFor::Unity => engine::Engine::Unity,
@@ -404,8 +408,8 @@ impl ExportArgs {
                 self.level
             );
         }
-        let sidecar = engine::export_heightmap(asset, engine, &self.output, None, progress)?;
-        say(format!(
+        let sidecar = engine::export_heightmap(asset, engine, &self.output, None, s.progress)?;
+        s.say(format!(
             "wrote {} file(s) of {} x {} posts and heightmap.json to {} (heights within {:.3} m)",
             sidecar.files.len(),
             sidecar.layout.size.0,
@@ -417,19 +421,14 @@ impl ExportArgs {
     }
 
     /// `--fourier K`: the horizons as Fourier coefficients, a KTX2 texture.
-    fn run_fourier(
-        &self,
-        asset: &Asset<Mmap>,
-        harmonics: usize,
-        say: &dyn Fn(String),
-    ) -> Result<()> {
+    fn run_fourier(&self, asset: &Asset<Mmap>, harmonics: usize, s: &Session) -> Result<()> {
         if self.layer != terrabake_format::layers::HORIZON
             || ExportKind::from_path(&self.output)? != ExportKind::Ktx2
         {
             bail!("--fourier writes the horizon layer as a texture: give --layer horizon and an -o ending in .ktx2");
         }
         texture::write_ktx2(&self.output, &texture::fourier_texture(asset, harmonics)?)?;
-        say(format!(
+        s.say(format!(
             "wrote {} ({} coefficients per post)",
             self.output.display(),
             2 * harmonics + 1
@@ -468,7 +467,7 @@ pub(crate) fn export_layer(
         ExportKind::GeoTiff => {
             let cog = cog_for_layer(asset, layer, tiff)?;
             if let Some(budget) = tiff.max_memory {
-                anyhow::ensure!(
+                crate::error::ensure!(
                     cog.memory() <= budget,
                     "{}: a {w} x {h} GeoTIFF in tiles of {} holds about {} MiB at once (a tile row per overview level), over --max-memory {} MiB; give a smaller --tile or raise --max-memory",
                     out.display(),
@@ -502,7 +501,7 @@ pub(crate) fn export_layer(
                 };
                 channels.push((name, all));
             }
-            write_atomically(out, |file| {
+            Ok(write_atomically(out, |file| {
                 use exr::prelude::*;
                 let channels = channels
                     .into_iter()
@@ -514,7 +513,7 @@ pub(crate) fn export_layer(
                     .write()
                     .to_buffered(file)
                     .map_err(|e| anyhow!("writing EXR: {e}"))
-            })
+            })?)
         }
         ExportKind::Png => write_png_preview(out, layer, manifest, style, band, height_like),
         ExportKind::Ktx2 => texture::write_ktx2(out, &texture::texture_for_layer(asset, layer)?),
@@ -571,7 +570,7 @@ fn write_png_preview(
         PngStyle::Gray => 0,
         _ => crate::present::legend::height(pw),
     };
-    write_atomically(out, |file| {
+    Ok(write_atomically(out, |file| {
         let mut enc = png::Encoder::new(file, pw, ph + legend_rows);
         match style {
             PngStyle::Gray => {
@@ -639,7 +638,7 @@ fn write_png_preview(
         writer.finish()?;
         header.finish()?;
         Ok(())
-    })
+    })?)
 }
 
 /// Lambert shading of a surface with slopes dz/dx (east) and dz/dy (south),

@@ -27,10 +27,11 @@
 use std::io::Write;
 use std::path::Path;
 
-use anyhow::{bail, Result};
+use anyhow::Result;
 use terrabake_format::horizons::AngleEncoding;
 use terrabake_format::{Asset, ElemType, Layer, Mmap};
 
+use crate::error::bail;
 use crate::plumbing::output::write_atomically;
 
 /// Vulkan's format numbers for the formats written.
@@ -161,7 +162,7 @@ fn lcm(a: usize, b: usize) -> usize {
 }
 
 /// The texture for `layer` of `asset` (see the module docs).
-pub fn texture_for_layer(asset: &Asset<Mmap>, layer: &Layer<Mmap>) -> Result<Ktx2> {
+pub fn texture_for_layer(asset: &Asset<Mmap>, layer: &Layer<Mmap>) -> crate::Result<Ktx2> {
     let e = layer.entry();
     let (w, h, bands) = (e.width, e.height, e.bands);
     if u64::from(w) * u64::from(h) * u64::from(bands) > 1 << 28 {
@@ -355,5 +356,5 @@ pub(crate) fn fourier_texture(asset: &Asset<Mmap>, harmonics: usize) -> Result<K
 /// Writes `texture` to `path` (atomically).
 pub(crate) fn write_ktx2(path: &Path, texture: &Ktx2) -> Result<()> {
     let bytes = texture.to_bytes();
-    write_atomically(path, |f| Ok(f.write_all(&bytes)?))
+    Ok(write_atomically(path, |f| Ok(f.write_all(&bytes)?))?)
 }

@@ -2,15 +2,15 @@
 //! written as a two-band GeoTIFF with the asset's georeferencing.
 
 use std::path::PathBuf;
+use std::process::ExitCode;
 use std::time::Instant;
-
-use anyhow::Result;
 
 use crate::algorithms::viewshed::observer::{observer_viewshed, Observer, OUTSIDE};
 use crate::io::cog::{BandMetadata, Cog, Compression, GeoTags, Metadata, Resampling};
+use crate::stage::session::{Run, Session};
+use crate::stage::sight::SightLines;
 use crate::stages::viewshed::{check_height, observer_post, Crs};
-use crate::terrain::held::{curvature_for, HeldDem};
-use crate::terrain::DEFAULT_REFRACTION;
+use crate::terrain::held::HeldDem;
 
 #[derive(clap::Args, Debug)]
 #[command(
@@ -37,15 +37,9 @@ pub struct ViewshedArgs {
     /// The target above the ground at every post, metres.
     #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
     pub target_height: f64,
-    /// Only posts within this many metres (default: the whole DEM).
-    #[arg(long, allow_hyphen_values = true, value_parser = crate::stage::args::parse_positive)]
-    pub max_distance: Option<f64>,
-    /// Earth curvature, drop d^2 (1 - k) / 2R: on, off (default: on for georeferenced DEMs).
-    #[arg(long, value_parser = crate::stage::args::parse_on_off)]
-    pub curvature: Option<bool>,
-    /// Refraction coefficient k of the curvature drop.
-    #[arg(long, default_value_t = DEFAULT_REFRACTION)]
-    pub refraction: f64,
+    /// How far the observer sees (posts beyond are nodata) and how the Earth bends sight.
+    #[command(flatten)]
+    pub sight: SightLines,
     /// The GeoTIFF to write (two float32 bands; its directory is created).
     #[arg(short, long)]
     pub output: PathBuf,
@@ -69,22 +63,22 @@ pub struct ViewshedSummary {
     pub output: PathBuf,
 }
 
-impl ViewshedArgs {
-    pub fn run(&self, say: &dyn Fn(String)) -> Result<()> {
+impl Run for ViewshedArgs {
+    fn run(&self, s: &Session) -> crate::Result<ExitCode> {
         check_height("--observer-height", self.observer_height)?;
         check_height("--target-height", self.target_height)?;
         let asset = crate::stage::asset::open(&self.asset)?;
         let m = asset.manifest();
         let dem = HeldDem::read(&asset)?;
         let (col, row) = observer_post(m, &dem, self.observer, self.crs)?;
-        let curvature = curvature_for(m, self.curvature, self.refraction);
+        let curvature = self.sight.curvature_coefficient(m);
         let terrain = dem.terrain(curvature);
         let obs = Observer {
             col,
             row,
             height: self.observer_height,
             target_height: self.target_height,
-            max_distance: self.max_distance,
+            max_distance: self.sight.max_distance,
         };
         let start = Instant::now();
         let v = observer_viewshed(&terrain, &obs);
@@ -135,7 +129,7 @@ impl ViewshedArgs {
             observer_post: (col, row),
             eye_height_m: self.observer_height,
             target_height_m: self.target_height,
-            max_distance_m: self.max_distance,
+            max_distance_m: self.sight.max_distance,
             curvature,
             posts_within_reach: reach,
             posts_visible: seen,
@@ -146,15 +140,15 @@ impl ViewshedArgs {
         if self.json {
             println!("{}", serde_json::to_string_pretty(&summary)?);
         }
-        say(format!(
+        s.say(format!(
             "viewshed from post ({col}, {row}), eye {} m, target {} m{}: {seen} of {reach} posts visible ({:.1} %, {:.2} km2) in {seconds:.2} s -> {}",
             self.observer_height,
             self.target_height,
-            self.max_distance.map_or(String::new(), |d| format!(", within {d} m")),
+            self.sight.max_distance.map_or(String::new(), |d| format!(", within {d} m")),
             100.0 * seen as f64 / reach.max(1) as f64,
             summary.visible_area_m2 / 1e6,
             self.output.display()
         ));
-        Ok(())
+        Ok(ExitCode::SUCCESS)
     }
 }

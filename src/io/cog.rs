@@ -40,11 +40,12 @@ use std::fs::File;
 use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::Path;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use rayon::prelude::*;
 
 use terrabake_format::manifest::Georef;
 
+use crate::error::bail;
 use crate::plumbing::output::write_atomically;
 
 /// The GeoTIFF tags of a grid: georeferencing (scaled to a pyramid level's
@@ -165,7 +166,7 @@ impl Cog {
         path: &Path,
         mut read: impl FnMut(u32, u32, &mut [f32]) -> Result<()>,
         mut advance: impl FnMut(u64),
-    ) -> Result<()> {
+    ) -> crate::Result<()> {
         if self.width == 0 || self.height == 0 || self.bands == 0 {
             bail!("{}: cannot write an empty image", path.display());
         }
@@ -444,7 +445,7 @@ pub fn write_f32(
     (width, height): (u32, u32),
     tags: &GeoTags,
     mut fill: impl FnMut(u32, &mut [f32]) -> Result<()>,
-) -> Result<()> {
+) -> crate::Result<()> {
     let cog = Cog {
         width,
         height,
@@ -660,7 +661,7 @@ impl TileSink {
                         .filter(|z| z.is_nan())
                         .for_each(|z| *z = nd);
                 }
-                encode_tile(&samples, t, compression)
+                Ok(encode_tile(&samples, t, compression)?)
             })
             .collect::<Result<_>>()?;
         let down = height.div_ceil(self.tile) as usize;
@@ -677,7 +678,7 @@ impl TileSink {
 
 /// One tile (`t x t` samples, row-major) as stored: the floating-point
 /// predictor, then the codec.
-pub fn encode_tile(samples: &[f32], t: usize, compression: Compression) -> Result<Vec<u8>> {
+pub fn encode_tile(samples: &[f32], t: usize, compression: Compression) -> crate::Result<Vec<u8>> {
     if compression == Compression::None {
         return Ok(samples.iter().flat_map(|v| v.to_le_bytes()).collect());
     }

@@ -155,7 +155,7 @@ pub fn write_geotiff(
     height_: u32,
     seed: u64,
     progress: crate::plumbing::progress::Progress,
-) -> anyhow::Result<()> {
+) -> crate::Result<()> {
     use terrabake_format::manifest::RasterType;
     crate::io::source::check_shape(path, width.into(), height_.into())?;
     crate::plumbing::resources::ensure_disk(

@@ -23,9 +23,10 @@
 //! horizons (each direction's band its share of the circle); the error is
 //! the stored `svf` minus it, its statistic the 99th percentile over posts.
 
+use std::process::ExitCode;
 use std::time::Instant;
 
-use anyhow::{bail, Result};
+use anyhow::Result;
 use rayon::prelude::*;
 use serde::Serialize;
 use terrabake_format::cones::ConePlanes;
@@ -34,11 +35,13 @@ use terrabake_format::layers::{HEIGHT, HORIZON, SVF};
 use terrabake_format::trace::{Method as TraceMethod, Ray, Tracer};
 use terrabake_format::{Asset, Mmap};
 
+use crate::error::bail;
 use crate::plan::budget::Budget;
 use crate::plan::reference::shade_differs;
 pub use crate::plan::reference::{percentile, Pilot, Sampling};
 use crate::plan::{Baked, Candidate};
 use crate::plumbing::progress::Progress;
+use crate::stage::session::{Run, Session};
 use crate::stages::horizons::HorizonsStage;
 use crate::terrain::held::HeldDem;
 use crate::terrain::random::SplitMix64;
@@ -317,7 +320,7 @@ fn check_horizons(
         method: stage.method.name().into(),
         bands: layer.bands() as usize,
         encoding: map.encoding().name().into(),
-        max_distance: stage.max_distance,
+        max_distance: stage.sight.max_distance,
         horizon_p50_deg: percentile(&horizon, 50),
         horizon_p99_deg: percentile(&horizon, 99),
         horizon_max_deg: horizon.last().copied().unwrap_or(0.0),
@@ -540,8 +543,8 @@ fn verdicts(report: &CheckReport, b: &Budget) -> Vec<Verdict> {
 
 /// Records `report` in the asset's manifest (a `check` record, dropped when
 /// the heights, horizons or sky-view factors are baked again).
-pub fn record(dir: &std::path::Path, report: &CheckReport) -> Result<()> {
-    crate::stage::record_measurement(
+pub fn record(dir: &std::path::Path, report: &CheckReport) -> crate::Result<()> {
+    Ok(crate::stage::record_measurement(
         dir,
         "check",
         serde_json::to_value(report)?,
@@ -550,7 +553,7 @@ pub fn record(dir: &std::path::Path, report: &CheckReport) -> Result<()> {
             format!("{HORIZON}@0"),
             format!("{SVF}@0"),
         ],
-    )
+    )?)
 }
 
 /// The report as a table for people.
@@ -687,8 +690,9 @@ pub struct CheckArgs {
     pub json: bool,
 }
 
-impl CheckArgs {
-    pub fn run(&self, progress: Progress) -> Result<std::process::ExitCode> {
+impl Run for CheckArgs {
+    fn run(&self, s: &Session) -> crate::Result<ExitCode> {
+        let progress = s.progress;
         let asset = crate::stage::asset::open(&self.asset)?;
         let opts = CheckOptions {
             samples: self.samples as usize,
@@ -708,9 +712,9 @@ impl CheckArgs {
             print!("{}", describe(&report));
         }
         Ok(if report.within_budget() {
-            std::process::ExitCode::SUCCESS
+            ExitCode::SUCCESS
         } else {
-            std::process::ExitCode::from(EXIT_OVER_BUDGET)
+            ExitCode::from(EXIT_OVER_BUDGET)
         })
     }
 }

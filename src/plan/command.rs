@@ -1,11 +1,11 @@
 //! The planner for people and the command line: the plan as a table, and
 //! the flags of `terrabake plan` and `bake --budget`.
 
-use anyhow::Result;
+use std::process::ExitCode;
 
 use super::budget::{Budget, Needs, Request};
 use super::{plan, Plan, TimeModels, PILOT_DIRECTIONS, TIME_MODELS_VAR};
-use crate::plumbing::progress::Progress;
+use crate::stage::session::{Run, Session};
 
 /// The plan as a table for people.
 pub(crate) fn describe(plan: &Plan) -> String {
@@ -130,8 +130,9 @@ pub struct PlanArgs {
     pub json: bool,
 }
 
-impl PlanArgs {
-    pub fn run(&self, progress: Progress) -> Result<()> {
+impl Run for PlanArgs {
+    fn run(&self, s: &Session) -> crate::Result<ExitCode> {
+        let progress = s.progress;
         let request = self.request.request().expect("clap requires --budget");
         // The time models are checked before a source DEM's ingest.
         TimeModels::from_env()?;
@@ -153,6 +154,6 @@ impl PlanArgs {
         } else {
             print!("{}", describe(&plan));
         }
-        Ok(())
+        Ok(ExitCode::SUCCESS)
     }
 }

@@ -70,7 +70,7 @@ pub use models::{TimeModels, TIME_MODELS_VAR};
 
 use std::time::Instant;
 
-use anyhow::{bail, Result};
+use anyhow::Result;
 use serde::{Deserialize, Serialize};
 use terrabake_format::cones::ConeEncoding;
 use terrabake_format::horizons::{bands_around, between, AngleEncoding};
@@ -79,6 +79,7 @@ use terrabake_format::{Asset, Codec, Mmap};
 use crate::algorithms::horizon::line::{default_tolerance, Stencil};
 use crate::algorithms::horizon::sky::{svf_of_horizons, BandIntegrals};
 use crate::algorithms::horizon::{Band, BandKind, Method};
+use crate::error::bail;
 use crate::plan::budget::{Budget, Need, Needs, Request};
 use crate::plan::reference::{quantile_unsorted, shade_differs, Pilot, Sampling};
 use crate::plumbing::progress::Progress;
@@ -274,10 +275,10 @@ impl Plan {
     pub fn horizons_stage(&self) -> Option<HorizonsStage> {
         let chosen = self.chosen.as_ref()?;
         let mut stage = HorizonsStage {
-            max_distance: chosen.max_distance,
             encoding: Some(chosen.encoding),
             ..line_stage(chosen.sectors, chosen.direction_tolerance)
         };
+        stage.sight.max_distance = chosen.max_distance;
         if let Some(bytes) = self.working_memory() {
             stage.max_memory = bytes;
         }

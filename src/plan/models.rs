@@ -3,10 +3,12 @@
 //! and the time, memory and bytes of the other stages (docs/PLANNING.md,
 //! "Cost models").
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
 
 use super::layer_bytes;
+
+use crate::error::bail;
 
 /// The environment variable naming a JSON file of [`TimeModels`] fitted on
 /// the machine that bakes (`OUT=FILE pipelines/fit_plan_models.sh` writes
@@ -63,7 +65,7 @@ impl TimeModels {
 
     /// The models in the JSON file `path`: every field given, each a
     /// positive number (the fixed seconds may be 0).
-    pub fn read(path: &std::path::Path) -> Result<Self> {
+    pub fn read(path: &std::path::Path) -> crate::Result<Self> {
         // A file of five numbers; anything larger is not one.
         const MAX_BYTES: u64 = 64 << 10;
         let named = || format!("{} ({TIME_MODELS_VAR})", path.display());

@@ -19,12 +19,12 @@
 
 use std::collections::HashSet;
 
-use anyhow::{bail, Result};
 use rayon::prelude::*;
 use terrabake_format::{Asset, Mmap};
 
 use crate::algorithms::horizon::sky::{svf_of_horizons, BandIntegrals};
 use crate::algorithms::horizon::{brute, distinct_line_bands, plan_bands, Band, BandKind, Method};
+use crate::error::bail;
 use crate::plumbing::progress::Progress;
 use crate::terrain::held::HeldDem;
 use crate::terrain::random::SplitMix64;
@@ -163,7 +163,7 @@ impl Pilot {
         area: [usize; 4],
         opts: &Sampling,
         progress: Progress,
-    ) -> Result<Self> {
+    ) -> crate::Result<Self> {
         let dir = asset.dir();
         if opts.samples == 0 || opts.directions < 4 {
             bail!("a check needs at least one sample and four reference directions");

@@ -20,7 +20,7 @@ use anyhow::{Context, Result};
 pub fn write_atomically(
     path: &Path,
     write: impl FnOnce(&mut BufWriter<File>) -> Result<()>,
-) -> Result<()> {
+) -> crate::Result<()> {
     let parent = path.parent().filter(|p| !p.as_os_str().is_empty());
     refuse_inside_asset(path, parent.unwrap_or(Path::new(".")))?;
     // A missing directory is made, as the asset writers make theirs.
@@ -45,7 +45,7 @@ pub fn write_atomically(
     if result.is_err() {
         let _ = fs::remove_file(&tmp);
     }
-    result
+    Ok(result?)
 }
 
 /// Refuses an output whose directory `parent` is an asset (it holds a
@@ -57,7 +57,7 @@ fn refuse_inside_asset(path: &Path, parent: &Path) -> Result<()> {
         .iter()
         .any(|f| fs::symlink_metadata(parent.join(f)).is_ok());
     if is_asset {
-        anyhow::bail!(
+        crate::error::bail!(
             "{}: is inside the asset directory {}; only the asset's writer writes there. Write the output outside it",
             path.display(),
             parent.display()

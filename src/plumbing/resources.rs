@@ -79,7 +79,7 @@ pub(crate) fn ensure_disk(path: &Path, bytes: u64, what: &str) -> Result<()> {
 
 /// Refuses work that would hold `bytes` in memory (`what` it is) when the
 /// machine has less available.
-pub fn ensure_memory(bytes: u64, what: &str) -> Result<()> {
+pub fn ensure_memory(bytes: u64, what: &str) -> crate::Result<()> {
     if let Some(available) = available_memory() {
         if bytes > available {
             return Err(Shortage {

@@ -10,11 +10,11 @@ pub struct Image {
 
 /// Writes an RGB PNG (through a temporary file).
 pub(crate) fn write_png(path: &std::path::Path, image: &Image) -> anyhow::Result<()> {
-    crate::plumbing::output::write_atomically(path, |file| {
+    Ok(crate::plumbing::output::write_atomically(path, |file| {
         let mut enc = png::Encoder::new(file, image.width, image.height);
         enc.set_color(png::ColorType::Rgb);
         enc.set_depth(png::BitDepth::Eight);
         enc.write_header()?.write_image_data(&image.rgb)?;
         Ok(())
-    })
+    })?)
 }

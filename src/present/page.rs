@@ -9,9 +9,13 @@
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
+use std::process::ExitCode;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use base64::Engine as _;
+
+use crate::error::bail;
+use crate::stage::session::{Run, Session};
 
 /// `terrabake page`: its arguments.
 #[derive(clap::Args, Debug)]
@@ -43,8 +47,8 @@ fn parse_captioned(s: &str) -> Result<(PathBuf, String), String> {
     Ok((PathBuf::from(file), caption.to_string()))
 }
 
-impl PageArgs {
-    pub fn run(&self, say: &dyn Fn(String)) -> Result<()> {
+impl Run for PageArgs {
+    fn run(&self, s: &Session) -> crate::Result<ExitCode> {
         let mut texts = vec![(
             "Summary (terrabake info)".to_string(),
             crate::present::report::info(&self.asset, false)?,
@@ -64,8 +68,8 @@ impl PageArgs {
             use std::io::Write;
             Ok(file.write_all(html.as_bytes())?)
         })?;
-        say(format!("wrote {}", self.output.display()));
-        Ok(())
+        s.say(format!("wrote {}", self.output.display()));
+        Ok(ExitCode::SUCCESS)
     }
 }
 
@@ -99,7 +103,7 @@ pub fn page(
     texts: &[(String, String)],
     pictures: &[(PathBuf, String)],
     charts: &[(PathBuf, String)],
-) -> Result<String> {
+) -> crate::Result<String> {
     let mut html = String::new();
     let _ = write!(
         html,

@@ -12,14 +12,16 @@
 
 use std::io::Write;
 use std::path::PathBuf;
+use std::process::ExitCode;
 
-use anyhow::{bail, Result};
 use serde::Serialize;
 
 use crate::algorithms::horizon::brute;
+use crate::error::bail;
+use crate::stage::session::{Run, Session};
+use crate::stage::sight::SightLines;
 use crate::stages::viewshed::{post_at, Crs};
-use crate::terrain::held::{curvature_for, HeldDem};
-use crate::terrain::DEFAULT_REFRACTION;
+use crate::terrain::held::HeldDem;
 
 /// How the profile is written.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -56,12 +58,9 @@ pub struct ProfileArgs {
     /// csv, json or pvgis.
     #[arg(long, value_enum, default_value = "csv")]
     pub format: ProfileFormat,
-    /// Earth curvature, drop d^2 (1 - k) / 2R: on, off (default: on for georeferenced DEMs).
-    #[arg(long, value_parser = crate::stage::args::parse_on_off)]
-    pub curvature: Option<bool>,
-    /// Refraction coefficient k of the curvature drop.
-    #[arg(long, default_value_t = DEFAULT_REFRACTION)]
-    pub refraction: f64,
+    /// How far the horizon is looked for and how the Earth bends the sight lines.
+    #[command(flatten)]
+    pub sight: SightLines,
     /// Write here instead of standard output (atomically).
     #[arg(short, long)]
     pub output: Option<PathBuf>,
@@ -89,13 +88,15 @@ pub struct Profile {
     pub points: Vec<ProfilePoint>,
 }
 
-/// The horizon at azimuths `0, step, ...` below 360 from `post`.
+/// The horizon at azimuths `0, step, ...` below 360 from `post`, looked
+/// for no farther than `max_distance` metres where given.
 pub fn profile(
     dem: &HeldDem,
     curvature: f64,
+    max_distance: Option<f64>,
     post: (usize, usize),
     step: f64,
-) -> Result<Vec<ProfilePoint>> {
+) -> crate::Result<Vec<ProfilePoint>> {
     if !(0.01..=360.0).contains(&step) {
         bail!("--step {step}: give 0.01 to 360 degrees (at most 36000 azimuths)");
     }
@@ -105,7 +106,8 @@ pub fn profile(
         .map(|i| {
             let azimuth_deg = i as f64 * step;
             let records = brute::ray_horizon_records(&terrain, post, azimuth_deg);
-            let last = records.last();
+            let within = brute::records_within(&records, max_distance);
+            let last = within.last();
             ProfilePoint {
                 azimuth_deg,
                 horizon_deg: last.map_or(-90.0, |r| r.angle),
@@ -115,14 +117,15 @@ pub fn profile(
         .collect())
 }
 
-impl ProfileArgs {
-    pub fn run(&self) -> Result<()> {
+impl Run for ProfileArgs {
+    fn run(&self, _: &Session) -> crate::Result<ExitCode> {
         let asset = crate::stage::asset::open(&self.asset)?;
         let m = asset.manifest();
         let dem = HeldDem::read(&asset)?;
         let post = post_at(m, &dem, "--at", self.at, self.crs)?;
-        let curvature = curvature_for(m, self.curvature, self.refraction);
-        let points = profile(&dem, curvature, post, self.step)?;
+        self.sight.check()?;
+        let curvature = self.sight.curvature_coefficient(m);
+        let points = profile(&dem, curvature, self.sight.max_distance, post, self.step)?;
         let text = match self.format {
             ProfileFormat::Csv => {
                 let mut t = String::from("azimuth_deg,horizon_deg,distance_m\n");
@@ -177,7 +180,10 @@ impl ProfileArgs {
             Some(path) => crate::plumbing::output::write_atomically(path, |f| {
                 Ok(f.write_all(text.as_bytes())?)
             }),
-            None => Ok(std::io::stdout().write_all(text.as_bytes())?),
-        }
+            None => std::io::stdout()
+                .write_all(text.as_bytes())
+                .map_err(Into::into),
+        }?;
+        Ok(ExitCode::SUCCESS)
     }
 }

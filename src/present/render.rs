@@ -8,10 +8,12 @@
 
 use rayon::prelude::*;
 use serde::Serialize;
+use std::process::ExitCode;
 use terrabake_format::trace::{Counters, Method, Ray, Tracer};
 use terrabake_format::{Asset, Mmap};
 
 use crate::present::image::{write_png, Image};
+use crate::stage::session::{Run, Session};
 use crate::terrain::sun::Sun;
 
 /// A pinhole camera: horizontal field of view, up is +z.
@@ -220,8 +222,8 @@ pub fn render(
     tracer: &Tracer<'_, Mmap>,
     camera: &Camera,
     opts: &RenderOptions,
-) -> anyhow::Result<(Image, RenderStats)> {
-    anyhow::ensure!(
+) -> crate::Result<(Image, RenderStats)> {
+    crate::error::ensure!(
         camera.eye != camera.look_at,
         "the camera looks at its own position {:?}: give a --look-at point away from --camera",
         camera.eye
@@ -493,7 +495,7 @@ pub(crate) fn require_layers(
         _ => None,
     };
     match missing {
-        Some((what, command)) => anyhow::bail!(
+        Some((what, command)) => crate::error::bail!(
             "{0}: --method {1} needs {what}, which this asset does not have: run `terrabake {command} {0}` first, or choose --method incremental",
             asset.display(),
             method.name()
@@ -565,15 +567,15 @@ pub struct RenderArgs {
 
 /// `terrabake render`: an overhead map shaded from the horizons, or a
 /// perspective view traced through the asset.
-impl RenderArgs {
-    /// Renders and writes the PNG; `say` gets the message for people.
-    pub fn run(&self, say: &dyn Fn(String)) -> anyhow::Result<()> {
+impl Run for RenderArgs {
+    /// Renders and writes the PNG.
+    fn run(&self, s: &Session) -> crate::Result<ExitCode> {
         let a = self;
         let opened = crate::stage::asset::open(&a.asset)?;
         if let Some(shade) = a.shade {
             crate::present::shade::write_shade_png(&opened, shade, &a.output, 4096)?;
-            say(format!("wrote {}", a.output.display()));
-            return Ok(());
+            s.say(format!("wrote {}", a.output.display()));
+            return Ok(ExitCode::SUCCESS);
         }
         let tracer = Tracer::new(&opened)?;
         crate::present::render::require_layers(&tracer, a.method, &a.asset)?;
@@ -584,7 +586,7 @@ impl RenderArgs {
                 look_at,
                 fov: 60.0,
             },
-            _ => anyhow::bail!("give --view N, or --camera X,Y,Z and --look-at X,Y,Z"),
+            _ => crate::error::bail!("give --view N, or --camera X,Y,Z and --look-at X,Y,Z"),
         };
         cam.fov = a.fov.unwrap_or(cam.fov);
         let opts = RenderOptions {
@@ -610,8 +612,8 @@ impl RenderArgs {
         } else if a.stats {
             println!("{}", render_stats(method, &st));
         }
-        say(format!("wrote {}", a.output.display()));
-        Ok(())
+        s.say(format!("wrote {}", a.output.display()));
+        Ok(ExitCode::SUCCESS)
     }
 }
 

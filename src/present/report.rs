@@ -7,19 +7,9 @@ use std::path::Path;
 use crate::plumbing::resources::human_bytes;
 use crate::stage::StageOutcome;
 
-pub fn describe_outcome(o: &StageOutcome) -> String {
-    let what = if o.skipped {
-        "up to date".to_string()
-    } else {
-        format!("{:.2} s", o.seconds)
-    };
-    // As wide as the longest stage name (`total_viewshed`): the columns line up.
-    format!("{:<14} {what:>12}  {}", o.stage, o.outputs.join(", "))
-}
-
 /// Human-readable summary of a manifest.
 /// What `terrabake info` prints: the summary, or the manifest as JSON.
-pub fn info(path: &Path, json: bool) -> anyhow::Result<String> {
+pub fn info(path: &Path, json: bool) -> crate::Result<String> {
     let asset = crate::stage::asset::open(path)?;
     Ok(if json {
         serde_json::to_string_pretty(asset.manifest())? + "\n"
@@ -140,10 +130,10 @@ pub fn verify_asset(
     path: &Path,
     same_as: Option<&Path>,
     json: bool,
-) -> anyhow::Result<(String, bool)> {
+) -> crate::Result<(String, bool)> {
     use anyhow::Context;
     if !path.join(terrabake_format::MANIFEST_FILE).exists() {
-        anyhow::bail!(
+        crate::error::bail!(
             "{}: not an asset (it has no {})",
             path.display(),
             terrabake_format::MANIFEST_FILE
@@ -152,7 +142,9 @@ pub fn verify_asset(
     let opened = match terrabake_format::Asset::open(path) {
         Ok(a) => a,
         Err(e @ terrabake_format::Error::Version { .. }) => {
-            return Err(e).with_context(|| format!("{}: cannot open asset", path.display()))
+            return Err(e)
+                .with_context(|| format!("{}: cannot open asset", path.display()))
+                .map_err(Into::into);
         }
         Err(e) => {
             let report = terrabake_format::VerifyReport {

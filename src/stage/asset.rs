@@ -19,8 +19,10 @@
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use terrabake_format::{WriteLock, LOCK_FILE, MANIFEST_FILE};
+
+use crate::error::bail;
 
 /// An asset directory whose writer lock this process holds.
 #[derive(Debug)]
@@ -52,7 +54,7 @@ impl Wait {
 
 impl AssetWriter {
     /// Opens the existing asset `dir` for writing (a stage's case).
-    pub fn open(dir: &Path, wait: Wait) -> Result<Self> {
+    pub fn open(dir: &Path, wait: Wait) -> crate::Result<Self> {
         expect_directory(dir)?;
         match fs::symlink_metadata(dir.join(MANIFEST_FILE)) {
             Ok(meta) if meta.file_type().is_file() => {}
@@ -65,13 +67,13 @@ impl AssetWriter {
                 dir.display()
             ),
         }
-        Self::lock(dir, wait, false)
+        Ok(Self::lock(dir, wait, false)?)
     }
 
     /// Opens `dir` for an ingest: creates it when missing; accepts an empty
     /// directory, an asset, or the leftovers of a dead writer; refuses
     /// anything else rather than writing into a stranger's folder.
-    pub fn create(dir: &Path, wait: Wait) -> Result<Self> {
+    pub fn create(dir: &Path, wait: Wait) -> crate::Result<Self> {
         let created = match fs::symlink_metadata(dir) {
             Err(_) => {
                 fs::create_dir_all(dir).with_context(|| {
@@ -97,7 +99,7 @@ impl AssetWriter {
                 false
             }
         };
-        Self::lock(dir, wait, created)
+        Ok(Self::lock(dir, wait, created)?)
     }
 
     fn lock(dir: &Path, wait: Wait, created: bool) -> Result<Self> {

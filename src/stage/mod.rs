@@ -12,6 +12,8 @@
 
 pub mod args;
 pub mod asset;
+pub mod session;
+pub mod sight;
 
 use std::path::Path;
 
@@ -34,7 +36,7 @@ pub trait Stage {
     fn params(&self) -> serde_json::Value;
     /// Refuses parameters that make no sense together, before any work (a
     /// recipe is checked whole before its first stage runs).
-    fn check(&self) -> Result<()> {
+    fn check(&self) -> crate::Result<()> {
         Ok(())
     }
     /// `name@level` of the layers the stage reads (recorded; rewriting one
@@ -74,7 +76,7 @@ pub trait Stage {
         dir: &Path,
         share: &Share,
         progress: Progress,
-    ) -> Result<Vec<LayerEntry>>;
+    ) -> crate::Result<Vec<LayerEntry>>;
     /// Bytes the stage holds at once on an asset described by `manifest`
     /// (its working buffers: a tile row of a very wide DEM can be
     /// gigabytes), or `None` where it has not said. The runner refuses,
@@ -102,9 +104,9 @@ pub trait Stage {
         dir: &Path,
         share: &Share,
         progress: Progress,
-    ) -> Result<terrabake_format::Manifest> {
+    ) -> crate::Result<terrabake_format::Manifest> {
         let _ = (dir, share, progress);
-        anyhow::bail!(
+        crate::error::bail!(
             "stage '{}' adds to an asset; it does not create one",
             self.name()
         )
@@ -191,6 +193,25 @@ pub struct StageOutcome {
     pub skipped: bool,
     pub outputs: Vec<String>,
     pub seconds: f64,
+}
+
+impl std::fmt::Display for StageOutcome {
+    /// The stage, its time (or `up to date`) and its outputs, on one line
+    /// whose columns line up with the other stages' lines.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let what = if self.skipped {
+            "up to date".to_string()
+        } else {
+            format!("{:.2} s", self.seconds)
+        };
+        // As wide as the longest stage name (`total_viewshed`).
+        write!(
+            f,
+            "{:<14} {what:>12}  {}",
+            self.stage,
+            self.outputs.join(", ")
+        )
+    }
 }
 
 /// The latest record of `stage` in `manifest`.
@@ -286,7 +307,7 @@ pub fn run_stages_in(
     writer: &AssetWriter,
     stages: &[(&dyn Stage, bool)],
     progress: Progress,
-    on_stage: &mut dyn FnMut(&StageOutcome) -> Result<()>,
+    on_stage: &mut dyn FnMut(&StageOutcome) -> crate::Result<()>,
 ) -> crate::Result<Vec<StageOutcome>> {
     let mut held: Option<terrabake_format::Manifest> = None;
     let mut outcomes = Vec::new();
@@ -393,7 +414,7 @@ fn write_stage(
     };
     let outputs: Vec<String> = entries.iter().map(LayerEntry::key).collect();
     let declared = stage.outputs(&manifest);
-    anyhow::ensure!(
+    crate::error::ensure!(
         outputs == declared,
         "stage '{}' wrote {outputs:?}, not the {declared:?} it declares",
         stage.name()
@@ -443,7 +464,7 @@ fn check_memory(stage: &dyn Stage, m: &terrabake_format::Manifest) -> Result<()>
         (u64::from(m.width) * u64::from(m.tile_size) * 4) >> 20
     );
     if let Some(budget) = stage.max_memory() {
-        anyhow::ensure!(
+        crate::error::ensure!(
             need <= budget,
             "{what} holds about {} MiB at once, over --max-memory {} MiB; ingest with a smaller --tile, or raise --max-memory",
             need >> 20,
@@ -451,7 +472,7 @@ fn check_memory(stage: &dyn Stage, m: &terrabake_format::Manifest) -> Result<()>
         );
     }
     if let Some(available) = crate::plumbing::resources::available_memory() {
-        anyhow::ensure!(
+        crate::error::ensure!(
             need <= available,
             "{what} holds about {} MiB at once, and {} MiB is available; ingest with a smaller --tile, or bake on a machine with more memory",
             need >> 20,

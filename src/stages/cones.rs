@@ -24,13 +24,14 @@
 
 use std::path::Path;
 
-use anyhow::{bail, Result};
+use anyhow::Result;
 use terrabake_format::cones::{
     apex_quantization, encode_apex, encode_slope, ConeEncoding, CONE_APEX, CONE_SLOPE,
 };
 use terrabake_format::{Asset, Codec, Element, LayerEntry, LayerSpec, LayerWriter, Mmap};
 
 use crate::algorithms::planes::exact::exact_planes;
+use crate::error::bail;
 
 use crate::algorithms::planes::{neighbourhood_max, sliced_planes, Cap, Planes, Slices};
 use crate::plumbing::progress::Progress;
@@ -220,7 +221,7 @@ impl Default for ConesStage {
 
 /// The DEM's range (recorded at ingest) and its height step, from an even
 /// sample of up to 2^20 posts read in place.
-pub fn summarize_heights(asset: &Asset<Mmap>) -> Result<HeightSummary> {
+pub fn summarize_heights(asset: &Asset<Mmap>) -> crate::Result<HeightSummary> {
     let Some(range) = asset.manifest().height_range else {
         bail!("the DEM has no valid height");
     };
@@ -376,14 +377,14 @@ impl Stage for ConesStage {
         vec![format!("{CONE_APEX}@0"), format!("{CONE_SLOPE}@0")]
     }
 
-    fn check(&self) -> Result<()> {
+    fn check(&self) -> crate::Result<()> {
         if let Some(gap) = self.apex_gap {
-            anyhow::ensure!(
+            crate::error::ensure!(
                 self.slices == SliceChoice::Auto,
                 "apex_gap = {gap} (--apex-gap {gap}) goes with slices = \"auto\", not {}",
                 self.slices
             );
-            anyhow::ensure!(
+            crate::error::ensure!(
                 gap > 0.0 && gap.is_finite(),
                 "apex_gap = {gap} (--apex-gap {gap}) is not a positive number of metres"
             );
@@ -398,10 +399,10 @@ impl Stage for ConesStage {
         dir: &Path,
         _: &crate::stage::Share,
         progress: Progress,
-    ) -> Result<Vec<LayerEntry>> {
+    ) -> crate::Result<Vec<LayerEntry>> {
         let height = asset.height()?;
         let (w, h, ts) = (height.width(), height.height(), height.tile_size());
-        anyhow::ensure!(w >= 2 && h >= 2, "a {w} x {h} DEM has no cells");
+        crate::error::ensure!(w >= 2 && h >= 2, "a {w} x {h} DEM has no cells");
         let (cw, ch) = ((w - 1) as usize, (h - 1) as usize);
         let summary = summarize_heights(asset)?;
         let plan = self.slices.resolve(&summary, self.apex_gap);

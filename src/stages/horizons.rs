@@ -22,7 +22,7 @@
 use std::path::Path;
 use std::sync::Mutex;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use rayon::prelude::*;
 use terrabake_format::horizons::{AngleEncoding, HORIZON};
 use terrabake_format::layers::HORIZON_DISTANCE;
@@ -32,11 +32,13 @@ use crate::algorithms::horizon::line;
 use crate::algorithms::horizon::{
     band_horizons_into, plan_bands, sector, Band, BandKind, BandOptions, Method,
 };
+use crate::error::bail;
 use crate::plumbing::progress::Progress;
 use crate::stage::args::Aoi;
 use crate::stage::post_layer;
+use crate::stage::sight::SightLines;
 use crate::stage::{Share, Split, Stage};
-use crate::terrain::held::{curvature_for, read_rows};
+use crate::terrain::held::read_rows;
 use crate::terrain::tiling::encode_tile_row;
 use crate::terrain::{self, RowScale, Terrain};
 
@@ -52,17 +54,10 @@ pub struct HorizonsStage {
     /// line (exact sight lines), sector (Stewart's wedges) or sampled (baseline).
     #[arg(long, default_value = Self::DEFAULT_METHOD.name(), value_parser = crate::stage::args::named(&Method::ALL, Method::name))]
     pub method: Method,
-    /// Look no farther than this many metres (default: the whole DEM, exact). Bounded
-    /// line and sector horizons walk or scan each post's reach: O(M) and O(M^2 / S) per post;
-    /// bounded sector runs out of core.
-    #[arg(long, allow_hyphen_values = true, value_parser = crate::stage::args::parse_positive)]
-    pub max_distance: Option<f64>,
-    /// Earth curvature, drop d^2 (1 - k) / 2R: on, off (default: on for georeferenced DEMs).
-    #[arg(long, value_parser = crate::stage::args::parse_on_off)]
-    pub curvature: Option<bool>,
-    /// Refraction coefficient k of the curvature drop.
-    #[arg(long, default_value_t = terrain::DEFAULT_REFRACTION)]
-    pub refraction: f64,
+    /// How far the sight lines go and how the Earth bends them.
+    #[command(flatten)]
+    #[serde(flatten)]
+    pub sight: SightLines,
     /// Only compute posts in columns X0..X1 and rows Y0..Y1 (end exclusive); every post of the
     /// DEM still occludes. With --max-distance the work is the area's and its reach's.
     #[arg(long, value_parser = crate::stage::args::parse_aoi)]
@@ -136,9 +131,7 @@ impl Default for HorizonsStage {
         Self {
             sectors: Self::DEFAULT_SECTORS,
             method: Self::DEFAULT_METHOD,
-            max_distance: None,
-            curvature: None,
-            refraction: terrain::DEFAULT_REFRACTION,
+            sight: SightLines::default(),
             aoi: None,
             max_error: Self::DEFAULT_MAX_ERROR_DEG,
             encoding: None,
@@ -199,7 +192,7 @@ impl HorizonsStage {
     /// distance, `sector` with one (see `row_bands`).
     pub(crate) fn out_of_core(&self) -> bool {
         matches!(
-            (self.method, self.max_distance),
+            (self.method, self.sight.max_distance),
             (Method::Line, None) | (Method::Sector, Some(_))
         )
     }
@@ -217,7 +210,7 @@ impl HorizonsStage {
         nodata: bool,
         height_bound: f64,
     ) -> Box<dyn RowBands + Send> {
-        match (&band.kind, self.max_distance) {
+        match (&band.kind, self.sight.max_distance) {
             // The lanes' hulls of the sweeps in flight take at most a
             // sixteenth of the working memory.
             (BandKind::Line(dir), None) => Box::new(
@@ -249,7 +242,7 @@ impl HorizonsStage {
     /// The curvature coefficient `c` of the drop `c d^2` (0 when
     /// curvature is off; on by default for georeferenced DEMs).
     pub fn curvature_coefficient(&self, asset: &Asset<Mmap>) -> f64 {
-        curvature_for(asset.manifest(), self.curvature, self.refraction)
+        self.sight.curvature_coefficient(asset.manifest())
     }
 
     /// The area of interest, or the whole `w x h` DEM.
@@ -272,21 +265,22 @@ impl Stage for HorizonsStage {
         serde_json::to_value(self).expect("parameters serialise")
     }
 
-    fn check(&self) -> Result<()> {
+    fn check(&self) -> crate::Result<()> {
         if self.sectors < 3 || self.sectors > 4096 {
             bail!(
                 "sectors = {0} (--sectors {0}): give 3 to 4096 (sectors must be narrower than 180 degrees)",
                 self.sectors
             );
         }
-        let positive = |(key, flag): (&str, &str), v: Option<f64>| match v {
-            Some(d) if !(d > 0.0 && d.is_finite()) => {
-                bail!("{key} = {d} (--{flag} {d}): give a positive number")
+        let positive = |(key, flag): (&str, &str), v: Option<f64>| -> crate::Result<()> {
+            match v {
+                Some(d) if !(d > 0.0 && d.is_finite()) => {
+                    bail!("{key} = {d} (--{flag} {d}): give a positive number")
+                }
+                _ => Ok(()),
             }
-            _ => Ok(()),
         };
-        positive(("max_distance", "max-distance"), self.max_distance)?;
-        terrain::check_refraction(self.refraction)?;
+        self.sight.check()?;
         positive(
             ("direction_tolerance", "direction-tolerance"),
             self.direction_tolerance,
@@ -330,6 +324,7 @@ impl Stage for HorizonsStage {
             u64::from(m.tile_size),
         );
         let halo = self
+            .sight
             .max_distance
             .map_or(0, |d| terrain::posts_within(d, m.cell_size.dy) as u64);
         let window = (ts + 2 * halo).min(h);
@@ -343,7 +338,7 @@ impl Stage for HorizonsStage {
     }
 
     fn reach(&self, m: &terrabake_format::Manifest) -> crate::stage::Reach {
-        let Some(d) = self.max_distance else {
+        let Some(d) = self.sight.max_distance else {
             return crate::stage::Reach::Whole;
         };
         let scale = crate::terrain::geo::row_scale(m.georef.as_ref(), m.height);
@@ -377,7 +372,7 @@ impl Stage for HorizonsStage {
         dir: &Path,
         share: &Share,
         progress: Progress,
-    ) -> Result<Vec<LayerEntry>> {
+    ) -> crate::Result<Vec<LayerEntry>> {
         let m = asset.manifest();
         let height = asset.height()?;
         let (w, h, ts) = (
@@ -419,7 +414,7 @@ impl Stage for HorizonsStage {
         let description = format!(
             "horizon elevation angle, degrees, band per azimuth (band_azimuths), {}; {method_text}; curvature {}",
             enc.name(),
-            if curvature > 0.0 { format!("on, refraction {}", self.refraction) } else { "off".into() }
+            if curvature > 0.0 { format!("on, refraction {}", self.sight.refraction) } else { "off".into() }
         );
         // A writer of one of the stage's layers (band per azimuth), masked
         // to the area of interest.
@@ -464,7 +459,7 @@ impl Stage for HorizonsStage {
         }
         let bar = progress.bar(mine.len() as u64, "horizons", "bands");
         let opts = BandOptions {
-            max_distance: self.max_distance,
+            max_distance: self.sight.max_distance,
             narrow_check: self.narrow_check,
         };
         let nodata = m.nodata.count > 0;
@@ -992,7 +987,7 @@ fn quantise_row_at<T, F: Fn(u32) -> T>(
 }
 
 /// All bands of the `horizon` layer decoded to degrees, band-major.
-pub fn read_horizons(asset: &Asset<Mmap>) -> Result<(Vec<Vec<f32>>, Vec<f64>)> {
+pub fn read_horizons(asset: &Asset<Mmap>) -> crate::Result<(Vec<Vec<f32>>, Vec<f64>)> {
     let map = terrabake_format::horizons::HorizonMap::open(asset)
         .context("the asset has no usable horizon layer; run `terrabake horizons` first")?;
     let layer = asset.layer(HORIZON, 0)?;

@@ -13,7 +13,7 @@ use std::fs;
 use std::path::{Path, PathBuf};
 use std::time::SystemTime;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use serde::Serialize;
 use terrabake_format::manifest::{
     CellSize, HeightRange, Nodata, Provenance, Vertical, HEIGHT_LAYER,
@@ -22,6 +22,7 @@ use terrabake_format::{
     Codec, ElemType, LayerEntry, LayerSpec, LayerWriter, Manifest, FORMAT_VERSION,
 };
 
+use crate::error::bail;
 use crate::io::source::{self, parse_nodata, ByteOrder, HeightMapping, RawSampleType, RawSpec};
 use crate::plumbing::progress::Progress;
 use crate::stage::asset::{AssetWriter, Wait};
@@ -237,9 +238,10 @@ impl Stage for IngestStage {
         crate::stage::Reach::Posts(0)
     }
 
-    fn check(&self) -> Result<()> {
+    fn check(&self) -> crate::Result<()> {
         check_options(&self.options)?;
-        ingest_params(&self.src, &self.options).map(|_| ())
+        ingest_params(&self.src, &self.options)?;
+        Ok(())
     }
 
     fn creates_asset(&self) -> bool {
@@ -254,14 +256,20 @@ impl Stage for IngestStage {
         _: &Path,
         _: &Share,
         _: Progress,
-    ) -> Result<Vec<LayerEntry>> {
+    ) -> crate::Result<Vec<LayerEntry>> {
         bail!("ingest creates an asset: it runs through Stage::create")
     }
 
     /// Rows outside the share are not read (but for PNG, which has no
     /// index) and hold NaN, counted as nodata.
-    fn create(&self, dir: &Path, share: &Share, progress: Progress) -> Result<Manifest> {
-        write_heights(dir, &self.src, &self.options, share, progress)
+    fn create(&self, dir: &Path, share: &Share, progress: Progress) -> crate::Result<Manifest> {
+        Ok(write_heights(
+            dir,
+            &self.src,
+            &self.options,
+            share,
+            progress,
+        )?)
     }
 }
 

@@ -159,7 +159,7 @@ impl Builder {
 }
 
 /// The pyramid stage (`terrabake pyramid`, recipe step `pyramid`).
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone, Default, clap::Args)]
 pub struct PyramidStage;
 
 impl Stage for PyramidStage {
@@ -212,10 +212,10 @@ impl Stage for PyramidStage {
         dir: &Path,
         _: &crate::stage::Share,
         progress: Progress,
-    ) -> Result<Vec<LayerEntry>> {
+    ) -> crate::Result<Vec<LayerEntry>> {
         let height = asset.height()?;
         let (w, h, ts) = (height.width(), height.height(), height.tile_size());
-        anyhow::ensure!(w >= 2 && h >= 2, "a {w} x {h} DEM has no cells");
+        crate::error::ensure!(w >= 2 && h >= 2, "a {w} x {h} DEM has no cells");
         let (cw, ch) = (w - 1, h - 1);
         let dims = level_dims(w, h, ts);
         let spec = |name: &str, level: usize, (lw, lh): (u32, u32), fill: f32| {
@@ -269,6 +269,6 @@ impl Stage for PyramidStage {
             bar.inc(u64::from(rows));
         }
         bar.finish_and_clear();
-        builder.finish()
+        Ok(builder.finish()?)
     }
 }

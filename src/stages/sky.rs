@@ -23,8 +23,8 @@ use terrabake_format::{Asset, Codec, ElemType, LayerEntry, LayerWriter, Mmap, HE
 use crate::algorithms::horizon::sky::{band_terms, sin_cos_deg, BandIntegrals, SkySums};
 use crate::plumbing::progress::Progress;
 use crate::stage::post_layer;
+use crate::stage::sight::SightLines;
 use crate::stage::{Share, Stage};
-use crate::terrain::held::curvature_for;
 use crate::terrain::tiling::{push_fill_row, push_tile_row};
 use crate::terrain::{RowScale, Terrain};
 
@@ -110,14 +110,13 @@ impl Default for SkyStage {
 }
 
 /// What the sky stage reads of the horizons stage's record: the area of
-/// interest and the curvature the angles were computed with (the record's
-/// other parameters are the horizons stage's own).
+/// interest and the sight lines the angles were computed with, for their
+/// curvature (the record's other parameters are the horizons stage's own).
 #[derive(serde::Deserialize)]
 struct HorizonsRecord {
     aoi: Option<crate::stage::args::Aoi>,
-    curvature: Option<bool>,
-    #[serde(default = "crate::terrain::default_refraction")]
-    refraction: f64,
+    #[serde(flatten)]
+    sight: SightLines,
 }
 
 impl Stage for SkyStage {
@@ -133,8 +132,8 @@ impl Stage for SkyStage {
         vec![format!("{HEIGHT_LAYER}@0"), format!("{HORIZON}@0")]
     }
 
-    fn check(&self) -> Result<()> {
-        anyhow::ensure!(
+    fn check(&self) -> crate::Result<()> {
+        crate::error::ensure!(
             !self.layers.is_empty(),
             "layers = [] (--layers) names no layer"
         );
@@ -165,7 +164,7 @@ impl Stage for SkyStage {
         dir: &Path,
         share: &Share,
         progress: Progress,
-    ) -> Result<Vec<LayerEntry>> {
+    ) -> crate::Result<Vec<LayerEntry>> {
         let horizons: HorizonsRecord = crate::stage::recorded_params(asset.manifest(), "horizons")
             .context("the asset has no horizons record; run `terrabake horizons` first")?;
         let m = asset.manifest();
@@ -181,7 +180,7 @@ impl Stage for SkyStage {
         let azimuths = &horizon.entry().band_azimuths;
         let integrals = BandIntegrals::of_azimuths(azimuths);
         let [ax0, ay0, ax1, ay1] = crate::stage::args::area_of(horizons.aoi, w, h);
-        let curvature = curvature_for(m, horizons.curvature, horizons.refraction);
+        let curvature = horizons.sight.curvature_coefficient(m);
         let row_scale = crate::terrain::geo::row_scale(m.georef.as_ref(), h as u32);
         let row_scale = RowScale::new(&row_scale);
         let (dx, dy) = (m.cell_size.dx, m.cell_size.dy);

@@ -38,7 +38,7 @@ pub struct HeldDem {
 impl HeldDem {
     /// The asset's `height` layer, whole; refused before reading when the
     /// machine lacks the memory (4 bytes a post), naming the asset.
-    pub fn read(asset: &Asset<Mmap>) -> Result<Self> {
+    pub fn read(asset: &Asset<Mmap>) -> crate::Result<Self> {
         let m = asset.manifest();
         crate::plumbing::resources::ensure_memory(
             4 * u64::from(m.width) * u64::from(m.height),
@@ -64,7 +64,7 @@ impl HeldDem {
 }
 
 /// Reads the whole `height` layer (NaN for nodata).
-pub fn read_heights(asset: &Asset<Mmap>) -> Result<(Vec<f32>, usize, usize)> {
+pub fn read_heights(asset: &Asset<Mmap>) -> crate::Result<(Vec<f32>, usize, usize)> {
     let height = asset.height()?;
     let (w, h) = (height.width() as usize, height.height() as usize);
     Ok((read_rows(height, 0..h)?, w, h))

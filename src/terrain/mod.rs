@@ -19,11 +19,6 @@ pub const EARTH_RADIUS: f64 = 6_371_000.0;
 /// (Gauss's 0.13; surveyors use 0.13-0.14).
 pub const DEFAULT_REFRACTION: f64 = 0.13;
 
-/// [`DEFAULT_REFRACTION`], for a record's `#[serde(default = ...)]`.
-pub fn default_refraction() -> f64 {
-    DEFAULT_REFRACTION
-}
-
 /// Posts of `spacing` metres within `metres` along one axis: the `k` with
 /// `k * spacing <= metres`. The one rounding rule of every reach, halo and
 /// window a distance limit sets (each adds its own margin, named where it

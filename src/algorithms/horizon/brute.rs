@@ -56,15 +56,26 @@ pub fn line_horizon(
     horizon_within(&line_horizon_records(t, post, step), max_distance)
 }
 
-/// The horizon of a sight line with these records from the terrain no
-/// farther than `max_distance` metres: the last record within it, degrees
-/// (-90 when none).
-pub(crate) fn horizon_within(records: &[HorizonRecord], max_distance: Option<f64>) -> f32 {
+/// The records of a sight line no farther than `max_distance` metres
+/// (all of them without one): the last is the horizon within it.
+pub(crate) fn records_within(
+    records: &[HorizonRecord],
+    max_distance: Option<f64>,
+) -> &[HorizonRecord] {
     // Records are nearest first: a binary search finds the last within.
     let within = max_distance.map_or(records.len(), |m| {
         records.partition_point(|r| r.distance <= m)
     });
-    within.checked_sub(1).map_or(-90.0, |i| records[i].angle)
+    &records[..within]
+}
+
+/// The horizon of a sight line with these records from the terrain no
+/// farther than `max_distance` metres: the last record within it, degrees
+/// (-90 when none).
+pub(crate) fn horizon_within(records: &[HorizonRecord], max_distance: Option<f64>) -> f32 {
+    records_within(records, max_distance)
+        .last()
+        .map_or(-90.0, |r| r.angle)
 }
 
 /// A new highest elevation angle along a sight line, and how far out it

@@ -15,7 +15,7 @@
 //! system is underdetermined. What the coefficients cost is charted by
 //! `terrabake-bench horizons --fourier` against the stored bands (docs/BENCHMARKS.md).
 
-use anyhow::{bail, Result};
+use crate::error::bail;
 
 /// The least-squares fit of `K` harmonics at a layer's band azimuths.
 #[derive(Debug, Clone)]
@@ -41,7 +41,7 @@ fn basis(a: f64, harmonics: usize) -> Vec<f64> {
 
 impl FourierBasis {
     /// The fit of `harmonics` harmonics at `azimuths` (compass degrees).
-    pub fn new(azimuths: &[f64], harmonics: usize) -> Result<Self> {
+    pub fn new(azimuths: &[f64], harmonics: usize) -> crate::Result<Self> {
         let n = 2 * harmonics + 1;
         if n > azimuths.len() {
             bail!(

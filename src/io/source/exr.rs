@@ -4,10 +4,12 @@
 
 use std::path::Path;
 
-use anyhow::{anyhow, bail, Result};
+use anyhow::{anyhow, Result};
 use exr::prelude::{read_first_flat_layer_from_file, FlatSamples};
 
 use super::{check_shape, HeightMapping, Memory, RasterSource, SourceInfo};
+
+use crate::error::bail;
 
 pub struct ExrSource {
     samples: Vec<f32>,
@@ -15,7 +17,7 @@ pub struct ExrSource {
 }
 
 impl ExrSource {
-    pub fn open(path: &Path, memory: Memory) -> Result<Self> {
+    pub fn open(path: &Path, memory: Memory) -> crate::Result<Self> {
         // The size from the header, before the whole image is decoded.
         let meta = exr::meta::MetaData::read_from_file(path, false)
             .map_err(|e| anyhow!("{}: not a readable OpenEXR file: {e}", path.display()))?;

@@ -19,13 +19,14 @@ use std::io::BufReader;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{anyhow, Context, Result};
 use rayon::prelude::*;
 use tiff::decoder::{ChunkType, Decoder, DecodingResult, Limits};
 use tiff::tags::Tag;
 use tiff::ColorType;
 
 use super::{check_shape, HeightMapping, Memory, RasterSource, SourceInfo};
+use crate::error::bail;
 use crate::terrain::geo;
 
 pub struct GeoTiffSource {
@@ -52,7 +53,7 @@ pub struct GeoTiffSource {
 }
 
 impl GeoTiffSource {
-    pub fn open(path: &Path, memory: Memory) -> Result<Self> {
+    pub fn open(path: &Path, memory: Memory) -> crate::Result<Self> {
         let what = |m: &str| format!("{}: {m}", path.display());
         let open_decoder = || -> Result<Decoder<BufReader<File>>> {
             let file = File::open(path).with_context(|| what("cannot open"))?;

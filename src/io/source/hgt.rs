@@ -8,10 +8,11 @@ use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::Path;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use terrabake_format::manifest::RasterType;
 
 use super::{HeightMapping, Memory, RasterSource, SourceInfo};
+use crate::error::bail;
 use crate::terrain::geo;
 
 pub struct HgtSource {
@@ -21,7 +22,7 @@ pub struct HgtSource {
 }
 
 impl HgtSource {
-    pub fn open(path: &Path, memory: Memory) -> Result<Self> {
+    pub fn open(path: &Path, memory: Memory) -> crate::Result<Self> {
         let file = File::open(path).with_context(|| format!("{}: cannot open", path.display()))?;
         let len = file.metadata()?.len();
         let side = (len / 2).isqrt();

@@ -14,8 +14,10 @@ mod raw;
 
 use std::path::Path;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use terrabake_format::manifest::Georef;
+
+use crate::error::bail;
 
 pub use crate::io::source::raw::{ByteOrder, RawSampleType, RawSpec};
 
@@ -102,9 +104,9 @@ pub fn open(
     raw: Option<&RawSpec>,
     rows: u32,
     budget: u64,
-) -> Result<Box<dyn RasterSource>> {
+) -> crate::Result<Box<dyn RasterSource>> {
     open_unmarked(path, raw, rows, budget)
-        .map_err(|e| crate::error::mark(crate::ErrorKind::Source, e))
+        .map_err(|e| crate::error::mark(crate::ErrorKind::Source, e).into())
 }
 
 fn open_unmarked(
@@ -177,7 +179,14 @@ impl Memory {
     /// Refuses a source whose reading would hold more than the budget:
     /// `held` bytes in the reader (`what` says what they are) plus the
     /// caller's `rows` rows of f32 heights.
-    pub fn check(&self, path: &Path, width: u64, height: u64, held: u64, what: &str) -> Result<()> {
+    pub fn check(
+        &self,
+        path: &Path,
+        width: u64,
+        height: u64,
+        held: u64,
+        what: &str,
+    ) -> crate::Result<()> {
         let rows = u64::from(self.rows).min(height);
         let need = held.saturating_add(width.saturating_mul(rows).saturating_mul(4));
         if need > self.budget {

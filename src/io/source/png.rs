@@ -7,9 +7,11 @@ use std::fs::File;
 use std::io::BufReader;
 use std::path::Path;
 
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{anyhow, Context, Result};
 
 use super::{check_shape, HeightMapping, Memory, RasterSource, SourceInfo};
+
+use crate::error::bail;
 
 pub struct PngSource {
     reader: png::Reader<BufReader<File>>,
@@ -19,7 +21,7 @@ pub struct PngSource {
 }
 
 impl PngSource {
-    pub fn open(path: &Path, memory: Memory) -> Result<Self> {
+    pub fn open(path: &Path, memory: Memory) -> crate::Result<Self> {
         let file = File::open(path).with_context(|| format!("{}: cannot open", path.display()))?;
         let mut decoder = png::Decoder::new(BufReader::new(file));
         decoder.set_transformations(png::Transformations::IDENTITY);
@@ -83,7 +85,7 @@ impl RasterSource for PngSource {
     }
 
     fn read_rows(&mut self, y0: u32, out: &mut [f32], map: &HeightMapping) -> Result<()> {
-        anyhow::ensure!(y0 >= self.next_row, "PNG rows are read in order");
+        crate::error::ensure!(y0 >= self.next_row, "PNG rows are read in order");
         // Rows skipped (a part of a partitioned bake reads only its own)
         // are decoded and dropped: PNG has no index to seek with.
         while self.next_row < y0 {

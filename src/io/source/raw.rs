@@ -5,9 +5,11 @@ use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::Path;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 
 use super::{check_shape, HeightMapping, Memory, RasterSource, SourceInfo};
+
+use crate::error::bail;
 
 #[derive(
     Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize,
@@ -44,7 +46,7 @@ pub struct RawSource {
 }
 
 impl RawSource {
-    pub fn open(path: &Path, spec: &RawSpec, memory: Memory) -> Result<Self> {
+    pub fn open(path: &Path, spec: &RawSpec, memory: Memory) -> crate::Result<Self> {
         check_shape(path, spec.width.into(), spec.height.into())?;
         let size = match spec.sample {
             RawSampleType::I16 | RawSampleType::U16 => 2u64,

@@ -13,10 +13,11 @@
 
 pub mod stage;
 
-use anyhow::{bail, Result};
+use anyhow::Result;
 use terrabake_format::manifest::CrsKind;
 use terrabake_format::Manifest;
 
+use crate::error::bail;
 use crate::terrain::held::HeldDem;
 
 /// An observer's eye above the ground unless told, metres: a standing
@@ -65,8 +66,8 @@ pub fn observer_post(
     dem: &HeldDem,
     (x, y): (f64, f64),
     crs: Crs,
-) -> Result<(usize, usize)> {
-    post_at(m, dem, "--observer", (x, y), crs)
+) -> crate::Result<(usize, usize)> {
+    Ok(post_at(m, dem, "--observer", (x, y), crs)?)
 }
 
 /// The post nearest to `(x, y)` given in `crs` (as the flag `flag` gave
@@ -122,17 +123,6 @@ pub(crate) fn post_at(
 pub(crate) fn check_height(flag: &str, value: f64) -> Result<()> {
     if !(value >= 0.0 && value.is_finite()) {
         bail!("{flag} {value}: a height above the ground must be 0 or more metres");
-    }
-    Ok(())
-}
-
-/// Refuses a maximum distance that is not a positive number of metres (a
-/// recipe's; the command line's parser refuses its own).
-pub(crate) fn check_distance(max_distance: Option<f64>) -> Result<()> {
-    if let Some(d) = max_distance.filter(|d| !(*d > 0.0 && d.is_finite())) {
-        bail!(
-            "max_distance = {d} (--max-distance): a distance must be a positive number of metres"
-        );
     }
     Ok(())
 }

@@ -5,19 +5,20 @@
 
 use std::path::Path;
 
-use anyhow::{bail, Result};
+use anyhow::Result;
 use terrabake_format::layers::{TOTAL_VIEWSHED, VIEWSHED, VIEWSHED_ANGLE};
 use terrabake_format::{Asset, Codec, ElemType, LayerEntry, LayerWriter, Mmap};
 
 use crate::algorithms::viewshed::observer::{observer_viewshed, Observer, OUTSIDE};
 use crate::algorithms::viewshed::total::{total_viewshed, Method, TotalOptions};
+use crate::error::bail;
 use crate::plumbing::progress::Progress;
 use crate::stage::post_layer;
+use crate::stage::sight::SightLines;
 use crate::stage::{Share, Stage};
-use crate::stages::viewshed::{check_distance, check_height, observer_post, Crs};
-use crate::terrain::held::{curvature_for, HeldDem};
+use crate::stages::viewshed::{check_height, observer_post, Crs};
+use crate::terrain::held::HeldDem;
 use crate::terrain::tiling::push_tile_row;
-use crate::terrain::DEFAULT_REFRACTION;
 
 /// Bytes a post costs in memory beyond the DEM: the total viewshed's sum
 /// (f64) per worker.
@@ -57,18 +58,10 @@ pub struct ViewshedStage {
     #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
     #[serde(default)]
     pub target_height: f64,
-    /// Only posts within this many metres of each observer (default: the whole DEM).
-    #[arg(long, allow_hyphen_values = true, value_parser = crate::stage::args::parse_positive)]
-    #[serde(default)]
-    pub max_distance: Option<f64>,
-    /// Earth curvature: on, off (default: on for georeferenced DEMs).
-    #[arg(long, value_parser = crate::stage::args::parse_on_off)]
-    #[serde(default)]
-    pub curvature: Option<bool>,
-    /// Refraction coefficient k of the curvature drop.
-    #[arg(long, default_value_t = DEFAULT_REFRACTION)]
-    #[serde(default = "crate::terrain::default_refraction")]
-    pub refraction: f64,
+    /// How far the observers see (targets beyond are outside) and how the Earth bends sight.
+    #[command(flatten)]
+    #[serde(flatten)]
+    pub sight: SightLines,
 }
 
 fn default_eye() -> f64 {
@@ -84,14 +77,13 @@ impl Stage for ViewshedStage {
         serde_json::to_value(self).expect("parameters serialise")
     }
 
-    fn check(&self) -> Result<()> {
+    fn check(&self) -> crate::Result<()> {
         if self.observers.is_empty() {
             bail!("observers = [] (--observer X,Y) names no observer");
         }
         check_height("observer_height (--observer-height)", self.observer_height)?;
         check_height("target_height (--target-height)", self.target_height)?;
-        check_distance(self.max_distance)?;
-        crate::terrain::check_refraction(self.refraction)?;
+        self.sight.check()?;
         Ok(())
     }
 
@@ -105,7 +97,7 @@ impl Stage for ViewshedStage {
         dir: &Path,
         _: &Share,
         progress: Progress,
-    ) -> Result<Vec<LayerEntry>> {
+    ) -> crate::Result<Vec<LayerEntry>> {
         let m = asset.manifest();
         let dem = HeldDem::read(asset)?;
         let (w, h, ts) = (dem.width, dem.height, m.tile_size as usize);
@@ -113,8 +105,8 @@ impl Stage for ViewshedStage {
             .observers
             .iter()
             .map(|&xy| observer_post(m, &dem, xy, self.crs))
-            .collect::<Result<Vec<_>>>()?;
-        let terrain = dem.terrain(curvature_for(m, self.curvature, self.refraction));
+            .collect::<crate::Result<Vec<_>>>()?;
+        let terrain = dem.terrain(self.sight.curvature_coefficient(m));
         let bands = posts.len() as u32;
         let where_ = |(c, r): (usize, usize)| format!("({c}, {r})");
         let list = posts
@@ -152,7 +144,7 @@ impl Stage for ViewshedStage {
                     row,
                     height: self.observer_height,
                     target_height: self.target_height,
-                    max_distance: self.max_distance,
+                    max_distance: self.sight.max_distance,
                 },
             );
             for y0 in (0..h).step_by(ts) {
@@ -179,15 +171,10 @@ pub struct TotalViewshedStage {
     /// The eye above every post, metres.
     #[arg(long, default_value_t = super::DEFAULT_EYE_HEIGHT, allow_hyphen_values = true)]
     pub observer_height: f64,
-    /// Count terrain within this many metres (default: the whole DEM).
-    #[arg(long, allow_hyphen_values = true, value_parser = crate::stage::args::parse_positive)]
-    pub max_distance: Option<f64>,
-    /// Earth curvature: on, off (default: on for georeferenced DEMs).
-    #[arg(long, value_parser = crate::stage::args::parse_on_off)]
-    pub curvature: Option<bool>,
-    /// Refraction coefficient k of the curvature drop.
-    #[arg(long, default_value_t = DEFAULT_REFRACTION)]
-    pub refraction: f64,
+    /// How far each eye sees (terrain beyond is not counted) and how the Earth bends sight.
+    #[command(flatten)]
+    #[serde(flatten)]
+    pub sight: SightLines,
     /// auto (the faster for the reach: naive below 500 posts of reach, else hull-tree),
     /// hull-tree (Timonen's convex hull tree) or naive (each post walks its lines). The same
     /// areas either way; not recorded.
@@ -222,9 +209,7 @@ impl Default for TotalViewshedStage {
         Self {
             directions: Self::DEFAULT_DIRECTIONS,
             observer_height: super::DEFAULT_EYE_HEIGHT,
-            max_distance: None,
-            curvature: None,
-            refraction: DEFAULT_REFRACTION,
+            sight: SightLines::default(),
             method: TotalMethod::Auto,
             safe_zone: true,
             max_memory: crate::stage::mib::STAGE_DEFAULT_BYTES,
@@ -258,14 +243,14 @@ impl TotalViewshedStage {
         let method = match self.method {
             TotalMethod::HullTree => tree,
             TotalMethod::Naive => Method::Naive,
-            TotalMethod::Auto => match self.max_distance {
+            TotalMethod::Auto => match self.sight.max_distance {
                 Some(d) if d / spacing < NAIVE_BELOW_POSTS => Method::Naive,
                 _ => tree,
             },
         };
         TotalOptions {
             height: self.observer_height,
-            max_distance: self.max_distance,
+            max_distance: self.sight.max_distance,
             directions: self.directions,
             method,
         }
@@ -281,10 +266,9 @@ impl Stage for TotalViewshedStage {
         serde_json::to_value(self).expect("parameters serialise")
     }
 
-    fn check(&self) -> Result<()> {
+    fn check(&self) -> crate::Result<()> {
         check_height("observer_height (--observer-height)", self.observer_height)?;
-        check_distance(self.max_distance)?;
-        crate::terrain::check_refraction(self.refraction)?;
+        self.sight.check()?;
         crate::stage::args::parse_sectors(&self.directions.to_string())
             .map_err(|e| anyhow::anyhow!("directions = {} (--directions): {e}", self.directions))?;
         Ok(())
@@ -300,7 +284,7 @@ impl Stage for TotalViewshedStage {
         dir: &Path,
         _: &Share,
         progress: Progress,
-    ) -> Result<Vec<LayerEntry>> {
+    ) -> crate::Result<Vec<LayerEntry>> {
         let m = asset.manifest();
         let (w, h, ts) = (m.width as usize, m.height as usize, m.tile_size as usize);
         let workers = rayon::current_num_threads() as u64;
@@ -312,7 +296,7 @@ impl Stage for TotalViewshedStage {
             self.max_memory,
         )?;
         let dem = HeldDem::read(asset)?;
-        let terrain = dem.terrain(curvature_for(m, self.curvature, self.refraction));
+        let terrain = dem.terrain(self.sight.curvature_coefficient(m));
         let bar = progress.bar(self.directions as u64, "total viewshed", "directions");
         let opts = self.options(m.cell_size.dx.min(m.cell_size.dy));
         let (area, _) = total_viewshed(&terrain, &opts, &|| bar.inc(1));
@@ -328,7 +312,8 @@ impl Stage for TotalViewshedStage {
                 format!(
                     "area seen from {} m above the post{}, square metres, {} directions ({})",
                     self.observer_height,
-                    self.max_distance
+                    self.sight
+                        .max_distance
                         .map_or(String::new(), |d| format!(" within {d} m")),
                     self.directions,
                     match opts.method {

@@ -1,32 +1,25 @@
-//! The command line's grammar: every subcommand and flag, with the help
-//! text people read. Parsing only; `src/main.rs` dispatches, the stages'
-//! own parameter types (flattened here) carry their flags.
+//! The command line: its grammar, every subcommand and flag with the help
+//! text people read, and the one way a command runs. Each subcommand is a
+//! variant holding its arguments, one clap `Args` type that implements
+//! [`Run`]; [`Command::run`] dispatches in one line each, and the binary
+//! (`src/main.rs`) prints what a run returns. The stages' own parameter
+//! types are flattened into their commands' arguments (`stages.rs`); the
+//! commands of other rooms keep their arguments beside their work
+//! (`RenderArgs` in `present::render`, `ExportArgs` in `export`, ...).
 
-use std::path::PathBuf;
+pub mod asset;
+pub mod stages;
+
+use std::process::ExitCode;
 
 use clap::{ArgMatches, CommandFactory, FromArgMatches, Parser, Subcommand};
 
-use crate::io::synth::SynthKind;
-use crate::stage::args::parse_size;
-use crate::stages::cones::ConesStage;
-use crate::stages::horizons::HorizonsStage;
-use crate::stages::ingest::IngestOptions;
-
-/// A stage run on its own: the asset, the stage's flags, and what every
-/// stage command takes.
-#[derive(clap::Args, Debug)]
-pub struct StageCommand<S: clap::Args> {
-    /// The asset directory (made by `terrabake ingest` or `terrabake bake`).
-    pub asset: PathBuf,
-    #[command(flatten)]
-    pub stage: S,
-    /// Recompute even if the asset already has up-to-date layers of this stage.
-    #[arg(long)]
-    pub force: bool,
-    /// Print the stage's record as JSON on stdout (layers written, parameters, seconds).
-    #[arg(long)]
-    pub json: bool,
-}
+use crate::stage::session::{Run, Session};
+use crate::stages::pyramid::PyramidStage;
+use crate::stages::sky::SkyStage;
+use crate::stages::viewshed::stage::TotalViewshedStage;
+use asset::{InfoArgs, SynthArgs, VerifyArgs};
+use stages::{AssembleArgs, BakeArgs, ConesCommand, HorizonsCommand, IngestArgs, StageCommand};
 
 #[derive(Parser, Debug)]
 #[command(
@@ -62,39 +55,11 @@ pub enum Command {
     /// The DEM is streamed one tile row at a time: memory does not grow with its area. Nodata,
     /// NaN and infinite samples become nodata (NaN in the asset) and are counted. An existing
     /// asset at the output path is replaced only once the new one is complete.
-    Ingest {
-        /// The DEM file.
-        src: PathBuf,
-        /// The asset directory to write.
-        #[arg(short, long)]
-        output: PathBuf,
-        #[command(flatten)]
-        opts: IngestOptions,
-        /// Print the manifest as JSON on stdout.
-        #[arg(long)]
-        json: bool,
-    },
+    Ingest(IngestArgs),
     /// Describe an asset: shape, cell size, georeferencing, layers, nodata, provenance.
-    Info {
-        /// The asset directory (made by `terrabake ingest` or `terrabake bake`).
-        asset: PathBuf,
-        /// The manifest as JSON, for scripts.
-        #[arg(long)]
-        json: bool,
-    },
+    Info(InfoArgs),
     /// Check every checksum and structural invariant of an asset (exit status 3 if any fails).
-    Verify {
-        /// The asset directory (made by `terrabake ingest` or `terrabake bake`).
-        asset: PathBuf,
-        /// Also check that every layer decodes to the same values, bit for bit, as this
-        /// asset's (a partitioned bake against one machine's, say).
-        #[arg(long, value_name = "OTHER")]
-        same_as: Option<PathBuf>,
-        /// Print the result as JSON on stdout: chunks and layers checked, ok, and the problems (none
-        /// when the asset is sound).
-        #[arg(long)]
-        json: bool,
-    },
+    Verify(VerifyArgs),
     /// Write a layer as a Cloud-Optimized GeoTIFF (.tif), OpenEXR (.exr), a PNG preview (.png),
     /// or one GeoTIFF per direction for GRASS (--for grass).
     ///
@@ -108,34 +73,12 @@ terrabake export dem.tbake --layer horizon --for grass -o horizons/\n  \
 terrabake export dem.tbake --layer svf -o svf.png")]
     Export(crate::export::ExportArgs),
     /// Write a synthetic terrain as a float32 GeoTIFF (30 m posts), a tile row at a time, at any size.
-    Synth {
-        /// The terrain to write.
-        #[arg(value_enum)]
-        kind: SynthKind,
-        /// WIDTHxHEIGHT in posts.
-        #[arg(long, value_parser = parse_size)]
-        size: (u32, u32),
-        /// Seed of the random terrains (the same seed writes the same file).
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-        /// The GeoTIFF to write.
-        #[arg(short, long)]
-        output: PathBuf,
-    },
+    Synth(SynthArgs),
     /// Add the quadtree max/min pyramid layers (for hierarchical ray tracing) to an asset.
     ///
     /// Level 0 holds each cell's tallest and lowest corner; each level above the max and min of
     /// 2 x 2 blocks, up to one tile. Skipped when the asset already has them.
-    Pyramid {
-        /// The asset directory (made by `terrabake ingest` or `terrabake bake`).
-        asset: PathBuf,
-        /// Rebuild even if the asset already has an up-to-date pyramid.
-        #[arg(long)]
-        force: bool,
-        /// Print the stage's record as JSON on stdout (layers written, parameters, seconds).
-        #[arg(long)]
-        json: bool,
-    },
+    Pyramid(StageCommand<PyramidStage>),
     /// Add the parameter planes (a cone of empty space over every cell) for parametric ray tracing.
     ///
     /// Per cell, the apex height and the slope (horizontal metres per metre of rise) of a cone that
@@ -150,18 +93,7 @@ terrabake export dem.tbake --layer svf -o svf.png")]
         after_help = "Examples:\n  terrabake cones dem.tbake\n  terrabake cones dem.tbake --slices exact\n  \
 terrabake cones dem.tbake --slices 256 --encoding u16 --json"
     )]
-    Cones {
-        /// The asset directory (made by `terrabake ingest` or `terrabake bake`).
-        asset: PathBuf,
-        #[command(flatten)]
-        stage: ConesStage,
-        /// Rebuild even if the asset already has up-to-date planes.
-        #[arg(long)]
-        force: bool,
-        /// Print the stage's record as JSON on stdout (layers written, parameters, seconds).
-        #[arg(long)]
-        json: bool,
-    },
+    Cones(ConesCommand),
     /// Add horizon maps: the horizon's elevation angle at every post in S azimuths, plus sky-view
     /// factors and openness.
     ///
@@ -174,35 +106,22 @@ terrabake cones dem.tbake --slices 256 --encoding u16 --json"
     /// stored in the smallest encoding within --max-error; the stage also writes `svf` (Zakšek:
     /// 1 - mean sin h), `svf_cosine` (view factor from the tilted surface), `openness` and
     /// `horizon_edge` (bands the DEM's edge may cut). Earth curvature is on by default for
-    /// georeferenced DEMs (docs/HORIZONS.md).
+    /// georeferenced DEMs (docs/HORIZONS.md). With --max-distance, line and sector walk or scan
+    /// each post's reach of M posts, O(M) and O(M^2 / S) per post; bounded sector runs out of
+    /// core.
     #[command(
         after_help = "Examples:\n  terrabake horizons dem.tbake --sectors 16\n  \
 terrabake horizons dem.tbake --sectors 64 --method sector\n  \
 terrabake horizons dem.tbake --sectors 32 --aoi 100,100,400,400 --max-error 0.01 --json\n  \
 terrabake export dem.tbake --layer horizon -o horizon.tif"
     )]
-    Horizons {
-        /// The asset directory (made by `terrabake ingest` or `terrabake bake`).
-        asset: PathBuf,
-        #[command(flatten)]
-        stage: HorizonsStage,
-        /// Only the horizon angles: leave out the sky stage (svf, svf_cosine,
-        /// openness, horizon_edge), which otherwise runs after it.
-        #[arg(long)]
-        no_sky: bool,
-        /// Recompute even if the asset already has up-to-date horizons.
-        #[arg(long)]
-        force: bool,
-        /// Print the stage's record as JSON on stdout (layers written, parameters, seconds).
-        #[arg(long)]
-        json: bool,
-    },
+    Horizons(HorizonsCommand),
     /// Add the sky layers from the asset's horizons: sky-view factors (svf, svf_cosine),
     /// positive openness, and the count of bands the DEM's edge may cut (horizon_edge).
     ///
     /// Reads the committed horizon layer and the horizons stage's recorded parameters (area of
     /// interest, curvature); `terrabake horizons` runs it unless --no-sky.
-    Sky(StageCommand<crate::stages::sky::SkyStage>),
+    Sky(StageCommand<SkyStage>),
     /// Render a shaded perspective view, traced through the asset (sun light and sun shadows).
     ///
     /// Coordinates are local metres: x east and y north from the DEM's south-west post, z the
@@ -223,7 +142,7 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
     Profile(crate::present::profile::ProfileArgs),
     /// Add the total viewshed: at every post, the area an eye above it sees (square metres),
     /// by Timonen's azimuthal sweeps with the convex hull tree.
-    TotalViewshed(StageCommand<crate::stages::viewshed::stage::TotalViewshedStage>),
+    TotalViewshed(StageCommand<TotalViewshedStage>),
     /// Ingest a DEM and run every stage of a recipe, skipping work already done.
     ///
     /// A recipe is a TOML file: an [ingest] table with ingest's options (tile, codec,
@@ -250,47 +169,14 @@ A recipe (a shorter pipelines/demo.toml):\n  \
 [[stage]]\n  name = \"horizons\"\n  sectors = 16\n  method = \"line\"\n  max_distance = 3000.0\n\n  \
 [[stage]]\n  name = \"sky\"\n  layers = [\"svf\", \"openness\"]"
     )]
-    Bake {
-        /// The DEM (GeoTIFF, SRTM .hgt, raw, 16-bit PNG, OpenEXR).
-        src: PathBuf,
-        /// The asset directory to write (created, or brought up to date).
-        #[arg(short, long)]
-        output: PathBuf,
-        /// A recipe from pipelines/ (TOML): ingest options and stages.
-        #[arg(long, conflicts_with = "budget")]
-        recipe: Option<PathBuf>,
-        /// Instead of a recipe, an error budget and what the scene needs (--budget, --needs,
-        /// --sun, --sun-day): ingests, bakes the stages `terrabake plan` chooses, and records the
-        /// plan; `terrabake check` then measures it (docs/PLANNING.md).
-        #[command(flatten)]
-        request: crate::plan::RequestArgs,
-        /// Cut the bake into this many parts (with --part).
-        #[arg(long, value_name = "N", requires = "part", conflicts_with = "budget",
-              value_parser = clap::value_parser!(u32).range(1..=i64::from(crate::bake::partition::MAX_PARTS)))]
-        parts: Option<u32>,
-        /// Bake only this part, 0 to N - 1 (with --parts).
-        #[arg(long, value_name = "I", requires = "parts")]
-        part: Option<u32>,
-        /// Print one record per stage as JSON on stdout (what ran, what was up to date, seconds).
-        #[arg(long)]
-        json: bool,
-    },
+    Bake(BakeArgs),
     /// Join the parts of a partitioned bake (OUTPUT.parts/) into the asset.
     ///
     /// Checks that every part is there, finished and baked with the same recipe and source,
     /// copies each part's chunks into the asset's layers (checksummed, not decoded), commits
     /// the manifest once, then runs the stages left to the join (the pyramid, cones). A
     /// missing or damaged part is named and nothing is committed.
-    Assemble {
-        /// The asset the parts were baked for (their OUTPUT).
-        asset: PathBuf,
-        /// Keep OUTPUT.parts/ after a successful join.
-        #[arg(long)]
-        keep_parts: bool,
-        /// Print one record per joined stage as JSON on stdout.
-        #[arg(long)]
-        json: bool,
-    },
+    Assemble(AssembleArgs),
 }
 
 impl Cli {
@@ -309,11 +195,11 @@ impl Cli {
         T: Into<std::ffi::OsString> + Clone,
     {
         let cli: Self = parse_finite(args)?;
-        if let Command::Bake {
+        if let Command::Bake(BakeArgs {
             part: Some(i),
             parts: Some(n),
             ..
-        } = cli.command
+        }) = cli.command
         {
             if let Err(e) = crate::bake::partition::Part::new(i, n) {
                 let mut cmd = Self::command();
@@ -322,6 +208,37 @@ impl Cli {
             }
         }
         Ok(cli)
+    }
+}
+
+impl Command {
+    /// The command's arguments, to run.
+    fn args(&self) -> &dyn Run {
+        match self {
+            Command::Ingest(a) => a,
+            Command::Info(a) => a,
+            Command::Verify(a) => a,
+            Command::Export(a) => a,
+            Command::Synth(a) => a,
+            Command::Pyramid(a) => a,
+            Command::Cones(a) => a,
+            Command::Horizons(a) => a,
+            Command::Sky(a) => a,
+            Command::Render(a) => a,
+            Command::Plan(a) => a,
+            Command::Check(a) => a,
+            Command::Page(a) => a,
+            Command::Viewshed(a) => a,
+            Command::Profile(a) => a,
+            Command::TotalViewshed(a) => a,
+            Command::Bake(a) => a,
+            Command::Assemble(a) => a,
+        }
+    }
+
+    /// Runs the command in `session`: its exit status, or what failed.
+    pub fn run(&self, session: &Session) -> crate::Result<ExitCode> {
+        self.args().run(session)
     }
 }
 
