@@ -122,29 +122,24 @@ impl From<anyhow::Error> for Error {
     }
 }
 
-impl From<terrabake_format::Error> for Error {
-    fn from(e: terrabake_format::Error) -> Self {
-        anyhow::Error::new(e).into()
-    }
+/// `?` on the typed errors public functions meet most: each becomes the
+/// one cause of its chain, its kind found as for any chain.
+macro_rules! from_typed {
+    ($($typed:ty),+) => {$(
+        impl From<$typed> for Error {
+            fn from(e: $typed) -> Self {
+                anyhow::Error::new(e).into()
+            }
+        }
+    )+};
 }
 
-impl From<Shortage> for Error {
-    fn from(e: Shortage) -> Self {
-        anyhow::Error::new(e).into()
-    }
-}
-
-impl From<std::io::Error> for Error {
-    fn from(e: std::io::Error) -> Self {
-        anyhow::Error::new(e).into()
-    }
-}
-
-impl From<serde_json::Error> for Error {
-    fn from(e: serde_json::Error) -> Self {
-        anyhow::Error::new(e).into()
-    }
-}
+from_typed!(
+    terrabake_format::Error,
+    Shortage,
+    std::io::Error,
+    serde_json::Error
+);
 
 /// `anyhow::bail!` for a function that returns either [`Result`] or
 /// `anyhow::Result`: the message becomes the error the function returns.

@@ -80,7 +80,7 @@ fn quantised_fixture_reads_forever() {
     let row_scale = terrabake::terrain::geo::row_scale(m.georef.as_ref(), h as u32);
     let terrain = Terrain::new(&z, w, h, m.cell_size.dx, m.cell_size.dy)
         .with_row_scale(RowScale::new(&row_scale))
-        .with_curvature(stage.curvature_coefficient(&asset));
+        .with_curvature(stage.sight.curvature_coefficient(asset.manifest()));
     let map = HorizonMap::open(&asset).unwrap();
     let mut decoded = vec![0f32; w * h];
     // The fixture was baked before the sweep met posts that only a corner

@@ -711,7 +711,7 @@ fn the_pilot_measures_the_directions_the_planned_bake_stores() {
     let measured: Vec<f64> = bands.iter().map(|b| b.azimuth).collect();
     assert_eq!(stored, &measured, "{} directions", stage.sectors);
 
-    let curvature = stage.curvature_coefficient(&opened);
+    let curvature = stage.sight.curvature_coefficient(opened.manifest());
     let dem = HeldDem::read(&opened).unwrap();
     let (w, h) = (m.width as usize, m.height as usize);
     let sampling = Sampling {

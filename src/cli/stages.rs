@@ -14,7 +14,7 @@ use crate::bake::recipe::{bake, Recipe};
 use crate::present::report::{horizons_json, ingested};
 use crate::stage::asset::{open as open_asset, AssetWriter};
 use crate::stage::session::{Run, Session};
-use crate::stage::{run_stage_in, run_stages_in, Stage};
+use crate::stage::{run_stages_in, Stage};
 use crate::stages::cones::ConesStage;
 use crate::stages::horizons::HorizonsStage;
 use crate::stages::ingest::{IngestOptions, IngestStage};
@@ -43,10 +43,7 @@ impl Run for IngestArgs {
             src: self.src.clone(),
             options: self.options.clone(),
         };
-        let writer = AssetWriter::create(&self.output, s.wait)?;
-        run_stage_in(&writer, &stage, true, s.progress)?;
-        drop(writer);
-        let manifest = open_asset(&self.output)?.manifest().clone();
+        let manifest = stage.create_asset(&self.output, s.wait, s.progress)?;
         if self.json {
             println!("{}", serde_json::to_string_pretty(&manifest)?);
         }

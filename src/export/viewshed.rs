@@ -67,6 +67,7 @@ impl Run for ViewshedArgs {
     fn run(&self, s: &Session) -> crate::Result<ExitCode> {
         check_height("--observer-height", self.observer_height)?;
         check_height("--target-height", self.target_height)?;
+        self.sight.check()?;
         let asset = crate::stage::asset::open(&self.asset)?;
         let m = asset.manifest();
         let dem = HeldDem::read(&asset)?;

@@ -246,7 +246,7 @@ fn check_horizons(
     let pilot = Pilot::measure(
         asset,
         dem,
-        stage.curvature_coefficient(asset),
+        stage.sight.curvature_coefficient(asset.manifest()),
         area,
         opts,
         progress,

@@ -497,7 +497,9 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
     let posts = (w * h) as u64;
     let heights = m.layer(terrabake_format::HEIGHT_LAYER, 0);
     let tile = heights.map_or(256, |l| l.tile_size as usize);
-    let curvature = HorizonsStage::default().curvature_coefficient(asset);
+    let curvature = HorizonsStage::default()
+        .sight
+        .curvature_coefficient(asset.manifest());
     let (dx, dy) = (m.cell_size.dx, m.cell_size.dy);
     let start = Instant::now();
     let dem = needs

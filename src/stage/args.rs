@@ -64,6 +64,18 @@ pub(crate) fn parse_sun(s: &str) -> Result<Sun, String> {
     Ok(Sun { azimuth, elevation })
 }
 
+/// Refuses a value that is not a positive, finite number, naming its
+/// recipe key and its flag: what a recipe can say and the command line's
+/// [`parse_positive`] would not let through.
+pub(crate) fn check_positive((key, flag): (&str, &str), value: Option<f64>) -> crate::Result<()> {
+    match value {
+        Some(v) if !(v > 0.0 && v.is_finite()) => {
+            crate::error::bail!("{key} = {v} (--{flag} {v}): give a positive number")
+        }
+        _ => Ok(()),
+    }
+}
+
 pub fn parse_positive(s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
         Ok(v) if v > 0.0 && v.is_finite() => Ok(v),

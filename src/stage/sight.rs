@@ -14,7 +14,7 @@
 
 use terrabake_format::Manifest;
 
-use crate::error::bail;
+use crate::stage::args::check_positive;
 use crate::terrain::held::curvature_for;
 use crate::terrain::{check_refraction, DEFAULT_REFRACTION};
 
@@ -60,9 +60,7 @@ impl SightLines {
     /// refraction that is not finite (what a recipe can say and the flags'
     /// parsers would not let through).
     pub fn check(&self) -> crate::Result<()> {
-        if let Some(d) = self.max_distance.filter(|d| !(*d > 0.0 && d.is_finite())) {
-            bail!("max_distance = {d} (--max-distance {d}): give a positive number of metres");
-        }
+        check_positive(("max_distance", "max-distance"), self.max_distance)?;
         Ok(check_refraction(self.refraction)?)
     }
 

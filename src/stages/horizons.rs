@@ -34,7 +34,7 @@ use crate::algorithms::horizon::{
 };
 use crate::error::bail;
 use crate::plumbing::progress::Progress;
-use crate::stage::args::Aoi;
+use crate::stage::args::{check_positive, Aoi};
 use crate::stage::post_layer;
 use crate::stage::sight::SightLines;
 use crate::stage::{Share, Split, Stage};
@@ -239,12 +239,6 @@ impl HorizonsStage {
         plan_bands(self.method, self.sectors, dx, dy, self.direction_tolerance)
     }
 
-    /// The curvature coefficient `c` of the drop `c d^2` (0 when
-    /// curvature is off; on by default for georeferenced DEMs).
-    pub fn curvature_coefficient(&self, asset: &Asset<Mmap>) -> f64 {
-        self.sight.curvature_coefficient(asset.manifest())
-    }
-
     /// The area of interest, or the whole `w x h` DEM.
     pub fn area(&self, w: usize, h: usize) -> [usize; 4] {
         crate::stage::args::area_of(self.aoi, w, h)
@@ -272,20 +266,12 @@ impl Stage for HorizonsStage {
                 self.sectors
             );
         }
-        let positive = |(key, flag): (&str, &str), v: Option<f64>| -> crate::Result<()> {
-            match v {
-                Some(d) if !(d > 0.0 && d.is_finite()) => {
-                    bail!("{key} = {d} (--{flag} {d}): give a positive number")
-                }
-                _ => Ok(()),
-            }
-        };
         self.sight.check()?;
-        positive(
+        check_positive(
             ("direction_tolerance", "direction-tolerance"),
             self.direction_tolerance,
         )?;
-        positive(("max_error_deg", "max-error"), Some(self.max_error))?;
+        check_positive(("max_error_deg", "max-error"), Some(self.max_error))?;
         let half = line::tolerance_limit(self.sectors);
         match self.direction_tolerance {
             Some(t) if self.method == Method::Line && t >= half => bail!(
@@ -396,7 +382,7 @@ impl Stage for HorizonsStage {
             _ => 0..h,
         };
         self.check_dem(w, h, window.len())?;
-        let curvature = self.curvature_coefficient(asset);
+        let curvature = self.sight.curvature_coefficient(m);
         let (dx, dy) = (m.cell_size.dx, m.cell_size.dy);
         let row_scale = crate::terrain::geo::row_scale(m.georef.as_ref(), h as u32);
         let row_scale = RowScale::new(&row_scale);

@@ -281,13 +281,27 @@ pub fn ingest(
     opts: &IngestOptions,
     progress: Progress,
 ) -> crate::Result<Manifest> {
-    let writer = AssetWriter::create(asset_dir, Wait::Wait)?;
     let stage = IngestStage {
         src: src.to_path_buf(),
         options: opts.clone(),
     };
-    run_stage_in(&writer, &stage, true, progress)?;
-    Ok(terrabake_format::Asset::open(asset_dir)?.manifest().clone())
+    stage.create_asset(asset_dir, Wait::Wait, progress)
+}
+
+impl IngestStage {
+    /// Runs the ingest into the asset directory `asset_dir` under its
+    /// writer lock (waiting for another writer unless `wait` says not) and
+    /// returns the committed manifest.
+    pub fn create_asset(
+        &self,
+        asset_dir: &Path,
+        wait: Wait,
+        progress: Progress,
+    ) -> crate::Result<Manifest> {
+        let writer = AssetWriter::create(asset_dir, wait)?;
+        run_stage_in(&writer, self, true, progress)?;
+        Ok(terrabake_format::Asset::open(asset_dir)?.manifest().clone())
+    }
 }
 
 fn check_options(opts: &IngestOptions) -> Result<()> {
