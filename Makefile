@@ -34,6 +34,8 @@ demo: build
 	$(BIN) render $(OUT)/srtm.tbake --shade sky -o $(OUT)/srtm_sky.png
 	$(BIN) render $(OUT)/srtm.tbake --shade sun:250,15 -o $(OUT)/srtm_sun.png
 	$(BIN) export $(OUT)/srtm.tbake --layer total_viewshed -o $(OUT)/srtm_total_viewshed.png
+	$(BIN) export $(OUT)/srtm.tbake --layer solar_global -o $(OUT)/srtm_solar_global.png
+	$(BIN) export $(OUT)/srtm.tbake --layer sun_hours -o $(OUT)/srtm_sun_hours.png
 	$(BIN) viewshed $(OUT)/srtm.tbake --observer -5.5,7.5 --crs lonlat --observer-height 10 -o $(OUT)/srtm_viewshed.tif
 	$(BIN) check $(OUT)/srtm.tbake --samples 100 --no-record > $(OUT)/srtm.check.txt
 	$(BIN) page $(OUT)/srtm.tbake -o $(OUT)/index.html \
@@ -43,6 +45,8 @@ demo: build
 	  --picture "$(OUT)/srtm_sky.png=Overcast sky light from the horizons alone (Stewart's radiosity)" \
 	  --picture "$(OUT)/srtm_sun.png=Sun at 250, 15 degrees: shadows and sky from the horizons alone" \
 	  --picture "$(OUT)/srtm_total_viewshed.png=Total viewshed: area seen within 5 km from 1.7 m above each post, square metres" \
+	  --picture "$(OUT)/srtm_solar_global.png=The year's mean daily clear-sky irradiation, kWh/m2: r.sun's model shadowed by the stored horizons" \
+	  --picture "$(OUT)/srtm_sun_hours.png=The year's mean daily sun hours: the sun's centre above the horizon and in front of the slope" \
 	  --chart "docs/charts/horizons_horizon.svg=Horizon angle error against bake time, every method (make bench-horizons)" \
 	  --chart "docs/charts/horizons_svf.svg=Sky-view factor error against bake time (make bench-horizons)" \
 	  --chart "docs/charts/cones_speed.svg=Parametric tracing: rays per second against cone slices (make bench-cones)" \
@@ -57,6 +61,7 @@ demo: build
 	@echo "summary:  $(OUT)/srtm.summary.txt ($(OUT)/srtm.summary.json)"
 	@echo "previews: $(OUT)/srtm_relief.png $(OUT)/srtm_gray16.png $(OUT)/srtm_view.png"
 	@echo "horizons: $(OUT)/srtm_horizon.tif (32 bands, degrees) $(OUT)/srtm_svf.png $(OUT)/srtm_sky.png $(OUT)/srtm_sun.png"
+	@echo "solar:    $(OUT)/srtm_solar_global.png $(OUT)/srtm_sun_hours.png (the year's mean day, clear sky)"
 	@echo "check:    $(OUT)/srtm.check.txt (achieved horizon error; cones and rays against the brute force)"
 	@echo "viewshed: $(OUT)/srtm_total_viewshed.png $(OUT)/srtm_viewshed.tif (from 5.5 W 7.5 N, eye 10 m: band 1 visible, band 2 angle)"
 

@@ -904,3 +904,83 @@ fn the_planner_and_check_work_at_high_latitudes() {
 fn path_str(p: &Path) -> String {
     p.to_str().unwrap().to_string()
 }
+
+/// The solar need bakes the sky's `svf_cosine` and the year's solar layers,
+/// the pilot predicts the solar error, and `check` measures it against the
+/// budget; a DEM whose latitude is unknown is refused by name.
+#[test]
+fn a_solar_need_bakes_the_year_and_check_measures_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let (w, h) = (160u32, 140u32);
+    let (z, _, _) = common::srtm_crop((600, 600), (w, h));
+    let tif = dir.path().join("crop.tif");
+    let geographic = vec![1, 1, 0, 3, 1024, 0, 1, 2, 1025, 0, 1, 1, 2048, 0, 1, 4326];
+    let georef = terrabake::terrain::geo::georef_from_keys(
+        geographic,
+        vec![],
+        String::new(),
+        [-5.5, 1.0 / 1200.0, 0.0, 7.5, 0.0, -1.0 / 1200.0],
+    );
+    let tags = terrabake::io::cog::GeoTags {
+        georef: Some(georef),
+        nodata: None,
+    };
+    terrabake::io::cog::write_f32(&tif, (w, h), &tags, |y0, rows| {
+        rows.copy_from_slice(&z[(y0 * w) as usize..][..rows.len()]);
+        Ok(())
+    })
+    .unwrap();
+    let (tif, out) = (tif.to_str().unwrap(), dir.path().join("out.tbake"));
+    let out = out.to_str().unwrap();
+    let bake = planned_bake(
+        tif,
+        out,
+        &["horizon=1,solar=1", "--needs", "horizons,solar"],
+    );
+    assert!(bake.status.success(), "{}", stderr(&bake));
+    let names = layers(out);
+    for wanted in ["horizon", "svf_cosine", "solar_global", "sun_hours"] {
+        assert!(names.iter().any(|n| n == wanted), "{wanted}: {names:?}");
+    }
+    let planned = terrabake(&[
+        "plan",
+        tif,
+        "--budget",
+        "horizon=1,solar=1",
+        "--needs",
+        "horizons,solar",
+        "--json",
+    ]);
+    let plan: serde_json::Value = serde_json::from_str(&stdout(&planned)).unwrap();
+    let predicted = plan["chosen"]["solar_p99_percent"].as_f64().unwrap();
+    assert!((0.0..1.0).contains(&predicted), "{predicted}");
+    let checked = terrabake(&["check", out, "--samples", "60", "--json"]);
+    assert_eq!(checked.status.code(), Some(0), "{}", stdout(&checked));
+    let report: serde_json::Value = serde_json::from_slice(&checked.stdout).unwrap();
+    let measured = report["horizons"]["solar_p99_percent"].as_f64().unwrap();
+    assert!((0.0..1.0).contains(&measured), "{measured}");
+    let verdicts = report["verdicts"].as_array().unwrap();
+    assert!(
+        verdicts
+            .iter()
+            .any(|v| v["what"] == "solar p99 (%)" && v["met"] == true),
+        "{verdicts:?}"
+    );
+    // No latitude, no solar plan.
+    let (local, local_out) = source(dir.path(), SynthKind::Sine);
+    let refused = planned_bake(&local, &local_out, &["horizon=1", "--needs", "solar"]);
+    assert_eq!(refused.status.code(), Some(1));
+    assert!(
+        stderr(&refused).contains("latitude"),
+        "{}",
+        stderr(&refused)
+    );
+    // A solar budget without the need says what to add.
+    let refused = planned_bake(tif, out, &["horizon=1,solar=1"]);
+    assert_eq!(refused.status.code(), Some(1));
+    assert!(
+        stderr(&refused).contains("add solar to --needs"),
+        "{}",
+        stderr(&refused)
+    );
+}

@@ -306,11 +306,28 @@ fn command_line_and_recipe_record_the_same_parameters() {
         "--no-narrow-check",
         "-q",
     ]);
+    run(&[
+        "solar",
+        &p(&by_cli),
+        "--days",
+        "80-82",
+        "--monthly",
+        "--step",
+        "30",
+        "--linke",
+        "2.5",
+        "--albedo",
+        "0.3",
+        "--lat",
+        "46.5",
+        "-q",
+    ]);
     let recipe = dir.path().join("r.toml");
     std::fs::write(
         &recipe,
         "[ingest]\ntile = 16\n\n[[stage]]\nname = \"cones\"\nslices = \"auto\"\napex_gap = 2.5\nencoding = \"u16\"\nmax_memory_mib = 64\n\n\
-         [[stage]]\nname = \"horizons\"\nsectors = 8\nmethod = \"sector\"\nmax_distance = 300\ncurvature = false\naoi = [2, 3, 40, 30]\nencoding = \"u16\"\nnarrow_check = false\n",
+         [[stage]]\nname = \"horizons\"\nsectors = 8\nmethod = \"sector\"\nmax_distance = 300\ncurvature = false\naoi = [2, 3, 40, 30]\nencoding = \"u16\"\nnarrow_check = false\n\n\
+         [[stage]]\nname = \"sky\"\n\n[[stage]]\nname = \"solar\"\ndays = \"80-82\"\nmonthly = true\nstep_minutes = 30\nlinke = 2.5\nalbedo = 0.3\nlatitude = 46.5\n",
     )
     .unwrap();
     run(&[
@@ -322,7 +339,7 @@ fn command_line_and_recipe_record_the_same_parameters() {
         &p(&recipe),
         "-q",
     ]);
-    for stage in ["ingest", "cones", "horizons"] {
+    for stage in ["ingest", "cones", "horizons", "sky", "solar"] {
         assert_eq!(record(&by_cli, stage), record(&by_recipe, stage), "{stage}");
     }
     assert_eq!(record(&by_cli, "horizons")["method"], "sector");
@@ -406,6 +423,11 @@ fn command_line_defaults_are_the_stage_defaults() {
         stage: terrabake::stages::sky::SkyStage,
     }
     #[derive(Parser)]
+    struct Solar {
+        #[command(flatten)]
+        stage: terrabake::stages::solar::SolarStage,
+    }
+    #[derive(Parser)]
     struct TotalViewshed {
         #[command(flatten)]
         stage: terrabake::stages::viewshed::stage::TotalViewshedStage,
@@ -420,6 +442,7 @@ fn command_line_defaults_are_the_stage_defaults() {
     assert_eq!(Cones::parse_from(["x"]).stage, Default::default());
     assert_eq!(Horizons::parse_from(["x"]).stage, Default::default());
     assert_eq!(TotalViewshed::parse_from(["x"]).stage, Default::default());
+    assert_eq!(Solar::parse_from(["x"]).stage, Default::default());
     // A recipe's table that leaves every key out gets the same.
     fn from_recipe<T: serde::de::DeserializeOwned>(text: &str) -> T {
         toml::from_str(text).unwrap()
@@ -434,6 +457,10 @@ fn command_line_defaults_are_the_stage_defaults() {
     );
     assert_eq!(
         from_recipe::<terrabake::stages::sky::SkyStage>(""),
+        Default::default()
+    );
+    assert_eq!(
+        from_recipe::<terrabake::stages::solar::SolarStage>(""),
         Default::default()
     );
     assert_eq!(

@@ -46,8 +46,22 @@ pub const VIEWSHED_ANGLE: &str = "viewshed_angle";
 /// the stage's distance, square metres (total_viewshed stage).
 pub const TOTAL_VIEWSHED: &str = "total_viewshed";
 
+/// Per post (f32), one band per period (the days asked, or each month of
+/// them): the mean daily global irradiation (beam + diffuse + reflected),
+/// Wh/m^2, clear sky, shadowed by the horizons (solar stage).
+pub const SOLAR_GLOBAL: &str = "solar_global";
+/// As [`SOLAR_GLOBAL`], its beam (direct) part.
+pub const SOLAR_BEAM: &str = "solar_beam";
+/// As [`SOLAR_GLOBAL`], its diffuse part.
+pub const SOLAR_DIFFUSE: &str = "solar_diffuse";
+/// As [`SOLAR_GLOBAL`], its ground-reflected part.
+pub const SOLAR_REFLECTED: &str = "solar_reflected";
+/// Per post (f32), one band per period as [`SOLAR_GLOBAL`]: hours per day
+/// with the sun's centre above the horizon and in front of the surface.
+pub const SUN_HOURS: &str = "sun_hours";
+
 /// Every name above, in the order stages write them.
-pub const ALL: [&str; 14] = [
+pub const ALL: [&str; 19] = [
     HEIGHT,
     PYRAMID_MAX,
     PYRAMID_MIN,
@@ -62,4 +76,9 @@ pub const ALL: [&str; 14] = [
     VIEWSHED,
     VIEWSHED_ANGLE,
     TOTAL_VIEWSHED,
+    SOLAR_GLOBAL,
+    SOLAR_BEAM,
+    SOLAR_DIFFUSE,
+    SOLAR_REFLECTED,
+    SUN_HOURS,
 ];

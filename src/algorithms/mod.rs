@@ -8,4 +8,5 @@
 pub mod edt;
 pub mod horizon;
 pub mod planes;
+pub mod solar;
 pub mod viewshed;

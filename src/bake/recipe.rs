@@ -184,13 +184,14 @@ fn non_finite_key(value: &toml::Value, at: &str) -> Option<String> {
 }
 
 /// The stages this build provides, by recipe name.
-pub const STAGES: [&str; 6] = [
+pub const STAGES: [&str; 7] = [
     "pyramid",
     "cones",
     "horizons",
     "sky",
     "viewshed",
     "total_viewshed",
+    "solar",
 ];
 
 /// The stage a recipe step names, its table deserialised into the stage's
@@ -220,6 +221,7 @@ pub(crate) fn stage_from_recipe(step: &RecipeStage) -> Result<Box<dyn Stage>> {
         "total_viewshed" => {
             typed::<crate::stages::viewshed::stage::TotalViewshedStage>(&step.params)
         }
+        "solar" => typed::<crate::stages::solar::SolarStage>(&step.params),
         other => bail!(
             "no stage '{other}' in this build of terrabake (after ingest: {})",
             STAGES.join(", ")

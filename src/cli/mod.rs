@@ -19,7 +19,9 @@ use crate::stages::pyramid::PyramidStage;
 use crate::stages::sky::SkyStage;
 use crate::stages::viewshed::stage::TotalViewshedStage;
 use asset::{InfoArgs, SynthArgs, VerifyArgs};
-use stages::{AssembleArgs, BakeArgs, ConesCommand, HorizonsCommand, IngestArgs, StageCommand};
+use stages::{
+    AssembleArgs, BakeArgs, ConesCommand, HorizonsCommand, IngestArgs, SolarCommand, StageCommand,
+};
 
 #[derive(Parser, Debug)]
 #[command(
@@ -143,11 +145,31 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
     /// Add the total viewshed: at every post, the area an eye above it sees (square metres),
     /// by Timonen's azimuthal sweeps with the convex hull tree.
     TotalViewshed(StageCommand<TotalViewshedStage>),
+    /// Add clear-sky irradiation and sun hours over days from the stored horizons, and write
+    /// them as one GeoTIFF: r.sun's model, shadowed without a ray.
+    ///
+    /// Layers solar_global, solar_beam, solar_diffuse, solar_reflected (Wh/m^2 per day, the
+    /// mean day of the period) and sun_hours (hours per day with the sun's centre above the
+    /// horizon and in front of the surface), one band for the period or one per month with
+    /// --monthly. The model is r.sun's (Suri and Hofierka 2004: ESRA clear sky with the Linke
+    /// turbidity, Muneer's diffuse on slopes, ground reflection); the sun's position is Meeus's
+    /// (about 0.01 degrees; NREL's SPA example within 0.02); a post is sunlit where the sun's centre is above
+    /// its horizon as the loader serves it and in front of its surface. The diffuse part's
+    /// isotropic sky and the reflected part are weighed by svf_cosine (the sky stage runs first
+    /// when the asset lacks it). Latitude comes from the georeferencing, row by row (--lat
+    /// otherwise). docs/SOLAR.md has the formulas, the comparison with r.sun and the timings.
+    #[command(
+        after_help = "Examples:\n  terrabake solar dem.tbake --day 172 -o june21.tif\n  \
+terrabake solar dem.tbake --year --monthly -o year.tif\n  \
+terrabake solar dem.tbake --days 80-100 --step 10 --linke 2.5 --albedo 0.3 --json\n  \
+terrabake solar flat.tbake --lat 46.5 --lon 8 --year -o year.tif"
+    )]
+    Solar(SolarCommand),
     /// Ingest a DEM and run every stage of a recipe, skipping work already done.
     ///
     /// A recipe is a TOML file: an [ingest] table with ingest's options (tile, codec,
     /// cell_size, nodata, z_scale, z_offset...), then one [[stage]] table per stage, in order,
-    /// with `name` (pyramid, cones, horizons, sky, viewshed, total_viewshed) and its options, dashes as
+    /// with `name` (pyramid, cones, horizons, sky, viewshed, total_viewshed, solar) and its options, dashes as
     /// underscores (max_distance = 3000.0, max_error_deg = 0.1). Unknown keys are refused by
     /// name, and the whole recipe is checked before ingest starts. A stage whose recorded
     /// options match and whose layers are present is skipped, so a bake that stopped resumes
@@ -231,6 +253,7 @@ impl Command {
             Command::Viewshed(a) => a,
             Command::Profile(a) => a,
             Command::TotalViewshed(a) => a,
+            Command::Solar(a) => a,
             Command::Bake(a) => a,
             Command::Assemble(a) => a,
         }

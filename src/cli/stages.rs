@@ -19,6 +19,7 @@ use crate::stages::cones::ConesStage;
 use crate::stages::horizons::HorizonsStage;
 use crate::stages::ingest::{IngestOptions, IngestStage};
 use crate::stages::sky::SkyStage;
+use crate::stages::solar::{SolarLayer, SolarStage};
 
 /// `terrabake ingest`: a new asset from a DEM.
 #[derive(clap::Args, Debug)]
@@ -152,6 +153,67 @@ impl Run for HorizonsCommand {
             s.say(e.description);
         }
         outcomes[1..].iter().for_each(|o| s.say(o.to_string()));
+        Ok(ExitCode::SUCCESS)
+    }
+}
+
+/// `terrabake solar`: the solar stage (after the sky stage where the
+/// asset has no `svf_cosine`), and its layers as one GeoTIFF.
+#[derive(clap::Args, Debug)]
+pub struct SolarCommand {
+    #[command(flatten)]
+    pub command: StageCommand<SolarStage>,
+    /// Every day of the year, 1-365: the default, the same as --days year.
+    #[arg(long, conflicts_with = "days")]
+    pub year: bool,
+    /// The GeoTIFF to write: the five layers (global, beam, diffuse, reflected, sun hours),
+    /// a band per layer and period, each named with its unit and period.
+    #[arg(short, long)]
+    pub output: Option<std::path::PathBuf>,
+}
+
+impl Run for SolarCommand {
+    /// The stages in one run under one writer, then the GeoTIFF; the
+    /// solar stage's record (with `output`, with --json) and a line per
+    /// stage.
+    fn run(&self, s: &Session) -> crate::Result<ExitCode> {
+        let c = &self.command;
+        let has_svf_cosine = open_asset(&c.asset)?
+            .manifest()
+            .layer(terrabake_format::layers::SVF_COSINE, 0)
+            .is_some();
+        let sky = SkyStage::default();
+        let mut stages: Vec<(&dyn Stage, bool)> = Vec::new();
+        if !has_svf_cosine {
+            stages.push((&sky, false));
+        }
+        stages.push((&c.stage, c.force));
+        let writer = AssetWriter::open(&c.asset, s.wait)?;
+        let outcomes = run_stages_in(&writer, &stages, s.progress, &mut |_| Ok(()))?;
+        drop(writer);
+        if let Some(out) = &self.output {
+            let asset = open_asset(&c.asset)?;
+            let layers: Vec<&str> = SolarLayer::ALL.iter().map(|l| l.name()).collect();
+            crate::export::export_stack(
+                &asset,
+                &layers,
+                out,
+                &crate::export::TiffOptions::default(),
+                s.progress,
+            )?;
+        }
+        let outcome = outcomes.last().expect("the solar stage ran");
+        if c.json {
+            let mut v = serde_json::to_value(outcome)?;
+            if let Some(out) = &self.output {
+                v["output"] = serde_json::Value::String(out.display().to_string());
+            }
+            println!("{}", serde_json::to_string_pretty(&v)?);
+        }
+        outcomes.iter().for_each(|o| s.say(o.to_string()));
+        if let Some(out) = &self.output {
+            s.say(format!("wrote {}", out.display()));
+        }
         Ok(ExitCode::SUCCESS)
     }
 }

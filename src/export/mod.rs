@@ -123,6 +123,11 @@ pub(crate) fn layer_title(layer: &str, band: u32, bands: u32) -> String {
         l::VIEWSHED => format!("seen from the observer (1 seen, 0 hidden){band}"),
         l::VIEWSHED_ANGLE => format!("elevation angle from the observer (degrees){band}"),
         l::TOTAL_VIEWSHED => "total viewshed: area seen (m2)".into(),
+        l::SOLAR_GLOBAL => format!("global irradiation (Wh/m2 per day){band}"),
+        l::SOLAR_BEAM => format!("beam irradiation (Wh/m2 per day){band}"),
+        l::SOLAR_DIFFUSE => format!("diffuse irradiation (Wh/m2 per day){band}"),
+        l::SOLAR_REFLECTED => format!("reflected irradiation (Wh/m2 per day){band}"),
+        l::SUN_HOURS => format!("sun hours (h per day){band}"),
         other => format!("{other}{band}"),
     }
 }
@@ -217,6 +222,14 @@ pub fn cog_for_layer(
     }
     let method = param("method").and_then(|m| m.as_str()).unwrap_or("");
     let unit = layer_unit(name);
+    // The solar stage's bands are periods: each named by its days.
+    let periods: Vec<String> = stage
+        .filter(|s| s.stage == "solar")
+        .and_then(|s| {
+            serde_json::from_value::<crate::stages::solar::SolarStage>(s.params.clone()).ok()
+        })
+        .map(|s| s.periods().into_iter().map(|p| p.label).collect())
+        .unwrap_or_default();
     let band_metadata = (0..layer.bands())
         .map(|b| {
             let mut items = Vec::new();
@@ -230,7 +243,10 @@ pub fn cog_for_layer(
                         format!("{what} azimuth {az:.2} deg, {method}")
                     }
                 }
-                None => layer_title(name, b, layer.bands()),
+                None => match periods.get(b as usize) {
+                    Some(period) => format!("{}, {period}", layer_title(name, 0, 1)),
+                    None => layer_title(name, b, layer.bands()),
+                },
             };
             crate::io::cog::BandMetadata {
                 description,
@@ -269,6 +285,76 @@ pub fn cog_for_layer(
     })
 }
 
+/// Several layers of one shape as one GeoTIFF, their bands one after
+/// another in the order given, each band named as its layer's export
+/// names it; the dataset's items are the first layer's, its layer item
+/// lists them all.
+pub fn export_stack(
+    asset: &Asset<Mmap>,
+    names: &[&str],
+    out: &Path,
+    tiff: &TiffOptions,
+    progress: Progress,
+) -> crate::Result<()> {
+    let layers = names
+        .iter()
+        .map(|n| asset.layer(n, 0))
+        .collect::<terrabake_format::Result<Vec<_>>>()?;
+    let first = layers.first().ok_or_else(|| anyhow!("no layer to write"))?;
+    let mut cog = cog_for_layer(asset, first, tiff)?;
+    let mut bands = Vec::new();
+    let mut of_band = Vec::new();
+    for layer in &layers {
+        crate::error::ensure!(
+            (layer.width(), layer.height()) == (first.width(), first.height()),
+            "layers {} and {} differ in size; one GeoTIFF holds one grid",
+            first.entry().key(),
+            layer.entry().key()
+        );
+        bands.extend(cog_for_layer(asset, layer, tiff)?.metadata.bands);
+        of_band.extend((0..layer.bands()).map(|b| (*layer, b)));
+    }
+    cog.bands = u16::try_from(of_band.len())
+        .map_err(|_| anyhow!("{} bands is more than TIFF holds", of_band.len()))?;
+    cog.metadata.bands = bands;
+    if let Some(item) = cog
+        .metadata
+        .dataset
+        .iter_mut()
+        .find(|(k, _)| k == "TERRABAKE_LAYER")
+    {
+        item.1 = names.join(",");
+    }
+    let bar = progress.bar(
+        u64::from(first.height()) * of_band.len() as u64,
+        "export",
+        "rows",
+    );
+    cog.write(
+        out,
+        |band, y0, rows| {
+            let (layer, b) = of_band[band as usize];
+            Ok(layer.read_rows_f32(b, y0, rows)?)
+        },
+        |n| bar.inc(n),
+    )?;
+    bar.finish_and_clear();
+    Ok(())
+}
+
+/// Whether a layer's previews show kWh/m^2 (the irradiation layers, which
+/// store Wh/m^2).
+fn preview_in_kwh(layer: &str) -> bool {
+    use terrabake_format::layers as l;
+    [
+        l::SOLAR_GLOBAL,
+        l::SOLAR_BEAM,
+        l::SOLAR_DIFFUSE,
+        l::SOLAR_REFLECTED,
+    ]
+    .contains(&layer)
+}
+
 /// The unit of a layer's values, as GDAL's unit type says it.
 fn layer_unit(layer: &str) -> &'static str {
     use terrabake_format::layers as l;
@@ -278,6 +364,8 @@ fn layer_unit(layer: &str) -> &'static str {
         l::HORIZON | l::OPENNESS | l::VIEWSHED_ANGLE => "deg",
         l::HORIZON_DISTANCE => "m",
         l::TOTAL_VIEWSHED => "m2",
+        l::SOLAR_GLOBAL | l::SOLAR_BEAM | l::SOLAR_DIFFUSE | l::SOLAR_REFLECTED => "Wh/m2",
+        l::SUN_HOURS => "h",
         _ => "",
     }
 }
@@ -534,10 +622,18 @@ fn write_png_preview(
     let (w, h) = (layer.width(), layer.height());
     let step = w.max(h).div_ceil(PREVIEW_MAX_SIDE).max(1);
     let (pw, ph) = (w.div_ceil(step), h.div_ceil(step));
+    // Irradiation reads better in kWh than in thousands of Wh.
+    let (scale, title) = match preview_in_kwh(&layer.entry().name) {
+        true => (
+            1e-3,
+            layer_title(&layer.entry().name, band, layer.bands()).replace("Wh/m2", "kWh/m2"),
+        ),
+        false => (1.0, layer_title(&layer.entry().name, band, layer.bands())),
+    };
     let row_at = |y: u32| -> Result<Vec<f32>> {
         let mut full = vec![0f32; w as usize];
         layer.read_rows_f32(band, y.min(h - 1), &mut full)?;
-        Ok((0..pw).map(|x| full[(x * step) as usize]).collect())
+        Ok((0..pw).map(|x| full[(x * step) as usize] * scale).collect())
     };
     // Heights scale by the DEM's range; other layers by percentiles.
     let mut stretch = match (height_like, manifest.height_range) {
@@ -554,7 +650,7 @@ fn write_png_preview(
         stretch.note += "; lit from the north-west";
     }
     let legend = Legend {
-        title: layer_title(&layer.entry().name, band, layer.bands()),
+        title,
         ramp: match style {
             PngStyle::Relief => Ramp::Hypsometric,
             _ => Ramp::Viridis,

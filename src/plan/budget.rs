@@ -32,6 +32,11 @@ pub struct Budget {
     /// The share of posts whose sun/shade state may be wrong.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub shade: Option<f64>,
+    /// Per cent: the 99th percentile over posts of the year's beam
+    /// irradiation put in shadow or sun wrongly, of the post's beam
+    /// (and so an upper bound of the error in its global irradiation).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub solar: Option<f64>,
     /// Wall seconds of the bake.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub time: Option<f64>,
@@ -69,6 +74,9 @@ impl Budget {
             if v > 1.0 {
                 return Err(format!("budget shade={v}: a share of posts is at most 1"));
             }
+        }
+        if let Some(v) = self.solar {
+            positive("solar", v)?;
         }
         if let Some(v) = self.time {
             positive("time", v)?;
@@ -133,6 +141,7 @@ impl FromStr for Budget {
                 "horizon" => horizon = Some(number()?),
                 "svf" => budget.svf = Some(number()?),
                 "shade" => budget.shade = Some(number()?),
+                "solar" => budget.solar = Some(number()?),
                 "time" => budget.time = Some(number()?),
                 "bytes" => budget.bytes = Some(parse_size(value)?),
                 "memory" => {
@@ -145,8 +154,8 @@ impl FromStr for Budget {
                 }
                 other => {
                     return Err(format!(
-                        "{other:?}: not a budget key (horizon, svf, shade, time, bytes, memory)"
-                    ))
+                    "{other:?}: not a budget key (horizon, svf, shade, solar, time, bytes, memory)"
+                ))
                 }
             }
         }
@@ -164,6 +173,9 @@ impl fmt::Display for Budget {
         }
         if let Some(v) = self.shade {
             write!(f, ",shade={v}")?;
+        }
+        if let Some(v) = self.solar {
+            write!(f, ",solar={v}")?;
         }
         if let Some(v) = self.time {
             write!(f, ",time={v}")?;
@@ -196,16 +208,20 @@ pub enum Need {
     /// Fast exact ray tracing (the pyramid and the cone planes: parametric
     /// tracing, the same hits in fewer steps).
     FastTracing,
+    /// The year's irradiation and sun hours (the solar stage, from the
+    /// horizons and `svf_cosine`; the `solar` budget measures them).
+    Solar,
 }
 
 impl Need {
-    pub const ALL: [Need; 6] = [
+    pub const ALL: [Need; 7] = [
         Need::Horizons,
         Need::Svf,
         Need::Sky,
         Need::Sun,
         Need::Tracing,
         Need::FastTracing,
+        Need::Solar,
     ];
 
     pub fn name(self) -> &'static str {
@@ -216,6 +232,7 @@ impl Need {
             Need::Sun => "sun",
             Need::Tracing => "tracing",
             Need::FastTracing => "fast_tracing",
+            Need::Solar => "solar",
         }
     }
 }
@@ -239,7 +256,7 @@ impl Needs {
 
     /// Whether anything needed is derived from horizon maps.
     pub fn horizons(&self) -> bool {
-        [Need::Horizons, Need::Svf, Need::Sky, Need::Sun]
+        [Need::Horizons, Need::Svf, Need::Sky, Need::Sun, Need::Solar]
             .iter()
             .any(|&n| self.has(n))
     }
@@ -271,14 +288,14 @@ impl FromStr for Needs {
                     .find(|need| need.name() == key)
                     .ok_or_else(|| {
                         format!(
-                            "{n:?}: not a need (horizons, svf, sky, sun, tracing, fast_tracing)"
+                            "{n:?}: not a need (horizons, svf, sky, sun, tracing, fast_tracing, solar)"
                         )
                     })
             })
             .collect::<Result<Vec<_>, _>>()?;
         if needs.is_empty() {
             return Err(
-                "--needs: name at least one of horizons, svf, sky, sun, tracing, fast_tracing"
+                "--needs: name at least one of horizons, svf, sky, sun, tracing, fast_tracing, solar"
                     .into(),
             );
         }
@@ -377,6 +394,12 @@ impl Request {
                 self.budget.shade.unwrap_or_default()
             ));
         }
+        if self.budget.solar.is_some() && !self.needs.has(Need::Solar) {
+            return Err(format!(
+                "budget solar={}: add solar to --needs",
+                self.budget.solar.unwrap_or_default()
+            ));
+        }
         for &position in &self.sun {
             check_sun_position(position)?;
         }
@@ -395,7 +418,7 @@ mod tests {
 
     #[test]
     fn the_documented_syntax_parses_and_prints_back() {
-        let b: Budget = "horizon=0.5,svf=0.01,shade=0.001,time=60,bytes=200M,memory=512"
+        let b: Budget = "horizon=0.5,svf=0.01,shade=0.001,solar=2,time=60,bytes=200M,memory=512"
             .parse()
             .unwrap();
         assert_eq!(
@@ -404,6 +427,7 @@ mod tests {
                 horizon: 0.5,
                 svf: Some(0.01),
                 shade: Some(0.001),
+                solar: Some(2.0),
                 time: Some(60.0),
                 bytes: Some(200 << 20),
                 memory: Some(512),

@@ -37,8 +37,8 @@ use terrabake_format::{Asset, Mmap};
 
 use crate::error::bail;
 use crate::plan::budget::Budget;
-use crate::plan::reference::shade_differs;
 pub use crate::plan::reference::{percentile, Pilot, Sampling};
+use crate::plan::reference::{shade_differs, solar_error, SolarSun};
 use crate::plan::{Baked, Candidate};
 use crate::plumbing::progress::Progress;
 use crate::stage::session::{Run, Session};
@@ -83,6 +83,12 @@ pub struct HorizonCheck {
     /// stored horizons get wrong (`None`: no sun positions).
     pub shade_share: Option<f64>,
     pub sun_positions: usize,
+    /// Per cent over posts, where the asset has a solar stage or the
+    /// budget a solar limit: the year's beam the stored horizons put in the
+    /// wrong sun or shade (`plan::reference::solar_error`), its 99th
+    /// percentile and largest.
+    pub solar_p99_percent: Option<f64>,
+    pub solar_max_percent: Option<f64>,
 }
 
 /// What a check measured of the tracing layers, by brute force.
@@ -185,10 +191,37 @@ pub fn check(
                 dir.display()
             );
         }
+        // The year's sun where the asset bakes it or the budget asks.
+        let m = asset.manifest();
+        let solar = if budget.is_some_and(|b| b.solar.is_some())
+            || crate::stage::recorded_params::<serde_json::Value>(m, "solar").is_some()
+        {
+            let latitude = m
+                .georef
+                .as_ref()
+                .and_then(|g| crate::terrain::geo::central_latitude(g, m.width, m.height));
+            match latitude {
+                Some(latitude) => crate::plan::reference::solar_year(latitude),
+                None if budget.is_some_and(|b| b.solar.is_some()) => bail!(
+                    "{}: a solar budget needs the scene's latitude, and this DEM is neither geographic nor WGS 84 UTM",
+                    dir.display()
+                ),
+                None => Vec::new(),
+            }
+        } else {
+            Vec::new()
+        };
         // The heights, read once for both references.
         let dem = HeldDem::read(asset)?;
         let horizons = match HorizonMap::open(asset) {
-            Ok(map) => Some(check_horizons(asset, &dem, &map, opts, sun, progress)?),
+            Ok(map) => Some(check_horizons(
+                asset,
+                &dem,
+                &map,
+                opts,
+                (sun, &solar),
+                progress,
+            )?),
             Err(_) => None,
         };
         let tracing = check_tracing(asset, &dem, opts)?;
@@ -231,7 +264,7 @@ fn check_horizons(
     dem: &HeldDem,
     map: &HorizonMap<'_, Mmap>,
     opts: &CheckOptions,
-    sun: &[SunPosition],
+    (sun, solar): (&[SunPosition], &[(SunPosition, f64)]),
     progress: Progress,
 ) -> Result<HorizonCheck> {
     let dir = asset.dir();
@@ -258,10 +291,18 @@ fn check_horizons(
         .iter()
         .map(|&[az, el]| (pilot.nearest_direction(az), el))
         .collect();
+    let solar: Vec<SolarSun> = solar
+        .iter()
+        .map(|&([az, el], weight)| SolarSun {
+            direction: pilot.nearest_direction(az),
+            elevation: el,
+            weight,
+        })
+        .collect();
     // Per post: the signed horizon errors at every reference azimuth (those
     // at the DEM's edge apart), the svf error, and the wrong sun/shade
     // states.
-    type PostErrors = (Vec<f64>, Vec<f64>, Option<f64>, usize);
+    type PostErrors = (Vec<f64>, Vec<f64>, Option<f64>, usize, Option<f64>);
     let per_post: Vec<Result<PostErrors>> = pilot
         .posts
         .par_iter()
@@ -291,13 +332,19 @@ fn check_horizons(
                 }
                 None => None,
             };
-            Ok((errors, at_edge, svf_error, wrong))
+            let solar_error = (!solar.is_empty()).then(|| {
+                let served: Vec<f64> = served.iter().map(|s| s.unwrap_or(f64::NAN)).collect();
+                solar_error(&solar, &served, exact)
+            });
+            Ok((errors, at_edge, svf_error, wrong, solar_error))
         })
         .collect();
-    let (mut horizon, mut svf, mut wrong) = (Vec::new(), Vec::new(), 0);
+    let (mut horizon, mut svf, mut wrong, mut solar_errors) =
+        (Vec::new(), Vec::new(), 0, Vec::new());
     let (mut edge_samples, mut edge_posts, mut edge_max) = (0, 0, None::<f64>);
     for post in per_post {
-        let (errors, at_edge, svf_error, w) = post?;
+        let (errors, at_edge, svf_error, w, solar_error) = post?;
+        solar_errors.extend(solar_error);
         horizon.extend(errors);
         if !at_edge.is_empty() {
             edge_samples += at_edge.len();
@@ -312,6 +359,7 @@ fn check_horizons(
     let mut horizon: Vec<f64> = horizon.into_iter().map(f64::abs).collect();
     horizon.sort_unstable_by(f64::total_cmp);
     svf.sort_unstable_by(f64::total_cmp);
+    solar_errors.sort_unstable_by(f64::total_cmp);
     let layer = asset.layer(HORIZON, 0)?;
     Ok(HorizonCheck {
         posts: pilot.posts.len(),
@@ -334,6 +382,8 @@ fn check_horizons(
         shade_share: (!suns.is_empty())
             .then(|| wrong as f64 / (suns.len() * pilot.posts.len()) as f64),
         sun_positions: suns.len(),
+        solar_p99_percent: (!solar_errors.is_empty()).then(|| percentile(&solar_errors, 99)),
+        solar_max_percent: solar_errors.last().copied(),
     })
 }
 
@@ -524,6 +574,13 @@ fn verdicts(report: &CheckReport, b: &Budget) -> Vec<Verdict> {
             limit,
         )));
     }
+    if let Some(limit) = b.solar {
+        v.push(required(measured(
+            "solar p99 (%)",
+            h.and_then(|h| h.solar_p99_percent),
+            limit,
+        )));
+    }
     if let Some(limit) = b.bytes {
         v.push(measured("bytes", Some(report.bytes as f64), limit as f64));
     }
@@ -590,6 +647,11 @@ pub(crate) fn describe(report: &CheckReport) -> String {
             out += &format!(
                 "sun/shade wrong       {share:.4} of {} posts x {} sun positions\n",
                 h.posts, h.sun_positions
+            );
+        }
+        if let (Some(p99), Some(max)) = (h.solar_p99_percent, h.solar_max_percent) {
+            out += &format!(
+                "solar (year's beam)   p99 {p99:.3} %   max {max:.3} % in the wrong sun or shade\n"
             );
         }
     }

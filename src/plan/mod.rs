@@ -64,7 +64,7 @@ use choices::{
 pub use command::{PlanArgs, RequestArgs};
 use models::{
     LineCosts, BASE_MIB, CONES_BYTES_PER_POST, CONES_SECONDS_PER_POST, CONE_SLICES,
-    PYRAMID_SECONDS_PER_POST,
+    PYRAMID_SECONDS_PER_POST, SOLAR_SECONDS_PER_POST_DAY,
 };
 pub use models::{TimeModels, TIME_MODELS_VAR};
 
@@ -81,7 +81,9 @@ use crate::algorithms::horizon::sky::{svf_of_horizons, BandIntegrals};
 use crate::algorithms::horizon::{Band, BandKind, Method};
 use crate::error::bail;
 use crate::plan::budget::{Budget, Need, Needs, Request};
-use crate::plan::reference::{quantile_unsorted, shade_differs, Pilot, Sampling};
+use crate::plan::reference::{
+    quantile_unsorted, shade_differs, solar_error, solar_year, Pilot, Sampling, SolarSun,
+};
 use crate::plumbing::progress::Progress;
 use crate::stage::Stage;
 use crate::stages::horizons::HorizonsStage;
@@ -131,6 +133,10 @@ pub struct Candidate {
     /// wrong, when the scene needs the sun.
     #[serde(default)]
     pub shade_share: Option<f64>,
+    /// Per cent: the 99th percentile over posts of the year's beam put in
+    /// the wrong sun or shade, when the scene needs solar.
+    #[serde(default)]
+    pub solar_p99_percent: Option<f64>,
     /// Bytes of the horizon and sky layers.
     pub bytes: u64,
     /// Seconds of the horizons and sky stages.
@@ -150,8 +156,10 @@ impl Candidate {
             self.horizon_p99_deg,
             self.svf_p99,
             self.shade_share
-                .map_or(String::new(), |s| format!(", shade {s:.4}"))
-        )
+                .map_or(String::new(), |s| format!(", shade {s:.4}")),
+        ) + &self
+            .solar_p99_percent
+            .map_or(String::new(), |s| format!(", solar p99 {s:.3} %"))
     }
 }
 
@@ -310,6 +318,9 @@ impl Plan {
                 layers: self.sky_layers.clone(),
             }));
         }
+        if self.needs.has(Need::Solar) {
+            stages.push(Box::new(crate::stages::solar::SolarStage::default()));
+        }
         stages
     }
 }
@@ -344,6 +355,13 @@ struct PilotSun {
     elevation: f64,
 }
 
+/// The suns the pilot weighs: the shade's positions, and the solar
+/// budget's year.
+struct PilotSuns {
+    shade: Vec<PilotSun>,
+    solar: Vec<SolarSun>,
+}
+
 /// The errors a bake would make at the pilot's posts: the horizon's
 /// (degrees) at every post and reference azimuth, the svf's at every post,
 /// and the sun/shade states it gets wrong.
@@ -352,6 +370,8 @@ struct Errors {
     svf: Vec<f64>,
     shade_wrong: usize,
     shade_pairs: usize,
+    /// Per post, per cent ([`solar_error`]); empty without solar.
+    solar: Vec<f64>,
 }
 
 impl Errors {
@@ -365,15 +385,24 @@ impl Errors {
         )
     }
 
+    /// The solar error (per cent) at quantile `q`; `None` without solar.
+    fn solar_at(&mut self, q: f64) -> Option<f64> {
+        (!self.solar.is_empty()).then(|| quantile_unsorted(&mut self.solar, q))
+    }
+
     /// Whether these errors, at the deciding quantile, stay within `share`
     /// of every limit the budget sets for them.
     fn within(&mut self, budget: &Budget, share: f64) -> bool {
         let (horizon, svf, shade) = self.at(DECISION_QUANTILE);
+        let solar = self.solar_at(DECISION_QUANTILE);
         horizon <= share * budget.horizon
             && budget.svf.is_none_or(|v| svf <= share * v)
             && budget
                 .shade
                 .is_none_or(|v| shade.is_none_or(|s| s <= share * v))
+            && budget
+                .solar
+                .is_none_or(|v| solar.is_none_or(|s| s <= share * v))
     }
 }
 
@@ -384,7 +413,7 @@ impl Errors {
 fn errors(
     pilot: &Pilot,
     stored: &[usize],
-    suns: &[PilotSun],
+    suns: &PilotSuns,
     value: impl Fn(usize, usize) -> f64,
 ) -> Errors {
     let azimuths: Vec<f64> = stored.iter().map(|&j| pilot.azimuth(j)).collect();
@@ -394,6 +423,7 @@ fn errors(
         svf: Vec::new(),
         shade_wrong: 0,
         shade_pairs: 0,
+        solar: Vec::new(),
     };
     // Which stored directions serve each reference azimuth: the same at
     // every post.
@@ -411,11 +441,15 @@ fn errors(
                 e.horizon.push((*out - truth).abs());
             }
         }
-        e.shade_pairs += suns.len();
+        e.shade_pairs += suns.shade.len();
         e.shade_wrong += suns
+            .shade
             .iter()
             .filter(|sun| shade_differs(sun.elevation, served[sun.direction], exact[sun.direction]))
             .count();
+        if !suns.solar.is_empty() {
+            e.solar.push(solar_error(&suns.solar, &served, exact));
+        }
         let s = svf_of_horizons(&integrals, kept.iter().copied());
         let truth = pilot.svf(exact);
         if s.is_finite() && truth.is_finite() {
@@ -434,7 +468,7 @@ fn stored_as(encoding: AngleEncoding, deg: f64) -> f64 {
 /// `DISTANCES[distance]`, stored as `encoding`.
 fn predict(
     pilot: &Pilot,
-    suns: &[PilotSun],
+    suns: &PilotSuns,
     stored: &[usize],
     distance: Option<usize>,
     encoding: AngleEncoding,
@@ -523,11 +557,19 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
         start.elapsed().as_secs_f64(),
     );
     let sun = sun_positions(asset, request, &scene)?;
+    let solar_suns = match (needs.has(Need::Solar), scene.latitude_deg) {
+        (false, _) => Vec::new(),
+        (true, Some(latitude)) => solar_year(latitude),
+        (true, None) => bail!(
+            "{}: --needs solar needs the scene's latitude, and this DEM is neither geographic nor WGS 84 UTM; bake the solar stage with a recipe and its latitude instead",
+            asset.dir().display()
+        ),
+    };
     let mut sky_layers = Vec::new();
     if needs.svf() {
         sky_layers.push(SkyLayer::Svf);
     }
-    if needs.has(Need::Sky) {
+    if needs.has(Need::Sky) || needs.has(Need::Solar) {
         sky_layers.push(SkyLayer::SvfCosine);
     }
     let mut costs = LineCosts {
@@ -542,13 +584,23 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
     let (mut chosen, mut safe_distance) = (None, None);
     let (mut choices, mut candidates) = (Vec::new(), Vec::new());
     if let (Some(pilot), Some(dem)) = (&mut pilot, &dem) {
-        let suns: Vec<PilotSun> = sun
-            .iter()
-            .map(|&[az, el]| PilotSun {
-                direction: pilot.nearest_direction(az),
-                elevation: el,
-            })
-            .collect();
+        let suns = PilotSuns {
+            shade: sun
+                .iter()
+                .map(|&[az, el]| PilotSun {
+                    direction: pilot.nearest_direction(az),
+                    elevation: el,
+                })
+                .collect(),
+            solar: solar_suns
+                .iter()
+                .map(|&([az, el], weight)| SolarSun {
+                    direction: pilot.nearest_direction(az),
+                    elevation: el,
+                    weight,
+                })
+                .collect(),
+        };
         let added = Instant::now();
         let terrain = dem.terrain(curvature);
         let plan = plan_horizons(pilot, &terrain, &suns, budget, &costs, &scene, curvature)?;
@@ -595,6 +647,12 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
         seconds += c.seconds;
         bytes += c.bytes;
         memory_mib = memory_mib.max(costs.memory_mib(c.sectors, c.max_distance));
+    }
+    if needs.has(Need::Solar) {
+        let days = crate::stages::solar::Days::YEAR;
+        seconds +=
+            posts as f64 * f64::from(days.last - days.first + 1) * SOLAR_SECONDS_PER_POST_DAY;
+        bytes += layer_bytes(w, h, tile, 4, crate::stages::solar::SolarLayer::ALL.len());
     }
     if pyramid {
         seconds += posts as f64 * PYRAMID_SECONDS_PER_POST;
@@ -798,7 +856,7 @@ struct HorizonPlan {
 /// the budget, in degrees and (for the svf, which a change of h radians in
 /// every direction moves by at most h) in radians, and whose rounding alone
 /// flips few enough sun/shade states.
-fn choose_encoding(pilot: &Pilot, suns: &[PilotSun], budget: &Budget) -> AngleEncoding {
+fn choose_encoding(pilot: &Pilot, suns: &PilotSuns, budget: &Budget) -> AngleEncoding {
     let share = SHARE_QUANTISATION;
     let every_reference: Vec<usize> = (0..pilot.reference.len()).collect();
     [AngleEncoding::U8, AngleEncoding::U16, AngleEncoding::F32]
@@ -808,7 +866,7 @@ fn choose_encoding(pilot: &Pilot, suns: &[PilotSun], budget: &Budget) -> AngleEn
                 && budget
                     .svf
                     .is_none_or(|s| e.max_error_deg().to_radians() <= share * s)
-                && (budget.shade.is_none()
+                && ((budget.shade.is_none() && budget.solar.is_none())
                     || errors(pilot, &every_reference, suns, |i, j| {
                         stored_as(e, pilot.exact[i][j])
                     })
@@ -822,7 +880,7 @@ fn choose_encoding(pilot: &Pilot, suns: &[PilotSun], budget: &Budget) -> AngleEn
 fn plan_horizons(
     pilot: &mut Pilot,
     terrain: &Terrain,
-    suns: &[PilotSun],
+    suns: &PilotSuns,
     budget: &Budget,
     costs: &LineCosts,
     scene: &Scene,
@@ -852,6 +910,7 @@ fn plan_horizons(
                 horizon_p99_deg,
                 svf_p99,
                 shade_share,
+                solar_p99_percent: errors.solar_at(0.99),
                 bytes: costs.layer_bytes(encoding.elem().size(), sectors)
                     + costs.layer_bytes(4, costs.sky_layers),
                 seconds: costs.seconds(sectors, distance),

@@ -103,6 +103,10 @@ impl TimeModels {
 /// 0.46 s; docs/BENCHMARKS.md, cone planes).
 pub(super) const PYRAMID_SECONDS_PER_POST: f64 = 9.0e-8;
 pub(super) const CONES_SECONDS_PER_POST: f64 = 3.2e-7;
+/// Seconds per post and day of the solar stage at 15-minute steps,
+/// measured on the bundled tile (2 cores: a year in 12.2 s;
+/// docs/BENCHMARKS.md, solar).
+pub(super) const SOLAR_SECONDS_PER_POST_DAY: f64 = 2.3e-8;
 /// The cone planes' slices: within 6 % of the exact cones' steps per ray on
 /// the bundled tile at 37 % of the bake time of 256 slices (1.3 %).
 pub(super) const CONE_SLICES: usize = 64;

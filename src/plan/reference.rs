@@ -328,6 +328,63 @@ pub(crate) fn shade_differs(elevation: f64, served: f64, exact: f64) -> bool {
     (elevation > served) != (elevation > exact)
 }
 
+/// A sun position the solar budget weighs: the reference direction nearest
+/// its azimuth, its elevation (degrees) and its weight.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct SolarSun {
+    pub direction: usize,
+    pub elevation: f64,
+    pub weight: f64,
+}
+
+/// The year's sun as the solar budget weighs it: every 15 minutes of the
+/// 21st of each month at `latitude` (degrees), weighted by the clear-sky
+/// beam on a horizontal surface at sea level (Linke 3, W/m^2), which is
+/// what a wrong shadow there takes or adds.
+pub(crate) fn solar_year(latitude: f64) -> Vec<(crate::terrain::sun::SunPosition, f64)> {
+    use crate::algorithms::solar::{beam_transmittance, day_steps, relative_air_mass};
+    let phi = latitude.to_radians().sin_cos();
+    (0..12u32)
+        .flat_map(|month| {
+            let day = (f64::from(month) * 30.44 + 21.0).round() as u32;
+            day_steps(crate::terrain::sun::PATH_YEAR, day, 15.0, 0.0)
+        })
+        .filter_map(|step| {
+            let sun = step.sun(phi);
+            (sun[2] > 0.0).then(|| {
+                let s = crate::terrain::sun::Sun::from_direction(sun);
+                let h0 = sun[2].asin();
+                let beam = step.g0 * beam_transmittance(3.0, relative_air_mass(h0), 0.0) * sun[2];
+                ([s.azimuth, s.elevation], beam)
+            })
+        })
+        .collect()
+}
+
+/// Per cent of a post's beam weight over `suns` that horizons `served`
+/// (degrees, at the reference directions) put in sun or shadow where the
+/// `exact` ones do not: the solar budget's error at one post, an upper
+/// bound of its global irradiation's (the beam is part of the global). Suns
+/// where either horizon is unknown count for neither.
+pub(crate) fn solar_error(suns: &[SolarSun], served: &[f64], exact: &[f64]) -> f64 {
+    let (mut wrong, mut total) = (0.0, 0.0);
+    for sun in suns {
+        let (s, e) = (served[sun.direction], exact[sun.direction]);
+        if s.is_nan() || e.is_nan() {
+            continue;
+        }
+        total += sun.weight;
+        if shade_differs(sun.elevation, s, e) {
+            wrong += sun.weight;
+        }
+    }
+    if total > 0.0 {
+        100.0 * wrong / total
+    } else {
+        0.0
+    }
+}
+
 /// The value at `p` percent of sorted `v` (0 when empty).
 pub fn percentile(v: &[f64], p: usize) -> f64 {
     if v.is_empty() {

@@ -8,4 +8,5 @@ pub mod horizons;
 pub mod ingest;
 pub mod pyramid;
 pub mod sky;
+pub mod solar;
 pub mod viewshed;
