@@ -10,17 +10,19 @@
 # if missing.
 #
 #   bash pipelines/solar/compare_rsun.sh [OUT] [DEM ...]
-# (default: the bundled tile, and ../shared/data/jacksboro_utm80_f32.tif
-# where it exists)
+# (default: the bundled tile, and ../shared/data's UTM copy of it and
+# jacksboro_utm80_f32.tif where they exist; SECTORS=32 line directions)
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 OUT=$(realpath -m "${1:-target/solar-vs-rsun}"); shift || true
 DEMS=("$@")
 if [ ${#DEMS[@]} -eq 0 ]; then
   DEMS=(data/srtm3_n07w006_geographic_int16.tif)
-  [ -f ../shared/data/jacksboro_utm80_f32.tif ] && DEMS+=(../shared/data/jacksboro_utm80_f32.tif)
+  for extra in srtm3_n07w006_utm90_f32 jacksboro_utm80_f32; do
+    [ -f "../shared/data/$extra.tif" ] && DEMS+=("../shared/data/$extra.tif")
+  done
 fi
-SECTORS=${SECTORS:-64}
+SECTORS=${SECTORS:-32}
 CORES=$(nproc)
 BIN=$(realpath target/release/terrabake)
 mkdir -p "$OUT"
