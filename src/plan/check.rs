@@ -38,7 +38,7 @@ use terrabake_format::{Asset, Mmap};
 use crate::error::bail;
 use crate::plan::budget::Budget;
 pub use crate::plan::reference::{percentile, Pilot, Sampling};
-use crate::plan::reference::{shade_differs, solar_error, SolarSun};
+use crate::plan::reference::{shade_differs, solar_error, PilotSun};
 use crate::plan::{Baked, Candidate};
 use crate::plumbing::progress::Progress;
 use crate::stage::session::{Run, Session};
@@ -291,13 +291,9 @@ fn check_horizons(
         .iter()
         .map(|&[az, el]| (pilot.nearest_direction(az), el))
         .collect();
-    let solar: Vec<SolarSun> = solar
+    let solar: Vec<PilotSun> = solar
         .iter()
-        .map(|&([az, el], weight)| SolarSun {
-            direction: pilot.nearest_direction(az),
-            elevation: el,
-            weight,
-        })
+        .map(|&(position, weight)| pilot.sun(position, weight))
         .collect();
     // Per post: the signed horizon errors at every reference azimuth (those
     // at the DEM's edge apart), the svf error, and the wrong sun/shade

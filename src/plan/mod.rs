@@ -82,7 +82,7 @@ use crate::algorithms::horizon::{Band, BandKind, Method};
 use crate::error::bail;
 use crate::plan::budget::{Budget, Need, Needs, Request};
 use crate::plan::reference::{
-    quantile_unsorted, shade_differs, solar_error, solar_year, Pilot, Sampling, SolarSun,
+    quantile_unsorted, shade_differs, solar_error, solar_year, Pilot, PilotSun, Sampling,
 };
 use crate::plumbing::progress::Progress;
 use crate::stage::Stage;
@@ -348,18 +348,11 @@ fn zstd_height_bytes(asset: &Asset<Mmap>, tile: usize) -> Result<u64> {
     Ok(stored * bands.len() as u64 / sampled.max(1))
 }
 
-/// A sun position as the pilot sees it: the nearest reference direction.
-#[derive(Debug, Clone, Copy)]
-struct PilotSun {
-    direction: usize,
-    elevation: f64,
-}
-
-/// The suns the pilot weighs: the shade's positions, and the solar
-/// budget's year.
+/// The suns the pilot weighs: the shade's positions (each weighing 1),
+/// and the solar budget's year.
 struct PilotSuns {
     shade: Vec<PilotSun>,
-    solar: Vec<SolarSun>,
+    solar: Vec<PilotSun>,
 }
 
 /// The errors a bake would make at the pilot's posts: the horizon's
@@ -587,18 +580,11 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
         let suns = PilotSuns {
             shade: sun
                 .iter()
-                .map(|&[az, el]| PilotSun {
-                    direction: pilot.nearest_direction(az),
-                    elevation: el,
-                })
+                .map(|&position| pilot.sun(position, 1.0))
                 .collect(),
             solar: solar_suns
                 .iter()
-                .map(|&([az, el], weight)| SolarSun {
-                    direction: pilot.nearest_direction(az),
-                    elevation: el,
-                    weight,
-                })
+                .map(|&(position, weight)| pilot.sun(position, weight))
                 .collect(),
         };
         let added = Instant::now();

@@ -17,6 +17,7 @@
 //! (`brute::line_horizon_records_below`: the same records;
 //! docs/BENCHMARKS.md has what each saves).
 
+use crate::terrain::sun::SunPosition;
 use std::collections::HashSet;
 
 use rayon::prelude::*;
@@ -312,6 +313,16 @@ impl Pilot {
             .unwrap_or(0)
     }
 
+    /// The sun at `[azimuth, elevation]` (degrees), weighing `weight`, at
+    /// its nearest reference direction.
+    pub(crate) fn sun(&self, [azimuth, elevation]: SunPosition, weight: f64) -> PilotSun {
+        PilotSun {
+            direction: self.nearest_direction(azimuth),
+            elevation,
+            weight,
+        }
+    }
+
     /// Zakšek's sky-view factor of a post's reference horizons (the first
     /// of its `exact`).
     pub fn svf(&self, exact: &[f64]) -> f64 {
@@ -328,10 +339,11 @@ pub(crate) fn shade_differs(elevation: f64, served: f64, exact: f64) -> bool {
     (elevation > served) != (elevation > exact)
 }
 
-/// A sun position the solar budget weighs: the reference direction nearest
-/// its azimuth, its elevation (degrees) and its weight.
+/// A sun position as the pilot and the check see it: the reference
+/// direction nearest its azimuth, its elevation (degrees) and its weight
+/// (1 for a shade position; the solar budget's are weighed).
 #[derive(Debug, Clone, Copy)]
-pub(crate) struct SolarSun {
+pub(crate) struct PilotSun {
     pub direction: usize,
     pub elevation: f64,
     pub weight: f64,
@@ -341,7 +353,7 @@ pub(crate) struct SolarSun {
 /// 21st of each month at `latitude` (degrees), weighted by the clear-sky
 /// beam on a horizontal surface at sea level (Linke 3, W/m^2), which is
 /// what a wrong shadow there takes or adds.
-pub(crate) fn solar_year(latitude: f64) -> Vec<(crate::terrain::sun::SunPosition, f64)> {
+pub(crate) fn solar_year(latitude: f64) -> Vec<(SunPosition, f64)> {
     use crate::algorithms::solar::{beam_transmittance, day_steps, relative_air_mass};
     let phi = latitude.to_radians().sin_cos();
     (0..12u32)
@@ -366,7 +378,7 @@ pub(crate) fn solar_year(latitude: f64) -> Vec<(crate::terrain::sun::SunPosition
 /// `exact` ones do not: the solar budget's error at one post, an upper
 /// bound of its global irradiation's (the beam is part of the global). Suns
 /// where either horizon is unknown count for neither.
-pub(crate) fn solar_error(suns: &[SolarSun], served: &[f64], exact: &[f64]) -> f64 {
+pub(crate) fn solar_error(suns: &[PilotSun], served: &[f64], exact: &[f64]) -> f64 {
     let (mut wrong, mut total) = (0.0, 0.0);
     for sun in suns {
         let (s, e) = (served[sun.direction], exact[sun.direction]);

@@ -457,7 +457,10 @@ impl Stage for SolarStage {
         let periods = self.periods().len() as u64;
         let threads = rayon::current_num_threads() as u64;
         let tile_row = (ts + 2) * w * 4 + 2 * SolarLayer::ALL.len() as u64 * periods * ts * w * 4;
-        let per_thread = w * (bands * 4 + 30 * 8 + 7 * 8 + 8);
+        // A row of every band, the kernel's sums at three levels, the
+        // normals (f64 and f32), the levels' weights and the row's values.
+        let kept = (crate::algorithms::solar::LEVELS * crate::algorithms::solar::COMPONENTS) as u64;
+        let per_thread = w * (bands * 4 + kept * 8 + 7 * 8 + 8);
         Some(tile_row + threads * per_thread)
     }
 

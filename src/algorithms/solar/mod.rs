@@ -29,7 +29,7 @@ pub mod shadow;
 
 use terrabake_format::horizons::bands_around;
 
-use crate::terrain::sun::{direction_of, julian_day, ut_of_solar_time, SolarCoordinates};
+use crate::terrain::sun::{direction_of, julian_day, ut_of_solar_time, SolarCoordinates, Sun};
 
 /// The solar constant r.sun takes, W/m^2.
 pub const SOLAR_CONSTANT: f64 = 1367.0;
@@ -270,7 +270,7 @@ impl RowDay {
         for (sun, g0) in suns {
             let sin_h0 = sun[2];
             let h0 = sin_h0.clamp(-1.0, 1.0).asin();
-            let azimuth = sun[0].atan2(sun[1]).to_degrees().rem_euclid(360.0);
+            let Sun { azimuth, .. } = Sun::from_direction(sun);
             let (i, j, f) = bands_around(azimuths, azimuth);
             day.steps.push(RowStep {
                 sun,

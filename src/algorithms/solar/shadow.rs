@@ -43,20 +43,16 @@ pub fn sunlit(h0: f32, h1: f32, step: &RowStep, normal: [f64; 3]) -> bool {
 /// Lanes' test at one step, as bit masks: bit `l` of the first is set where
 /// lane `l` is sunlit by the `f32` test, of the second where that test is
 /// too near to call. One definition ([`masks_portable`]); the AVX2 path
-/// computes the same with a vector compare and a move-mask per eight
-/// lanes, which the compiler does not find in the portable loop (it
-/// gathered the bits one by one: four fifths of the kernel's time).
-#[inline(always)]
-fn masks(h0: &[f32], h1: &[f32], step: &RowStep, normal: &[[f32; LANES]; 3]) -> (u32, u32) {
-    #[cfg(target_arch = "x86_64")]
-    if crate::plumbing::simd::level() >= crate::plumbing::simd::Level::Avx2 {
-        // SAFETY: the CPU has AVX2; both slices hold LANES values.
-        return unsafe { masks_avx2(h0, h1, step, normal) };
-    }
-    masks_portable(h0, h1, step, normal)
-}
+/// ([`masks_avx2`]) computes the same with a vector compare and a
+/// move-mask per eight lanes, which the compiler does not find in the
+/// portable loop (it gathered the bits one by one: four fifths of the
+/// kernel's time). [`ShadowRow::add_day`] picks one per row and day.
+trait Masks: Fn(&[f32], &[f32], &RowStep, &[[f32; LANES]; 3]) -> (u32, u32) {}
 
-/// The `f32` test of [`masks`], lane by lane.
+impl<F: Fn(&[f32], &[f32], &RowStep, &[[f32; LANES]; 3]) -> (u32, u32)> Masks for F {}
+
+/// The `f32` test, lane by lane.
+#[inline(always)]
 fn masks_portable(
     h0: &[f32],
     h1: &[f32],
@@ -80,6 +76,7 @@ fn masks_portable(
 }
 
 /// [`masks_portable`] in AVX2, eight lanes at a time.
+#[inline]
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn masks_avx2(
@@ -190,21 +187,23 @@ impl<'a> ShadowRow<'a> {
         let axis = |a: usize| normals.iter().map(|n| n[a]).collect::<Vec<f64>>();
         let normal = [axis(0), axis(1), axis(2)];
         let normal32 = [0, 1, 2].map(|a| normal[a].iter().map(|&v| v as f32).collect());
+        let (base, level) = z
+            .iter()
+            .map(|&z| {
+                let (lowest, weights) = levels_around(f64::from(z));
+                // A post without a height keeps level 0 (its sums unread).
+                let base = (lowest - levels.0).clamp(0, levels.1 as i64 - LEVELS as i64);
+                (base as usize, weights)
+            })
+            .unzip();
         Self {
             width,
             angles,
             clear_above,
             normal32,
             normal,
-            base: z
-                .iter()
-                .map(|&z| {
-                    let (lowest, _) = levels_around(f64::from(z));
-                    // A post without a height keeps level 0 (its sums unread).
-                    (lowest - levels.0).clamp(0, levels.1 as i64 - LEVELS as i64) as usize
-                })
-                .collect(),
-            level: z.iter().map(|&z| levels_around(f64::from(z)).1).collect(),
+            base,
+            level,
             levels,
             sums: vec![0.0; KEPT * width],
             ends: vec![0.0; levels.1 * COMPONENTS],
@@ -261,17 +260,24 @@ impl<'a> ShadowRow<'a> {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f")]
     unsafe fn add_day_avx512(&mut self, day: &RowDay) {
-        self.add_day_portable(day);
+        // SAFETY: AVX-512 F implies AVX2 (`simd::level` checks both).
+        self.add_day_with(day, |a, b, s, n| unsafe { masks_avx2(a, b, s, n) });
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     unsafe fn add_day_avx2(&mut self, day: &RowDay) {
-        self.add_day_portable(day);
+        // SAFETY: the function is compiled for AVX2, which the CPU has.
+        self.add_day_with(day, |a, b, s, n| unsafe { masks_avx2(a, b, s, n) });
     }
 
-    #[inline(always)]
     fn add_day_portable(&mut self, day: &RowDay) {
+        self.add_day_with(day, masks_portable);
+    }
+
+    /// The day through every post, the chunks' steps tested by `masks`.
+    #[inline(always)]
+    fn add_day_with(&mut self, day: &RowDay, masks: impl Masks) {
         let w = self.width;
         assert_eq!((day.first, day.count), self.levels, "the row's levels");
         self.diffuse_horizontal += day.diffuse_horizontal;
@@ -289,7 +295,7 @@ impl<'a> ShadowRow<'a> {
         }
         let whole = w - w % LANES;
         for x0 in (0..whole).step_by(LANES) {
-            self.add_day_lanes(x0, day);
+            self.add_day_lanes(x0, day, &masks);
         }
         for x in whole..w {
             self.add_day_post(x, day);
@@ -298,7 +304,7 @@ impl<'a> ShadowRow<'a> {
 
     /// Posts `x0..x0 + LANES` through the day.
     #[inline(always)]
-    fn add_day_lanes(&mut self, x0: usize, day: &RowDay) {
+    fn add_day_lanes(&mut self, x0: usize, day: &RowDay, masks: &impl Masks) {
         let (w, angles) = (self.width, self.angles);
         let clear_above = self.clear_above[x0 / LANES];
         let n32: [[f32; LANES]; 3] = [0, 1, 2].map(|a| {
