@@ -52,5 +52,6 @@ echo "r.sun beam irradiance at 9:00 on day 355 over $n posts: mean $ours W/m2 wi
 awk -v a="$ours" -v b="$theirs" -v n="$n" -v c="$cells" 'BEGIN {
   d = (a - b) / b; if (d < 0) d = -d
   if (n != c) { print "check_grass.sh: r.sun left " c - n " posts null"; exit 1 }
-  if (d > 0.05) { printf "check_grass.sh: means differ by %.1f%%\n", 100 * d; exit 1 }
+  # 1.8 % apart while negative horizons wrapped in the bytes of r.sun; the same since.
+  if (d > 0.005) { printf "check_grass.sh: means differ by %.2f%%\n", 100 * d; exit 1 }
   printf "check_grass.sh: ok (means within %.2f%%)\n", 100 * d }'

@@ -8,7 +8,11 @@
 //! underscore (`horizon_000_0`, `horizon_022_5` for a step of 22.5;
 //! `horizon_000`, `horizon_030` for 30). The angle counts counter-clockwise
 //! from east (ours: clockwise from north, so `grass = 90 - compass`), and
-//! the values are the horizon's elevation angle in radians.
+//! the values are the horizon's elevation angle in radians, clamped at 0:
+//! r.sun stores each one in an unsigned byte, where a negative angle
+//! wraps round to a horizon near the zenith (a ridge post's view down into
+//! a valley would shade it all day). `terrabake export --layer horizon`
+//! without `--for grass` keeps the negative angles.
 //!
 //! We write each direction as a single-band COG named so that
 //! `r.in.gdal` or `r.import` imports it under the map name `r.sun` expects.
@@ -159,7 +163,14 @@ pub(crate) fn export_horizons(
                         *a = between(f64::from(*a), f64::from(*b), t) as f32;
                     }
                 }
-                rows.iter_mut().for_each(|v| *v = v.to_radians());
+                // r.sun keeps each horizon as one unsigned byte of 1/150 rad
+                // (main.c, INPUT_part), so a negative angle wraps to about
+                // 95 degrees and shades that direction all day. It never
+                // weighs a sun below the horizontal, so 0 reads the same;
+                // `< 0.0` keeps nodata's NaN.
+                for v in rows.iter_mut() {
+                    *v = if *v < 0.0 { 0.0 } else { v.to_radians() };
+                }
                 Ok(())
             },
             |n| bar.inc(n),
