@@ -51,6 +51,8 @@ demo: build
 	  --chart "docs/charts/horizons_svf.svg=Sky-view factor error against bake time (make bench-horizons)" \
 	  --chart "docs/charts/cones_speed.svg=Parametric tracing: rays per second against cone slices (make bench-cones)" \
 	  --chart "docs/charts/trace_scaling_time.svg=Time per ray against DEM size, every tracer (make bench-trace)" \
+	  --chart "docs/charts/solar_jacksboro_utm80_f32.svg=Solar: day 172's irradiation error against time, our direction counts beside GRASS r.sun on Jacksboro (pipelines/solar/chart_rsun.sh)" \
+	  --chart "docs/charts/solar_vs_rsun_172.png=Our day 172 against r.sun's own shadowing, per cent, on two projected DEMs (pipelines/solar/compare_rsun.sh)" \
 	  --text "$(OUT)/srtm_view.stats.txt=The view's tracing statistics" \
 	  --text "$(OUT)/srtm.check.txt=terrabake check: the baked horizons, cone planes and tracers against exact references from the heights" \
 	  --text "$(OUT)/srtm.verify.txt=terrabake verify"

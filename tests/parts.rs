@@ -56,7 +56,8 @@ fn dem(dir: &Path) -> PathBuf {
 }
 
 /// Recipes that between them take every stage down every split: rows
-/// (ingest, bounded line and sector horizons, sky), bands (unbounded line
+/// (ingest, bounded line and sector horizons, sky, solar: its groups of
+/// rows that share a sun path cut anew by every part), bands (unbounded line
 /// and sector horizons) and the join (pyramid, cones, the edge count, sky
 /// after band-split horizons).
 const RECIPES: [&str; 4] = [
@@ -86,6 +87,10 @@ method = "line"
 distance = true
 [[stage]]
 name = "sky"
+[[stage]]
+name = "solar"
+days = "172"
+step_minutes = 30
 "#,
     r#"[ingest]
 tile = 16

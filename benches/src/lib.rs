@@ -1,5 +1,5 @@
 //! The benchmark harnesses behind `terrabake-bench` (`src/main.rs`): what
-//! `views`, `cones`, `horizons`, `plan` and `visibility` measure and how they print and chart
+//! `views`, `cones`, `horizons`, `plan`, `visibility` and `solar` measure and how they print and chart
 //! it (docs/BENCHMARKS.md has the figures and the commands).
 //!
 //! - [`views`]: the tracers over the sixteen oblique views (Paglieroni and
@@ -12,6 +12,8 @@
 //!   against the same reference (`make bench-peers`).
 //! - [`plan`]: planned bakes, their achieved error and cost against the
 //!   budget.
+//! - [`solar`]: the solar panel, from the points `r.sun` beside us gives
+//!   (pipelines/solar/chart_rsun.sh).
 //! - [`markdown_table`] and [`chart`]: the one table writer and the one
 //!   chart writer they all use.
 
@@ -20,6 +22,7 @@ pub mod cones;
 pub mod horizons;
 pub mod peers;
 pub mod plan;
+pub mod solar;
 pub mod views;
 pub mod visibility;
 

@@ -53,6 +53,12 @@ enum Command {
     /// Timonen's tables on our terrains: visible points, horizons and iterations per point, sweep
     /// times against the naive method, scaling with line length, error against directions.
     Visibility(terrabake_bench::visibility::BenchVisibilityArgs),
+    /// Chart the solar stage beside GRASS r.sun: error of day 172's irradiation against its
+    /// seconds, from the points pipelines/solar/chart_rsun.sh measures.
+    #[command(
+        after_help = "Example:\n  bash pipelines/solar/chart_rsun.sh target/solar-chart\n  terrabake-bench solar target/solar-chart/points.tsv --chart docs/charts/solar"
+    )]
+    Solar(terrabake_bench::solar::BenchSolarArgs),
 }
 
 fn main() -> ExitCode {
@@ -71,6 +77,7 @@ fn main() -> ExitCode {
             Command::Views(args) => args.run(&say),
             Command::Plan(args) => args.run(&say),
             Command::Visibility(args) => args.run(&say),
+            Command::Solar(args) => args.run(&say),
         }
     };
     match run() {

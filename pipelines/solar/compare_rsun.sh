@@ -5,9 +5,11 @@
 # machine's cores. Prints markdown rows for docs/BENCHMARKS.md (seconds,
 # and the mean and 95th percentile of |ours - r.sun| / r.sun of the daily
 # global irradiation, per cent, over the posts both compute) and writes the
-# day-172 difference map (ours - r.sun with its own shadowing, per cent)
-# to OUT/solar_vs_rsun_172.tif. GRASS is installed from Debian's packages
-# if missing.
+# day-172 difference maps (ours - r.sun with its own shadowing, per cent)
+# to OUT/solar_vs_rsun_172_DEM.tif, and the projected DEMs' side by side
+# with a legend to OUT/solar_vs_rsun_172.png (the demo page shows the copy
+# in docs/charts/). GRASS is installed from Debian's packages if missing;
+# the map's Python from PyPI (pipelines/solar/venv.sh).
 #
 #   bash pipelines/solar/compare_rsun.sh [OUT] [DEM ...]
 # (default: the bundled tile, and ../shared/data's UTM copy of it and
@@ -23,16 +25,8 @@ if [ ${#DEMS[@]} -eq 0 ]; then
   done
 fi
 SECTORS=${SECTORS:-32}
-CORES=$(nproc)
-BIN=$(realpath target/release/terrabake)
 mkdir -p "$OUT"
-if ! command -v grass >/dev/null; then
-  echo "installing GRASS (Debian's grass-core)..." >&2
-  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends grass-core >/dev/null
-fi
-cargo build --release --locked -q
-now() { date +%s.%N; }
-secs() { echo "$2 - $1" | bc; }
+source pipelines/solar/common.sh
 
 echo "| DEM | day | r.sun shadowing | r.sun s | terrabake s (horizons + sky + day) | mean abs diff % | p95 abs diff % |"
 echo "|---|---|---|---:|---:|---:|---:|"
@@ -56,12 +50,8 @@ for dem in "${DEMS[@]}"; do
   year_s=$(secs "$t0" "$(now)")
   "$BIN" --quiet export "$work/a.tbake" --layer horizon --for grass -o "$work/hz"
   step=$(echo "scale=6; 360 / $SECTORS" | bc | sed 's/0*$//; s/\.$//')
-  cat >"$work/grass.sh" <<SH
-set -euo pipefail
-export GRASS_OVERWRITE=1 GRASS_VERBOSE=0
-r.in.gdal --quiet input=$dem output=dem
-g.region raster=dem
-r.slope.aspect elevation=dem slope=slope aspect=aspect
+  grass_script "$dem" >"$work/grass.sh"
+  cat >>"$work/grass.sh" <<SH
 for f in $work/hz/horizon_*.tif; do r.in.gdal --quiet input=\$f output=\$(basename \$f .tif); done
 for day in 80 172 355; do
   r.in.gdal --quiet input=$work/ours_\$day.tif band=1 output=ours_\$day
@@ -81,8 +71,7 @@ for day in 80 172 355; do
   done
 done
 SH
-  grass -c "$dem" "$work/db/loc" --exec bash "$work/grass.sh" >"$work/grass.log" 2>&1 || {
-    echo "compare_rsun.sh: GRASS failed:" >&2; tail -20 "$work/grass.log" >&2; exit 1; }
+  run_grass "$dem" "$work"
   grep '^row ' "$work/grass.log" | while read -r _ day how rsun mean p95; do
     printf "| %s | %s | %s | %.1f | %.2f | %.2f | %.2f |\n" "$name" "$day" "$how" "$rsun" \
       "$(echo "$horizons_s + ${ours_s[$day]}" | bc)" "$mean" "$p95"
@@ -91,3 +80,12 @@ SH
     "$(echo "$horizons_s + $year_s" | bc)" "$year_s"
   rm -rf "$work"
 done
+maps=()
+for f in "$OUT"/solar_vs_rsun_172_*.tif; do
+  name=$(basename "$f" .tif); name=${name#solar_vs_rsun_172_}
+  # r.sun's own shadowing is wrong on geographic grids (docs/BENCHMARKS.md).
+  [[ $name == *geographic* ]] || maps+=("$name=$f")
+done
+if [ ${#maps[@]} -gt 0 ]; then
+  "$(bash pipelines/solar/venv.sh)" pipelines/solar/difference_map.py "$OUT/solar_vs_rsun_172.png" 2 "${maps[@]}"
+fi

@@ -714,6 +714,68 @@ fn bake(
     serde_json::to_string(&outcomes).map_err(|e| raise(anyhow::Error::new(e)))
 }
 
+/// Runs the solar stage on the asset at `path` (after the sky stage where
+/// it has no `svf_cosine`), as `terrabake solar` does; `params` is the
+/// stage's parameters as JSON, a recipe's keys (unknown keys refused).
+/// Returns the stage records as JSON.
+#[pyfunction]
+#[pyo3(signature = (path, params, force = false))]
+fn solar(py: Python<'_>, path: PathBuf, params: &str, force: bool) -> PyResult<String> {
+    let stage: terrabake::stages::solar::SolarStage =
+        serde_json::from_str(params).map_err(|e| ParameterError::new_err(format!("solar: {e}")))?;
+    let outcomes = guarded("solar", || {
+        Ok(py.detach(|| {
+            terrabake::bake::recipe::solar_after_sky(
+                &path,
+                &stage,
+                force,
+                terrabake::stage::asset::Wait::unless(false),
+                terrabake::plumbing::progress::Progress::new(true),
+            )
+        }))
+    })?
+    .map_err(raise)?;
+    serde_json::to_string(&outcomes).map_err(|e| raise(anyhow::Error::new(e)))
+}
+
+/// HORAYZON's terrain correction factor for direct shortwave of the asset
+/// at `path`, one plane per `(azimuth, elevation)` in `suns` (true
+/// azimuth, degrees): float32 (suns, rows, columns), as `terrabake solar
+/// --sun` writes it.
+#[pyfunction]
+#[pyo3(signature = (path, suns, per_horizontal_area = false))]
+fn direct_correction<'py>(
+    py: Python<'py>,
+    path: PathBuf,
+    suns: Vec<(f64, f64)>,
+    per_horizontal_area: bool,
+) -> PyResult<Bound<'py, PyArray3<f32>>> {
+    let suns = suns
+        .iter()
+        .map(|&(az, el)| {
+            terrabake::stage::args::parse_sun(&format!("{az},{el}"))
+                .map_err(|e| PyValueError::new_err(format!("suns: {e}")))
+        })
+        .collect::<PyResult<Vec<_>>>()?;
+    let values = guarded("direct_correction", || {
+        Ok(py.detach(|| -> terrabake::Result<Array3<f32>> {
+            let asset = terrabake::stage::asset::open(&path)?;
+            let mut correction = terrabake::export::correction::Correction::new(&asset)?;
+            correction.per_horizontal_area = per_horizontal_area;
+            let m = asset.manifest();
+            let (h, w) = (m.height as usize, m.width as usize);
+            let mut all = Array3::<f32>::zeros((suns.len(), h, w));
+            for (sun, mut plane) in suns.iter().zip(all.outer_iter_mut()) {
+                let out = plane.as_slice_mut().expect("a fresh array is contiguous");
+                correction.rows(*sun, 0, out)?;
+            }
+            Ok(all)
+        }))
+    })?
+    .map_err(raise)?;
+    Ok(values.into_pyarray(py))
+}
+
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Asset>()?;
@@ -721,6 +783,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(horizons, m)?)?;
     m.add_function(wrap_pyfunction!(sky_view_factor, m)?)?;
     m.add_function(wrap_pyfunction!(bake, m)?)?;
+    m.add_function(wrap_pyfunction!(solar, m)?)?;
+    m.add_function(wrap_pyfunction!(direct_correction, m)?)?;
     m.add("Error", m.py().get_type::<Error>())?;
     m.add("AssetError", m.py().get_type::<AssetError>())?;
     m.add("SourceError", m.py().get_type::<SourceError>())?;

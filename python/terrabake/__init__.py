@@ -3,8 +3,10 @@
 Read baked assets as numpy arrays (``terrabake.open``) or xarray
 DataArrays with rioxarray's georeferencing (``terrabake.to_xarray``),
 compute horizons and sky-view factors of numpy or xarray DEMs without
-files (``terrabake.horizons``, ``terrabake.sky_view_factor``), and bake
-DEMs into assets (``terrabake.bake``). Every value comes from the same
+files (``terrabake.horizons``, ``terrabake.sky_view_factor``), bake
+DEMs into assets (``terrabake.bake``), and turn an asset's horizons into
+sunlight: irradiation and sun hours over days (``terrabake.solar``) and
+HORAYZON's direct-shortwave correction factor (``terrabake.direct_correction``). Every value comes from the same
 Rust code as the ``terrabake`` command line, with the same defaults, so
 both give the same numbers.
 
@@ -47,11 +49,22 @@ __all__ = [
     "TerrabakeError",
     "__version__",
     "bake",
+    "direct_correction",
     "horizons",
     "open",
     "sky_view_factor",
+    "solar",
     "to_xarray",
 ]
+
+#: The names :func:`solar` returns, and the layers they are read from.
+_SOLAR_LAYERS = {
+    "global": "solar_global",
+    "beam": "solar_beam",
+    "diffuse": "solar_diffuse",
+    "reflected": "solar_reflected",
+    "sun_hours": "sun_hours",
+}
 
 #: The atmosphere's refraction coefficient the command line assumes.
 DEFAULT_REFRACTION = 0.13
@@ -232,6 +245,112 @@ def sky_view_factor(
     """
     values, size, curved = _prepared(dem, cell_size, nodata, crs, transform, curvature)
     return _native.sky_view_factor(values, size, sectors, method, max_distance, curved, refraction, progress)
+
+
+def _path_of(asset: _typing.Any) -> str:
+    import os
+
+    return os.fspath(asset.path if isinstance(asset, Asset) else asset)
+
+
+def solar(
+    asset: _typing.Any,
+    days: _typing.Union[int, str] = "year",
+    *,
+    monthly: bool = False,
+    step: float = 15.0,
+    linke: float = 3.0,
+    linke_monthly: _typing.Optional[_typing.Sequence[float]] = None,
+    albedo: float = 0.2,
+    lat: _typing.Optional[float] = None,
+    lon: _typing.Optional[float] = None,
+    between: _typing.Optional[_typing.Tuple[float, float]] = None,
+    calendar_year: _typing.Optional[int] = None,
+    force: bool = False,
+) -> _typing.Dict[str, _typing.Any]:
+    """Clear-sky irradiation and sun hours from an asset's horizons, as ``terrabake solar``.
+
+    Bakes the ``solar`` stage into the asset (and the ``sky`` stage first
+    where the asset has no ``svf_cosine``; the horizons must be baked), then
+    returns its layers. The model is GRASS r.sun's (docs/SOLAR.md).
+
+    Parameters
+    ----------
+    asset
+        An :class:`Asset` or the path of an asset directory.
+    days
+        A day of the year (``172``), a range (``"80-100"``) or ``"year"``;
+        the values are the mean day over them.
+    monthly
+        One band per month the days touch instead of one for the period.
+    step
+        Minutes between sun positions.
+    linke, linke_monthly
+        The Linke turbidity factor, or twelve of them, January first.
+    albedo
+        Ground albedo for the reflected part.
+    lat, lon
+        Degrees; needed only where the asset's CRS is neither geographic
+        nor WGS 84 UTM.
+    between
+        ``(from, to)`` hours of local solar time: only the steps within.
+    calendar_year
+        The year the days are of (default 2026).
+    force
+        Recompute even where the asset's solar layers are up to date.
+
+    Returns
+    -------
+    dict
+        ``global``, ``beam``, ``diffuse``, ``reflected`` (Wh/m^2 per day)
+        and ``sun_hours`` (hours per day): float32 (rows, columns), or
+        (months, rows, columns) with ``monthly``; NaN at nodata posts.
+    """
+    import json
+
+    params: _typing.Dict[str, _typing.Any] = {
+        "days": str(days),
+        "monthly": monthly,
+        "step_minutes": step,
+        "linke": linke,
+        "albedo": albedo,
+    }
+    if linke_monthly is not None:
+        params["linke_monthly"] = [float(t) for t in linke_monthly]
+    if lat is not None:
+        params["latitude"] = lat
+    if lon is not None:
+        params["longitude"] = lon
+    if between is not None:
+        params["between"] = [float(between[0]), float(between[1])]
+    if calendar_year is not None:
+        params["calendar_year"] = calendar_year
+    path = _path_of(asset)
+    _native.solar(path, json.dumps(params), force)
+    baked = open(path)
+    return {short: baked.read(layer) for short, layer in _SOLAR_LAYERS.items()}
+
+
+def direct_correction(
+    asset: _typing.Any,
+    suns: _typing.Sequence[_typing.Tuple[float, float]],
+    *,
+    per_horizontal_area: bool = False,
+) -> _typing.Any:
+    """HORAYZON's terrain correction factor for direct shortwave, one plane per sun position.
+
+    ``suns`` are ``(azimuth, elevation)`` pairs in degrees, the azimuth
+    true, clockwise from north. Each plane holds, per post, the direct
+    irradiance on its surface over that on a flat open plane: 0 where the
+    sun is below the stored horizon or behind the surface, else
+    ``n . s / sin(elevation)`` (capped at 25, the elevation held at 0.5
+    degrees, as HORAYZON does). ``per_horizontal_area`` multiplies by
+    HORAYZON's surface enlargement factor ``1 / cos(slope)``. Returns
+    float32 (suns, rows, columns), NaN at nodata posts; the same values
+    ``terrabake solar --sun`` writes.
+    """
+    pairs = [(float(az), float(el)) for az, el in suns]
+    return _native.direct_correction(_path_of(asset), pairs, per_horizontal_area)
 
 
 def to_xarray(asset: Asset, name: str, level: int = 0) -> _typing.Any:

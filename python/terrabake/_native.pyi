@@ -101,3 +101,11 @@ def bake(
     that fails otherwise raises Error, and a planned one removes the asset it
     created."""
 
+
+def solar(path: str, params: str, force: bool = False) -> str:
+    """Runs the solar stage (after sky where needed); params and the result are JSON."""
+
+def direct_correction(
+    path: str, suns: list[tuple[float, float]], per_horizontal_area: bool = False
+) -> npt.NDArray[np.float32]:
+    """HORAYZON's direct-shortwave correction factor, (suns, rows, columns)."""

@@ -430,3 +430,48 @@ def test_geographic_cog_keeps_the_crs(tmp: Path) -> None:
         np.testing.assert_array_equal(ds.ReadAsArray(), asset.read("height"))
     finally:
         ds = None
+
+
+def test_solar_equals_the_cli_and_its_errors_are_the_cli_s(tmp: Path) -> None:
+    import shutil
+
+    source = baked(tmp, "line")
+    ours, theirs = tmp / "solar-py.tbake", tmp / "solar-cli.tbake"
+    for copy in (ours, theirs):
+        shutil.rmtree(copy, ignore_errors=True)
+        shutil.copytree(source, copy)
+    cli("solar", theirs, "--day", "172", "--lat", "46", "--lon", "7")
+    got = terrabake.solar(ours, 172, lat=46, lon=7)
+    assert set(got) == {"global", "beam", "diffuse", "reflected", "sun_hours"}
+    want = terrabake.open(theirs)
+    for short, layer in [("global", "solar_global"), ("sun_hours", "sun_hours")]:
+        np.testing.assert_array_equal(got[short], want.read(layer))
+    assert np.nanmax(got["sun_hours"]) > 14 and np.nanmin(got["global"]) >= 0
+    months = terrabake.solar(terrabake.open(ours), "150-200", monthly=True, lat=46)
+    assert months["global"].shape == (3, *got["global"].shape)  # May, June, July
+    # The DEM has no georeferencing: the CLI's message, naming --lat.
+    with pytest.raises(terrabake.Error, match="--lat"):
+        terrabake.solar(ours, 172, force=True)
+    with pytest.raises(terrabake.Error, match="step"):
+        terrabake.solar(ours, 172, lat=46, step=7)
+
+
+def test_direct_correction_equals_the_command(tmp: Path) -> None:
+    asset = baked(tmp, "line")
+    suns = [(180.0, 30.0), (90.0, 8.0)]
+    f = terrabake.direct_correction(asset, suns)
+    rows, cols = terrabake.open(asset).shape
+    assert f.shape == (2, rows, cols) and f.dtype == np.float32
+    assert np.nanmin(f) == 0 and 0 < np.nanmax(f) <= 25
+    # Low sun from the east: more of the terrain in shadow than at noon.
+    assert (f[1] == 0).sum() > (f[0] == 0).sum()
+    horizontal = terrabake.direct_correction(asset, suns, per_horizontal_area=True)
+    assert np.all(horizontal >= f)
+    out = tmp / "correction.tif"
+    cli("solar", asset, "--sun", "180,30", "--sun", "90,8", "-o", out)
+    gdal = pytest.importorskip("osgeo.gdal")
+    ds = gdal.Open(str(out))
+    assert ds.RasterCount == 2
+    np.testing.assert_array_equal(ds.GetRasterBand(1).ReadAsArray(), f[0])
+    with pytest.raises(ValueError, match="elevation"):
+        terrabake.direct_correction(asset, [(180.0, 95.0)])

@@ -423,3 +423,28 @@ fn plan_ingested(
         progress,
     )?)
 }
+
+/// The solar stage on the asset at `dir`, after the sky stage where the
+/// asset has no `svf_cosine` yet, under one writer: what `terrabake solar`
+/// and Python's `terrabake.solar` run. The outcomes in order, the solar
+/// stage's last.
+pub fn solar_after_sky(
+    dir: &Path,
+    stage: &crate::stages::solar::SolarStage,
+    force: bool,
+    wait: Wait,
+    progress: Progress,
+) -> crate::Result<Vec<StageOutcome>> {
+    let has_svf_cosine = crate::stage::asset::open(dir)?
+        .manifest()
+        .layer(terrabake_format::layers::SVF_COSINE, 0)
+        .is_some();
+    let sky = crate::stages::sky::SkyStage::default();
+    let mut stages: Vec<(&dyn Stage, bool)> = Vec::new();
+    if !has_svf_cosine {
+        stages.push((&sky, false));
+    }
+    stages.push((stage, force));
+    let writer = AssetWriter::open(dir, wait)?;
+    run_stages_in(&writer, &stages, progress, &mut |_| Ok(()))
+}

@@ -170,6 +170,18 @@ pub struct SolarCommand {
     /// a band per layer and period, each named with its unit and period.
     #[arg(short, long)]
     pub output: Option<std::path::PathBuf>,
+    /// Instead of the days: HORAYZON's terrain correction factor for direct shortwave with
+    /// the sun at AZIMUTH,ELEVATION (true azimuth clockwise from north, degrees; repeat for a
+    /// lookup table's positions), one band per sun in --output: the direct irradiance on each
+    /// post's surface over that on a flat open plane, 0 in shadow. No layer is baked.
+    #[arg(long, value_name = "AZ,EL", value_parser = crate::stage::args::parse_sun,
+          allow_negative_numbers = true, conflicts_with_all = ["days", "year", "monthly", "between"],
+          requires = "output")]
+    pub sun: Vec<crate::terrain::sun::Sun>,
+    /// With --sun: times HORAYZON's surface enlargement factor (1 / cos slope), the direct
+    /// flux per unit of horizontal area, as grid-cell models take it.
+    #[arg(long, requires = "sun")]
+    pub per_horizontal_area: bool,
 }
 
 impl Run for SolarCommand {
@@ -178,19 +190,35 @@ impl Run for SolarCommand {
     /// stage.
     fn run(&self, s: &Session) -> crate::Result<ExitCode> {
         let c = &self.command;
-        let has_svf_cosine = open_asset(&c.asset)?
-            .manifest()
-            .layer(terrabake_format::layers::SVF_COSINE, 0)
-            .is_some();
-        let sky = SkyStage::default();
-        let mut stages: Vec<(&dyn Stage, bool)> = Vec::new();
-        if !has_svf_cosine {
-            stages.push((&sky, false));
+        if let (false, Some(out)) = (self.sun.is_empty(), &self.output) {
+            let asset = open_asset(&c.asset)?;
+            crate::export::correction::write_direct_correction(
+                &asset,
+                &self.sun,
+                self.per_horizontal_area,
+                out,
+                s.progress,
+            )?;
+            if c.json {
+                let suns: Vec<[f64; 2]> =
+                    self.sun.iter().map(|s| [s.azimuth, s.elevation]).collect();
+                let v = serde_json::json!({
+                    "output": out.display().to_string(),
+                    "layer": "direct_correction",
+                    "suns": suns,
+                    "per_horizontal_area": self.per_horizontal_area,
+                });
+                println!("{}", serde_json::to_string_pretty(&v)?);
+            }
+            s.say(format!(
+                "wrote {} (direct shortwave correction factor, {} sun positions)",
+                out.display(),
+                self.sun.len()
+            ));
+            return Ok(ExitCode::SUCCESS);
         }
-        stages.push((&c.stage, c.force));
-        let writer = AssetWriter::open(&c.asset, s.wait)?;
-        let outcomes = run_stages_in(&writer, &stages, s.progress, &mut |_| Ok(()))?;
-        drop(writer);
+        let outcomes =
+            crate::bake::recipe::solar_after_sky(&c.asset, &c.stage, c.force, s.wait, s.progress)?;
         if let Some(out) = &self.output {
             let asset = open_asset(&c.asset)?;
             let layers: Vec<&str> = SolarLayer::ALL.iter().map(|l| l.name()).collect();

@@ -6,6 +6,7 @@
 //! Every writer here goes through [`write_atomically`]: a failed export
 //! never leaves a half-written file where a good one stood.
 
+pub mod correction;
 pub mod engine;
 pub mod grass;
 pub mod texture;

@@ -51,7 +51,7 @@ pub(crate) fn parse_xy(s: &str) -> Result<(f64, f64), String> {
     }
 }
 
-pub(crate) fn parse_sun(s: &str) -> Result<Sun, String> {
+pub fn parse_sun(s: &str) -> Result<Sun, String> {
     let (az, el) = s
         .split_once(',')
         .ok_or("expected AZIMUTH,ELEVATION in degrees")?;

@@ -9,8 +9,9 @@
 //! `solar_diffuse`, `solar_reflected` (Wh/m^2 per day, the mean over the
 //! days asked) and `sun_hours` (hours per day), f32, one band for the
 //! period or, with `monthly`, one per month it touches; NaN on nodata.
-//! Reach: one post (the normals), computed tile row by tile row, the rows
-//! of a tile row in parallel.
+//! Reach: one post (the normals), computed tile row by tile row, groups of
+//! up to 16 rows of a tile row in parallel, each group sharing one sun
+//! path per day (its rows' latitudes rounded to 0.01 degrees).
 
 use std::path::Path;
 use std::str::FromStr;
@@ -450,7 +451,7 @@ impl Stage for SolarStage {
     }
 
     /// A tile row of heights and of every output band, and per thread a
-    /// row of every horizon band and the kernel's sums.
+    /// group of rows' horizon bands and kernel sums.
     fn memory(&self, m: &terrabake_format::Manifest) -> Option<u64> {
         let (w, ts) = (u64::from(m.width), u64::from(m.tile_size));
         let bands = m.layer(HORIZON, 0).map_or(64, |l| u64::from(l.bands));
@@ -460,8 +461,8 @@ impl Stage for SolarStage {
         // A row of every band, the kernel's sums at three levels, the
         // normals (f64 and f32), the levels' weights and the row's values.
         let kept = (crate::algorithms::solar::LEVELS * crate::algorithms::solar::COMPONENTS) as u64;
-        let per_thread = w * (bands * 4 + kept * 8 + 7 * 8 + 8);
-        Some(tile_row + threads * per_thread)
+        let per_row = w * (bands * 4 + kept * 8 + 7 * 8 + 8);
+        Some(tile_row + threads * GROUP_ROWS as u64 * per_row)
     }
 
     /// Tile rows outside the share's rows are left at the fill value.
@@ -567,38 +568,51 @@ impl Stage for SolarStage {
             svf.resize(rows * w, 0.0);
             svf_cosine.read_rows_f32(0, y0 as u32, &mut svf)?;
             let terrain = Terrain::window(&z, (w, h), r0, (dx, dy)).with_row_scale(row_scale);
-            // Each row's values, [layer][period][x], computed in parallel.
-            let row_values: Vec<Vec<Vec<Vec<f32>>>> = (0..rows)
+            // Each row's values, [layer][period][x], by groups of rows that
+            // share their sun paths, the groups in parallel.
+            let key = |row: usize| self.path_latitude(latitudes[row]);
+            let mut groups: Vec<std::ops::Range<usize>> = Vec::new();
+            for r in 0..rows {
+                match groups.last_mut() {
+                    Some(g) if g.len() < GROUP_ROWS && key(y0 + g.start) == key(y0 + r) => {
+                        g.end = r + 1
+                    }
+                    _ => groups.push(r..r + 1),
+                }
+            }
+            let row_values: Vec<Vec<Vec<Vec<f32>>>> = groups
                 .into_par_iter()
-                .map_init(
-                    || vec![0f32; bands * w],
-                    |angles, r| -> terrabake_format::Result<Vec<Vec<Vec<f32>>>> {
-                        let row = y0 + r;
+                .map(|g| -> terrabake_format::Result<Vec<Vec<Vec<Vec<f32>>>>> {
+                    let mut angles = vec![0f32; g.len() * bands * w];
+                    for (i, rows_angles) in angles.chunks_mut(bands * w).enumerate() {
                         for b in 0..bands {
                             horizon.read_rows_f32(
                                 b as u32,
-                                row as u32,
-                                &mut angles[b * w..][..w],
+                                (y0 + g.start + i) as u32,
+                                &mut rows_angles[b * w..][..w],
                             )?;
                         }
-                        let out = self.row(
-                            RowInputs {
-                                terrain: &terrain,
-                                row,
-                                angles,
-                                svf_cosine: &svf[r * w..][..w],
-                                latitude: (latitudes[row], convergence),
-                                azimuths: &azimuths,
-                            },
-                            &steps,
-                            &periods,
-                            step_hours,
-                        );
-                        bar.inc(1);
-                        Ok(out)
-                    },
-                )
-                .collect::<terrabake_format::Result<_>>()?;
+                    }
+                    let out = self.rows(
+                        RowsInputs {
+                            terrain: &terrain,
+                            rows: y0 + g.start..y0 + g.end,
+                            angles: &angles,
+                            svf_cosine: &svf[g.start * w..g.end * w],
+                            latitude: (key(y0 + g.start), convergence),
+                            azimuths: &azimuths,
+                        },
+                        &steps,
+                        &periods,
+                        step_hours,
+                    );
+                    bar.inc(g.len() as u64);
+                    Ok(out)
+                })
+                .collect::<terrabake_format::Result<Vec<_>>>()?
+                .into_iter()
+                .flatten()
+                .collect();
             for (li, (_, writer)) in writers.iter_mut().enumerate() {
                 for (p, values) in values[li].iter_mut().enumerate() {
                     values.clear();
@@ -619,31 +633,57 @@ impl Stage for SolarStage {
     }
 }
 
-/// What one row's computation reads.
-struct RowInputs<'a> {
+/// At most this many rows share one computation of each day's sun path
+/// ([`RowDay`]): enough to make it a small part of the stage's time, few
+/// enough that their horizon rows and kernels stay small.
+const GROUP_ROWS: usize = 16;
+
+/// Rows whose latitudes round to the same multiple of this many degrees
+/// take their sun paths at that multiple (0.01 degrees, 1.1 km): the sun's
+/// elevation there differs from the row's own by at most 0.005 degrees,
+/// under a second of its daily path, where a 15-minute step spans 3.75
+/// degrees. The multiple depends on nothing but the row's latitude, so a
+/// crop gives the same bits.
+const LATITUDE_QUANTUM: f64 = 0.01;
+
+/// What one group of rows' computation reads.
+struct RowsInputs<'a> {
     terrain: &'a Terrain<'a>,
-    row: usize,
-    /// Every horizon band's angles on the row, band after band.
+    rows: std::ops::Range<usize>,
+    /// Every horizon band's angles on each row: row after row, band after
+    /// band.
     angles: &'a [f32],
     svf_cosine: &'a [f32],
-    /// The row's latitude and the grid's convergence, degrees.
+    /// The rows' shared latitude and the grid's convergence, degrees.
     latitude: (f64, f64),
     azimuths: &'a [f64],
 }
 
 impl SolarStage {
-    /// One row's values, `[layer][period][x]`: every day of each period
-    /// through the shadow kernel, then each post's sums on its surface.
-    fn row(
+    /// The latitude a row's sun paths are taken at: `--lat` as given, else
+    /// the row's own rounded to [`LATITUDE_QUANTUM`].
+    fn path_latitude(&self, row_latitude: f64) -> f64 {
+        match self.latitude {
+            Some(given) => given,
+            None => (row_latitude / LATITUDE_QUANTUM).round() * LATITUDE_QUANTUM,
+        }
+    }
+
+    /// Each row's values, `[row][layer][period][x]`: every day of each
+    /// period through each row's shadow kernel, one sun path a day for the
+    /// whole group (at levels spanning all its heights, which give every
+    /// post the same sums as its own row's levels would: they are fixed
+    /// heights), then each post's sums on its surface.
+    fn rows(
         &self,
-        input: RowInputs,
+        input: RowsInputs,
         steps: &[Vec<DayStep>],
         periods: &[Period],
         step_hours: f64,
-    ) -> Vec<Vec<Vec<f32>>> {
-        let RowInputs {
+    ) -> Vec<Vec<Vec<Vec<f32>>>> {
+        let RowsInputs {
             terrain,
-            row,
+            rows,
             angles,
             svf_cosine,
             latitude,
@@ -651,52 +691,80 @@ impl SolarStage {
         } = input;
         let w = terrain.width;
         let bands = azimuths.len();
-        let normals: Vec<[f64; 3]> = (0..w)
-            .map(|x| terrain.normal(x, row).unwrap_or([f64::NAN; 3]))
-            .collect();
-        let z: Vec<f32> = (0..w).map(|x| terrain.at(x, row)).collect();
-        // A post is computed where it has a height, a normal, a sky-view
-        // factor and every horizon band.
-        let valid: Vec<bool> = (0..w)
-            .map(|x| {
-                !z[x].is_nan()
-                    && !normals[x][2].is_nan()
-                    && !svf_cosine[x].is_nan()
-                    && (0..bands).all(|b| !angles[b * w + x].is_nan())
+        struct Row<'a> {
+            normals: Vec<[f64; 3]>,
+            z: Vec<f32>,
+            valid: Vec<bool>,
+            angles: &'a [f32],
+            svf_cosine: &'a [f32],
+        }
+        let rows: Vec<Row> = rows
+            .enumerate()
+            .map(|(i, row)| {
+                let normals: Vec<[f64; 3]> = (0..w)
+                    .map(|x| terrain.normal(x, row).unwrap_or([f64::NAN; 3]))
+                    .collect();
+                let z: Vec<f32> = (0..w).map(|x| terrain.at(x, row)).collect();
+                let angles = &angles[i * bands * w..][..bands * w];
+                let svf_cosine = &svf_cosine[i * w..][..w];
+                // A post is computed where it has a height, a normal, a
+                // sky-view factor and every horizon band.
+                let valid = (0..w)
+                    .map(|x| {
+                        !z[x].is_nan()
+                            && !normals[x][2].is_nan()
+                            && !svf_cosine[x].is_nan()
+                            && (0..bands).all(|b| !angles[b * w + x].is_nan())
+                    })
+                    .collect();
+                Row {
+                    normals,
+                    z,
+                    valid,
+                    angles,
+                    svf_cosine,
+                }
             })
             .collect();
-        let (lo, hi) = z
+        let mut out =
+            vec![vec![vec![vec![f32::NAN; w]; periods.len()]; SolarLayer::ALL.len()]; rows.len()];
+        let (lo, hi) = rows
             .iter()
-            .zip(&valid)
+            .flat_map(|r| r.z.iter().zip(&r.valid))
             .filter(|(_, &v)| v)
             .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), (&z, _)| {
                 (a.min(f64::from(z)), b.max(f64::from(z)))
             });
-        let mut out = vec![vec![vec![f32::NAN; w]; periods.len()]; SolarLayer::ALL.len()];
         if lo > hi {
             return out;
         }
         let levels = levels_spanning(lo, hi);
-        let mut kernel = ShadowRow::new(&normals, &z, angles, levels);
+        let mut kernels: Vec<ShadowRow> = rows
+            .iter()
+            .map(|r| ShadowRow::new(&r.normals, &r.z, r.angles, levels))
+            .collect();
         for (p, period) in periods.iter().enumerate() {
-            kernel.clear();
+            kernels.iter_mut().for_each(ShadowRow::clear);
             for &day in &period.days {
                 let sky = ClearSky {
                     linke: self.linke_on(day),
                 };
                 let day_steps = &steps[(day - self.days.first) as usize];
-                kernel.add_day(&RowDay::new(day_steps, latitude, azimuths, sky, levels));
+                let path = RowDay::new(day_steps, latitude, azimuths, sky, levels);
+                kernels.iter_mut().for_each(|k| k.add_day(&path));
             }
             let scale = step_hours / period.days.len() as f64;
-            for x in (0..w).filter(|&x| valid[x]) {
-                let surface = Surface {
-                    normal: normals[x],
-                    svf_cosine: f64::from(svf_cosine[x]),
-                    albedo: self.albedo,
-                };
-                let irradiation = kernel.sums(x).irradiation(&surface);
-                for (l, layer) in SolarLayer::ALL.iter().enumerate() {
-                    out[l][p][x] = (layer.value(&irradiation) * scale) as f32;
+            for ((row, kernel), out) in rows.iter().zip(&kernels).zip(&mut out) {
+                for x in (0..w).filter(|&x| row.valid[x]) {
+                    let surface = Surface {
+                        normal: row.normals[x],
+                        svf_cosine: f64::from(row.svf_cosine[x]),
+                        albedo: self.albedo,
+                    };
+                    let irradiation = kernel.sums(x).irradiation(&surface);
+                    for (l, layer) in SolarLayer::ALL.iter().enumerate() {
+                        out[l][p][x] = (layer.value(&irradiation) * scale) as f32;
+                    }
                 }
             }
         }

@@ -494,3 +494,34 @@ pub fn direct_irradiation(
     }
     out
 }
+
+/// The sun's lowest elevation in [`direct_correction`]'s denominator,
+/// degrees: HORAYZON's `ang_max` of 89.5 (zenith) degrees.
+pub const CORRECTION_MIN_ELEVATION: f64 = 0.5;
+
+/// The largest [`direct_correction`] returns: HORAYZON's `sw_dir_cor_max`
+/// (its examples take 20 or 25).
+pub const CORRECTION_MAX: f64 = 25.0;
+
+/// HORAYZON's terrain correction factor for direct shortwave (Steger et
+/// al. 2022, sec. 2.5): what multiplies the direct irradiance on a flat,
+/// open plane to give it on a surface of unit upward `normal` whose horizon
+/// in the sun's azimuth is `horizon` degrees, for the unit `sun` direction
+/// (x east, y north, z up). 0 where the sun's centre is below the horizon
+/// or behind the surface, else `n . s / sin(elevation)`, the sine held at
+/// [`CORRECTION_MIN_ELEVATION`] and the factor at [`CORRECTION_MAX`] as
+/// HORAYZON holds them. We read the horizon where HORAYZON traces a ray
+/// (the solar stage's shadow test); its surface enlargement factor
+/// (`1 / n_z`, flux per unit of horizontal area) is the caller's to apply.
+pub fn direct_correction(normal: [f64; 3], horizon: f64, sun: [f64; 3]) -> f64 {
+    let sin_elevation = sun[2];
+    if sin_elevation <= 0.0 || sin_elevation.asin().to_degrees() <= horizon {
+        return 0.0;
+    }
+    let facing = dot(normal, &sun);
+    if facing <= 0.0 {
+        return 0.0;
+    }
+    let floor = CORRECTION_MIN_ELEVATION.to_radians().sin();
+    (facing / sin_elevation.max(floor)).min(CORRECTION_MAX)
+}
