@@ -6,7 +6,7 @@ BENCH := target/release/terrabake-bench
 DEMO_DEM := data/srtm3_n07w006_geographic_int16.tif
 OUT ?= out
 
-.PHONY: all build build-bench demo test test-bindings test-full capi capi-header test-page bake-parts bake-slurm test-slurm fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-visibility bench-plan time-models bench-cog bench-peers bench-targets bench-reader fixtures fmt lint clean
+.PHONY: all build build-bench demo test test-bindings test-full wheel capi capi-header test-page bake-parts bake-slurm test-slurm fuzz bench-ingest-ooc bench-trace bench-cones bench-horizons bench-horizons-ooc bench-visibility bench-plan time-models bench-cog bench-peers bench-targets bench-reader fixtures fmt lint clean
 
 all: build
 
@@ -82,6 +82,12 @@ test-bindings: build
 	bash pipelines/gpu/test.sh
 	bash pipelines/python/test.sh
 	bash pipelines/gis/check_grass.sh target/release/terrabake
+
+## The Python package as an abi3 wheel (CPython 3.9 on, manylinux2014)
+## and its sdist in target/wheels/: `pip install target/wheels/*.whl` needs
+## no Rust. maturin comes from PyPI (pipelines/python/wheel.sh).
+wheel:
+	bash pipelines/python/wheel.sh
 
 ## The C ABI (docs/CAPI.md): target/capi/ gets libterrabake_c.so and .a,
 ## terrabake.h and the example program, built with the machine's gcc.

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# The Python package as a user installs it: a fresh virtual environment,
-# `pip install ./python` (a PEP 517 build through maturin: the abi3 wheel),
-# then its tests (python/tests, pytest). The environment sees the system's
+# The Python package as a user installs it: the abi3 wheel `make wheel`
+# builds (pipelines/python/wheel.sh), installed into a fresh virtual
+# environment with no cargo or rustc on PATH, then its tests (python/tests,
+# pytest, under the same PATH). The environment sees the system's
 # packages, so that Debian's GDAL bindings (python3-gdal), when present,
 # check the COG exports with GDAL's own validator; as root, the script
 # installs python3-venv and python3-gdal when they are missing. Besides the
@@ -40,7 +41,21 @@ if "$venv/bin/python" -c "import xarray" 2>/dev/null; then
   "$venv/bin/pip" install -q --disable-pip-version-check -c "$venv/pinned.txt" rioxarray ||
     echo "python/test.sh: no rioxarray: the xarray round trip will be skipped" >&2
 fi
+# dask for the backend's chunks, pinned as rioxarray is.
+if [ -f "$venv/pinned.txt" ]; then
+  "$venv/bin/pip" install -q --disable-pip-version-check -c "$venv/pinned.txt" dask ||
+    echo "python/test.sh: no dask: the chunked reads will be skipped" >&2
+fi
+bash pipelines/python/wheel.sh
+# Installed and tested exactly as a user without Rust would: no cargo, no
+# rustc on PATH.
+no_rust=$(echo "$PATH" | tr ':' '\n' | while read -r d; do
+  [ -n "$d" ] && [ ! -x "$d/cargo" ] && [ ! -x "$d/rustc" ] && echo "$d"; done | paste -sd:)
+if PATH="$no_rust" command -v cargo >/dev/null; then
+  echo "python/test.sh: cargo is still on the PATH meant to lack it" >&2; exit 1
+fi
 start=$(date +%s.%N)
-"$venv/bin/pip" install -q --disable-pip-version-check ./python
-echo "python/test.sh: pip install ./python took $(awk -v a="$start" -v b="$(date +%s.%N)" 'BEGIN { printf "%.1f", b - a }') s"
-TERRABAKE_BIN="$(pwd)/target/release/terrabake" "$venv/bin/python" -m pytest -q python/tests "$@"
+env -u CARGO_HOME -u RUSTUP_HOME PATH="$no_rust" "$venv/bin/pip" install -q --disable-pip-version-check target/wheels/terrabake-*.whl
+echo "python/test.sh: pip install of the wheel, without cargo, took $(awk -v a="$start" -v b="$(date +%s.%N)" 'BEGIN { printf "%.1f", b - a }') s"
+env -u CARGO_HOME -u RUSTUP_HOME PATH="$no_rust" TERRABAKE_BIN="$(pwd)/target/release/terrabake" \
+  "$venv/bin/python" -m pytest -q python/tests "$@"

@@ -196,6 +196,60 @@ impl Asset {
         })
     }
 
+    /// The window of `rows` x `columns` posts from `(x0, y0)` of bands
+    /// `bands` (a start and an end) of layer `name` at `level`, decoded to
+    /// float32 as `read` decodes: shape (bands, rows, columns). Reads only
+    /// the tiles the window touches: the xarray backend's one read.
+    #[pyo3(signature = (name, level, bands, y0, x0, rows, columns))]
+    #[allow(clippy::too_many_arguments)]
+    fn read_window<'py>(
+        &self,
+        py: Python<'py>,
+        name: &str,
+        level: u32,
+        bands: (u32, u32),
+        y0: u32,
+        x0: u32,
+        rows: u32,
+        columns: u32,
+    ) -> PyResult<Bound<'py, PyArray3<f32>>> {
+        let layer = self.inner.layer(name, level).map_err(raise)?;
+        let (b0, b1) = bands;
+        let inside = b0 <= b1
+            && b1 <= layer.bands()
+            && x0
+                .checked_add(columns)
+                .is_some_and(|x1| x1 <= layer.width())
+            && y0.checked_add(rows).is_some_and(|y1| y1 <= layer.height());
+        if !inside {
+            return Err(PyValueError::new_err(format!(
+                "bands {b0}..{b1}, rows {y0}..+{rows}, columns {x0}..+{columns} are outside layer {} ({} bands, {} x {} posts)",
+                layer.entry().key(),
+                layer.bands(),
+                layer.width(),
+                layer.height()
+            )));
+        }
+        let values = guarded("read_window", || {
+            let inner = self.inner.clone();
+            let name = name.to_string();
+            py.detach(move || -> anyhow::Result<Array3<f32>> {
+                let layer = inner.layer(&name, level)?;
+                let shape = ((b1 - b0) as usize, rows as usize, columns as usize);
+                let mut all = Array3::<f32>::zeros(shape);
+                for (band, mut plane) in (b0..b1).zip(all.outer_iter_mut()) {
+                    let out = plane.as_slice_mut().expect("a fresh array is contiguous");
+                    if !out.is_empty() {
+                        layer.read_window_f32(band, [x0, y0, columns, rows], out)?;
+                    }
+                }
+                Ok(all)
+            })
+            .map_err(raise)
+        })?;
+        Ok(values.into_pyarray(py))
+    }
+
     /// Tile `(tx, ty)` of band `band` of layer `name` at `level`, as stored
     /// (raw codes, not decoded; f16 as uint16 bits), read-only, without a
     /// copy: a view of the file's mapping (or of the decompressed tile in

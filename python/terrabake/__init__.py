@@ -374,22 +374,7 @@ def to_xarray(asset: Asset, name: str, level: int = 0) -> _typing.Any:
         raise ImportError("to_xarray needs xarray: pip install xarray") from e
     values = asset.read(name, level)
     rows, cols = values.shape[-2:]
-    transform = asset.transform
-    scale = float(2**level)
-    coords: dict = {}
-    if transform is None:
-        coords["x"] = np.arange(cols) * scale
-        coords["y"] = np.arange(rows) * scale
-    else:
-        t0, t1, _, t3, _, t5 = transform
-        t1, t5 = t1 * scale, t5 * scale
-        coords["x"] = t0 + (np.arange(cols) + 0.5) * t1
-        coords["y"] = t3 + (np.arange(rows) + 0.5) * t5
-        wkt = _wkt(asset.crs)
-        spatial_ref = {"GeoTransform": " ".join(repr(float(v)) for v in (t0, t1, 0.0, t3, 0.0, t5))}
-        if wkt is not None:
-            spatial_ref.update(crs_wkt=wkt, spatial_ref=wkt)
-        coords["spatial_ref"] = xr.Variable((), 0, attrs=spatial_ref)
+    coords = _grid_coords(asset, level, rows, cols)
     attrs = dict(asset.attributes(name, level))
     attrs["band_descriptions"] = list(attrs.get("band_descriptions", []))
     attrs["_FillValue"] = np.nan
@@ -406,6 +391,34 @@ def to_xarray(asset: Asset, name: str, level: int = 0) -> _typing.Any:
     if "spatial_ref" in coords:
         da.encoding["grid_mapping"] = "spatial_ref"
     return da
+
+
+def _grid_coords(asset: Asset, level: int, rows: int, cols: int) -> dict:
+    """``x`` and ``y`` at the pixel centres of level ``level`` in the
+    asset's CRS (post indices without georeferencing), and rioxarray's and
+    CF's ``spatial_ref`` (``crs_wkt``, GDAL's ``GeoTransform``) where the
+    asset is georeferenced: what :func:`to_xarray` and the xarray backend
+    both give."""
+    import numpy as np
+    import xarray as xr
+
+    transform = asset.transform
+    scale = float(2**level)
+    coords: dict = {}
+    if transform is None:
+        coords["x"] = np.arange(cols) * scale
+        coords["y"] = np.arange(rows) * scale
+        return coords
+    t0, t1, _, t3, _, t5 = transform
+    t1, t5 = t1 * scale, t5 * scale
+    coords["x"] = t0 + (np.arange(cols) + 0.5) * t1
+    coords["y"] = t3 + (np.arange(rows) + 0.5) * t5
+    wkt = _wkt(asset.crs)
+    spatial_ref = {"GeoTransform": " ".join(repr(float(v)) for v in (t0, t1, 0.0, t3, 0.0, t5))}
+    if wkt is not None:
+        spatial_ref.update(crs_wkt=wkt, spatial_ref=wkt)
+    coords["spatial_ref"] = xr.Variable((), 0, attrs=spatial_ref)
+    return coords
 
 
 def _wkt(crs: _typing.Optional[str]) -> _typing.Optional[str]:

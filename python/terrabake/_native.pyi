@@ -46,6 +46,10 @@ class Asset:
     def read(self, name: str, level: int = 0) -> npt.NDArray[np.float32]:
         """Every band decoded to float32, NaN for nodata: (bands, rows, columns),
         or (rows, columns) for a layer of one band."""
+    def read_window(
+        self, name: str, level: int, bands: tuple[int, int], y0: int, x0: int, rows: int, columns: int
+    ) -> npt.NDArray[np.float32]:
+        """Bands ``bands[0]..bands[1]`` of a window, decoded: (bands, rows, columns)."""
     def tile(self, name: str, level: int, tx: int, ty: int, band: int = 0) -> npt.NDArray[Any]:
         """A read-only view of a stored tile (raw codes), without a copy."""
     def band_azimuths(self, name: str) -> list[float]:
