@@ -768,6 +768,56 @@ fn bake(
     serde_json::to_string(&outcomes).map_err(|e| raise(anyhow::Error::new(e)))
 }
 
+/// Bakes part `part` of `parts` of `src` into the asset `out` with the
+/// recipe `recipe`, as `terrabake bake SRC -o OUT --recipe R --parts N
+/// --part I`: what one task of a partitioned bake runs, on any machine that
+/// sees `out`. Returns the part's stage records as JSON.
+#[pyfunction]
+#[pyo3(signature = (src, out, recipe, part, parts))]
+fn bake_part(
+    py: Python<'_>,
+    src: PathBuf,
+    out: PathBuf,
+    recipe: PathBuf,
+    part: u32,
+    parts: u32,
+) -> PyResult<String> {
+    let recipe = terrabake::bake::recipe::Recipe::load(&recipe).map_err(raise)?;
+    let part = terrabake::bake::partition::Part::new(part, parts).map_err(raise)?;
+    let outcomes = guarded("bake_part", || {
+        Ok(py.detach(|| {
+            terrabake::bake::partition::bake_part(
+                &src,
+                &out,
+                &recipe,
+                part,
+                terrabake::stage::asset::Wait::unless(false),
+                terrabake::plumbing::progress::Progress::new(true),
+            )
+        }))
+    })?
+    .map_err(raise)?;
+    serde_json::to_string(&outcomes).map_err(|e| raise(anyhow::Error::new(e)))
+}
+
+/// Joins the baked parts of the asset `out` into it, as `terrabake
+/// assemble OUT`; returns the stage records as JSON.
+#[pyfunction]
+fn assemble(py: Python<'_>, out: PathBuf) -> PyResult<String> {
+    let outcomes = guarded("assemble", || {
+        Ok(py.detach(|| {
+            terrabake::bake::partition::assemble(
+                &out,
+                false,
+                terrabake::stage::asset::Wait::unless(false),
+                terrabake::plumbing::progress::Progress::new(true),
+            )
+        }))
+    })?
+    .map_err(raise)?;
+    serde_json::to_string(&outcomes).map_err(|e| raise(anyhow::Error::new(e)))
+}
+
 /// Runs the solar stage on the asset at `path` (after the sky stage where
 /// it has no `svf_cosine`), as `terrabake solar` does; `params` is the
 /// stage's parameters as JSON, a recipe's keys (unknown keys refused).
@@ -837,6 +887,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(horizons, m)?)?;
     m.add_function(wrap_pyfunction!(sky_view_factor, m)?)?;
     m.add_function(wrap_pyfunction!(bake, m)?)?;
+    m.add_function(wrap_pyfunction!(bake_part, m)?)?;
+    m.add_function(wrap_pyfunction!(assemble, m)?)?;
     m.add_function(wrap_pyfunction!(solar, m)?)?;
     m.add_function(wrap_pyfunction!(direct_correction, m)?)?;
     m.add("Error", m.py().get_type::<Error>())?;

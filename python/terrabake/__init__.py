@@ -35,7 +35,6 @@ from ._native import (
     SourceError,
     TerrabakeError,
     __version__,
-    bake,
     open,
 )
 
@@ -245,6 +244,58 @@ def sky_view_factor(
     """
     values, size, curved = _prepared(dem, cell_size, nodata, crs, transform, curvature)
     return _native.sky_view_factor(values, size, sectors, method, max_distance, curved, refraction, progress)
+
+
+def bake(
+    src: _typing.Any,
+    out: _typing.Any,
+    recipe: _typing.Any = None,
+    budget: _typing.Optional[str] = None,
+    needs: _typing.Optional[str] = None,
+    progress: _typing.Optional[_typing.Callable[[str, int, int], _typing.Any]] = None,
+    *,
+    parts: _typing.Optional[int] = None,
+    client: _typing.Any = None,
+) -> str:
+    """Bakes the DEM file ``src`` into the asset ``out``, as ``terrabake bake``.
+
+    With a ``recipe`` file, or planned from a ``budget`` (``"horizon=0.5"``,
+    the CLI's ``--budget`` syntax) and ``needs`` (``"horizons,svf"``).
+    ``progress(stage, done, total)`` is called as each stage is committed;
+    an exception it raises stops the bake there (what is committed stays,
+    and the same call resumes from it).
+
+    ``parts=N`` (with a recipe) cuts the bake into N parts, as ``terrabake
+    bake --parts N --part I`` does, and assembles them after; with a
+    ``dask.distributed`` ``client`` each part is a task on its cluster (any
+    the user has: a ``LocalCluster``, Slurm through dask-jobqueue,
+    Kubernetes; the workers must see ``src``, ``recipe`` and ``out`` at the
+    same paths) and the assemble a task after them, else the parts run here
+    one after the other. The result equals one machine's bake bit for bit.
+    ``progress`` is for one machine's bake; a cluster's is on its client.
+
+    Returns the stages' records as JSON.
+    """
+    if parts is None:
+        if client is not None:
+            raise ValueError("client: give parts=N to cut the bake into tasks")
+        return _native.bake(src, out, recipe, budget, needs, progress)
+    if recipe is None or budget is not None:
+        raise ValueError("parts: a partitioned bake takes a recipe, not a budget")
+    if progress is not None:
+        raise ValueError("progress: a partitioned bake reports through its client, not a callback")
+    if not isinstance(parts, int) or parts < 1:
+        raise ValueError(f"parts={parts!r}: give a whole number of parts, 1 or more")
+    import os
+
+    src, out, recipe = os.fspath(src), os.fspath(out), os.fspath(recipe)
+    if client is None:
+        for i in range(parts):
+            _native.bake_part(src, out, recipe, i, parts)
+        return _native.assemble(out)
+    tasks = [client.submit(_native.bake_part, src, out, recipe, i, parts, pure=False) for i in range(parts)]
+    client.gather(tasks)
+    return client.submit(_native.assemble, out, pure=False).result()
 
 
 def _path_of(asset: _typing.Any) -> str:

@@ -106,6 +106,12 @@ def bake(
     created."""
 
 
+def bake_part(src: Path, out: Path, recipe: Path, part: int, parts: int) -> str:
+    """Part `part` of `parts` of a partitioned bake; its records as JSON."""
+
+def assemble(out: Path) -> str:
+    """Joins a partitioned bake's parts into the asset; the records as JSON."""
+
 def solar(path: str, params: str, force: bool = False) -> str:
     """Runs the solar stage (after sky where needed); params and the result are JSON."""
 

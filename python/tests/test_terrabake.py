@@ -480,3 +480,45 @@ def test_direct_correction_equals_the_command(tmp: Path) -> None:
     np.testing.assert_array_equal(ds.GetRasterBand(1).ReadAsArray(), f[0])
     with pytest.raises(ValueError, match="elevation"):
         terrabake.direct_correction(asset, [(180.0, 95.0)])
+
+
+def same_layers(a: Path, b: Path) -> int:
+    """Every layer of `a` equals `b`'s, NaN for NaN; returns how many."""
+    x, y = terrabake.open(a), terrabake.open(b)
+    names = sorted((l["name"], l["level"]) for l in x.layers)
+    assert names == sorted((l["name"], l["level"]) for l in y.layers)
+    for name, level in names:
+        np.testing.assert_array_equal(x.read(name, level), y.read(name, level), err_msg=name)
+    return len(names)
+
+
+PARTS_RECIPE = """
+[ingest]
+tile = 16
+[[stage]]
+name = "horizons"
+sectors = 8
+max_distance = 400
+[[stage]]
+name = "sky"
+"""
+
+
+def test_a_bake_in_parts_equals_one_machine_here_and_on_dask(tmp: Path) -> None:
+    baked(tmp, "line")  # the DEM
+    recipe = tmp / "parts.toml"
+    recipe.write_text(PARTS_RECIPE)
+    one = tmp / "parts-one.tbake"
+    terrabake.bake(tmp / "dem.tif", one, recipe=recipe)
+    here = tmp / "parts-here.tbake"
+    terrabake.bake(tmp / "dem.tif", here, recipe=recipe, parts=3)
+    assert same_layers(one, here) >= 5
+    with pytest.raises(ValueError, match="recipe"):
+        terrabake.bake(tmp / "dem.tif", tmp / "x.tbake", budget="horizon=1", parts=2)
+    distributed = pytest.importorskip("dask.distributed")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None) as cluster:
+        with distributed.Client(cluster) as client:
+            on_dask = tmp / "parts-dask.tbake"
+            records = json.loads(terrabake.bake(tmp / "dem.tif", on_dask, recipe=recipe, parts=4, client=client))
+            assert records and all("stage" in r for r in records)
+    assert same_layers(one, on_dask) >= 5
