@@ -65,6 +65,16 @@ _SOLAR_LAYERS = {
     "sun_hours": "sun_hours",
 }
 
+def __getattr__(name: str) -> _typing.Any:
+    """``terrabake.xarray`` (dask-backed DataArrays) on first use, so that
+    ``import terrabake`` needs neither xarray nor dask."""
+    if name == "xarray":
+        import importlib
+
+        return importlib.import_module(".xarray", __name__)
+    raise AttributeError(f"module 'terrabake' has no attribute {name!r}")
+
+
 #: The atmosphere's refraction coefficient the command line assumes.
 DEFAULT_REFRACTION = 0.13
 

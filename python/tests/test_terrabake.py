@@ -522,3 +522,29 @@ def test_a_bake_in_parts_equals_one_machine_here_and_on_dask(tmp: Path) -> None:
             records = json.loads(terrabake.bake(tmp / "dem.tif", on_dask, recipe=recipe, parts=4, client=client))
             assert records and all("stage" in r for r in records)
     assert same_layers(one, on_dask) >= 5
+
+
+def test_dask_horizons_over_chunks_equal_the_cli_bake(tmp: Path) -> None:
+    dask_array = pytest.importorskip("dask.array")
+    xr = pytest.importorskip("xarray")
+    line = terrabake.open(baked(tmp, "line"))
+    size = cell_size(line)
+    distance = 6.5 * min(size)
+    z = line.read("height")
+    da = xr.DataArray(dask_array.from_array(z, chunks=(20, 24)), dims=("y", "x"))
+    got = terrabake.xarray.horizons(da, sectors=8, max_distance=distance, cell_size=size, curvature=False)
+    assert got.dims == ("azimuth", "y", "x") and isinstance(got.data, dask_array.Array)
+    recipe = tmp / "bounded.toml"
+    recipe.write_text(
+        f"[ingest]\ntile = 32\n[[stage]]\nname = \"horizons\"\nsectors = 8\nmethod = \"line\"\n"
+        f"max_distance = {distance}\nencoding = \"f32\"\ncurvature = false\n"
+    )
+    out = tmp / "bounded.tbake"
+    cli("bake", tmp / "dem.tif", "-o", out, "--recipe", recipe)
+    want = terrabake.open(out)
+    np.testing.assert_array_equal(got.values, want.read("horizon"))
+    np.testing.assert_array_equal(got["azimuth"].values, want.band_azimuths("horizon"))
+    with pytest.raises(ValueError, match="max_distance"):
+        terrabake.xarray.horizons(da, 8)
+    with pytest.raises(ValueError, match="rechunk"):
+        terrabake.xarray.horizons(da.chunk(4), 8, distance, cell_size=size, curvature=False)
