@@ -41,11 +41,11 @@ if "$venv/bin/python" -c "import xarray" 2>/dev/null; then
   "$venv/bin/pip" install -q --disable-pip-version-check -c "$venv/pinned.txt" rioxarray ||
     echo "python/test.sh: no rioxarray: the xarray round trip will be skipped" >&2
 fi
-# dask for the backend's chunks and distributed for bakes on a cluster,
-# pinned as rioxarray is.
+# dask for the backend's chunks, distributed for bakes on a cluster and
+# pandas for pvlib's horizon series, pinned as rioxarray is.
 if [ -f "$venv/pinned.txt" ]; then
-  "$venv/bin/pip" install -q --disable-pip-version-check -c "$venv/pinned.txt" dask distributed ||
-    echo "python/test.sh: no dask: the chunked reads and the cluster bake will be skipped" >&2
+  "$venv/bin/pip" install -q --disable-pip-version-check -c "$venv/pinned.txt" dask distributed pandas ||
+    echo "python/test.sh: no dask or pandas: their tests will be skipped" >&2
 fi
 bash pipelines/python/wheel.sh
 # Installed and tested exactly as a user without Rust would: no cargo, no

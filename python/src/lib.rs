@@ -768,6 +768,75 @@ fn bake(
     serde_json::to_string(&outcomes).map_err(|e| raise(anyhow::Error::new(e)))
 }
 
+/// The horizon profile around each of `points` (X,Y in `crs`: "native",
+/// "lonlat" or "grid"), as `terrabake profile` computes one: the exact
+/// sight line at every `step` degrees from north, clockwise. Returns per
+/// point `(post, azimuths, horizons, distances)`: the (column, row) used,
+/// float64 compass degrees, float32 degrees (-90 where nothing lies
+/// ahead), float64 metres (NaN there).
+#[pyfunction]
+#[pyo3(signature = (path, points, crs = "native", step = 1.0, max_distance = None, curvature = None, refraction = DEFAULT_REFRACTION))]
+#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+fn profiles<'py>(
+    py: Python<'py>,
+    path: PathBuf,
+    points: Vec<(f64, f64)>,
+    crs: &str,
+    step: f64,
+    max_distance: Option<f64>,
+    curvature: Option<bool>,
+    refraction: f64,
+) -> PyResult<
+    Vec<(
+        (usize, usize),
+        Bound<'py, PyArray1<f64>>,
+        Bound<'py, PyArray1<f32>>,
+        Bound<'py, PyArray1<f64>>,
+    )>,
+> {
+    use terrabake::stages::viewshed::Crs;
+    let crs = match crs {
+        "native" => Crs::Native,
+        "lonlat" => Crs::Lonlat,
+        "grid" => Crs::Grid,
+        _ => {
+            return Err(PyValueError::new_err(format!(
+                "crs={crs:?}: give native, lonlat or grid"
+            )))
+        }
+    };
+    let sight = terrabake::stage::sight::SightLines {
+        max_distance,
+        curvature,
+        refraction,
+    };
+    let all = guarded("profile", || {
+        Ok(py.detach(|| -> terrabake::Result<_> {
+            let asset = terrabake::stage::asset::open(&path)?;
+            terrabake::present::profile::profiles(&asset, &points, crs, step, &sight)
+        }))
+    })?
+    .map_err(raise)?;
+    Ok(all
+        .into_iter()
+        .map(|p| {
+            let azimuths: Vec<f64> = p.points.iter().map(|q| q.azimuth_deg).collect();
+            let horizons: Vec<f32> = p.points.iter().map(|q| q.horizon_deg).collect();
+            let distances: Vec<f64> = p
+                .points
+                .iter()
+                .map(|q| q.distance_m.unwrap_or(f64::NAN))
+                .collect();
+            (
+                p.post,
+                azimuths.into_pyarray(py),
+                horizons.into_pyarray(py),
+                distances.into_pyarray(py),
+            )
+        })
+        .collect())
+}
+
 /// Bakes part `part` of `parts` of `src` into the asset `out` with the
 /// recipe `recipe`, as `terrabake bake SRC -o OUT --recipe R --parts N
 /// --part I`: what one task of a partitioned bake runs, on any machine that
@@ -887,6 +956,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(horizons, m)?)?;
     m.add_function(wrap_pyfunction!(sky_view_factor, m)?)?;
     m.add_function(wrap_pyfunction!(bake, m)?)?;
+    m.add_function(wrap_pyfunction!(profiles, m)?)?;
     m.add_function(wrap_pyfunction!(bake_part, m)?)?;
     m.add_function(wrap_pyfunction!(assemble, m)?)?;
     m.add_function(wrap_pyfunction!(solar, m)?)?;

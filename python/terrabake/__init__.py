@@ -51,6 +51,7 @@ __all__ = [
     "direct_correction",
     "horizons",
     "open",
+    "profile",
     "sky_view_factor",
     "solar",
     "to_xarray",
@@ -306,6 +307,71 @@ def bake(
     tasks = [client.submit(_native.bake_part, src, out, recipe, i, parts, pure=False) for i in range(parts)]
     client.gather(tasks)
     return client.submit(_native.assemble, out, pure=False).result()
+
+
+def profile(
+    asset: _typing.Any,
+    points: _typing.Sequence[_typing.Tuple[float, float]],
+    *,
+    crs: str = "native",
+    step: float = 1.0,
+    max_distance: _typing.Optional[float] = None,
+    curvature: _typing.Optional[bool] = None,
+    refraction: float = DEFAULT_REFRACTION,
+    form: str = "pvlib",
+) -> _typing.List[_typing.Any]:
+    """The horizon profile around each point, as ``terrabake profile`` computes one.
+
+    Each azimuth's horizon is the exact sight line from the post nearest
+    the point (not interpolated between stored bands), read from the
+    asset's heights; the DEM is read once for all the points.
+
+    Parameters
+    ----------
+    asset
+        An :class:`Asset` or the path of an asset directory.
+    points
+        ``(x, y)`` pairs in ``crs``: ``"native"`` (the DEM's CRS), ``"lonlat"``
+        (WGS 84 degrees, on geographic and WGS 84 UTM grids) or ``"grid"``
+        (column, row).
+    step
+        Degrees between azimuths, from north clockwise.
+    max_distance, curvature, refraction
+        The sight lines' bound (metres, None: the DEM's edge) and the earth's
+        curvature (None: on when the DEM is georeferenced), as the CLI's.
+    form
+        ``"pvlib"``: per point a ``pandas.Series`` of horizon elevation
+        angles (degrees) indexed by azimuth (degrees clockwise from north),
+        as ``pvlib.iotools.get_pvgis_horizon`` returns one (a dict of two
+        arrays, ``azimuth`` and ``horizon``, without pandas). ``"pvgis"``:
+        per point the 48 heights PVGIS's ``userhorizon`` takes (every 7.5
+        degrees from north clockwise, negative angles as 0; ``step`` is
+        then 7.5). ``"arrays"``: per point a dict of ``post``, ``azimuth``,
+        ``horizon`` (-90 where nothing lies ahead) and ``distance``
+        (metres, NaN there).
+    """
+    if form not in ("pvlib", "pvgis", "arrays"):
+        raise ValueError(f"form={form!r}: give pvlib, pvgis or arrays")
+    if form == "pvgis":
+        step = 7.5
+    pairs = [(float(x), float(y)) for x, y in points]
+    found = _native.profiles(_path_of(asset), pairs, crs, step, max_distance, curvature, refraction)
+    out: _typing.List[_typing.Any] = []
+    for post, azimuth, horizon, distance in found:
+        if form == "arrays":
+            out.append({"post": post, "azimuth": azimuth, "horizon": horizon, "distance": distance})
+        elif form == "pvgis":
+            out.append([max(0.0, round(float(h), 2)) for h in horizon])
+        else:
+            try:
+                import pandas as pd
+            except ImportError:
+                out.append({"azimuth": azimuth, "horizon": horizon})
+                continue
+            series = pd.Series(horizon.astype("float64"), index=pd.Index(azimuth, name="horizon_azimuth"))
+            series.name = "horizon_elevation"
+            out.append(series)
+    return out
 
 
 def _path_of(asset: _typing.Any) -> str:

@@ -106,6 +106,17 @@ def bake(
     created."""
 
 
+def profiles(
+    path: Path,
+    points: list[tuple[float, float]],
+    crs: str = "native",
+    step: float = 1.0,
+    max_distance: Optional[float] = None,
+    curvature: Optional[bool] = None,
+    refraction: float = 0.13,
+) -> list[tuple[tuple[int, int], npt.NDArray[np.float64], npt.NDArray[np.float32], npt.NDArray[np.float64]]]:
+    """Per point: the post, azimuths, horizons and distances of its exact profile."""
+
 def bake_part(src: Path, out: Path, recipe: Path, part: int, parts: int) -> str:
     """Part `part` of `parts` of a partitioned bake; its records as JSON."""
 

@@ -548,3 +548,26 @@ def test_dask_horizons_over_chunks_equal_the_cli_bake(tmp: Path) -> None:
         terrabake.xarray.horizons(da, 8)
     with pytest.raises(ValueError, match="rechunk"):
         terrabake.xarray.horizons(da.chunk(4), 8, distance, cell_size=size, curvature=False)
+
+
+def test_profiles_of_many_points_equal_the_cli_s_one_by_one(tmp: Path) -> None:
+    asset = baked(tmp, "line")
+    points = [(10.0, 12.0), (40.0, 30.0), (71.0, 0.0)]
+    got = terrabake.profile(asset, points, crs="grid", step=15.0, form="arrays")
+    for (x, y), p in zip(points, got):
+        text = cli("profile", asset, "--at", f"{x},{y}", "--crs", "grid", "--step", "15", "--format", "json")
+        want = json.loads(text)
+        assert tuple(p["post"]) == tuple(want["post"])
+        np.testing.assert_array_equal(p["azimuth"], [q["azimuth_deg"] for q in want["points"]])
+        # JSON holds the float32 angles in their shortest decimal form.
+        want_h = np.asarray([q["horizon_deg"] for q in want["points"]], dtype=np.float32)
+        np.testing.assert_array_equal(p["horizon"], want_h)
+    pvgis = terrabake.profile(asset, points[:1], crs="grid", form="pvgis")[0]
+    assert len(pvgis) == 48 and min(pvgis) >= 0
+    pd = pytest.importorskip("pandas")
+    series = terrabake.profile(asset, points[:2], crs="grid", step=30.0)[0]
+    assert isinstance(series, pd.Series) and list(series.index) == [30.0 * i for i in range(12)]
+    with pytest.raises(ValueError, match="crs"):
+        terrabake.profile(asset, points, crs="utm")
+    with pytest.raises(terrabake.Error, match="--at"):
+        terrabake.profile(asset, [(500.0, 500.0)], crs="grid")

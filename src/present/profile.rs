@@ -117,15 +117,57 @@ pub fn profile(
         .collect())
 }
 
+/// One point's profile: the post nearest it, its height, the curvature
+/// coefficient taken, and every azimuth's horizon.
+#[derive(Debug, Clone)]
+pub struct PointProfile {
+    pub post: (usize, usize),
+    pub height_m: f32,
+    pub curvature: f64,
+    pub points: Vec<ProfilePoint>,
+}
+
+/// The profile of each of `points` (X,Y in `crs`) of the asset's heights,
+/// as `terrabake profile` computes one, the DEM read once and the points
+/// in parallel: what the command and Python's `terrabake.profile` call.
+pub fn profiles(
+    asset: &terrabake_format::Asset<terrabake_format::Mmap>,
+    points: &[(f64, f64)],
+    crs: Crs,
+    step: f64,
+    sight: &SightLines,
+) -> crate::Result<Vec<PointProfile>> {
+    use rayon::prelude::*;
+    let m = asset.manifest();
+    sight.check()?;
+    let dem = HeldDem::read(asset)?;
+    let curvature = sight.curvature_coefficient(m);
+    points
+        .par_iter()
+        .map(|&at| {
+            let post = post_at(m, &dem, "--at", at, crs)?;
+            Ok(PointProfile {
+                post,
+                height_m: dem.z[post.1 * dem.width + post.0],
+                curvature,
+                points: profile(&dem, curvature, sight.max_distance, post, step)?,
+            })
+        })
+        .collect()
+}
+
 impl Run for ProfileArgs {
     fn run(&self, _: &Session) -> crate::Result<ExitCode> {
         let asset = crate::stage::asset::open(&self.asset)?;
         let m = asset.manifest();
-        let dem = HeldDem::read(&asset)?;
-        let post = post_at(m, &dem, "--at", self.at, self.crs)?;
-        self.sight.check()?;
-        let curvature = self.sight.curvature_coefficient(m);
-        let points = profile(&dem, curvature, self.sight.max_distance, post, self.step)?;
+        let PointProfile {
+            post,
+            height_m,
+            curvature,
+            points,
+        } = profiles(&asset, &[self.at], self.crs, self.step, &self.sight)?
+            .pop()
+            .expect("one point, one profile");
         let text = match self.format {
             ProfileFormat::Csv => {
                 let mut t = String::from("azimuth_deg,horizon_deg,distance_m\n");
@@ -138,7 +180,7 @@ impl Run for ProfileArgs {
             ProfileFormat::Json => {
                 let profile = Profile {
                     post,
-                    height_m: dem.z[post.1 * dem.width + post.0],
+                    height_m,
                     curvature,
                     azimuth_convention: "compass: degrees clockwise from north",
                     method: "exact sight line on the two-triangle surface at each azimuth",
