@@ -837,6 +837,30 @@ fn profiles<'py>(
         .collect())
 }
 
+/// Runs `work` (given the CLI's wait for the writer lock and no progress
+/// bars) with the GIL released, under [`guarded`]; its stage records as
+/// JSON. What the bakes without a callback share.
+fn records_of(
+    py: Python<'_>,
+    what: &str,
+    work: impl FnOnce(
+            terrabake::stage::asset::Wait,
+            terrabake::plumbing::progress::Progress,
+        ) -> terrabake::Result<Vec<terrabake::stage::StageOutcome>>
+        + Send,
+) -> PyResult<String> {
+    let outcomes = guarded(what, || {
+        Ok(py.detach(|| {
+            work(
+                terrabake::stage::asset::Wait::unless(false),
+                terrabake::plumbing::progress::Progress::new(true),
+            )
+        }))
+    })?
+    .map_err(raise)?;
+    serde_json::to_string(&outcomes).map_err(|e| raise(anyhow::Error::new(e)))
+}
+
 /// Bakes part `part` of `parts` of `src` into the asset `out` with the
 /// recipe `recipe`, as `terrabake bake SRC -o OUT --recipe R --parts N
 /// --part I`: what one task of a partitioned bake runs, on any machine that
@@ -853,38 +877,18 @@ fn bake_part(
 ) -> PyResult<String> {
     let recipe = terrabake::bake::recipe::Recipe::load(&recipe).map_err(raise)?;
     let part = terrabake::bake::partition::Part::new(part, parts).map_err(raise)?;
-    let outcomes = guarded("bake_part", || {
-        Ok(py.detach(|| {
-            terrabake::bake::partition::bake_part(
-                &src,
-                &out,
-                &recipe,
-                part,
-                terrabake::stage::asset::Wait::unless(false),
-                terrabake::plumbing::progress::Progress::new(true),
-            )
-        }))
-    })?
-    .map_err(raise)?;
-    serde_json::to_string(&outcomes).map_err(|e| raise(anyhow::Error::new(e)))
+    records_of(py, "bake_part", |wait, progress| {
+        terrabake::bake::partition::bake_part(&src, &out, &recipe, part, wait, progress)
+    })
 }
 
 /// Joins the baked parts of the asset `out` into it, as `terrabake
 /// assemble OUT`; returns the stage records as JSON.
 #[pyfunction]
 fn assemble(py: Python<'_>, out: PathBuf) -> PyResult<String> {
-    let outcomes = guarded("assemble", || {
-        Ok(py.detach(|| {
-            terrabake::bake::partition::assemble(
-                &out,
-                false,
-                terrabake::stage::asset::Wait::unless(false),
-                terrabake::plumbing::progress::Progress::new(true),
-            )
-        }))
-    })?
-    .map_err(raise)?;
-    serde_json::to_string(&outcomes).map_err(|e| raise(anyhow::Error::new(e)))
+    records_of(py, "assemble", |wait, progress| {
+        terrabake::bake::partition::assemble(&out, false, wait, progress)
+    })
 }
 
 /// Runs the solar stage on the asset at `path` (after the sky stage where
@@ -896,19 +900,9 @@ fn assemble(py: Python<'_>, out: PathBuf) -> PyResult<String> {
 fn solar(py: Python<'_>, path: PathBuf, params: &str, force: bool) -> PyResult<String> {
     let stage: terrabake::stages::solar::SolarStage =
         serde_json::from_str(params).map_err(|e| ParameterError::new_err(format!("solar: {e}")))?;
-    let outcomes = guarded("solar", || {
-        Ok(py.detach(|| {
-            terrabake::bake::recipe::solar_after_sky(
-                &path,
-                &stage,
-                force,
-                terrabake::stage::asset::Wait::unless(false),
-                terrabake::plumbing::progress::Progress::new(true),
-            )
-        }))
-    })?
-    .map_err(raise)?;
-    serde_json::to_string(&outcomes).map_err(|e| raise(anyhow::Error::new(e)))
+    records_of(py, "solar", |wait, progress| {
+        terrabake::bake::recipe::solar_after_sky(&path, &stage, force, wait, progress)
+    })
 }
 
 /// HORAYZON's terrain correction factor for direct shortwave of the asset
