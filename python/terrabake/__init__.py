@@ -94,20 +94,7 @@ def _prepared(
     import numpy as np
 
     if type(dem).__name__ == "DataArray" and hasattr(dem, "dims"):
-        rio = getattr(dem, "rio", None) if _has_rioxarray() else None
-        if rio is not None:
-            crs = crs if crs is not None else rio.crs
-            if transform is None and rio.crs is not None:
-                transform = tuple(rio.transform().to_gdal())
-            if nodata is None and rio.nodata is not None:
-                nodata = rio.nodata
-        if transform is None and "spatial_ref" in dem.coords:
-            text = dem.coords["spatial_ref"].attrs.get("GeoTransform")
-            if text:
-                transform = tuple(float(v) for v in str(text).split())
-            crs = crs if crs is not None else dem.coords["spatial_ref"].attrs.get("crs_wkt")
-        if nodata is None:
-            nodata = dem.attrs.get("_FillValue", dem.attrs.get("nodata"))
+        crs, transform, nodata = _georeferencing(dem, crs, transform, nodata)
         dem = dem.values
     if isinstance(dem, np.ma.MaskedArray):
         mask = np.ma.getmaskarray(dem)
@@ -139,6 +126,30 @@ def _prepared(
         # The command line's rule: curvature on when the grid is on the earth.
         curvature = crs is not None or transform is not None
     return values, (dx, dy), bool(curvature)
+
+
+def _georeferencing(
+    da: _typing.Any, crs: _typing.Any = None, transform: _typing.Any = None, nodata: _typing.Any = None
+) -> _typing.Tuple[_typing.Any, _typing.Any, _typing.Any]:
+    """(crs, transform, nodata) of a DataArray where not given, without
+    reading its values: rioxarray's where it is installed, else the
+    ``spatial_ref`` coordinate, and the ``_FillValue`` or ``nodata``
+    attribute."""
+    rio = getattr(da, "rio", None) if _has_rioxarray() else None
+    if rio is not None:
+        crs = crs if crs is not None else rio.crs
+        if transform is None and rio.crs is not None:
+            transform = tuple(rio.transform().to_gdal())
+        if nodata is None and rio.nodata is not None:
+            nodata = rio.nodata
+    if transform is None and "spatial_ref" in da.coords:
+        text = da.coords["spatial_ref"].attrs.get("GeoTransform")
+        if text:
+            transform = tuple(float(v) for v in str(text).split())
+        crs = crs if crs is not None else da.coords["spatial_ref"].attrs.get("crs_wkt")
+    if nodata is None:
+        nodata = da.attrs.get("_FillValue", da.attrs.get("nodata"))
+    return crs, transform, nodata
 
 
 def _has_rioxarray() -> bool:

@@ -20,7 +20,7 @@ import numpy as np
 
 import xarray as xr
 
-from . import DEFAULT_REFRACTION, _cell_size_of, _native, _prepared
+from . import DEFAULT_REFRACTION, _cell_size_of, _georeferencing, _native, _prepared
 
 
 def reach(max_distance: float, cell_size: _typing.Tuple[float, float]) -> int:
@@ -28,29 +28,6 @@ def reach(max_distance: float, cell_size: _typing.Tuple[float, float]) -> int:
     horizons stage declares them: those within ``max_distance`` of it at
     the finer spacing, and one more for the surface between."""
     return math.floor(max_distance / min(cell_size)) + 1
-
-
-def _georeferencing(da: xr.DataArray) -> _typing.Tuple[_typing.Any, _typing.Any, _typing.Any]:
-    """(crs, transform, nodata) of a DataArray, without reading its values:
-    rioxarray's where it is installed, else the ``spatial_ref`` coordinate."""
-    crs = transform = None
-    nodata = da.attrs.get("_FillValue", da.attrs.get("nodata"))
-    try:
-        import rioxarray  # noqa: F401
-
-        if da.rio.crs is not None:
-            crs = da.rio.crs
-            transform = tuple(da.rio.transform().to_gdal())
-        if da.rio.nodata is not None:
-            nodata = da.rio.nodata
-    except ImportError:
-        pass
-    if transform is None and "spatial_ref" in da.coords:
-        text = da.coords["spatial_ref"].attrs.get("GeoTransform")
-        if text:
-            transform = tuple(float(v) for v in str(text).split())
-        crs = da.coords["spatial_ref"].attrs.get("crs_wkt")
-    return crs, transform, nodata
 
 
 def horizons(
