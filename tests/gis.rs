@@ -1,7 +1,9 @@
 //! What GIS users get out: `terrabake profile` (the exact horizon at any
 //! azimuth of one point) against the line sweep and a dense sampling of
 //! the sight line; `export --for grass` named and valued as `r.horizon`'s
-//! files; the COG writer's layout read back by an independent TIFF reader.
+//! files; the COG writer's layout read back by an independent TIFF reader;
+//! the Zarr export read back by a reader written here from the Zarr v3
+//! spec (zarr-python and xarray read it in python/tests/test_zarr_export.py).
 //! GDAL's own validator runs in python/tests (pipelines/python/test.sh) and
 //! `r.sun` on the GRASS export in pipelines/gis/check_grass.sh.
 
@@ -602,4 +604,235 @@ fn every_method_writes_distances() {
             v.len()
         );
     }
+}
+
+/// A Zarr v3 array read from its `zarr.json` and chunk files as the spec
+/// says (regular grid, default keys, bytes then zstd), CF-decoded
+/// (`_FillValue` to NaN, then `scale_factor` and `add_offset`): its
+/// metadata and values, row-major.
+fn read_zarr_array(dir: &std::path::Path) -> (serde_json::Value, Vec<f64>) {
+    let meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("zarr.json")).unwrap()).unwrap();
+    let shape: Vec<usize> = serde_json::from_value(meta["shape"].clone()).unwrap();
+    let chunk: Vec<usize> =
+        serde_json::from_value(meta["chunk_grid"]["configuration"]["chunk_shape"].clone()).unwrap();
+    assert_eq!(meta["codecs"][1]["name"], "zstd");
+    let attrs = &meta["attributes"];
+    let (scale, offset) = (
+        attrs["scale_factor"].as_f64().unwrap_or(1.0),
+        attrs["add_offset"].as_f64().unwrap_or(0.0),
+    );
+    let fill = attrs["_FillValue"].as_f64();
+    let decode = |bytes: &[u8]| -> Vec<f64> {
+        let code: Vec<f64> = match meta["data_type"].as_str().unwrap() {
+            "float32" => bytes
+                .chunks_exact(4)
+                .map(|b| f64::from(f32::from_le_bytes(b.try_into().unwrap())))
+                .collect(),
+            "float64" => bytes
+                .chunks_exact(8)
+                .map(|b| f64::from_le_bytes(b.try_into().unwrap()))
+                .collect(),
+            "int64" => bytes
+                .chunks_exact(8)
+                .map(|b| i64::from_le_bytes(b.try_into().unwrap()) as f64)
+                .collect(),
+            "uint16" => bytes
+                .chunks_exact(2)
+                .map(|b| f64::from(u16::from_le_bytes(b.try_into().unwrap())))
+                .collect(),
+            "uint8" => bytes.iter().map(|&b| f64::from(b)).collect(),
+            other => panic!("data type {other}"),
+        };
+        code.into_iter()
+            .map(|c| {
+                if Some(c) == fill {
+                    f64::NAN
+                } else {
+                    offset + scale * c
+                }
+            })
+            .collect()
+    };
+    let n: usize = shape.iter().product();
+    let mut out = vec![f64::NAN; n];
+    if shape.is_empty() {
+        let v = decode(&zstd::decode_all(&std::fs::read(dir.join("c")).unwrap()[..]).unwrap());
+        return (meta, v);
+    }
+    let grid: Vec<usize> = shape
+        .iter()
+        .zip(&chunk)
+        .map(|(s, c)| s.div_ceil(*c))
+        .collect();
+    let chunks: usize = grid.iter().product();
+    for k in 0..chunks {
+        let mut index = vec![0; grid.len()];
+        let mut rest = k;
+        for d in (0..grid.len()).rev() {
+            index[d] = rest % grid[d];
+            rest /= grid[d];
+        }
+        let key: Vec<String> = index.iter().map(|i| i.to_string()).collect();
+        let stored = std::fs::read(dir.join("c").join(key.join("/"))).unwrap();
+        let values = decode(&zstd::decode_all(&stored[..]).unwrap());
+        assert_eq!(
+            values.len(),
+            chunk.iter().product::<usize>(),
+            "a whole chunk, padded"
+        );
+        for (j, v) in values.into_iter().enumerate() {
+            let mut at = vec![0; chunk.len()];
+            let mut rest = j;
+            for d in (0..chunk.len()).rev() {
+                at[d] = index[d] * chunk[d] + rest % chunk[d];
+                rest /= chunk[d];
+            }
+            if at.iter().zip(&shape).all(|(a, s)| a < s) {
+                let flat = at.iter().zip(&shape).fold(0, |acc, (a, s)| acc * s + a);
+                out[flat] = v;
+            }
+        }
+    }
+    (meta, out)
+}
+
+/// `export --layer all -o X.zarr`: every layer on the post grid as a Zarr
+/// v3 array equal to what the asset decodes (zstd heights copied as
+/// stored, raw u8 horizon codes compressed, packed with CF's
+/// scale_factor and add_offset, nodata code 0), the azimuth coordinate the
+/// recorded band azimuths, x and y the post centres; a store exported
+/// again is replaced whole; a directory that is not a Zarr store, and a
+/// link, are refused with nothing written.
+#[test]
+fn zarr_export_reads_back_as_the_asset_decodes() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = |p: &std::path::Path| p.to_str().unwrap().to_string();
+    let tif = dir.path().join("dem.tif");
+    let o = terrabake(&["synth", "fractal", "--size", "60x44", "-o", &s(&tif), "-q"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let recipe = dir.path().join("r.toml");
+    std::fs::write(
+        &recipe,
+        "[ingest]\ntile = 16\ncodec = \"zstd\"\n[[stage]]\nname = \"horizons\"\nsectors = 8\nencoding = \"u8\"\n[[stage]]\nname = \"sky\"\n",
+    )
+    .unwrap();
+    let asset_dir = dir.path().join("dem.tbake");
+    let o = terrabake(&[
+        "bake",
+        &s(&tif),
+        "-o",
+        &s(&asset_dir),
+        "--recipe",
+        &s(&recipe),
+        "-q",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = dir.path().join("dem.zarr");
+    let export = || terrabake(&["export", &s(&asset_dir), "--layer", "all", "-o", &s(&out)]);
+    let o = export();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("copied as stored"), "{}", stderr(&o));
+
+    let asset = terrabake_format::Asset::open(&asset_dir).unwrap();
+    let group: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("zarr.json")).unwrap()).unwrap();
+    assert_eq!(group["node_type"], "group");
+    let consolidated = group["consolidated_metadata"]["metadata"]
+        .as_object()
+        .unwrap();
+    let mut checked = Vec::new();
+    for layer in asset
+        .layers()
+        .iter()
+        .filter(|l| l.entry().level == 0 && l.width() == 60)
+    {
+        let name = &layer.entry().name;
+        let (meta, got) = read_zarr_array(&out.join(name));
+        assert_eq!(&consolidated[name.as_str()], &meta, "{name}");
+        let (w, h) = (layer.width(), layer.height());
+        let mut want = vec![0f32; (w * h) as usize];
+        for b in 0..layer.bands() {
+            layer.read_rows_f32(b, 0, &mut want).unwrap();
+            let plane = &got[(b * w * h) as usize..((b + 1) * w * h) as usize];
+            for (i, (g, w)) in plane.iter().zip(&want).enumerate() {
+                assert!(
+                    (g.is_nan() && w.is_nan()) || *g as f32 == *w,
+                    "{name} band {b} element {i}: {g} from Zarr, {w} from the asset"
+                );
+            }
+        }
+        checked.push(name.clone());
+        if name == "horizon" {
+            assert_eq!(meta["data_type"], "uint8", "codes, not widened");
+            assert_eq!(
+                meta["dimension_names"],
+                serde_json::json!(["azimuth", "y", "x"])
+            );
+            assert_eq!(
+                meta["chunk_grid"]["configuration"]["chunk_shape"],
+                serde_json::json!([1, 16, 16])
+            );
+            let (_, azimuths) = read_zarr_array(&out.join("azimuth"));
+            assert_eq!(azimuths, layer.entry().band_azimuths);
+        }
+    }
+    assert!(
+        checked.len() >= 5 && checked.contains(&"height".to_string()),
+        "{checked:?}"
+    );
+    let t = asset
+        .manifest()
+        .georef
+        .as_ref()
+        .unwrap()
+        .corner_geotransform();
+    let (_, xs) = read_zarr_array(&out.join("x"));
+    let (_, ys) = read_zarr_array(&out.join("y"));
+    assert_eq!((xs.len(), ys.len()), (60, 44));
+    assert!(
+        (xs[1] - (t[0] + 1.5 * t[1])).abs() < 1e-9 && (ys[0] - (t[3] + 0.5 * t[5])).abs() < 1e-9
+    );
+
+    // Exported again: replaced whole, nothing left beside it.
+    std::fs::write(out.join("stray"), b"from before").unwrap();
+    let o = export();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(!out.join("stray").exists());
+    let beside: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with('.'))
+        .collect();
+    assert!(beside.is_empty(), "{beside:?}");
+
+    // A user's directory, and a link, are not replaced.
+    let theirs = dir.path().join("theirs.zarr");
+    std::fs::create_dir(&theirs).unwrap();
+    std::fs::write(theirs.join("notes.txt"), b"mine").unwrap();
+    let link = dir.path().join("link.zarr");
+    std::os::unix::fs::symlink(&out, &link).unwrap();
+    for target in [&theirs, &link] {
+        let o = terrabake(&["export", &s(&asset_dir), "--layer", "svf", "-o", &s(target)]);
+        assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+        assert!(stderr(&o).contains("is not a Zarr store"), "{}", stderr(&o));
+    }
+    assert_eq!(std::fs::read(theirs.join("notes.txt")).unwrap(), b"mine");
+    assert!(std::fs::symlink_metadata(&link)
+        .unwrap()
+        .file_type()
+        .is_symlink());
+    // Several layers go to a store only.
+    let o = terrabake(&[
+        "export",
+        &s(&asset_dir),
+        "--layer",
+        "svf",
+        "--layer",
+        "height",
+        "-o",
+        &s(&dir.path().join("x.tif")),
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("only a .zarr store"), "{}", stderr(&o));
 }

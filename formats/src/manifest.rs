@@ -378,6 +378,17 @@ impl Georef {
         }
     }
 
+    /// The geotransform of pixel corners (GDAL's pixel-is-area form, what
+    /// rioxarray, CF's `GeoTransform` and GeoZarr take), whatever the raster
+    /// type: a pixel-is-point origin moved back half a pixel.
+    pub fn corner_geotransform(&self) -> [f64; 6] {
+        let mut t = self.geotransform;
+        let shift = self.post_offset() - 0.5;
+        t[0] += shift * (t[1] + t[2]);
+        t[3] += shift * (t[4] + t[5]);
+        t
+    }
+
     /// CRS coordinates of post `(col, row)` (fractional posts allowed).
     pub fn post_to_world(&self, col: f64, row: f64) -> (f64, f64) {
         let t = &self.geotransform;

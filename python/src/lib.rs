@@ -334,13 +334,7 @@ impl Asset {
     /// whose posts sit at the pixels' centres.
     #[getter]
     fn transform(&self) -> Option<[f64; 6]> {
-        let g = self.inner.manifest().georef.as_ref()?;
-        let mut t = g.geotransform;
-        if g.raster_type == terrabake_format::manifest::RasterType::Point {
-            t[0] -= 0.5 * (t[1] + t[2]);
-            t[3] -= 0.5 * (t[4] + t[5]);
-        }
-        Some(t)
+        Some(self.inner.manifest().georef.as_ref()?.corner_geotransform())
     }
 
     /// The CRS as WKT (WGS 84 and its UTM zones), `EPSG:n` for other EPSG
@@ -387,6 +381,21 @@ impl Asset {
             .collect();
         d.set_item("band_descriptions", descriptions)?;
         Ok(d)
+    }
+
+    /// The CF attributes of layer `name` at `level`, as JSON: what the Zarr
+    /// export writes on its variable (UDUNITS units, long_name, the stage
+    /// and its parameters, each band's description) and, for quantised
+    /// codes, their packing (scale_factor, add_offset, _FillValue). The
+    /// xarray backend's attributes.
+    #[pyo3(signature = (name, level = 0))]
+    fn cf_attributes(&self, name: &str, level: u32) -> PyResult<String> {
+        let layer = self.inner.layer(name, level).map_err(raise)?;
+        guarded("cf_attributes", || {
+            let (_, attrs) = terrabake::export::dataset::variable_attributes(&self.inner, layer)
+                .map_err(raise)?;
+            serde_json::to_string(&attrs).map_err(|e| raise(anyhow::Error::new(e)))
+        })
     }
 
     /// The layer as an `xarray.DataArray` (dims band, y, x; coordinates

@@ -56,6 +56,8 @@ class Asset:
         """Compass azimuth of each band (degrees clockwise from north)."""
     def attributes(self, name: str, level: int = 0) -> dict[str, Any]:
         """Units, method, description, version and source of a layer."""
+    def cf_attributes(self, name: str, level: int = 0) -> str:
+        """The layer's CF attributes as the Zarr export writes them, as JSON."""
     def to_xarray(self, name: str, level: int = 0) -> Any:
         """The layer as an xarray.DataArray (needs xarray)."""
     def manifest_json(self) -> str: ...

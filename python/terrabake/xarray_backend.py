@@ -13,12 +13,16 @@ dimension holding the recorded band azimuths, degrees clockwise from north
 several bands (the solar stage's months) a ``<layer>_band`` dimension.
 ``x``, ``y`` and ``spatial_ref`` are :func:`terrabake.to_xarray`'s, so
 rioxarray's ``.rio.crs``, ``.rio.bounds()`` and ``.rio.to_raster()`` see
-the asset's georeferencing. The entry point is declared in the package's
-metadata (``[project.entry-points."xarray.backends"]``).
+the asset's georeferencing. The attributes are those the Zarr export
+(``terrabake export --layer all -o X.zarr``) writes, from the same Rust
+code: a store and the asset it came from open as the same dataset. The
+entry point is declared in the package's metadata
+(``[project.entry-points."xarray.backends"]``).
 """
 
 from __future__ import annotations
 
+import json
 import os
 import typing as _typing
 
@@ -117,8 +121,11 @@ class TerrabakeBackendEntrypoint(BackendEntrypoint):
         variables = {}
         for entry in entries:
             name, bands = entry["name"], entry["bands"]
-            attrs = dict(asset.attributes(name, level))
-            attrs["band_descriptions"] = list(attrs.get("band_descriptions", []))
+            # The Zarr export's attributes; the values come decoded, so the
+            # packing of quantised codes is not theirs.
+            attrs = json.loads(asset.cf_attributes(name, level))
+            for packing in ("scale_factor", "add_offset", "_FillValue"):
+                attrs.pop(packing, None)
             dims: _typing.Tuple[str, ...] = ("y", "x")
             if bands > 1:
                 if entry in directional:

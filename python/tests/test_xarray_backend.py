@@ -69,7 +69,7 @@ def test_open_dataset_is_lazy_and_reads_one_window_per_selection(asset: Path) ->
     # before a backend sees them.)
     picked = ds["horizon"].isel(azimuth=slice(1, None, 2), y=slice(10, 50, 7), x=40).values
     np.testing.assert_array_equal(picked, whole[1::2, 10:50:7, 40])
-    assert ds["horizon"].attrs["units"] == "deg"
+    assert ds["horizon"].attrs["units"] == "degree" and ds["horizon"].attrs["method"] == "line"
 
 
 def test_azimuths_are_the_recorded_band_azimuths(asset: Path) -> None:

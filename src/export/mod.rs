@@ -1,16 +1,20 @@
 //! Layers out of an asset: Cloud-Optimized GeoTIFF ([`crate::io::cog`]:
 //! georeferencing, nodata and band descriptions kept, so GDAL and QGIS read
 //! back the same geotransform and know each band's azimuth), OpenEXR (float,
-//! for engines), and PNG previews for people.
+//! for engines), PNG previews for people, and Zarr v3 ([`zarr`]: several
+//! layers as one CF dataset, [`dataset`], for xarray and the cloud tools).
 //!
-//! Every writer here goes through [`write_atomically`]: a failed export
+//! Every writer here goes through [`write_atomically`] (a directory through
+//! [`crate::plumbing::output::write_dir_atomically`]): a failed export
 //! never leaves a half-written file where a good one stood.
 
 pub mod correction;
+pub mod dataset;
 pub mod engine;
 pub mod grass;
 pub mod texture;
 pub mod viewshed;
+pub mod zarr;
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -47,6 +51,7 @@ pub enum ExportKind {
     Exr,
     Png,
     Ktx2,
+    Zarr,
 }
 
 impl ExportKind {
@@ -61,8 +66,9 @@ impl ExportKind {
             Some("exr") => Ok(Self::Exr),
             Some("png") => Ok(Self::Png),
             Some("ktx2") => Ok(Self::Ktx2),
+            Some("zarr") => Ok(Self::Zarr),
             _ => bail!(
-                "{}: export writes .tif, .exr, .png or .ktx2",
+                "{}: export writes .tif, .exr, .png, .ktx2 or .zarr",
                 path.display()
             ),
         }
@@ -376,9 +382,10 @@ fn layer_unit(layer: &str) -> &'static str {
 pub struct ExportArgs {
     /// The asset directory (made by `terrabake ingest` or `terrabake bake`).
     pub asset: PathBuf,
-    /// Layer name (see `terrabake info`).
+    /// Layer name (see `terrabake info`). A .zarr store takes several (`--layer horizon
+    /// --layer svf`) or `all`: every layer at --level, as one dataset.
     #[arg(long, default_value = "height")]
-    pub layer: String,
+    pub layer: Vec<String>,
     /// Pyramid level of the layer.
     #[arg(long, default_value_t = 0)]
     pub level: u32,
@@ -409,9 +416,11 @@ pub struct ExportArgs {
     /// harmonics (at most (bands - 1) / 2), a float array texture, instead of the bands.
     #[arg(long, value_name = "K")]
     pub fourier: Option<usize>,
-    /// The file to write: .tif (GeoTIFF), .exr, .png (a preview) or .ktx2 (a texture for
+    /// The file to write: .tif (GeoTIFF), .exr, .png (a preview), .ktx2 (a texture for
     /// shaders: horizons as an array, cone planes as an RG texture conservative under bilinear
-    /// filtering), by its extension; a directory with --for.
+    /// filtering) or .zarr (a Zarr v3 store: CF attributes, an azimuth dimension, chunks = the
+    /// asset's tiles, quantised layers as their codes with scale_factor and add_offset), by its
+    /// extension; a directory with --for.
     #[arg(short, long)]
     pub output: PathBuf,
 }
@@ -433,8 +442,12 @@ impl Run for ExportArgs {
     fn run(&self, s: &Session) -> crate::Result<ExitCode> {
         let progress = s.progress;
         let asset = crate::stage::asset::open(&self.asset)?;
+        if ExportKind::from_path(&self.output).ok() == Some(ExportKind::Zarr) {
+            return self.run_zarr(&asset, s);
+        }
+        let layer_name = self.one_layer()?;
         if self.for_program == Some(ExportFor::Grass) {
-            if self.layer != terrabake_format::layers::HORIZON || self.level != 0 {
+            if layer_name != terrabake_format::layers::HORIZON || self.level != 0 {
                 bail!("--for grass exports the horizon layer: add --layer horizon");
             }
             let (files, step) =
@@ -456,16 +469,7 @@ impl Run for ExportArgs {
             self.run_fourier(&asset, harmonics, s)?;
             return Ok(ExitCode::SUCCESS);
         }
-        let layer =
-            asset
-                .layer(&self.layer, self.level)
-                .map_err(|e| match stage_making(&self.layer) {
-                    Some(stage) => anyhow::anyhow!(
-                        "{e}; `terrabake {stage} {}` makes it",
-                        self.asset.display()
-                    ),
-                    None => e.into(),
-                })?;
+        let layer = self.open_layer(&asset, layer_name)?;
         export_layer(
             &asset,
             layer,
@@ -481,6 +485,82 @@ impl Run for ExportArgs {
 }
 
 impl ExportArgs {
+    /// The one layer every export but Zarr takes.
+    fn one_layer(&self) -> Result<&str> {
+        match self.layer.as_slice() {
+            [one] if one != "all" => Ok(one),
+            _ => bail!(
+                "{}: only a .zarr store takes several layers or `all`; give one --layer",
+                self.output.display()
+            ),
+        }
+    }
+
+    /// Layer `name` at --level, or an error that says which stage makes it.
+    fn open_layer<'a>(&self, asset: &'a Asset<Mmap>, name: &str) -> Result<&'a Layer<Mmap>> {
+        asset
+            .layer(name, self.level)
+            .map_err(|e| match stage_making(name) {
+                Some(stage) => {
+                    anyhow::anyhow!("{e}; `terrabake {stage} {}` makes it", self.asset.display())
+                }
+                None => e.into(),
+            })
+    }
+
+    /// `-o X.zarr`: the layers asked for as one Zarr v3 group.
+    fn run_zarr(&self, asset: &Asset<Mmap>, s: &Session) -> crate::Result<ExitCode> {
+        if self.for_program.is_some() || self.fourier.is_some() {
+            bail!(
+                "--for and --fourier write other formats; a .zarr export takes --layer and --level"
+            );
+        }
+        let mut skipped = Vec::new();
+        let layers: Vec<&Layer<Mmap>> = if self.layer.iter().any(|l| l == "all") {
+            // The grid of the first layer at the level (the heights at 0):
+            // the pyramids, over cells rather than posts, are another.
+            let at_level = || {
+                asset
+                    .layers()
+                    .iter()
+                    .filter(|l| l.entry().level == self.level)
+            };
+            let grid = at_level().next().map(|l| (l.width(), l.height()));
+            let (same, other): (Vec<_>, Vec<_>) =
+                at_level().partition(|l| Some((l.width(), l.height())) == grid);
+            skipped = other.iter().map(|l| l.entry().key()).collect();
+            same
+        } else {
+            self.layer
+                .iter()
+                .map(|name| self.open_layer(asset, name))
+                .collect::<Result<_>>()?
+        };
+        crate::error::ensure!(
+            !layers.is_empty(),
+            "{}: no layer at level {}",
+            self.asset.display(),
+            self.level
+        );
+        let report = zarr::export_zarr(asset, &layers, &self.output, s.progress)?;
+        if !skipped.is_empty() {
+            s.say(format!(
+                "left out {} (another grid; export them to a store of their own)",
+                skipped.join(", ")
+            ));
+        }
+        s.say(format!(
+            "wrote {} ({} layer(s), {} arrays, {} chunks of which {} copied as stored, {:.1} MiB)",
+            self.output.display(),
+            layers.len(),
+            report.arrays,
+            report.chunks,
+            report.copied,
+            report.bytes as f64 / f64::from(1 << 20)
+        ));
+        Ok(ExitCode::SUCCESS)
+    }
+
     /// `--for unreal|unity|godot`: the heights as the engine imports them.
     fn run_for_engine(&self, asset: &Asset<Mmap>, program: ExportFor, s: &Session) -> Result<()> {
         let engine = match program {
@@ -489,11 +569,11 @@ impl ExportArgs {
             ExportFor::Godot => engine::Engine::Godot,
             ExportFor::Grass => unreachable!("run handles grass"),
         };
-        if self.layer != terrabake_format::HEIGHT_LAYER || self.level != 0 {
+        if self.layer != [terrabake_format::HEIGHT_LAYER] || self.level != 0 {
             bail!(
                 "--for {} exports the height layer at level 0: drop --layer {} --level {}",
                 engine.name(),
-                self.layer,
+                self.layer.join(" --layer "),
                 self.level
             );
         }
@@ -511,7 +591,7 @@ impl ExportArgs {
 
     /// `--fourier K`: the horizons as Fourier coefficients, a KTX2 texture.
     fn run_fourier(&self, asset: &Asset<Mmap>, harmonics: usize, s: &Session) -> Result<()> {
-        if self.layer != terrabake_format::layers::HORIZON
+        if self.layer != [terrabake_format::layers::HORIZON]
             || ExportKind::from_path(&self.output)? != ExportKind::Ktx2
         {
             bail!("--fourier writes the horizon layer as a texture: give --layer horizon and an -o ending in .ktx2");
@@ -606,6 +686,7 @@ pub(crate) fn export_layer(
         }
         ExportKind::Png => write_png_preview(out, layer, manifest, style, band, height_like),
         ExportKind::Ktx2 => texture::write_ktx2(out, &texture::texture_for_layer(asset, layer)?),
+        ExportKind::Zarr => Ok(zarr::export_zarr(asset, &[layer], out, progress).map(|_| ())?),
     }
 }
 

@@ -198,21 +198,11 @@ pub(crate) fn utm_zone(epsg: u32) -> Option<(u32, bool)> {
     }
 }
 
-/// The WKT (OGC WKT 1, as GDAL writes it) of WGS 84 (EPSG:4326) and of its
-/// UTM zones (326zz, 327zz), the CRSs of SRTM, Copernicus and their UTM
-/// reprojections; `None` for any other code (we carry no EPSG database).
+/// The WKT (OGC WKT 1) of EPSG code `epsg`, from the EPSG database that
+/// `crs-definitions` carries as data; `None` for a code it does not know.
 pub fn wkt(epsg: u32) -> Option<String> {
-    const GEOGCS: &str = "GEOGCS[\"WGS 84\",DATUM[\"WGS_1984\",SPHEROID[\"WGS 84\",6378137,298.257223563,AUTHORITY[\"EPSG\",\"7030\"]],AUTHORITY[\"EPSG\",\"6326\"]],PRIMEM[\"Greenwich\",0,AUTHORITY[\"EPSG\",\"8901\"]],UNIT[\"degree\",0.0174532925199433,AUTHORITY[\"EPSG\",\"9122\"]],AXIS[\"Latitude\",NORTH],AXIS[\"Longitude\",EAST],AUTHORITY[\"EPSG\",\"4326\"]]";
-    if epsg == 4326 {
-        return Some(GEOGCS.to_string());
-    }
-    let (zone, south) = utm_zone(epsg)?;
-    let hemisphere = if south { "S" } else { "N" };
-    let false_northing = if south { 10_000_000 } else { 0 };
-    let meridian = 6 * i64::from(zone) - 183;
-    Some(format!(
-        "PROJCS[\"WGS 84 / UTM zone {zone}{hemisphere}\",{GEOGCS},PROJECTION[\"Transverse_Mercator\"],PARAMETER[\"latitude_of_origin\",0],PARAMETER[\"central_meridian\",{meridian}],PARAMETER[\"scale_factor\",0.9996],PARAMETER[\"false_easting\",500000],PARAMETER[\"false_northing\",{false_northing}],UNIT[\"metre\",1,AUTHORITY[\"EPSG\",\"9001\"]],AXIS[\"Easting\",EAST],AXIS[\"Northing\",NORTH],AUTHORITY[\"EPSG\",\"{epsg}\"]]"
-    ))
+    let def = crs_definitions::from_code(u16::try_from(epsg).ok()?)?;
+    Some(def.wkt.to_string())
 }
 
 /// Longitude and latitude (degrees, WGS 84) to UTM easting and northing
