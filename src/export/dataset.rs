@@ -173,8 +173,7 @@ pub fn dataset<'a>(asset: &Asset<Mmap>, layers: &[&'a Layer<Mmap>]) -> crate::Re
             attrs: axis_attrs("x"),
         },
     ];
-    let grid_mapping = georef.map(|g| {
-        let t = g.corner_geotransform();
+    let grid_mapping = georef.zip(corner).map(|(g, t)| {
         let t = [
             t[0],
             t[1] * scale,
