@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # COG export benchmark (docs/BENCHMARKS.md, "Cloud-Optimized GeoTIFF
 # export"): a SIZE x SIZE fractal (16384: a 1 GiB height layer) ingested
-# raw, then exported as a COG (deflate, zstd, none) inside a memory cgroup
+# raw, then exported as a COG (deflate, zstd, none) and as NetCDF-4 inside a memory cgroup
 # of LIMIT_MIB (256: a quarter of the layer; page cache included, as the
 # kernel charges it), under /usr/bin/time -v: wall time, MiB/s of float32
 # posts, peak RSS (which counts the mapped input's pages, reclaimable) and
@@ -60,6 +60,8 @@ for round in 1 2; do
   run "height ${SIZE}^2, COG deflate (round $round)" "$BIN" "$WORK/fractal.tbake" height "$WORK/cog.tif"
 done
 run "height ${SIZE}^2, COG zstd" "$BIN" "$WORK/fractal.tbake" height "$WORK/cog_zstd.tif" --compress zstd
+# The same heights as NetCDF-4 (shuffle and deflate, 256^2 chunks), beside.
+run "height ${SIZE}^2, NetCDF-4 deflate" "$BIN" "$WORK/fractal.tbake" height "$WORK/height.nc"
 # The peer: GDAL's COG driver on the same heights (the synthetic GeoTIFF,
 # tiled 512 and uncompressed, so its reading is as cheap as our mapping),
 # its default levels, every core, a 64 MiB block cache to fit the cgroup.

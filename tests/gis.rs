@@ -606,6 +606,33 @@ fn every_method_writes_distances() {
     }
 }
 
+/// A 60 x 44 fractal baked in 16-post tiles (zstd heights, u8 horizons in
+/// 8 directions, the sky): what the array exports' tests write out.
+fn bake_exports_fixture(dir: &std::path::Path) -> std::path::PathBuf {
+    let s = |p: &std::path::Path| p.to_str().unwrap().to_string();
+    let tif = dir.join("dem.tif");
+    let o = terrabake(&["synth", "fractal", "--size", "60x44", "-o", &s(&tif), "-q"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let recipe = dir.join("r.toml");
+    std::fs::write(
+        &recipe,
+        "[ingest]\ntile = 16\ncodec = \"zstd\"\n[[stage]]\nname = \"horizons\"\nsectors = 8\nencoding = \"u8\"\n[[stage]]\nname = \"sky\"\n",
+    )
+    .unwrap();
+    let asset_dir = dir.join("dem.tbake");
+    let o = terrabake(&[
+        "bake",
+        &s(&tif),
+        "-o",
+        &s(&asset_dir),
+        "--recipe",
+        &s(&recipe),
+        "-q",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    asset_dir
+}
+
 /// A Zarr v3 array read from its `zarr.json` and chunk files as the spec
 /// says (regular grid, default keys, bytes then zstd), CF-decoded
 /// (`_FillValue` to NaN, then `scale_factor` and `add_offset`): its
@@ -708,26 +735,7 @@ fn read_zarr_array(dir: &std::path::Path) -> (serde_json::Value, Vec<f64>) {
 fn zarr_export_reads_back_as_the_asset_decodes() {
     let dir = tempfile::tempdir().unwrap();
     let s = |p: &std::path::Path| p.to_str().unwrap().to_string();
-    let tif = dir.path().join("dem.tif");
-    let o = terrabake(&["synth", "fractal", "--size", "60x44", "-o", &s(&tif), "-q"]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let recipe = dir.path().join("r.toml");
-    std::fs::write(
-        &recipe,
-        "[ingest]\ntile = 16\ncodec = \"zstd\"\n[[stage]]\nname = \"horizons\"\nsectors = 8\nencoding = \"u8\"\n[[stage]]\nname = \"sky\"\n",
-    )
-    .unwrap();
-    let asset_dir = dir.path().join("dem.tbake");
-    let o = terrabake(&[
-        "bake",
-        &s(&tif),
-        "-o",
-        &s(&asset_dir),
-        "--recipe",
-        &s(&recipe),
-        "-q",
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    let asset_dir = bake_exports_fixture(dir.path());
     let out = dir.path().join("dem.zarr");
     let export = || terrabake(&["export", &s(&asset_dir), "--layer", "all", "-o", &s(&out)]);
     let o = export();
@@ -835,4 +843,95 @@ fn zarr_export_reads_back_as_the_asset_decodes() {
     ]);
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     assert!(stderr(&o).contains("only a .zarr store"), "{}", stderr(&o));
+}
+
+/// `export --layer all -o X.nc` writes a whole HDF5 file: the superblock's
+/// checksum holds, it names the file's length and a checksummed root
+/// group; `ncdump` (netCDF-C, where installed) lists the dimensions and
+/// gives the horizons' u8 codes equal to the asset's. A link at the output
+/// is replaced, never written through. The Python tests read the file with
+/// netCDF4, h5netcdf and GDAL (python/tests/test_netcdf_export.py). The
+/// checksum is HDF5's lookup3, checked against Jenkins' own vectors in its
+/// unit test.
+#[test]
+fn netcdf_export_is_a_whole_hdf5_file_that_netcdf_reads() {
+    use terrabake::export::hdf5::checksum;
+    let dir = tempfile::tempdir().unwrap();
+    let s = |p: &std::path::Path| p.to_str().unwrap().to_string();
+    let asset_dir = bake_exports_fixture(dir.path());
+    // The output is a link to someone's file: replaced, the file untouched.
+    let victim = dir.path().join("victim.txt");
+    std::fs::write(&victim, b"mine").unwrap();
+    let out = dir.path().join("dem.nc");
+    std::os::unix::fs::symlink(&victim, &out).unwrap();
+    let o = terrabake(&["export", &s(&asset_dir), "--layer", "all", "-o", &s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(std::fs::read(&victim).unwrap(), b"mine");
+    assert!(std::fs::symlink_metadata(&out).unwrap().is_file());
+
+    let bytes = std::fs::read(&out).unwrap();
+    assert_eq!(
+        &bytes[..9],
+        b"\x89HDF\r\n\x1a\n\x02",
+        "superblock version 2"
+    );
+    let u64_at = |i: usize| u64::from_le_bytes(bytes[i..i + 8].try_into().unwrap());
+    assert_eq!(
+        checksum(&bytes[..44]),
+        u32::from_le_bytes(bytes[44..48].try_into().unwrap())
+    );
+    assert_eq!(u64_at(28), bytes.len() as u64, "end of file address");
+    let root = u64_at(36) as usize;
+    assert_eq!(&bytes[root..root + 5], b"OHDR\x02");
+    let width = 1 << (bytes[root + 5] & 3);
+    let body = (0..width).fold(0usize, |n, i| {
+        n | (bytes[root + 10 + i] as usize) << (8 * i)
+    });
+    let end = root + 10 + width + body;
+    assert_eq!(
+        checksum(&bytes[root..end]),
+        u32::from_le_bytes(bytes[end..end + 4].try_into().unwrap())
+    );
+
+    let Ok(dump) = std::process::Command::new("ncdump")
+        .args(["-v", "horizon"])
+        .arg(&out)
+        .output()
+    else {
+        eprintln!(
+            "ncdump is not installed (netcdf-bin): the NetCDF read-back is left to python/tests"
+        );
+        return;
+    };
+    let text = String::from_utf8_lossy(&dump.stdout);
+    assert!(
+        dump.status.success(),
+        "{}",
+        String::from_utf8_lossy(&dump.stderr)
+    );
+    for line in [
+        "y = 44 ;",
+        "x = 60 ;",
+        "azimuth = 8 ;",
+        "ubyte horizon(azimuth, y, x) ;",
+    ] {
+        assert!(text.contains(line), "{line} missing from\n{text}");
+    }
+    let data = &text[text.find("horizon =").unwrap() + 9..];
+    let codes: Vec<u8> = data[..data.find(';').unwrap()]
+        .split(|c: char| c == ',' || c.is_whitespace())
+        .filter(|t| !t.is_empty())
+        .map(|t| t.parse().unwrap())
+        .collect();
+    let asset = terrabake_format::Asset::open(&asset_dir).unwrap();
+    let layer = asset.layer("horizon", 0).unwrap();
+    let mut want = Vec::new();
+    for b in 0..8 {
+        for y in 0..44 {
+            for x in 0..60 {
+                want.push(layer.get::<u8>(b, x, y).unwrap());
+            }
+        }
+    }
+    assert_eq!(codes, want);
 }

@@ -10,7 +10,9 @@
 # GDAL-made variants of the bundled SRTM tile (latitudes, projections,
 # south-up, sample types, nodata conventions). The Zarr export's round
 # trip (python/tests/test_zarr_export.py) runs last, in a second
-# environment with zarr-python 3.
+# environment with zarr-python 3, which also reads the NetCDF export
+# (python/tests/test_netcdf_export.py) through PyPI's netCDF4 and h5netcdf,
+# as the first reads it through Debian's netCDF4 and GDAL.
 #
 #   bash pipelines/python/test.sh            # what `make test` runs
 set -euo pipefail
@@ -25,6 +27,10 @@ fi
 if ! "$py" -c "import osgeo.gdal" 2>/dev/null; then
   echo "python/test.sh: installing Debian's python3-gdal (once), for GDAL's COG validator" >&2
   apt_install python3-gdal gdal-bin || echo "python/test.sh: no GDAL bindings: the GDAL checks will be skipped" >&2
+fi
+if ! "$py" -c "import netCDF4" 2>/dev/null; then
+  echo "python/test.sh: installing Debian's python3-netcdf4 (once), to read the NetCDF export back" >&2
+  apt_install python3-netcdf4 || echo "python/test.sh: no netCDF4: the NetCDF export's Debian round trip will be skipped" >&2
 fi
 if ! "$py" -c "import xarray" 2>/dev/null; then
   echo "python/test.sh: installing Debian's python3-xarray (once), for to_xarray" >&2
@@ -68,11 +74,11 @@ env -u CARGO_HOME -u RUSTUP_HOME PATH="$no_rust" TERRABAKE_BIN="$(pwd)/target/re
 zvenv=target/zarr-venv
 rm -rf "$zvenv"
 "$py" -m venv "$zvenv"
-if "$zvenv/bin/pip" install -q --disable-pip-version-check "zarr>=3" xarray rioxarray dask pytest; then
+if "$zvenv/bin/pip" install -q --disable-pip-version-check "zarr>=3" xarray rioxarray dask netCDF4 h5netcdf h5py pytest; then
   env -u CARGO_HOME -u RUSTUP_HOME PATH="$no_rust" "$zvenv/bin/pip" install -q --disable-pip-version-check target/wheels/terrabake-*.whl
   env -u CARGO_HOME -u RUSTUP_HOME PATH="$no_rust" TERRABAKE_BIN="$(pwd)/target/release/terrabake" \
-    "$zvenv/bin/python" -m pytest -q python/tests/test_zarr_export.py python/tests/test_xarray_backend.py
+    "$zvenv/bin/python" -m pytest -q python/tests/test_zarr_export.py python/tests/test_netcdf_export.py python/tests/test_xarray_backend.py
 else
-  echo "python/test.sh: no zarr-python 3 from PyPI: the Zarr round trip was not run" >&2
+  echo "python/test.sh: no zarr-python 3 (or netCDF4, h5netcdf) from PyPI: the Zarr and NetCDF round trips were not run" >&2
   exit 1
 fi

@@ -13,9 +13,10 @@ dimension holding the recorded band azimuths, degrees clockwise from north
 several bands (the solar stage's months) a ``<layer>_band`` dimension.
 ``x``, ``y`` and ``spatial_ref`` are :func:`terrabake.to_xarray`'s, so
 rioxarray's ``.rio.crs``, ``.rio.bounds()`` and ``.rio.to_raster()`` see
-the asset's georeferencing. The attributes are those the Zarr export
-(``terrabake export --layer all -o X.zarr``) writes, from the same Rust
-code: a store and the asset it came from open as the same dataset. The
+the asset's georeferencing. The attributes are those the Zarr and NetCDF
+exports (``terrabake export --layer all -o X.zarr`` or ``-o X.nc``) write,
+from the same Rust code: an export and the asset it came from open as the
+same dataset. The
 entry point is declared in the package's metadata
 (``[project.entry-points."xarray.backends"]``).
 """

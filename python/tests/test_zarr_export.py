@@ -21,44 +21,17 @@ if int(zarr.__version__.split(".")[0]) < 3:
     pytest.skip("Zarr v3 needs zarr-python 3", allow_module_level=True)
 
 import terrabake  # noqa: E402
+from conftest import assert_same_dataset  # noqa: E402
 
 BIN = os.environ.get("TERRABAKE_BIN", "target/release/terrabake")
-ROOT = Path(__file__).resolve().parents[2]
-
-# Heights zstd (copied into the store as stored), horizons in u8 codes,
-# the solar stage's months (a band dimension that is not azimuths).
-RECIPE = """
-[ingest]
-tile = 128
-codec = "zstd"
-[[stage]]
-name = "horizons"
-sectors = 8
-max_distance = 3000
-encoding = "u8"
-[[stage]]
-name = "sky"
-[[stage]]
-name = "solar"
-days = "1-59"
-monthly = true
-step_minutes = 60
-"""
 
 
 @pytest.fixture(scope="module")
-def baked(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    """The bundled SRTM tile (geographic, int16 with nodata) baked, and
-    every layer of its post grid exported to a Zarr store."""
-    tmp = tmp_path_factory.mktemp("zarr")
-    recipe = tmp / "r.toml"
-    recipe.write_text(RECIPE)
-    asset = tmp / "srtm.tbake"
-    dem = ROOT / "data/srtm3_n07w006_geographic_int16.tif"
-    subprocess.run([BIN, "-q", "bake", dem, "-o", asset, "--recipe", recipe], check=True)
-    store = tmp / "srtm.zarr"
-    subprocess.run([BIN, "-q", "export", asset, "--layer", "all", "-o", store], check=True)
-    return asset, store
+def baked(export_asset: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """The shared asset (conftest.py) and every layer of its post grid exported to a Zarr store."""
+    store = tmp_path_factory.mktemp("zarr") / "srtm.zarr"
+    subprocess.run([BIN, "-q", "export", export_asset, "--layer", "all", "-o", store], check=True)
+    return export_asset, store
 
 
 def test_zarr_python_reads_codes_chunked_by_tiles(baked: tuple[Path, Path]) -> None:
@@ -84,21 +57,9 @@ def test_xarray_opens_the_store_as_the_backend_opens_the_asset(baked: tuple[Path
         warnings.simplefilter("error", RuntimeWarning)
         stored = xr.open_zarr(store)
     live = xr.open_dataset(asset, engine="terrabake")
-    assert set(stored.data_vars) == set(live.data_vars)
-    assert {"height", "horizon", "svf", "solar_global"} <= set(stored.data_vars)
-    for name in live.data_vars:
-        got, want = stored[name], live[name]
-        assert got.dims == want.dims, name
-        # CF unpacks the u8 codes in float64; the asset decodes to float32.
-        np.testing.assert_array_equal(got.values.astype(np.float32), want.values, err_msg=name)
-        # The store also says which coordinate is the grid mapping (the
-        # backend keeps that in encoding) and GeoZarr's spatial dimensions.
-        extra = {"grid_mapping", "spatial:dimensions"}
-        assert {k: v for k, v in got.attrs.items() if k not in extra} == want.attrs, name
-    for coord in ("x", "y", "azimuth", "solar_global_band"):
-        np.testing.assert_array_equal(stored[coord].values, live[coord].values, err_msg=coord)
-    assert stored["spatial_ref"].attrs["crs_wkt"] == live["spatial_ref"].attrs["crs_wkt"]
-    assert stored["spatial_ref"].attrs["GeoTransform"] == live["spatial_ref"].attrs["GeoTransform"]
+    # The store also says which coordinate is the grid mapping (the backend
+    # keeps that in encoding) and GeoZarr's spatial dimensions.
+    assert_same_dataset(stored, live, {"grid_mapping", "spatial:dimensions"})
 
 
 def test_georeferencing_is_the_geotiff_exports(baked: tuple[Path, Path], tmp_path: Path) -> None:

@@ -24,7 +24,7 @@
 
 use anyhow::anyhow;
 use serde_json::{json, Map, Value};
-use terrabake_format::layout::ElemType;
+use terrabake_format::layout::{Codec, ElemType};
 use terrabake_format::{Asset, Layer, Mmap};
 
 use super::{cog_for_layer, layer_title, layer_unit};
@@ -99,6 +99,19 @@ pub struct Dataset<'a> {
     pub coordinates: Vec<Coordinate>,
     pub variables: Vec<Variable<'a>>,
     pub attrs: Map<String, Value>,
+    /// GeoZarr's spatial and projection attributes of the group: Zarr's
+    /// alone, the NetCDF export has CF's grid mapping.
+    pub geozarr: Map<String, Value>,
+}
+
+impl Dataset<'_> {
+    /// Chunks of every variable: a tile of a band each.
+    pub fn chunk_count(&self) -> u64 {
+        self.variables
+            .iter()
+            .map(|v| u64::from(v.layer.bands()) * u64::from(v.layer.tiles_x() * v.layer.tiles_y()))
+            .sum()
+    }
 }
 
 /// The dataset of `layers` (one grid: one level of one asset).
@@ -207,6 +220,7 @@ pub fn dataset<'a>(asset: &Asset<Mmap>, layers: &[&'a Layer<Mmap>]) -> crate::Re
         "history".into(),
         format!("terrabake {} export", env!("CARGO_PKG_VERSION")).into(),
     );
+    let mut geozarr = Map::new();
     if let Some((gm, t)) = &grid_mapping {
         coordinates.push(Coordinate {
             name: "spatial_ref".into(),
@@ -214,12 +228,7 @@ pub fn dataset<'a>(asset: &Asset<Mmap>, layers: &[&'a Layer<Mmap>]) -> crate::Re
             values: CoordinateValues::I64(vec![0]),
             attrs: gm.clone(),
         });
-        attrs.extend(geozarr_attributes(
-            georef.and_then(|g| g.epsg),
-            t,
-            width,
-            height,
-        ));
+        geozarr = geozarr_attributes(georef.and_then(|g| g.epsg), t, width, height);
     }
 
     // One azimuth dimension where every directional layer shares it.
@@ -296,7 +305,59 @@ pub fn dataset<'a>(asset: &Asset<Mmap>, layers: &[&'a Layer<Mmap>]) -> crate::Re
         coordinates,
         variables,
         attrs,
+        geozarr,
     })
+}
+
+/// Tile `(tx, ty)` of band `band` of `layer`, whole (padded past the edge
+/// with the layer's fill, NaN where decoded), as the little-endian
+/// elements of `storage`.
+pub fn tile_bytes(
+    layer: &Layer<Mmap>,
+    storage: Storage,
+    band: u32,
+    tx: u32,
+    ty: u32,
+) -> anyhow::Result<Vec<u8>> {
+    let tile = layer.tile_size();
+    let chunk_len = (tile as usize).pow(2) * storage.elem().size();
+    match storage {
+        Storage::Codes(_) => {
+            let chunk = layer.stored_tile(band, tx, ty)?;
+            anyhow::ensure!(
+                chunk.raw_len as usize == chunk_len,
+                "layer {} tile ({tx}, {ty}) of band {band} holds {} bytes, not a whole tile's {chunk_len}",
+                layer.entry().key(),
+                chunk.raw_len
+            );
+            match chunk.codec {
+                Codec::Raw => Ok(chunk.bytes.to_vec()),
+                Codec::Zstd => Ok(zstd::bulk::decompress(chunk.bytes, chunk_len)?),
+                other => anyhow::bail!(
+                    "layer {}: tiles in codec {other:?} cannot be exported as arrays",
+                    layer.entry().key()
+                ),
+            }
+        }
+        Storage::Decoded => {
+            let (x0, y0) = (tx * tile, ty * tile);
+            let (w, h) = (tile.min(layer.width() - x0), tile.min(layer.height() - y0));
+            let mut window = vec![0f32; (w * h) as usize];
+            layer.read_window_f32(band, [x0, y0, w, h], &mut window)?;
+            let mut raw = vec![0u8; chunk_len];
+            for (r, cells) in raw.chunks_exact_mut(tile as usize * 4).enumerate() {
+                for (c, cell) in cells.chunks_exact_mut(4).enumerate() {
+                    let v = if (r as u32) < h && (c as u32) < w {
+                        window[r * w as usize + c]
+                    } else {
+                        f32::NAN
+                    };
+                    cell.copy_from_slice(&v.to_le_bytes());
+                }
+            }
+            Ok(raw)
+        }
+    }
 }
 
 /// Adds coordinate `name` unless a layer before added it.

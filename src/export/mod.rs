@@ -1,8 +1,9 @@
 //! Layers out of an asset: Cloud-Optimized GeoTIFF ([`crate::io::cog`]:
 //! georeferencing, nodata and band descriptions kept, so GDAL and QGIS read
 //! back the same geotransform and know each band's azimuth), OpenEXR (float,
-//! for engines), PNG previews for people, and Zarr v3 ([`zarr`]: several
-//! layers as one CF dataset, [`dataset`], for xarray and the cloud tools).
+//! for engines), PNG previews for people, and Zarr v3 ([`zarr`]) and
+//! NetCDF-4 ([`netcdf`]): several layers as one CF dataset, [`dataset`],
+//! for xarray, the cloud tools and the NetCDF world.
 //!
 //! Every writer here goes through [`write_atomically`] (a directory through
 //! [`crate::plumbing::output::write_dir_atomically`]): a failed export
@@ -12,6 +13,8 @@ pub mod correction;
 pub mod dataset;
 pub mod engine;
 pub mod grass;
+pub mod hdf5;
+pub mod netcdf;
 pub mod texture;
 pub mod viewshed;
 pub mod zarr;
@@ -52,6 +55,7 @@ pub enum ExportKind {
     Png,
     Ktx2,
     Zarr,
+    NetCdf,
 }
 
 impl ExportKind {
@@ -67,8 +71,9 @@ impl ExportKind {
             Some("png") => Ok(Self::Png),
             Some("ktx2") => Ok(Self::Ktx2),
             Some("zarr") => Ok(Self::Zarr),
+            Some("nc") => Ok(Self::NetCdf),
             _ => bail!(
-                "{}: export writes .tif, .exr, .png, .ktx2 or .zarr",
+                "{}: export writes .tif, .exr, .png, .ktx2, .zarr or .nc",
                 path.display()
             ),
         }
@@ -382,8 +387,8 @@ fn layer_unit(layer: &str) -> &'static str {
 pub struct ExportArgs {
     /// The asset directory (made by `terrabake ingest` or `terrabake bake`).
     pub asset: PathBuf,
-    /// Layer name (see `terrabake info`). A .zarr store takes several (`--layer horizon
-    /// --layer svf`) or `all`: every layer at --level, as one dataset.
+    /// Layer name (see `terrabake info`). A .zarr store or .nc file takes several (`--layer
+    /// horizon --layer svf`) or `all`: every layer at --level, as one dataset.
     #[arg(long, default_value = "height")]
     pub layer: Vec<String>,
     /// Pyramid level of the layer.
@@ -418,9 +423,9 @@ pub struct ExportArgs {
     pub fourier: Option<usize>,
     /// The file to write: .tif (GeoTIFF), .exr, .png (a preview), .ktx2 (a texture for
     /// shaders: horizons as an array, cone planes as an RG texture conservative under bilinear
-    /// filtering) or .zarr (a Zarr v3 store: CF attributes, an azimuth dimension, chunks = the
-    /// asset's tiles, quantised layers as their codes with scale_factor and add_offset), by its
-    /// extension; a directory with --for.
+    /// filtering), .zarr (a Zarr v3 store) or .nc (NetCDF-4): CF-1.8 attributes, an azimuth
+    /// dimension, chunks = the asset's tiles, quantised layers as their codes with scale_factor
+    /// and add_offset. By its extension; a directory with --for.
     #[arg(short, long)]
     pub output: PathBuf,
 }
@@ -442,8 +447,9 @@ impl Run for ExportArgs {
     fn run(&self, s: &Session) -> crate::Result<ExitCode> {
         let progress = s.progress;
         let asset = crate::stage::asset::open(&self.asset)?;
-        if ExportKind::from_path(&self.output).ok() == Some(ExportKind::Zarr) {
-            return self.run_zarr(&asset, s);
+        let kind = ExportKind::from_path(&self.output).ok();
+        if let Some(kind @ (ExportKind::Zarr | ExportKind::NetCdf)) = kind {
+            return self.run_dataset(&asset, kind, s);
         }
         let layer_name = self.one_layer()?;
         if self.for_program == Some(ExportFor::Grass) {
@@ -485,12 +491,12 @@ impl Run for ExportArgs {
 }
 
 impl ExportArgs {
-    /// The one layer every export but Zarr takes.
+    /// The one layer every export but Zarr and NetCDF takes.
     fn one_layer(&self) -> Result<&str> {
         match self.layer.as_slice() {
             [one] if one != "all" => Ok(one),
             _ => bail!(
-                "{}: only a .zarr store takes several layers or `all`; give one --layer",
+                "{}: only a .zarr store or a .nc file takes several layers or `all`; give one --layer",
                 self.output.display()
             ),
         }
@@ -508,11 +514,16 @@ impl ExportArgs {
             })
     }
 
-    /// `-o X.zarr`: the layers asked for as one Zarr v3 group.
-    fn run_zarr(&self, asset: &Asset<Mmap>, s: &Session) -> crate::Result<ExitCode> {
+    /// `-o X.zarr` or `-o X.nc`: the layers asked for as one dataset.
+    fn run_dataset(
+        &self,
+        asset: &Asset<Mmap>,
+        kind: ExportKind,
+        s: &Session,
+    ) -> crate::Result<ExitCode> {
         if self.for_program.is_some() || self.fourier.is_some() {
             bail!(
-                "--for and --fourier write other formats; a .zarr export takes --layer and --level"
+                "--for and --fourier write other formats; a .zarr or .nc export takes --layer and --level"
             );
         }
         let mut skipped = Vec::new();
@@ -542,21 +553,34 @@ impl ExportArgs {
             self.asset.display(),
             self.level
         );
-        let report = zarr::export_zarr(asset, &layers, &self.output, s.progress)?;
+        let summary = if kind == ExportKind::NetCdf {
+            let r = netcdf::export_netcdf(asset, &layers, &self.output, s.progress)?;
+            format!(
+                "{} variables, {} chunks, {:.1} MiB",
+                r.variables,
+                r.chunks,
+                r.bytes as f64 / f64::from(1 << 20)
+            )
+        } else {
+            let r = zarr::export_zarr(asset, &layers, &self.output, s.progress)?;
+            format!(
+                "{} arrays, {} chunks of which {} copied as stored, {:.1} MiB",
+                r.arrays,
+                r.chunks,
+                r.copied,
+                r.bytes as f64 / f64::from(1 << 20)
+            )
+        };
         if !skipped.is_empty() {
             s.say(format!(
-                "left out {} (another grid; export them to a store of their own)",
+                "left out {} (another grid; export them to a dataset of their own)",
                 skipped.join(", ")
             ));
         }
         s.say(format!(
-            "wrote {} ({} layer(s), {} arrays, {} chunks of which {} copied as stored, {:.1} MiB)",
+            "wrote {} ({} layer(s), {summary})",
             self.output.display(),
             layers.len(),
-            report.arrays,
-            report.chunks,
-            report.copied,
-            report.bytes as f64 / f64::from(1 << 20)
         ));
         Ok(ExitCode::SUCCESS)
     }
@@ -687,6 +711,9 @@ pub(crate) fn export_layer(
         ExportKind::Png => write_png_preview(out, layer, manifest, style, band, height_like),
         ExportKind::Ktx2 => texture::write_ktx2(out, &texture::texture_for_layer(asset, layer)?),
         ExportKind::Zarr => Ok(zarr::export_zarr(asset, &[layer], out, progress).map(|_| ())?),
+        ExportKind::NetCdf => {
+            Ok(netcdf::export_netcdf(asset, &[layer], out, progress).map(|_| ())?)
+        }
     }
 }
 

@@ -32,7 +32,9 @@ use serde_json::{json, Map, Value};
 use terrabake_format::layout::{Codec, ElemType};
 use terrabake_format::{Asset, Layer, Mmap};
 
-use super::dataset::{dataset, Coordinate, CoordinateValues, Dataset, Storage, Variable};
+use super::dataset::{
+    dataset, tile_bytes, Coordinate, CoordinateValues, Dataset, Storage, Variable,
+};
 use crate::plumbing::output::write_dir_atomically;
 use crate::plumbing::progress::Progress;
 
@@ -57,11 +59,7 @@ pub fn export_zarr(
     progress: Progress,
 ) -> crate::Result<ZarrReport> {
     let ds = dataset(asset, layers)?;
-    let chunks_total: u64 = ds
-        .variables
-        .iter()
-        .map(|v| u64::from(v.layer.bands()) * u64::from(v.layer.tiles_x() * v.layer.tiles_y()))
-        .sum();
+    let chunks_total = ds.chunk_count();
     let bar = progress.bar(chunks_total, "export", "chunks");
     let counts = [AtomicU64::new(0), AtomicU64::new(0)];
     let bytes = AtomicU64::new(0);
@@ -81,10 +79,12 @@ pub fn export_zarr(
             write_chunks(dir, v, &counts, &bytes, || bar.inc(1))?;
             consolidated.insert(v.name.clone(), meta);
         }
+        let mut attributes = ds.attrs.clone();
+        attributes.extend(ds.geozarr.clone());
         let group = json!({
             "zarr_format": 3,
             "node_type": "group",
-            "attributes": ds.attrs,
+            "attributes": attributes,
             "consolidated_metadata": {
                 "kind": "inline",
                 "must_understand": false,
@@ -158,51 +158,24 @@ fn write_chunks(
                 .with_context(|| format!("{}: cannot create", row.display()))?;
         }
     }
-    let tile = layer.tile_size();
-    let elem_bytes = v.storage.elem().size();
-    let chunk_len = (tile as usize).pow(2) * elem_bytes;
+    let chunk_len = (layer.tile_size() as usize).pow(2) * v.storage.elem().size();
     (0..u64::from(bands) * u64::from(ty_n) * u64::from(tx_n))
         .into_par_iter()
         .try_for_each(|i| -> anyhow::Result<()> {
             let tx = (i % u64::from(tx_n)) as u32;
             let ty = ((i / u64::from(tx_n)) % u64::from(ty_n)) as u32;
             let b = (i / (u64::from(tx_n) * u64::from(ty_n))) as u32;
-            let (stored, copied) = match v.storage {
-                Storage::Codes(_) => {
-                    let chunk = layer.stored_tile(b, tx, ty)?;
-                    anyhow::ensure!(
-                        chunk.raw_len as usize == chunk_len,
-                        "layer {} tile ({tx}, {ty}) of band {b} holds {} bytes, not a whole tile's {chunk_len}",
-                        layer.entry().key(),
-                        chunk.raw_len
-                    );
-                    match chunk.codec {
-                        Codec::Zstd => (chunk.bytes.to_vec(), true),
-                        Codec::Raw => (zstd::bulk::compress(chunk.bytes, ZSTD_LEVEL)?, false),
-                        other => anyhow::bail!(
-                            "layer {}: tiles in codec {other:?} cannot be written to Zarr",
-                            layer.entry().key()
-                        ),
-                    }
-                }
-                Storage::Decoded => {
-                    let (x0, y0) = (tx * tile, ty * tile);
-                    let (w, h) = (tile.min(layer.width() - x0), tile.min(layer.height() - y0));
-                    let mut window = vec![0f32; (w * h) as usize];
-                    layer.read_window_f32(b, [x0, y0, w, h], &mut window)?;
-                    let mut raw = vec![0u8; chunk_len];
-                    for (r, cells) in raw.chunks_exact_mut(tile as usize * 4).enumerate() {
-                        for (c, cell) in cells.chunks_exact_mut(4).enumerate() {
-                            let v = if (r as u32) < h && (c as u32) < w {
-                                window[r * w as usize + c]
-                            } else {
-                                f32::NAN
-                            };
-                            cell.copy_from_slice(&v.to_le_bytes());
-                        }
-                    }
-                    (zstd::bulk::compress(&raw, ZSTD_LEVEL)?, false)
-                }
+            let as_stored = match v.storage {
+                Storage::Codes(_) => Some(layer.stored_tile(b, tx, ty)?)
+                    .filter(|c| c.codec == Codec::Zstd && c.raw_len as usize == chunk_len),
+                Storage::Decoded => None,
+            };
+            let (stored, copied) = match as_stored {
+                Some(chunk) => (chunk.bytes.to_vec(), true),
+                None => (
+                    zstd::bulk::compress(&tile_bytes(layer, v.storage, b, tx, ty)?, ZSTD_LEVEL)?,
+                    false,
+                ),
             };
             let key = if several {
                 format!("c/{b}/{ty}/{tx}")
@@ -210,7 +183,8 @@ fn write_chunks(
                 format!("c/{ty}/{tx}")
             };
             let path = array.join(key);
-            fs::write(&path, &stored).with_context(|| format!("{}: cannot write", path.display()))?;
+            fs::write(&path, &stored)
+                .with_context(|| format!("{}: cannot write", path.display()))?;
             counts[0].fetch_add(1, Ordering::Relaxed);
             counts[1].fetch_add(u64::from(copied), Ordering::Relaxed);
             bytes.fetch_add(stored.len() as u64, Ordering::Relaxed);
@@ -311,7 +285,7 @@ fn variable_metadata(ds: &Dataset<'_>, v: &Variable<'_>) -> anyhow::Result<Value
     }
     let elem = v.storage.elem();
     let mut attrs = v.attrs.clone();
-    if ds.attrs.contains_key("spatial:transform") {
+    if ds.geozarr.contains_key("spatial:transform") {
         attrs.insert("spatial:dimensions".into(), json!(["y", "x"]));
     }
     Ok(array_metadata(
