@@ -984,3 +984,106 @@ fn a_solar_need_bakes_the_year_and_check_measures_it() {
         stderr(&refused)
     );
 }
+
+/// The largest error, where a percentile is blind: on a plain with a lone
+/// 1000 m spike, a horizon budget alone (a 99th percentile) is met while
+/// the posts around the spike lose much of its horizon, and the plan shows
+/// it. A `horizon_max` that no count of line directions meets is refused,
+/// naming the largest error and the budget that would do; relaxed to that,
+/// the bake's largest error at every post away from the DEM's edge,
+/// measured against exact line horizons in 1440 directions (four between
+/// each two of `check`'s, so between the stored bands too), stays within
+/// it, and `check` measures large errors around the feature.
+#[test]
+fn a_largest_error_budget_sees_what_the_percentile_hides() {
+    use terrabake::algorithms::horizon::{brute, plan_bands, BandKind, Method};
+    use terrabake::stages::horizons::HorizonsStage;
+    use terrabake::terrain::held::HeldDem;
+    use terrabake_format::horizons::{HorizonMap, NOTHING_AHEAD};
+
+    let dir = tempfile::tempdir().unwrap();
+    let asset = terrain(dir.path(), SynthKind::Spike, 0);
+    let percentile_only = planned(&asset, &"horizon=4".parse().unwrap());
+    let hidden = percentile_only.chosen.as_ref().unwrap();
+    assert!(
+        hidden.horizon_p99_deg < 4.0 && hidden.horizon_max_deg > 10.0,
+        "the pilot sees what the p99 hides: {hidden:?}"
+    );
+    let scene = &percentile_only.scene;
+    assert!(
+        scene.pilot_feature_posts > 0 && scene.feature_prominence_m[0] > 900.0,
+        "{scene:?}"
+    );
+
+    let e = plan(
+        &Asset::open(&asset).unwrap(),
+        &request(&"horizon=4,horizon_max=6".parse().unwrap()),
+        Progress::hidden(),
+    )
+    .unwrap_err();
+    let message = format!("{e:#}");
+    let (_, enough) = message
+        .split_once("relax horizon_max to at least ")
+        .unwrap_or_else(|| panic!("{message}"));
+    let enough: f64 = enough.split(')').next().unwrap().parse().unwrap();
+    assert!(enough > 6.0, "{message}");
+
+    let budget = Budget {
+        horizon: 4.0,
+        horizon_max: Some(enough),
+        ..Default::default()
+    };
+    let bounded = planned(&asset, &budget);
+    let report = baked_and_checked(&asset, &bounded, &budget, &[], (200, 11));
+    let h = report.horizons.as_ref().unwrap();
+    assert!(report.within_budget(), "{report:?}");
+    assert!(
+        h.feature_posts > 0 && h.horizon_max_feature_deg > 5.0,
+        "check measures around the spike: {h:?}"
+    );
+
+    // The independent dense reference, at every post.
+    let opened = Asset::open(&asset).unwrap();
+    let map = HorizonMap::open(&opened).unwrap();
+    let stage = HorizonsStage::recorded(&opened).unwrap();
+    let dem = HeldDem::read(&opened).unwrap();
+    let t = dem.terrain(stage.sight.curvature_coefficient(opened.manifest()));
+    let m = opened.manifest();
+    let dense = plan_bands(
+        Method::Line,
+        1440,
+        m.cell_size.dx,
+        m.cell_size.dy,
+        Some(0.05),
+    );
+    let mut largest = (0.0f64, (0, 0), 0.0);
+    for row in 0..t.height {
+        for col in 0..t.width {
+            for band in &dense {
+                let BandKind::Line(direction) = &band.kind else {
+                    unreachable!("line bands")
+                };
+                let truth = f64::from(brute::line_horizon(&t, (col, row), direction.step, None));
+                let served = map
+                    .served_at(col as u32, row as u32, band.azimuth)
+                    .unwrap()
+                    .unwrap();
+                if served.at_edge || truth == NOTHING_AHEAD {
+                    continue;
+                }
+                let error = (served.angle - truth).abs();
+                if error > largest.0 {
+                    largest = (error, (col, row), band.azimuth);
+                }
+            }
+        }
+    }
+    assert!(
+        largest.0 <= enough,
+        "largest error {:.3} deg at post {:?}, azimuth {:.2}, over horizon_max={enough} (planned {:?})",
+        largest.0,
+        largest.1,
+        largest.2,
+        bounded.chosen
+    );
+}

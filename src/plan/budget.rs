@@ -1,15 +1,20 @@
 //! The user's error budget: how well a scene must be modelled, in the
 //! user's terms (docs/PLANNING.md defines each error: its reference and its
 //! statistic). On the command line
-//! `--budget horizon=DEG[,svf=X][,shade=FRACTION][,time=SECONDS][,bytes=SIZE][,memory=MIB]`.
+//! `--budget horizon=DEG[,horizon_max=DEG][,svf=X][,svf_max=X][,shade=FRACTION][,time=SECONDS][,bytes=SIZE][,memory=MIB]`.
 //! It deserialises from a TOML table with the same keys (unknown keys
 //! refused), for recipes; recipes do not hold a budget yet.
 //!
 //! - `horizon`: the 99th percentile, over posts and azimuths, of the
 //!   absolute horizon angle error in degrees, at *any* azimuth: what the
 //!   loader serves between stored bands (linear interpolation) counts.
+//! - `horizon_max`: the largest absolute horizon angle error, degrees, at
+//!   any post and azimuth whose horizon the DEM's edge does not cut: what a
+//!   percentile hides (a lone spike's shadow falls on about 1 % of the
+//!   azimuths at the posts around it). The pilot and `check` add the posts
+//!   around the scene's most prominent features to their samples.
 //! - `svf`: the 99th percentile over posts of the absolute sky-view factor
-//!   error.
+//!   error; `svf_max` its largest.
 //! - `shade`: the share of posts whose sun/shade state may be wrong.
 //! - `time`, `bytes`, `memory`: limits on the bake's wall seconds, the
 //!   asset's bytes on disk and the peak memory in MiB.
@@ -26,9 +31,16 @@ use crate::terrain::sun::SunPosition;
 pub struct Budget {
     /// Degrees: the 99th percentile of the absolute horizon angle error.
     pub horizon: f64,
+    /// Degrees: the largest absolute horizon angle error away from the
+    /// DEM's edge.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub horizon_max: Option<f64>,
     /// The 99th percentile of the absolute sky-view factor error.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub svf: Option<f64>,
+    /// The largest absolute sky-view factor error.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub svf_max: Option<f64>,
     /// The share of posts whose sun/shade state may be wrong.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub shade: Option<f64>,
@@ -66,8 +78,31 @@ impl Budget {
                 self.horizon
             ));
         }
+        if let Some(v) = self.horizon_max {
+            positive("horizon_max", v)?;
+            if v >= 90.0 {
+                return Err(format!(
+                    "budget horizon_max={v}: an error of 90 degrees or more bounds nothing; give degrees below 90"
+                ));
+            }
+            if v < self.horizon {
+                return Err(format!(
+                    "budget horizon_max={v} is below horizon={} (the 99th percentile): the largest error is at least the percentile; give horizon_max >= horizon",
+                    self.horizon
+                ));
+            }
+        }
         if let Some(v) = self.svf {
             positive("svf", v)?;
+        }
+        if let Some(v) = self.svf_max {
+            positive("svf_max", v)?;
+            if self.svf.is_some_and(|p| v < p) {
+                return Err(format!(
+                    "budget svf_max={v} is below svf={}: give svf_max >= svf",
+                    self.svf.unwrap_or_default()
+                ));
+            }
         }
         if let Some(v) = self.shade {
             positive("shade", v)?;
@@ -139,7 +174,9 @@ impl FromStr for Budget {
             }
             match key {
                 "horizon" => horizon = Some(number()?),
+                "horizon_max" => budget.horizon_max = Some(number()?),
                 "svf" => budget.svf = Some(number()?),
+                "svf_max" => budget.svf_max = Some(number()?),
                 "shade" => budget.shade = Some(number()?),
                 "solar" => budget.solar = Some(number()?),
                 "time" => budget.time = Some(number()?),
@@ -154,7 +191,7 @@ impl FromStr for Budget {
                 }
                 other => {
                     return Err(format!(
-                    "{other:?}: not a budget key (horizon, svf, shade, solar, time, bytes, memory)"
+                    "{other:?}: not a budget key (horizon, horizon_max, svf, svf_max, shade, solar, time, bytes, memory)"
                 ))
                 }
             }
@@ -168,8 +205,14 @@ impl FromStr for Budget {
 impl fmt::Display for Budget {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "horizon={}", self.horizon)?;
+        if let Some(v) = self.horizon_max {
+            write!(f, ",horizon_max={v}")?;
+        }
         if let Some(v) = self.svf {
             write!(f, ",svf={v}")?;
+        }
+        if let Some(v) = self.svf_max {
+            write!(f, ",svf_max={v}")?;
         }
         if let Some(v) = self.shade {
             write!(f, ",shade={v}")?;
@@ -418,14 +461,17 @@ mod tests {
 
     #[test]
     fn the_documented_syntax_parses_and_prints_back() {
-        let b: Budget = "horizon=0.5,svf=0.01,shade=0.001,solar=2,time=60,bytes=200M,memory=512"
-            .parse()
-            .unwrap();
+        let b: Budget =
+            "horizon=0.5,horizon_max=3,svf=0.01,svf_max=0.05,shade=0.001,solar=2,time=60,bytes=200M,memory=512"
+                .parse()
+                .unwrap();
         assert_eq!(
             b,
             Budget {
                 horizon: 0.5,
+                horizon_max: Some(3.0),
                 svf: Some(0.01),
+                svf_max: Some(0.05),
                 shade: Some(0.001),
                 solar: Some(2.0),
                 time: Some(60.0),
@@ -448,6 +494,8 @@ mod tests {
             ("horizon=-1", "horizon=-1"),
             ("horizon=nan", "horizon=NaN"),
             ("horizon=95", "below 90"),
+            ("horizon=2,horizon_max=1", "horizon_max >= horizon"),
+            ("horizon=2,svf=0.01,svf_max=0.001", "svf_max >= svf"),
             ("horizon=1,shade=2", "shade=2"),
             ("horizon=1,bytes=12Q", "unknown unit"),
             ("horizon=1,colour=3", "not a budget key"),

@@ -56,6 +56,10 @@ pub type CheckOptions = Sampling;
 pub struct HorizonCheck {
     pub posts: usize,
     pub relief_posts: usize,
+    /// Posts around the prominent features ([`crate::plan::reference::FEATURES`])
+    /// and how many features they lie around.
+    pub feature_posts: usize,
+    pub features: usize,
     pub reference_directions: usize,
     /// What was baked: method, bands, encoding.
     pub method: String,
@@ -66,9 +70,17 @@ pub struct HorizonCheck {
     pub horizon_p50_deg: f64,
     pub horizon_p99_deg: f64,
     pub horizon_max_deg: f64,
+    /// Where the largest error is: the post `(col, row)` and the reference
+    /// azimuth, degrees.
+    pub horizon_max_at: Option<((usize, usize), f64)>,
+    /// The largest error at the random and relief posts, and at the posts
+    /// around the features, degrees.
+    pub horizon_max_random_deg: f64,
+    pub horizon_max_feature_deg: f64,
     /// Mean signed error (stored minus reference), degrees.
     pub horizon_bias_deg: f64,
-    /// (post, azimuth) samples in the figures above.
+    /// (post, azimuth) samples in the figures above (but the largest,
+    /// which the posts around the features count for too).
     pub samples: usize,
     /// Samples at the DEM's edge (the reference or a serving band has
     /// nothing ahead), left out of the figures above; the posts they fall
@@ -298,13 +310,21 @@ fn check_horizons(
     // Per post: the signed horizon errors at every reference azimuth (those
     // at the DEM's edge apart), the svf error, and the wrong sun/shade
     // states.
-    type PostErrors = (Vec<f64>, Vec<f64>, Option<f64>, usize, Option<f64>);
+    type PostErrors = (
+        Vec<f64>,
+        Vec<f64>,
+        Option<f64>,
+        usize,
+        Option<f64>,
+        (f64, f64),
+    );
     let per_post: Vec<Result<PostErrors>> = pilot
         .posts
         .par_iter()
         .zip(&pilot.exact)
         .map(|(&(c, r), exact)| {
             let (mut errors, mut at_edge) = (Vec::with_capacity(exact.len()), Vec::new());
+            let mut largest = (0.0f64, 0.0);
             let mut served = vec![None; exact.len()];
             for ((band, &truth), out) in pilot.reference.iter().zip(exact).zip(&mut served) {
                 let Some(s) = map.served_at(c as u32, r as u32, band.azimuth)? else {
@@ -315,6 +335,9 @@ fn check_horizons(
                     at_edge.push(s.angle - truth);
                 } else {
                     errors.push(s.angle - truth);
+                    if (s.angle - truth).abs() > largest.0 {
+                        largest = ((s.angle - truth).abs(), band.azimuth);
+                    }
                 }
             }
             let wrong = suns
@@ -332,14 +355,31 @@ fn check_horizons(
                 let served: Vec<f64> = served.iter().map(|s| s.unwrap_or(f64::NAN)).collect();
                 solar_error(&solar, &served, exact)
             });
-            Ok((errors, at_edge, svf_error, wrong, solar_error))
+            Ok((errors, at_edge, svf_error, wrong, solar_error, largest))
         })
         .collect();
     let (mut horizon, mut svf, mut wrong, mut solar_errors) =
         (Vec::new(), Vec::new(), 0, Vec::new());
     let (mut edge_samples, mut edge_posts, mut edge_max) = (0, 0, None::<f64>);
-    for post in per_post {
-        let (errors, at_edge, svf_error, w, solar_error) = post?;
+    let first_feature_post = pilot.posts.len() - pilot.feature_posts;
+    let (mut max_at, mut max_random, mut max_feature) = (None, 0.0f64, 0.0f64);
+    let mut svf_max = None::<f64>;
+    for (i, post) in per_post.into_iter().enumerate() {
+        let (errors, at_edge, svf_error, w, solar_error, largest) = post?;
+        if largest.0 > max_at.map_or(0.0, |(e, _)| e) {
+            max_at = Some((largest.0, (pilot.posts[i], largest.1)));
+        }
+        if let Some(e) = svf_error {
+            svf_max = Some(svf_max.map_or(e.abs(), |m| m.max(e.abs())));
+        }
+        // The posts around features count for the largest errors only
+        // (they are chosen where errors are large; the percentiles are
+        // over the scene's posts).
+        if i >= first_feature_post {
+            max_feature = max_feature.max(largest.0);
+            continue;
+        }
+        max_random = max_random.max(largest.0);
         solar_errors.extend(solar_error);
         horizon.extend(errors);
         if !at_edge.is_empty() {
@@ -360,6 +400,8 @@ fn check_horizons(
     Ok(HorizonCheck {
         posts: pilot.posts.len(),
         relief_posts: pilot.relief_posts,
+        feature_posts: pilot.feature_posts,
+        features: pilot.features.len(),
         reference_directions: pilot.reference.len(),
         method: stage.method.name().into(),
         bands: layer.bands() as usize,
@@ -367,16 +409,19 @@ fn check_horizons(
         max_distance: stage.sight.max_distance,
         horizon_p50_deg: percentile(&horizon, 50),
         horizon_p99_deg: percentile(&horizon, 99),
-        horizon_max_deg: horizon.last().copied().unwrap_or(0.0),
+        horizon_max_deg: max_random.max(max_feature),
+        horizon_max_at: max_at.map(|(_, at)| at),
+        horizon_max_random_deg: max_random,
+        horizon_max_feature_deg: max_feature,
         horizon_bias_deg: bias,
         samples: horizon.len(),
         edge_samples,
         edge_posts,
         edge_max_deg: edge_max,
         svf_p99: (!svf.is_empty()).then(|| percentile(&svf, 99)),
-        svf_max: svf.last().copied(),
+        svf_max,
         shade_share: (!suns.is_empty())
-            .then(|| wrong as f64 / (suns.len() * pilot.posts.len()) as f64),
+            .then(|| wrong as f64 / (suns.len() * first_feature_post) as f64),
         sun_positions: suns.len(),
         solar_p99_percent: (!solar_errors.is_empty()).then(|| percentile(&solar_errors, 99)),
         solar_max_percent: solar_errors.last().copied(),
@@ -556,6 +601,20 @@ fn verdicts(report: &CheckReport, b: &Budget) -> Vec<Verdict> {
         verdict.met = Some(verdict.met == Some(true));
         verdict
     };
+    if let Some(limit) = b.horizon_max {
+        v.push(required(measured(
+            "horizon max (deg)",
+            h.map(|h| h.horizon_max_deg),
+            limit,
+        )));
+    }
+    if let Some(limit) = b.svf_max {
+        v.push(required(measured(
+            "svf max",
+            h.and_then(|h| h.svf_max),
+            limit,
+        )));
+    }
     if let Some(limit) = b.svf {
         v.push(required(measured(
             "svf p99",
@@ -614,10 +673,12 @@ pub(crate) fn describe(report: &CheckReport) -> String {
     let mut out = String::new();
     if let Some(h) = &report.horizons {
         out += &format!(
-            "checked {} posts ({} of the highest relief) against exact line horizons in {} directions\n\
+            "checked {} posts ({} of the highest relief, {} around the {} most prominent features) against exact line horizons in {} directions\n\
              baked: {} horizons, {} bands, {}{}\n\n",
             h.posts,
             h.relief_posts,
+            h.feature_posts,
+            h.features,
             h.reference_directions,
             h.method,
             h.bands,
@@ -629,6 +690,12 @@ pub(crate) fn describe(report: &CheckReport) -> String {
             "horizon error (deg)   p50 {:.3}   p99 {:.3}   max {:.3}   bias {:+.3}   ({} post-azimuth samples)\n",
             h.horizon_p50_deg, h.horizon_p99_deg, h.horizon_max_deg, h.horizon_bias_deg, h.samples
         );
+        if let Some(((c, r), az)) = h.horizon_max_at {
+            out += &format!(
+                "largest error         {:.3} at post ({c}, {r}), azimuth {az:.1}; {:.3} at random and relief posts, {:.3} around features\n",
+                h.horizon_max_deg, h.horizon_max_random_deg, h.horizon_max_feature_deg
+            );
+        }
         if let Some(max) = h.edge_max_deg {
             out += &format!(
                 "at the DEM's edge     {} samples at {} posts look out over the edge (nothing ahead on one side \
@@ -684,9 +751,11 @@ pub(crate) fn describe(report: &CheckReport) -> String {
     }
     if let Some(p) = &report.predicted {
         out += &format!(
-            "planned               horizon p99 {:.3}   svf p99 {:.4}{}   horizon and sky layers {} ({} directions, {}{})\n",
+            "planned               horizon p99 {:.3} (max {:.3})   svf p99 {:.4} (max {:.4}){}   horizon and sky layers {} ({} directions, {}{})\n",
             p.horizon_p99_deg,
+            p.horizon_max_deg,
             p.svf_p99,
+            p.svf_max,
             p.shade_share.map_or(String::new(), |s| format!("   shade {s:.4}")),
             crate::plumbing::resources::human_bytes(p.bytes),
             p.sectors,

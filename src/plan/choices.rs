@@ -234,8 +234,24 @@ pub(super) fn route_choice(
 /// quantile that decides (`deciding`: horizon, svf) over the share of the
 /// budget it gets.
 pub(super) fn unmet(budget: &Budget, closest: &Candidate, deciding: (f64, f64)) -> anyhow::Error {
+    let largest = match (budget.horizon_max, budget.svf_max) {
+        (None, None) => String::new(),
+        (h, s) => format!(
+            " (the largest: {:.3} degrees, {:.4} svf; relax{}{})",
+            closest.horizon_max_deg,
+            closest.svf_max,
+            h.map_or(String::new(), |_| format!(
+                " horizon_max to at least {:.3}",
+                round_up(closest.horizon_max_deg / SHARE_DIRECTIONS, 3)
+            )),
+            s.map_or(String::new(), |_| format!(
+                " svf_max to at least {:.4}",
+                round_up(closest.svf_max / SHARE_DIRECTIONS, 4)
+            )),
+        ),
+    };
     anyhow::anyhow!(
-        "budget {budget} cannot be met with up to {} line directions on this scene: {} directions leave a horizon p99 of {:.3} degrees and an svf p99 of {:.4} between them{}; relax horizon to at least {:.3}{}",
+        "budget {budget} cannot be met with up to {} line directions on this scene: {} directions leave a horizon p99 of {:.3} degrees and an svf p99 of {:.4} between them{largest}{}; relax horizon to at least {:.3}{}",
         closest.sectors,
         closest.sectors,
         closest.horizon_p99_deg,

@@ -46,6 +46,19 @@ pub(crate) fn describe(plan: &Plan) -> String {
             "pilot  exact horizons in {reference} reference directions and {stored} that the candidates store, at {} posts ({:.1} s)\n",
             s.pilot_posts, s.pilot_seconds,
         );
+        if s.pilot_feature_posts > 0 {
+            let prominence: Vec<String> = s
+                .feature_prominence_m
+                .iter()
+                .map(|p| format!("{p:.0}"))
+                .collect();
+            out += &format!(
+                "       of them {} around the {} most prominent features (rising {} m above their surroundings)\n",
+                s.pilot_feature_posts,
+                prominence.len(),
+                prominence.join(", ")
+            );
+        }
     }
     out += "\n";
     for c in &plan.choices {
@@ -56,8 +69,11 @@ pub(crate) fn describe(plan: &Plan) -> String {
     }
     let mut predicted = Vec::new();
     if let Some(c) = &plan.chosen {
-        predicted.push(format!("horizon p99 {:.3} deg", c.horizon_p99_deg));
-        predicted.push(format!("svf p99 {:.4}", c.svf_p99));
+        predicted.push(format!(
+            "horizon p99 {:.3} deg (max {:.3})",
+            c.horizon_p99_deg, c.horizon_max_deg
+        ));
+        predicted.push(format!("svf p99 {:.4} (max {:.4})", c.svf_p99, c.svf_max));
         if let Some(share) = c.shade_share {
             predicted.push(format!("shade {share:.4}"));
         }

@@ -73,7 +73,7 @@ use std::time::Instant;
 use anyhow::Result;
 use serde::{Deserialize, Serialize};
 use terrabake_format::cones::ConeEncoding;
-use terrabake_format::horizons::{bands_around, between, AngleEncoding};
+use terrabake_format::horizons::{bands_around, between, AngleEncoding, NOTHING_AHEAD};
 use terrabake_format::{Asset, Codec, Mmap};
 
 use crate::algorithms::horizon::line::{default_tolerance, Stencil};
@@ -129,6 +129,12 @@ pub struct Candidate {
     pub max_distance: Option<f64>,
     pub horizon_p99_deg: f64,
     pub svf_p99: f64,
+    /// The largest horizon error away from the DEM's edge, degrees, and
+    /// the largest svf error, at the pilot's posts (features' included).
+    #[serde(default)]
+    pub horizon_max_deg: f64,
+    #[serde(default)]
+    pub svf_max: f64,
     /// The share of (post, sun position) pairs whose sun/shade state is
     /// wrong, when the scene needs the sun.
     #[serde(default)]
@@ -152,9 +158,11 @@ impl Candidate {
     /// ..[, shade ..]".
     fn errors_text(&self) -> String {
         format!(
-            "horizon p99 {:.3} deg, svf p99 {:.4}{}",
+            "horizon p99 {:.3} deg (max {:.3}), svf p99 {:.4} (max {:.4}){}",
             self.horizon_p99_deg,
+            self.horizon_max_deg,
             self.svf_p99,
+            self.svf_max,
             self.shade_share
                 .map_or(String::new(), |s| format!(", shade {s:.4}")),
         ) + &self
@@ -189,6 +197,13 @@ pub struct Scene {
     #[serde(default)]
     pub slope_p90_deg: Option<f64>,
     pub pilot_posts: usize,
+    /// Of those, the posts around the scene's most prominent features
+    /// (where the largest errors are), and the features' prominence
+    /// (metres above their surroundings), most prominent first.
+    #[serde(default)]
+    pub pilot_feature_posts: usize,
+    #[serde(default)]
+    pub feature_prominence_m: Vec<f32>,
     /// Directions the pilot measured: the reference's and those the
     /// candidate bakes would store.
     #[serde(default)]
@@ -360,7 +375,12 @@ struct PilotSuns {
 /// and the sun/shade states it gets wrong.
 struct Errors {
     horizon: Vec<f64>,
+    /// The largest horizon error away from the DEM's edge (neither the
+    /// reference nor a serving direction facing out over it), and the
+    /// pilot post where it is.
+    horizon_max: (f64, usize),
     svf: Vec<f64>,
+    svf_max: f64,
     shade_wrong: usize,
     shade_pairs: usize,
     /// Per post, per cent ([`solar_error`]); empty without solar.
@@ -383,12 +403,18 @@ impl Errors {
         (!self.solar.is_empty()).then(|| quantile_unsorted(&mut self.solar, q))
     }
 
-    /// Whether these errors, at the deciding quantile, stay within `share`
-    /// of every limit the budget sets for them.
+    /// Whether these errors, at the deciding quantile and at their largest,
+    /// stay within `share` of every limit the budget sets for them. The
+    /// shares add up to the whole budget for the largest error too: the
+    /// largest of a sum is at most the sum of the largest.
     fn within(&mut self, budget: &Budget, share: f64) -> bool {
         let (horizon, svf, shade) = self.at(DECISION_QUANTILE);
         let solar = self.solar_at(DECISION_QUANTILE);
-        horizon <= share * budget.horizon
+        budget
+            .horizon_max
+            .is_none_or(|v| self.horizon_max.0 <= share * v)
+            && budget.svf_max.is_none_or(|v| self.svf_max <= share * v)
+            && horizon <= share * budget.horizon
             && budget.svf.is_none_or(|v| svf <= share * v)
             && budget
                 .shade
@@ -413,7 +439,9 @@ fn errors(
     let integrals = BandIntegrals::of_azimuths(&azimuths);
     let mut e = Errors {
         horizon: Vec::new(),
+        horizon_max: (0.0, 0),
         svf: Vec::new(),
+        svf_max: 0.0,
         shade_wrong: 0,
         shade_pairs: 0,
         solar: Vec::new(),
@@ -426,13 +454,37 @@ fn errors(
         .map(|band| bands_around(&azimuths, band.azimuth))
         .collect();
     let mut served = vec![0.0; PILOT_DIRECTIONS];
+    // The posts around features count for the largest errors only: they
+    // are chosen where errors are large, and would bias the percentiles,
+    // which are over the scene's posts.
+    let first_feature_post = pilot.posts.len() - pilot.feature_posts;
     for (post, exact) in pilot.exact.iter().enumerate() {
+        let sampled = post < first_feature_post;
         let kept: Vec<f64> = stored.iter().map(|&j| value(post, j)).collect();
+        let facing_out = |i: usize| exact[stored[i]] == NOTHING_AHEAD;
         for ((&(i, j, f), &truth), out) in around.iter().zip(exact).zip(&mut served) {
             *out = between(kept[i], kept[j], f);
             if out.is_finite() && truth.is_finite() {
-                e.horizon.push((*out - truth).abs());
+                let error = (*out - truth).abs();
+                if sampled {
+                    e.horizon.push(error);
+                }
+                let at_edge = truth == NOTHING_AHEAD || facing_out(i) || facing_out(j);
+                if !at_edge && error > e.horizon_max.0 {
+                    e.horizon_max = (error, post);
+                }
             }
+        }
+        let s = svf_of_horizons(&integrals, kept.iter().copied());
+        let truth = pilot.svf(exact);
+        if s.is_finite() && truth.is_finite() {
+            e.svf_max = e.svf_max.max((s - truth).abs());
+            if sampled {
+                e.svf.push((s - truth).abs());
+            }
+        }
+        if !sampled {
+            continue;
         }
         e.shade_pairs += suns.shade.len();
         e.shade_wrong += suns
@@ -442,11 +494,6 @@ fn errors(
             .count();
         if !suns.solar.is_empty() {
             e.solar.push(solar_error(&suns.solar, &served, exact));
-        }
-        let s = svf_of_horizons(&integrals, kept.iter().copied());
-        let truth = pilot.svf(exact);
-        if s.is_finite() && truth.is_finite() {
-            e.svf.push((s - truth).abs());
         }
     }
     e
@@ -713,6 +760,9 @@ fn describe_scene(
             .as_ref()
             .map(|p| quantile_unsorted(&mut p.slope_deg.clone(), 0.9)),
         pilot_posts: pilot.map_or(0, |p| p.posts.len()),
+        pilot_feature_posts: pilot.map_or(0, |p| p.feature_posts),
+        feature_prominence_m: pilot
+            .map_or(Vec::new(), |p| p.features.iter().map(|f| f.1).collect()),
         pilot_directions: pilot.map_or(0, Pilot::directions_measured),
         pilot_reference_directions: pilot.map_or(0, |p| p.reference.len()),
         pilot_seconds,
@@ -848,10 +898,13 @@ fn choose_encoding(pilot: &Pilot, suns: &PilotSuns, budget: &Budget) -> AngleEnc
     [AngleEncoding::U8, AngleEncoding::U16, AngleEncoding::F32]
         .into_iter()
         .find(|&e| {
+            let svf_limit = budget
+                .svf
+                .into_iter()
+                .chain(budget.svf_max)
+                .reduce(f64::min);
             e.max_error_deg() <= share * budget.horizon
-                && budget
-                    .svf
-                    .is_none_or(|s| e.max_error_deg().to_radians() <= share * s)
+                && svf_limit.is_none_or(|s| e.max_error_deg().to_radians() <= share * s)
                 && ((budget.shade.is_none() && budget.solar.is_none())
                     || errors(pilot, &every_reference, suns, |i, j| {
                         stored_as(e, pilot.exact[i][j])
@@ -895,6 +948,8 @@ fn plan_horizons(
                 max_distance: distance,
                 horizon_p99_deg,
                 svf_p99,
+                horizon_max_deg: errors.horizon_max.0,
+                svf_max: errors.svf_max,
                 shade_share,
                 solar_p99_percent: errors.solar_at(0.99),
                 bytes: costs.layer_bytes(encoding.elem().size(), sectors)
