@@ -256,6 +256,19 @@ fn bake_to_a_budget_then_check_it() {
             && text.contains("met"),
         "{text}"
     );
+    // Where the bake fell against the plan's time and memory, and where
+    // its largest error is.
+    assert!(
+        text.contains("% of the planned") && text.contains("largest error"),
+        "{text}"
+    );
+    let json = terrabake(&["check", o, "--samples", "200", "--json"]);
+    let report: serde_json::Value = serde_json::from_str(&stdout(&json)).unwrap();
+    assert!(
+        report["planned_seconds"].as_f64().unwrap() > 0.0,
+        "{report}"
+    );
+    assert!(report["horizons"]["horizon_max_at"].is_array(), "{report}");
 }
 
 /// The synthetic terrain's GeoTIFF and an asset path beside it.

@@ -136,6 +136,11 @@ pub struct CheckReport {
     pub budget: Option<Budget>,
     /// What the recorded plan predicted for the horizons, if any.
     pub predicted: Option<Candidate>,
+    /// What the recorded plan predicted the whole bake after ingest would
+    /// take, seconds (an upper bound on the machine the models were fitted
+    /// on), and its peak memory, MiB.
+    pub planned_seconds: Option<f64>,
+    pub planned_memory_mib: Option<f64>,
     /// What the planned bake measured of itself (time, peak memory).
     pub baked: Option<Baked>,
     pub verdicts: Vec<Verdict>,
@@ -252,6 +257,8 @@ pub fn check(
             seed: opts.seed,
             budget: budget.copied(),
             predicted: None,
+            planned_seconds: None,
+            planned_memory_mib: None,
             baked: None,
             verdicts: Vec::new(),
         };
@@ -260,6 +267,8 @@ pub fn check(
         }
         if let Some(plan) = plan {
             report.predicted = plan.chosen;
+            report.planned_seconds = Some(plan.seconds);
+            report.planned_memory_mib = Some(plan.memory_mib);
             report.baked = plan.baked;
         }
         if let Some(b) = report.budget {
@@ -745,9 +754,25 @@ pub(crate) fn describe(report: &CheckReport) -> String {
     );
     if let Some(b) = &report.baked {
         out += &format!(
-            "baked in              {:.1} s, peak memory {:.0} MiB\n",
+            "baked in              {:.1} s, peak memory {:.0} MiB",
             b.seconds, b.peak_memory_mib
         );
+        // Where the bake fell against the plan's upper bounds.
+        if let (Some(t), Some(m)) = (report.planned_seconds, report.planned_memory_mib) {
+            if t > 0.0 && m > 0.0 {
+                out += &format!(
+                    " ({:.0} % of the planned {t:.1} s, {:.0} % of the planned {m:.0} MiB{})",
+                    100.0 * b.seconds / t,
+                    100.0 * b.peak_memory_mib / m,
+                    if b.seconds > t {
+                        "; slower than planned: a busy machine, or one the time models were not fitted on (fit its own with pipelines/fit_plan_models.sh and name it in TERRABAKE_TIME_MODELS)"
+                    } else {
+                        ""
+                    }
+                );
+            }
+        }
+        out += "\n";
     }
     if let Some(p) = &report.predicted {
         out += &format!(

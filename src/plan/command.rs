@@ -92,7 +92,7 @@ pub(crate) fn describe(plan: &Plan) -> String {
 /// `--sun-day`.
 #[derive(clap::Args, Debug, Clone)]
 pub struct RequestArgs {
-    /// The budget: horizon=DEG[,svf=X][,shade=FRACTION][,time=SECONDS][,bytes=SIZE][,memory=MIB].
+    /// The budget: horizon=DEG[,horizon_max=DEG][,svf=X][,svf_max=X][,shade=FRACTION][,time=SECONDS][,bytes=SIZE][,memory=MIB].
     #[arg(long)]
     pub budget: Option<Budget>,
     /// What the scene needs, a comma list: horizons, svf, sky, sun, tracing, fast_tracing
@@ -129,8 +129,10 @@ impl RequestArgs {
 terrabake plan dem.tbake --budget horizon=1,shade=0.01 --needs horizons,sun --sun-day 172\n  \
 terrabake bake dem.tif -o dem.tbake --budget horizon=0.5   # bake what the plan says\n\n\
 The budget (docs/PLANNING.md): horizon=DEG is the 99th percentile over posts and azimuths of the \
-absolute horizon angle error, interpolation between stored directions included; svf=X the 99th \
-percentile over posts of the absolute sky-view factor error; shade=F the share of (post, sun \
+absolute horizon angle error, interpolation between stored directions included; horizon_max=DEG \
+its largest away from the DEM's edge, measured also around the scene's most prominent features \
+(lone spikes, peaks, cliffs), where a percentile is blind; svf=X the 99th percentile over posts of \
+the absolute sky-view factor error, svf_max=X its largest; shade=F the share of (post, sun \
 position) pairs whose sun/shade state is wrong; bytes=SIZE, time=SECONDS and memory=MIB limit the \
 bake. Its time is predicted by models fitted on a 2-core machine; on another, \
 OUT=models.json pipelines/fit_plan_models.sh fits that machine's, and TERRABAKE_TIME_MODELS=models.json \
