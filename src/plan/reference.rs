@@ -144,6 +144,7 @@ fn prominent_features(
         .collect()
 }
 
+/// Samples the posts of `area` (module docs).
 fn sample_posts(z: &[f32], w: usize, area: [usize; 4], opts: &Sampling) -> Samples {
     let [x0, y0, x1, y1] = area;
     let mut rng = SplitMix64(opts.seed);
