@@ -69,6 +69,21 @@ def test_xarray_opens_the_file_as_the_backend_opens_the_asset(baked: tuple[Path,
         assert encoding.get("zlib") or encoding.get("compression") == "gzip"
 
 
+def test_the_cf_grid_mapping_is_the_crs_without_its_wkt(baked: tuple[Path, Path]) -> None:
+    """CF's grid_mapping_name and parameters alone (crs_wkt left out) give
+    pyproj the asset's CRS: the same coordinates for the same points."""
+    pyproj = pytest.importorskip("pyproj")
+    _, nc = baked
+    with xr.open_dataset(nc, engine=ENGINES[0]) as d:
+        attrs = dict(d["spatial_ref"].attrs)
+    assert attrs["grid_mapping_name"] == "latitude_longitude"
+    cf = {k: v for k, v in attrs.items() if k not in ("crs_wkt", "spatial_ref", "GeoTransform", "epsg_code")}
+    crs = pyproj.CRS.from_cf(cf)
+    want = pyproj.CRS.from_wkt(attrs["crs_wkt"])
+    assert crs.ellipsoid.semi_major_metre == want.ellipsoid.semi_major_metre
+    assert abs(crs.ellipsoid.inverse_flattening - want.ellipsoid.inverse_flattening) < 1e-9
+
+
 def test_netcdf4_reads_the_codes_and_their_packing(baked: tuple[Path, Path]) -> None:
     netCDF4 = pytest.importorskip("netCDF4")
     asset, nc = baked

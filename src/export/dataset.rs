@@ -203,6 +203,20 @@ pub fn dataset<'a>(asset: &Asset<Mmap>, layers: &[&'a Layer<Mmap>]) -> crate::Re
         if let Some(epsg) = g.epsg {
             a.insert("epsg_code".into(), format!("EPSG:{epsg}").into());
         }
+        // CF's own grid mapping too, for the readers that know no WKT.
+        for (key, value) in g
+            .epsg
+            .and_then(crate::terrain::geo::cf_grid_mapping)
+            .unwrap_or_default()
+        {
+            use crate::terrain::geo::CfValue;
+            let value = match value {
+                CfValue::Number(x) => json!(x),
+                CfValue::Numbers(v) => json!(v),
+                CfValue::Text(t) => t.into(),
+            };
+            a.insert(key.into(), value);
+        }
         a.insert(
             "GeoTransform".into(),
             t.iter()

@@ -205,6 +205,140 @@ pub fn wkt(epsg: u32) -> Option<String> {
     Some(def.wkt.to_string())
 }
 
+/// CF's grid mapping attributes (CF-1.8, Appendix F) of EPSG code `epsg`:
+/// `grid_mapping_name`, the projection's parameters and the ellipsoid's,
+/// read from the code's PROJ definition in the EPSG database
+/// `crs-definitions` carries. Covers latitude-longitude, transverse
+/// Mercator (UTM among them), polar and oblique stereographic, Lambert
+/// conformal conic, Albers, Lambert azimuthal equal-area and Mercator;
+/// `None` for other projections, which keep `crs_wkt` alone (what GDAL and
+/// rioxarray read first anyway).
+pub fn cf_grid_mapping(epsg: u32) -> Option<Vec<(&'static str, CfValue)>> {
+    let def = crs_definitions::from_code(u16::try_from(epsg).ok()?)?;
+    cf_grid_mapping_of_proj4(def.proj4)
+}
+
+/// A CF attribute's value: a number or a pair of standard parallels.
+#[derive(Debug, Clone, PartialEq)]
+pub enum CfValue {
+    Number(f64),
+    Numbers(Vec<f64>),
+    Text(&'static str),
+}
+
+fn cf_grid_mapping_of_proj4(proj4: &str) -> Option<Vec<(&'static str, CfValue)>> {
+    use CfValue::{Number, Numbers, Text};
+    let params: Vec<(&str, &str)> = proj4
+        .split_whitespace()
+        .filter_map(|p| p.strip_prefix('+'))
+        .map(|p| p.split_once('=').unwrap_or((p, "")))
+        .collect();
+    let text = |key: &str| params.iter().find(|(k, _)| *k == key).map(|(_, v)| *v);
+    let num = |key: &str| text(key).and_then(|v| v.parse::<f64>().ok());
+    let or0 = |key: &str| num(key).unwrap_or(0.0);
+    let mut out: Vec<(&'static str, CfValue)> = Vec::new();
+    let false_origin = |out: &mut Vec<(&'static str, CfValue)>| {
+        out.push(("false_easting", Number(or0("x_0"))));
+        out.push(("false_northing", Number(or0("y_0"))));
+    };
+    match text("proj")? {
+        "longlat" => out.push(("grid_mapping_name", Text("latitude_longitude"))),
+        "utm" => {
+            let zone: f64 = num("zone")?;
+            out.push(("grid_mapping_name", Text("transverse_mercator")));
+            out.push(("scale_factor_at_central_meridian", Number(0.9996)));
+            out.push(("longitude_of_central_meridian", Number(6.0 * zone - 183.0)));
+            out.push(("latitude_of_projection_origin", Number(0.0)));
+            out.push(("false_easting", Number(500_000.0)));
+            let south = text("south").is_some();
+            out.push(("false_northing", Number(if south { 1e7 } else { 0.0 })));
+        }
+        "tmerc" => {
+            out.push(("grid_mapping_name", Text("transverse_mercator")));
+            let k = num("k").or(num("k_0")).unwrap_or(1.0);
+            out.push(("scale_factor_at_central_meridian", Number(k)));
+            out.push(("longitude_of_central_meridian", Number(or0("lon_0"))));
+            out.push(("latitude_of_projection_origin", Number(or0("lat_0"))));
+            false_origin(&mut out);
+        }
+        "stere" if or0("lat_0").abs() == 90.0 => {
+            out.push(("grid_mapping_name", Text("polar_stereographic")));
+            out.push((
+                "straight_vertical_longitude_from_pole",
+                Number(or0("lon_0")),
+            ));
+            out.push(("latitude_of_projection_origin", Number(or0("lat_0"))));
+            // A standard parallel off the pole (NSIDC's 70 N, with a
+            // nominal k=1 beside it), else the scale at the pole (UPS:
+            // lat_ts=90 with k=0.994).
+            match num("lat_ts").filter(|ts| ts.abs() != 90.0) {
+                Some(ts) => out.push(("standard_parallel", Number(ts))),
+                None => out.push((
+                    "scale_factor_at_projection_origin",
+                    Number(num("k").or(num("k_0")).unwrap_or(1.0)),
+                )),
+            }
+            false_origin(&mut out);
+        }
+        "stere" | "sterea" => {
+            out.push(("grid_mapping_name", Text("stereographic")));
+            out.push(("longitude_of_projection_origin", Number(or0("lon_0"))));
+            out.push(("latitude_of_projection_origin", Number(or0("lat_0"))));
+            let k = num("k").or(num("k_0")).unwrap_or(1.0);
+            out.push(("scale_factor_at_projection_origin", Number(k)));
+            false_origin(&mut out);
+        }
+        proj @ ("lcc" | "aea") => {
+            let name = if proj == "lcc" {
+                "lambert_conformal_conic"
+            } else {
+                "albers_conical_equal_area"
+            };
+            out.push(("grid_mapping_name", Text(name)));
+            let parallels: Vec<f64> = [num("lat_1"), num("lat_2")].into_iter().flatten().collect();
+            out.push(("standard_parallel", Numbers(parallels)));
+            out.push(("longitude_of_central_meridian", Number(or0("lon_0"))));
+            out.push(("latitude_of_projection_origin", Number(or0("lat_0"))));
+            false_origin(&mut out);
+        }
+        "laea" => {
+            out.push(("grid_mapping_name", Text("lambert_azimuthal_equal_area")));
+            out.push(("longitude_of_projection_origin", Number(or0("lon_0"))));
+            out.push(("latitude_of_projection_origin", Number(or0("lat_0"))));
+            false_origin(&mut out);
+        }
+        "merc" => {
+            out.push(("grid_mapping_name", Text("mercator")));
+            out.push(("longitude_of_projection_origin", Number(or0("lon_0"))));
+            match num("lat_ts") {
+                Some(ts) => out.push(("standard_parallel", Number(ts))),
+                None => out.push((
+                    "scale_factor_at_projection_origin",
+                    Number(num("k").or(num("k_0")).unwrap_or(1.0)),
+                )),
+            }
+            false_origin(&mut out);
+        }
+        _ => return None,
+    }
+    // The ellipsoid, where the definition names one CF can give.
+    let ellipsoid = match (text("datum"), text("ellps")) {
+        (Some("WGS84"), _) | (_, Some("WGS84")) => Some((6_378_137.0, 298.257_223_563)),
+        (Some("NAD83"), _) | (_, Some("GRS80")) => Some((6_378_137.0, 298.257_222_101)),
+        (_, Some("intl")) => Some((6_378_388.0, 297.0)),
+        (_, Some("bessel")) => Some((6_377_397.155, 299.152_812_8)),
+        (_, Some("krass")) => Some((6_378_245.0, 298.3)),
+        (Some("NAD27"), _) | (_, Some("clrk66")) => Some((6_378_206.4, 294.978_698_213_898)),
+        (Some("OSGB36"), _) | (_, Some("airy")) => Some((6_377_563.396, 299.324_964_6)),
+        _ => num("a").zip(num("rf")),
+    };
+    if let Some((a, rf)) = ellipsoid {
+        out.push(("semi_major_axis", Number(a)));
+        out.push(("inverse_flattening", Number(rf)));
+    }
+    Some(out)
+}
+
 /// Longitude and latitude (degrees, WGS 84) to UTM easting and northing
 /// (metres) in `zone`: Krüger's series to the third order in the third
 /// flattening (Karney 2011, eq. 7-9), within a millimetre inside a zone
@@ -273,6 +407,55 @@ pub(crate) fn local_metric_keys(raster_type: RasterType) -> Vec<u16> {
 
 #[cfg(test)]
 mod tests {
+    use super::CfValue::{Number, Numbers, Text};
+
+    #[test]
+    fn cf_grid_mappings_of_common_epsg_codes() {
+        let get = |epsg, key| {
+            super::cf_grid_mapping(epsg)
+                .unwrap()
+                .into_iter()
+                .find(|(k, _)| *k == key)
+                .map(|(_, v)| v)
+        };
+        assert_eq!(
+            get(4326, "grid_mapping_name"),
+            Some(Text("latitude_longitude"))
+        );
+        assert_eq!(
+            get(4326, "inverse_flattening"),
+            Some(Number(298.257_223_563))
+        );
+        assert_eq!(
+            get(32630, "grid_mapping_name"),
+            Some(Text("transverse_mercator"))
+        );
+        assert_eq!(
+            get(32630, "longitude_of_central_meridian"),
+            Some(Number(-3.0))
+        );
+        assert_eq!(get(32733, "false_northing"), Some(Number(1e7)));
+        assert_eq!(
+            get(3413, "grid_mapping_name"),
+            Some(Text("polar_stereographic"))
+        );
+        assert_eq!(
+            get(3413, "straight_vertical_longitude_from_pole"),
+            Some(Number(-45.0))
+        );
+        assert_eq!(get(3413, "standard_parallel"), Some(Number(70.0)));
+        assert_eq!(
+            get(3035, "grid_mapping_name"),
+            Some(Text("lambert_azimuthal_equal_area"))
+        );
+        assert_eq!(get(3035, "false_easting"), Some(Number(4_321_000.0)));
+        assert_eq!(get(3035, "semi_major_axis"), Some(Number(6_378_137.0)));
+        assert_eq!(
+            get(2154, "standard_parallel"),
+            Some(Numbers(vec![49.0, 44.0]))
+        );
+    }
+
     use super::*;
 
     #[test]
