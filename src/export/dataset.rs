@@ -22,10 +22,12 @@
 //!
 //! Chunks are the asset's tiles, one band deep: `(1, tile, tile)`.
 
+use std::borrow::Cow;
+
 use anyhow::anyhow;
 use serde_json::{json, Map, Value};
 use terrabake_format::layout::{Codec, ElemType};
-use terrabake_format::{Asset, Layer, Mmap};
+use terrabake_format::{Asset, Layer, Mmap, StoredChunk};
 
 use super::{cog_for_layer, layer_title, layer_unit};
 
@@ -61,6 +63,35 @@ pub struct Variable<'a> {
     pub attrs: Map<String, Value>,
 }
 
+impl Variable<'_> {
+    /// The array's shape: `[bands,] height, width`.
+    pub fn shape(&self) -> Vec<u64> {
+        let l = self.layer;
+        self.with_band(u64::from(l.bands()), [l.height(), l.width()].map(u64::from))
+    }
+
+    /// A chunk's shape: one tile, one band deep (`[1,] tile, tile`).
+    pub fn chunk_shape(&self) -> Vec<u64> {
+        let t = u64::from(self.layer.tile_size());
+        self.with_band(1, [t, t])
+    }
+
+    /// Where chunk `(band, ty, tx)` starts, in elements.
+    pub fn chunk_offsets(&self, band: u32, ty: u32, tx: u32) -> Vec<u64> {
+        let t = u64::from(self.layer.tile_size());
+        self.with_band(u64::from(band), [u64::from(ty) * t, u64::from(tx) * t])
+    }
+
+    /// `yx`, after `band` where the variable has a band dimension.
+    fn with_band(&self, band: u64, yx: [u64; 2]) -> Vec<u64> {
+        if self.dims.len() == 3 {
+            vec![band, yx[0], yx[1]]
+        } else {
+            yx.to_vec()
+        }
+    }
+}
+
 /// A coordinate variable (one dimension, or none for `spatial_ref`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Coordinate {
@@ -88,6 +119,14 @@ impl CoordinateValues {
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
+
+    /// The values as little-endian 8-byte elements.
+    pub fn le_bytes(&self) -> Vec<u8> {
+        match self {
+            CoordinateValues::F64(v) => v.iter().flat_map(|x| x.to_le_bytes()).collect(),
+            CoordinateValues::I64(v) => v.iter().flat_map(|x| x.to_le_bytes()).collect(),
+        }
+    }
 }
 
 /// Layers of one grid as a CF dataset.
@@ -95,7 +134,6 @@ impl CoordinateValues {
 pub struct Dataset<'a> {
     pub width: u32,
     pub height: u32,
-    pub tile_size: u32,
     pub coordinates: Vec<Coordinate>,
     pub variables: Vec<Variable<'a>>,
     pub attrs: Map<String, Value>,
@@ -315,7 +353,6 @@ pub fn dataset<'a>(asset: &Asset<Mmap>, layers: &[&'a Layer<Mmap>]) -> crate::Re
     Ok(Dataset {
         width,
         height,
-        tile_size: first.tile_size(),
         coordinates,
         variables,
         attrs,
@@ -333,45 +370,59 @@ pub fn tile_bytes(
     tx: u32,
     ty: u32,
 ) -> anyhow::Result<Vec<u8>> {
-    let tile = layer.tile_size();
-    let chunk_len = (tile as usize).pow(2) * storage.elem().size();
     match storage {
         Storage::Codes(_) => {
             let chunk = layer.stored_tile(band, tx, ty)?;
-            anyhow::ensure!(
-                chunk.raw_len as usize == chunk_len,
-                "layer {} tile ({tx}, {ty}) of band {band} holds {} bytes, not a whole tile's {chunk_len}",
-                layer.entry().key(),
-                chunk.raw_len
-            );
-            match chunk.codec {
-                Codec::Raw => Ok(chunk.bytes.to_vec()),
-                Codec::Zstd => Ok(zstd::bulk::decompress(chunk.bytes, chunk_len)?),
-                other => anyhow::bail!(
-                    "layer {}: tiles in codec {other:?} cannot be exported as arrays",
-                    layer.entry().key()
-                ),
-            }
+            Ok(stored_codes(layer, &chunk, storage)?.into_owned())
         }
-        Storage::Decoded => {
-            let (x0, y0) = (tx * tile, ty * tile);
-            let (w, h) = (tile.min(layer.width() - x0), tile.min(layer.height() - y0));
-            let mut window = vec![0f32; (w * h) as usize];
-            layer.read_window_f32(band, [x0, y0, w, h], &mut window)?;
-            let mut raw = vec![0u8; chunk_len];
-            for (r, cells) in raw.chunks_exact_mut(tile as usize * 4).enumerate() {
-                for (c, cell) in cells.chunks_exact_mut(4).enumerate() {
-                    let v = if (r as u32) < h && (c as u32) < w {
-                        window[r * w as usize + c]
-                    } else {
-                        f32::NAN
-                    };
-                    cell.copy_from_slice(&v.to_le_bytes());
-                }
-            }
-            Ok(raw)
+        Storage::Decoded => decoded_tile(layer, band, tx, ty),
+    }
+}
+
+/// A stored tile's codes, decoded from its codec (borrowed where stored
+/// raw): what [`tile_bytes`] gives for [`Storage::Codes`], for a caller
+/// that has the stored tile already.
+pub fn stored_codes<'c>(
+    layer: &Layer<Mmap>,
+    chunk: &StoredChunk<'c>,
+    storage: Storage,
+) -> anyhow::Result<Cow<'c, [u8]>> {
+    let chunk_len = (layer.tile_size() as usize).pow(2) * storage.elem().size();
+    anyhow::ensure!(
+        chunk.raw_len as usize == chunk_len,
+        "layer {}: a tile holds {} bytes, not a whole tile's {chunk_len}",
+        layer.entry().key(),
+        chunk.raw_len
+    );
+    match chunk.codec {
+        Codec::Raw => Ok(Cow::Borrowed(chunk.bytes)),
+        Codec::Zstd => Ok(Cow::Owned(zstd::bulk::decompress(chunk.bytes, chunk_len)?)),
+        other => anyhow::bail!(
+            "layer {}: tiles in codec {other:?} cannot be exported as arrays",
+            layer.entry().key()
+        ),
+    }
+}
+
+/// A tile decoded to `f32` (NaN past the edge), little-endian.
+fn decoded_tile(layer: &Layer<Mmap>, band: u32, tx: u32, ty: u32) -> anyhow::Result<Vec<u8>> {
+    let tile = layer.tile_size();
+    let (x0, y0) = (tx * tile, ty * tile);
+    let (w, h) = (tile.min(layer.width() - x0), tile.min(layer.height() - y0));
+    let mut window = vec![0f32; (w * h) as usize];
+    layer.read_window_f32(band, [x0, y0, w, h], &mut window)?;
+    let mut raw = vec![0u8; (tile as usize).pow(2) * 4];
+    for (r, cells) in raw.chunks_exact_mut(tile as usize * 4).enumerate() {
+        for (c, cell) in cells.chunks_exact_mut(4).enumerate() {
+            let v = if (r as u32) < h && (c as u32) < w {
+                window[r * w as usize + c]
+            } else {
+                f32::NAN
+            };
+            cell.copy_from_slice(&v.to_le_bytes());
         }
     }
+    Ok(raw)
 }
 
 /// Adds coordinate `name` unless a layer before added it.

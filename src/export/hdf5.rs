@@ -39,64 +39,48 @@ pub const UNDEF: u64 = u64::MAX;
 /// Size of offsets and of lengths: 8 bytes, as every modern file has them.
 const SIGNATURE: &[u8; 8] = b"\x89HDF\r\n\x1a\n";
 
+/// The most bytes one object header message holds (its size is a u16):
+/// with compact storage only, the bound on an attribute.
+pub const MAX_MESSAGE_LEN: usize = u16::MAX as usize;
+
 /// The superblock's size (version 2).
 pub const SUPERBLOCK_LEN: u64 = 48;
 
 /// Jenkins' lookup3 `hashlittle` with initial value 0: the checksum of
-/// HDF5's version 2 metadata.
+/// HDF5's version 2 metadata. `mix` and `final` are written as their
+/// tables of steps over `[a, b, c]`.
 pub fn checksum(data: &[u8]) -> u32 {
     let word = |b: &[u8]| u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
-    let mut a = 0xdead_beef_u32.wrapping_add(data.len() as u32);
-    let (mut b, mut c) = (a, a);
+    let start = 0xdead_beef_u32.wrapping_add(data.len() as u32);
+    let mut v = [start; 3];
+    let add = |v: &mut [u32; 3], k: &[u8]| {
+        for (x, w) in v.iter_mut().zip(k.chunks_exact(4)) {
+            *x = x.wrapping_add(word(w));
+        }
+    };
     let mut k = data;
     while k.len() > 12 {
-        a = a.wrapping_add(word(&k[0..4]));
-        b = b.wrapping_add(word(&k[4..8]));
-        c = c.wrapping_add(word(&k[8..12]));
-        // mix(a, b, c)
-        a = a.wrapping_sub(c);
-        a ^= c.rotate_left(4);
-        c = c.wrapping_add(b);
-        b = b.wrapping_sub(a);
-        b ^= a.rotate_left(6);
-        a = a.wrapping_add(c);
-        c = c.wrapping_sub(b);
-        c ^= b.rotate_left(8);
-        b = b.wrapping_add(a);
-        a = a.wrapping_sub(c);
-        a ^= c.rotate_left(16);
-        c = c.wrapping_add(b);
-        b = b.wrapping_sub(a);
-        b ^= a.rotate_left(19);
-        a = a.wrapping_add(c);
-        c = c.wrapping_sub(b);
-        c ^= b.rotate_left(4);
-        b = b.wrapping_add(a);
+        add(&mut v, &k[..12]);
+        // mix: x -= z; x ^= z <<< r; z += y, for (x, y, z) turning.
+        for (x, r) in [(0, 4), (1, 6), (2, 8), (0, 16), (1, 19), (2, 4)] {
+            let (y, z) = ((x + 1) % 3, (x + 2) % 3);
+            v[x] = v[x].wrapping_sub(v[z]) ^ v[z].rotate_left(r);
+            v[z] = v[z].wrapping_add(v[y]);
+        }
         k = &k[12..];
     }
     if k.is_empty() {
-        return c;
+        return v[2];
     }
     let mut tail = [0u8; 12];
     tail[..k.len()].copy_from_slice(k);
-    a = a.wrapping_add(word(&tail[0..4]));
-    b = b.wrapping_add(word(&tail[4..8]));
-    c = c.wrapping_add(word(&tail[8..12]));
-    // final(a, b, c)
-    c ^= b;
-    c = c.wrapping_sub(b.rotate_left(14));
-    a ^= c;
-    a = a.wrapping_sub(c.rotate_left(11));
-    b ^= a;
-    b = b.wrapping_sub(a.rotate_left(25));
-    c ^= b;
-    c = c.wrapping_sub(b.rotate_left(16));
-    a ^= c;
-    a = a.wrapping_sub(c.rotate_left(4));
-    b ^= a;
-    b = b.wrapping_sub(a.rotate_left(14));
-    c ^= b;
-    c.wrapping_sub(b.rotate_left(24))
+    add(&mut v, &tail);
+    // final: x ^= y; x -= y <<< r, for (x, y) = (c, b), (a, c), (b, a), ...
+    for (i, r) in [14, 11, 25, 16, 4, 14, 24].into_iter().enumerate() {
+        let (x, y) = [(2, 1), (0, 2), (1, 0)][i % 3];
+        v[x] = (v[x] ^ v[y]).wrapping_sub(v[y].rotate_left(r));
+    }
+    v[2]
 }
 
 /// A datatype (the datatype message, IV.A.2.d), little-endian throughout.
@@ -332,6 +316,18 @@ impl Attribute {
         }
     }
 
+    /// Bytes of its attribute message, which must be at most
+    /// [`MAX_MESSAGE_LEN`] (checked again when the file is finished).
+    pub fn message_len(&self) -> usize {
+        let last = match &self.value {
+            Value::ObjectRefLists(lists) => lists.iter().flatten().max().copied(),
+            Value::RefIndexPairs(pairs) => pairs.iter().map(|p| p.0).max(),
+            _ => None,
+        };
+        let addresses = vec![0; last.map_or(0, |l| l + 1)];
+        encode_attribute(self, &addresses, 0, &mut Heap::default()).len()
+    }
+
     /// A one-dimensional numeric attribute.
     pub fn numbers(name: &str, dtype: Dtype, bytes: Vec<u8>) -> Self {
         let n = bytes.len() as u64 / u64::from(dtype.size().max(1));
@@ -476,8 +472,8 @@ impl<W: Write + Seek> File<W> {
         let zero = vec![0u64; self.objects.len()];
         let mut heap = Heap::default();
         let sizes: Vec<u64> = (0..self.objects.len())
-            .map(|i| self.encode_header(i, &zero, 0, &mut heap).len() as u64)
-            .collect();
+            .map(|i| Ok(self.encode_header(i, &zero, 0, &mut heap)?.len() as u64))
+            .collect::<io::Result<_>>()?;
         if heap.objects.len() > usize::from(u16::MAX) {
             return Err(io::Error::other(format!(
                 "{} variable-length values (strings, dimension lists) are more than one HDF5 global heap holds (65535)",
@@ -496,7 +492,7 @@ impl<W: Write + Seek> File<W> {
         let mut heap = Heap::default();
         let headers: Vec<Vec<u8>> = (0..self.objects.len())
             .map(|i| self.encode_header(i, &addresses, heap_addr, &mut heap))
-            .collect();
+            .collect::<io::Result<_>>()?;
         let heap_bytes = heap.encode();
         debug_assert_eq!(heap_bytes.len() as u64, heap_len);
         self.write_raw(&heap_bytes)?;
@@ -527,7 +523,7 @@ impl<W: Write + Seek> File<W> {
         addresses: &[u64],
         heap_addr: u64,
         heap: &mut Heap,
-    ) -> Vec<u8> {
+    ) -> io::Result<Vec<u8>> {
         let object = &self.objects[i];
         let mut messages: Vec<(u8, u8, Vec<u8>)> = Vec::new();
         match &object.kind {
@@ -657,8 +653,14 @@ impl<W: Write + Seek> File<W> {
         h.extend_from_slice(&(body as u64).to_le_bytes()[..width]);
         let mut attr_order = 0u16;
         for (kind, flags, m) in &messages {
+            let len = u16::try_from(m.len()).map_err(|_| {
+                io::Error::other(format!(
+                    "an object header message (type {kind:#04x}) of {} bytes is over the {MAX_MESSAGE_LEN} one message holds",
+                    m.len()
+                ))
+            })?;
             h.push(*kind);
-            h.extend_from_slice(&(m.len() as u16).to_le_bytes());
+            h.extend_from_slice(&len.to_le_bytes());
             h.push(*flags);
             let order = if *kind == 0x0c {
                 attr_order += 1;
@@ -671,7 +673,7 @@ impl<W: Write + Seek> File<W> {
         }
         let sum = checksum(&h);
         h.extend_from_slice(&sum.to_le_bytes());
-        h
+        Ok(h)
     }
 }
 

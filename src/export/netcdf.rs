@@ -107,7 +107,6 @@ fn write_variable_chunks<W: Write + Seek>(
     let storage = storage(v);
     let elem_size = storage.elem().size();
     let (bands, tx_n, ty_n) = (layer.bands(), layer.tiles_x(), layer.tiles_y());
-    let tile = u64::from(layer.tile_size());
     let all: Vec<(u32, u32, u32)> = (0..bands)
         .flat_map(|b| (0..ty_n).flat_map(move |ty| (0..tx_n).map(move |tx| (b, ty, tx))))
         .collect();
@@ -129,28 +128,15 @@ fn write_variable_chunks<W: Write + Seek>(
             })
             .collect::<anyhow::Result<_>>()?;
         for (&(b, ty, tx), bytes) in batch.iter().zip(compressed) {
-            let mut offsets = vec![u64::from(ty) * tile, u64::from(tx) * tile];
-            if v.dims.len() == 3 {
-                offsets.insert(0, u64::from(b));
-            }
             let address = f.write_raw(&bytes)?;
             refs.push(ChunkRef {
-                offsets,
+                offsets: v.chunk_offsets(b, ty, tx),
                 address,
                 size: bytes.len() as u32,
             });
         }
     }
-    Ok(f.write_chunk_btree(&refs, &chunk_shape(v), elem_size as u32)?)
-}
-
-fn chunk_shape(v: &Variable<'_>) -> Vec<u64> {
-    let t = u64::from(v.layer.tile_size());
-    if v.dims.len() == 3 {
-        vec![1, t, t]
-    } else {
-        vec![t, t]
-    }
+    Ok(f.write_chunk_btree(&refs, &v.chunk_shape(), elem_size as u32)?)
 }
 
 /// The file's objects: the root group (the dataset's attributes and a link
@@ -189,19 +175,14 @@ fn objects<W: Write + Seek>(
     }];
 
     for c in &ds.coordinates {
-        let (dtype, raw): (Dtype, Vec<u8>) = match &c.values {
-            CoordinateValues::F64(v) => (
-                Dtype::Float { size: 8 },
-                v.iter().flat_map(|x| x.to_le_bytes()).collect(),
-            ),
-            CoordinateValues::I64(v) => (
-                Dtype::Int {
-                    size: 8,
-                    signed: true,
-                },
-                v.iter().flat_map(|x| x.to_le_bytes()).collect(),
-            ),
+        let dtype = match &c.values {
+            CoordinateValues::F64(_) => Dtype::Float { size: 8 },
+            CoordinateValues::I64(_) => Dtype::Int {
+                size: 8,
+                signed: true,
+            },
         };
+        let raw = c.values.le_bytes();
         let mut attrs = Vec::new();
         let (space, layout) = if c.dims.is_empty() {
             (Dataspace::Scalar, Layout::Compact(raw))
@@ -261,10 +242,6 @@ fn objects<W: Write + Seek>(
         let storage = storage(v);
         let elem = storage.elem();
         let dtype = dtype_of(elem)?;
-        let mut shape = vec![u64::from(v.layer.height()), u64::from(v.layer.width())];
-        if v.dims.len() == 3 {
-            shape.insert(0, u64::from(v.layer.bands()));
-        }
         // The code that means nodata (CF's _FillValue, in the variable's
         // type), or NaN for floats; integers with no nodata code get none,
         // so that no reader masks a value the layer holds.
@@ -302,10 +279,10 @@ fn objects<W: Write + Seek>(
         objects.push(Object {
             kind: ObjectKind::Dataset {
                 dtype,
-                space: Dataspace::Simple(shape),
+                space: Dataspace::Simple(v.shape()),
                 layout: Layout::Chunked {
                     btree,
-                    chunk: chunk_shape(v),
+                    chunk: v.chunk_shape(),
                 },
                 fill,
                 filters,
@@ -394,19 +371,10 @@ fn attributes(map: &Map<String, Json>) -> anyhow::Result<Vec<Attribute>> {
             other => Attribute::text(name, &other.to_string()),
         };
         anyhow::ensure!(
-            attribute_fits(&attr),
+            attr.message_len() <= hdf5::MAX_MESSAGE_LEN,
             "attribute {name} is too long for a NetCDF-4 header (64 KiB)"
         );
         out.push(attr);
     }
     Ok(out)
-}
-
-/// Whether an attribute fits one header message (compact storage).
-fn attribute_fits(a: &Attribute) -> bool {
-    match &a.value {
-        Value::Data(_, _, d) => d.len() + a.name.len() < 0xff00,
-        Value::Strings(s) => s.len() * 16 + a.name.len() < 0xff00,
-        _ => true,
-    }
 }

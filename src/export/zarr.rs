@@ -33,7 +33,7 @@ use terrabake_format::layout::{Codec, ElemType};
 use terrabake_format::{Asset, Layer, Mmap};
 
 use super::dataset::{
-    dataset, tile_bytes, Coordinate, CoordinateValues, Dataset, Storage, Variable,
+    dataset, stored_codes, tile_bytes, Coordinate, CoordinateValues, Dataset, Storage, Variable,
 };
 use crate::plumbing::output::write_dir_atomically;
 use crate::plumbing::progress::Progress;
@@ -67,7 +67,7 @@ pub fn export_zarr(
         let mut consolidated = Map::new();
         for c in &ds.coordinates {
             let meta = coordinate_metadata(c);
-            let raw = coordinate_bytes(&c.values);
+            let raw = c.values.le_bytes();
             let key = if c.dims.is_empty() { "c" } else { "c/0" };
             let stored = zstd::bulk::compress(&raw, ZSTD_LEVEL)?;
             write_array(dir, &c.name, &meta, &[(key.to_string(), stored)])?;
@@ -165,14 +165,18 @@ fn write_chunks(
             let tx = (i % u64::from(tx_n)) as u32;
             let ty = ((i / u64::from(tx_n)) % u64::from(ty_n)) as u32;
             let b = (i / (u64::from(tx_n) * u64::from(ty_n))) as u32;
-            let as_stored = match v.storage {
-                Storage::Codes(_) => Some(layer.stored_tile(b, tx, ty)?)
-                    .filter(|c| c.codec == Codec::Zstd && c.raw_len as usize == chunk_len),
-                Storage::Decoded => None,
-            };
-            let (stored, copied) = match as_stored {
-                Some(chunk) => (chunk.bytes.to_vec(), true),
-                None => (
+            // One read of the stored tile: copied where it is zstd already.
+            let (stored, copied) = match v.storage {
+                Storage::Codes(_) => {
+                    let chunk = layer.stored_tile(b, tx, ty)?;
+                    if chunk.codec == Codec::Zstd && chunk.raw_len as usize == chunk_len {
+                        (chunk.bytes.to_vec(), true)
+                    } else {
+                        let codes = stored_codes(layer, &chunk, v.storage)?;
+                        (zstd::bulk::compress(&codes, ZSTD_LEVEL)?, false)
+                    }
+                }
+                Storage::Decoded => (
                     zstd::bulk::compress(&tile_bytes(layer, v.storage, b, tx, ty)?, ZSTD_LEVEL)?,
                     false,
                 ),
@@ -265,32 +269,15 @@ fn coordinate_metadata(c: &Coordinate) -> Value {
     array_metadata(shape.clone(), shape, data_type, 8, fill, &c.dims, &c.attrs)
 }
 
-fn coordinate_bytes(values: &CoordinateValues) -> Vec<u8> {
-    match values {
-        CoordinateValues::F64(v) => v.iter().flat_map(|x| x.to_le_bytes()).collect(),
-        CoordinateValues::I64(v) => v.iter().flat_map(|x| x.to_le_bytes()).collect(),
-    }
-}
-
 fn variable_metadata(ds: &Dataset<'_>, v: &Variable<'_>) -> anyhow::Result<Value> {
-    let layer = v.layer;
-    let t = u64::from(ds.tile_size);
-    let (mut shape, mut chunk) = (
-        vec![u64::from(layer.height()), u64::from(layer.width())],
-        vec![t, t],
-    );
-    if v.dims.len() == 3 {
-        shape.insert(0, u64::from(layer.bands()));
-        chunk.insert(0, 1);
-    }
     let elem = v.storage.elem();
     let mut attrs = v.attrs.clone();
     if ds.geozarr.contains_key("spatial:transform") {
         attrs.insert("spatial:dimensions".into(), json!(["y", "x"]));
     }
     Ok(array_metadata(
-        shape,
-        chunk,
+        v.shape(),
+        v.chunk_shape(),
         data_type(elem)?,
         elem.size(),
         fill_json(v.fill, elem),

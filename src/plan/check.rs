@@ -370,7 +370,7 @@ fn check_horizons(
     let (mut horizon, mut svf, mut wrong, mut solar_errors) =
         (Vec::new(), Vec::new(), 0, Vec::new());
     let (mut edge_samples, mut edge_posts, mut edge_max) = (0, 0, None::<f64>);
-    let first_feature_post = pilot.posts.len() - pilot.feature_posts;
+    let scene_posts = pilot.scene_posts();
     let (mut max_at, mut max_random, mut max_feature) = (None, 0.0f64, 0.0f64);
     let mut svf_max = None::<f64>;
     for (i, post) in per_post.into_iter().enumerate() {
@@ -384,7 +384,7 @@ fn check_horizons(
         // The posts around features count for the largest errors only
         // (they are chosen where errors are large; the percentiles are
         // over the scene's posts).
-        if i >= first_feature_post {
+        if i >= scene_posts {
             max_feature = max_feature.max(largest.0);
             continue;
         }
@@ -429,8 +429,7 @@ fn check_horizons(
         edge_max_deg: edge_max,
         svf_p99: (!svf.is_empty()).then(|| percentile(&svf, 99)),
         svf_max,
-        shade_share: (!suns.is_empty())
-            .then(|| wrong as f64 / (suns.len() * first_feature_post) as f64),
+        shade_share: (!suns.is_empty()).then(|| wrong as f64 / (suns.len() * scene_posts) as f64),
         sun_positions: suns.len(),
         solar_p99_percent: (!solar_errors.is_empty()).then(|| percentile(&solar_errors, 99)),
         solar_max_percent: solar_errors.last().copied(),
@@ -605,45 +604,29 @@ fn verdicts(report: &CheckReport, b: &Budget) -> Vec<Verdict> {
             b.horizon,
         ));
     }
-    // Asked for and not there is not met.
-    let required = |mut verdict: Verdict| {
-        verdict.met = Some(verdict.met == Some(true));
-        verdict
-    };
-    if let Some(limit) = b.horizon_max {
-        v.push(required(measured(
+    // The limits on what derives from the horizons: asked for and not
+    // there is not met.
+    let required = [
+        (
             "horizon max (deg)",
+            b.horizon_max,
             h.map(|h| h.horizon_max_deg),
-            limit,
-        )));
-    }
-    if let Some(limit) = b.svf_max {
-        v.push(required(measured(
-            "svf max",
-            h.and_then(|h| h.svf_max),
-            limit,
-        )));
-    }
-    if let Some(limit) = b.svf {
-        v.push(required(measured(
-            "svf p99",
-            h.and_then(|h| h.svf_p99),
-            limit,
-        )));
-    }
-    if let Some(limit) = b.shade {
-        v.push(required(measured(
-            "shade share",
-            h.and_then(|h| h.shade_share),
-            limit,
-        )));
-    }
-    if let Some(limit) = b.solar {
-        v.push(required(measured(
+        ),
+        ("svf max", b.svf_max, h.and_then(|h| h.svf_max)),
+        ("svf p99", b.svf, h.and_then(|h| h.svf_p99)),
+        ("shade share", b.shade, h.and_then(|h| h.shade_share)),
+        (
             "solar p99 (%)",
+            b.solar,
             h.and_then(|h| h.solar_p99_percent),
-            limit,
-        )));
+        ),
+    ];
+    for (what, limit, achieved) in required {
+        if let Some(limit) = limit {
+            let mut verdict = measured(what, achieved, limit);
+            verdict.met = Some(verdict.met == Some(true));
+            v.push(verdict);
+        }
     }
     if let Some(limit) = b.bytes {
         v.push(measured("bytes", Some(report.bytes as f64), limit as f64));

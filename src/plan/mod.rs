@@ -376,9 +376,8 @@ struct PilotSuns {
 struct Errors {
     horizon: Vec<f64>,
     /// The largest horizon error away from the DEM's edge (neither the
-    /// reference nor a serving direction facing out over it), and the
-    /// pilot post where it is.
-    horizon_max: (f64, usize),
+    /// reference nor a serving direction facing out over it).
+    horizon_max: f64,
     svf: Vec<f64>,
     svf_max: f64,
     shade_wrong: usize,
@@ -412,7 +411,7 @@ impl Errors {
         let solar = self.solar_at(DECISION_QUANTILE);
         budget
             .horizon_max
-            .is_none_or(|v| self.horizon_max.0 <= share * v)
+            .is_none_or(|v| self.horizon_max <= share * v)
             && budget.svf_max.is_none_or(|v| self.svf_max <= share * v)
             && horizon <= share * budget.horizon
             && budget.svf.is_none_or(|v| svf <= share * v)
@@ -439,7 +438,7 @@ fn errors(
     let integrals = BandIntegrals::of_azimuths(&azimuths);
     let mut e = Errors {
         horizon: Vec::new(),
-        horizon_max: (0.0, 0),
+        horizon_max: 0.0,
         svf: Vec::new(),
         svf_max: 0.0,
         shade_wrong: 0,
@@ -457,9 +456,8 @@ fn errors(
     // The posts around features count for the largest errors only: they
     // are chosen where errors are large, and would bias the percentiles,
     // which are over the scene's posts.
-    let first_feature_post = pilot.posts.len() - pilot.feature_posts;
     for (post, exact) in pilot.exact.iter().enumerate() {
-        let sampled = post < first_feature_post;
+        let sampled = post < pilot.scene_posts();
         let kept: Vec<f64> = stored.iter().map(|&j| value(post, j)).collect();
         let facing_out = |i: usize| exact[stored[i]] == NOTHING_AHEAD;
         for ((&(i, j, f), &truth), out) in around.iter().zip(exact).zip(&mut served) {
@@ -470,8 +468,8 @@ fn errors(
                     e.horizon.push(error);
                 }
                 let at_edge = truth == NOTHING_AHEAD || facing_out(i) || facing_out(j);
-                if !at_edge && error > e.horizon_max.0 {
-                    e.horizon_max = (error, post);
+                if !at_edge {
+                    e.horizon_max = e.horizon_max.max(error);
                 }
             }
         }
@@ -948,7 +946,7 @@ fn plan_horizons(
                 max_distance: distance,
                 horizon_p99_deg,
                 svf_p99,
-                horizon_max_deg: errors.horizon_max.0,
+                horizon_max_deg: errors.horizon_max,
                 svf_max: errors.svf_max,
                 shade_share,
                 solar_p99_percent: errors.solar_at(0.99),

@@ -340,6 +340,13 @@ impl Pilot {
         Ok(pilot)
     }
 
+    /// The posts that sample the scene (random and relief), which come
+    /// first: the percentiles are over these, the largest errors over
+    /// these and the posts around the features after them.
+    pub fn scene_posts(&self) -> usize {
+        self.posts.len() - self.feature_posts
+    }
+
     /// The memory the blocks bounding its sight lines hold, bytes.
     pub(crate) fn bounds_bytes(&self) -> usize {
         self.heights.bytes()

@@ -236,7 +236,17 @@ fn cf_grid_mapping_of_proj4(proj4: &str) -> Option<Vec<(&'static str, CfValue)>>
     let text = |key: &str| params.iter().find(|(k, _)| *k == key).map(|(_, v)| *v);
     let num = |key: &str| text(key).and_then(|v| v.parse::<f64>().ok());
     let or0 = |key: &str| num(key).unwrap_or(0.0);
+    let scale = || num("k").or(num("k_0")).unwrap_or(1.0);
     let mut out: Vec<(&'static str, CfValue)> = Vec::new();
+    // A standard parallel off the pole (NSIDC's 70 N, with a nominal k=1
+    // beside it), else the scale at the origin (UPS: lat_ts=90 with
+    // k=0.994).
+    let parallel_or_scale = |out: &mut Vec<(&'static str, CfValue)>| match num("lat_ts")
+        .filter(|ts| ts.abs() != 90.0)
+    {
+        Some(ts) => out.push(("standard_parallel", Number(ts))),
+        None => out.push(("scale_factor_at_projection_origin", Number(scale()))),
+    };
     let false_origin = |out: &mut Vec<(&'static str, CfValue)>| {
         out.push(("false_easting", Number(or0("x_0"))));
         out.push(("false_northing", Number(or0("y_0"))));
@@ -255,8 +265,7 @@ fn cf_grid_mapping_of_proj4(proj4: &str) -> Option<Vec<(&'static str, CfValue)>>
         }
         "tmerc" => {
             out.push(("grid_mapping_name", Text("transverse_mercator")));
-            let k = num("k").or(num("k_0")).unwrap_or(1.0);
-            out.push(("scale_factor_at_central_meridian", Number(k)));
+            out.push(("scale_factor_at_central_meridian", Number(scale())));
             out.push(("longitude_of_central_meridian", Number(or0("lon_0"))));
             out.push(("latitude_of_projection_origin", Number(or0("lat_0"))));
             false_origin(&mut out);
@@ -268,24 +277,14 @@ fn cf_grid_mapping_of_proj4(proj4: &str) -> Option<Vec<(&'static str, CfValue)>>
                 Number(or0("lon_0")),
             ));
             out.push(("latitude_of_projection_origin", Number(or0("lat_0"))));
-            // A standard parallel off the pole (NSIDC's 70 N, with a
-            // nominal k=1 beside it), else the scale at the pole (UPS:
-            // lat_ts=90 with k=0.994).
-            match num("lat_ts").filter(|ts| ts.abs() != 90.0) {
-                Some(ts) => out.push(("standard_parallel", Number(ts))),
-                None => out.push((
-                    "scale_factor_at_projection_origin",
-                    Number(num("k").or(num("k_0")).unwrap_or(1.0)),
-                )),
-            }
+            parallel_or_scale(&mut out);
             false_origin(&mut out);
         }
         "stere" | "sterea" => {
             out.push(("grid_mapping_name", Text("stereographic")));
             out.push(("longitude_of_projection_origin", Number(or0("lon_0"))));
             out.push(("latitude_of_projection_origin", Number(or0("lat_0"))));
-            let k = num("k").or(num("k_0")).unwrap_or(1.0);
-            out.push(("scale_factor_at_projection_origin", Number(k)));
+            out.push(("scale_factor_at_projection_origin", Number(scale())));
             false_origin(&mut out);
         }
         proj @ ("lcc" | "aea") => {
@@ -310,13 +309,7 @@ fn cf_grid_mapping_of_proj4(proj4: &str) -> Option<Vec<(&'static str, CfValue)>>
         "merc" => {
             out.push(("grid_mapping_name", Text("mercator")));
             out.push(("longitude_of_projection_origin", Number(or0("lon_0"))));
-            match num("lat_ts") {
-                Some(ts) => out.push(("standard_parallel", Number(ts))),
-                None => out.push((
-                    "scale_factor_at_projection_origin",
-                    Number(num("k").or(num("k_0")).unwrap_or(1.0)),
-                )),
-            }
+            parallel_or_scale(&mut out);
             false_origin(&mut out);
         }
         _ => return None,
