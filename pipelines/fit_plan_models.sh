@@ -10,7 +10,8 @@
 # a time budget wants the safe side; a plan that widens the tolerance
 # sweeps fewer crossings, so the model stays above it). Eight directions or fewer are axis
 # and diagonal lines, nearly free: the model overestimates them.
-# With OUT=FILE it also writes the fit as the JSON file that
+# Then the calibration workload (`terrabake calibrate`), recorded with the
+# fit. With OUT=FILE it also writes the fit as the JSON file that
 # TERRABAKE_TIME_MODELS=FILE makes the planner use on this machine.
 #   BIN=target/release/terrabake [OUT=models.json] bash pipelines/fit_plan_models.sh
 set -euo pipefail
@@ -64,8 +65,13 @@ done | awk -v posts="$posts" -v cell="$cell" -v fixed="$fixed" -v fit="$WORK/bou
     k = 1; for (i = 1; i <= n; i++) if (ys[i] / (a + b * xs[i]) > k) k = ys[i] / (a + b * xs[i])
     printf "fit: seconds = fixed + posts * S * (%.3g + %.3g * D / cell)\n", a * k, b * k
     printf "\"bounded_per_line\": %.6g, \"bounded_per_cell\": %.6g", a * k, b * k > fit }'
+# The calibration workload on this machine (src/plan/calibration.rs): what
+# scales these models when the file is carried to another machine.
+calibration=$("$BIN" calibrate --fresh --json | sed -nE 's/^  "seconds": ([0-9.e+-]+),?$/\1/p')
+printf 'calibration: %s s\n' "$calibration"
 if [ -n "$OUT" ]; then
-  printf '{%s, %s, %s}\n' "$(cat "$WORK/fixed")" "$(cat "$WORK/sweep")" "$(cat "$WORK/bounded")" \
+  printf '{%s, %s, %s, "calibration_seconds": %s}\n' "$(cat "$WORK/fixed")" "$(cat "$WORK/sweep")" \
+    "$(cat "$WORK/bounded")" "$calibration" \
     > "$OUT.tmp"
   mv "$OUT.tmp" "$OUT"
   echo "wrote $OUT: TERRABAKE_TIME_MODELS=$OUT makes the planner use it"

@@ -180,6 +180,115 @@ fn png_and_exr_exports() {
         .all(|(a, b)| same_heights(*a, *b)));
 }
 
+/// A stage asked for zstd tiles (`codec = "zstd"`) stores, chunk for
+/// chunk, the bytes the raw bake stores, compressed; records the codec it
+/// was asked for; and the asset verifies.
+#[test]
+fn zstd_layers_hold_the_raw_bake_chunk_for_chunk() {
+    let dir = tempfile::tempdir().unwrap();
+    let tif = dir.path().join("holes.tif");
+    ok(&[
+        "synth",
+        "holes",
+        "--size",
+        "150x97",
+        "--seed",
+        "3",
+        "-o",
+        s(&tif),
+        "-q",
+    ]);
+    let recipe = |codec: &str| {
+        format!(
+            "[ingest]\ntile = 32\ncodec = \"{codec}\"\n\
+             [[stage]]\nname = \"cones\"\nslices = 8\nencoding = \"u16\"\ncodec = \"{codec}\"\n\
+             [[stage]]\nname = \"horizons\"\nsectors = 8\ndistance = true\ncodec = \"{codec}\"\n\
+             [[stage]]\nname = \"sky\"\ncodec = \"{codec}\"\n\
+             [[stage]]\nname = \"solar\"\ndays = \"172\"\nstep_minutes = 60\nlatitude = 40.0\ncodec = \"{codec}\"\n\
+             [[stage]]\nname = \"total_viewshed\"\ndirections = 4\ncodec = \"{codec}\"\n\
+             [[stage]]\nname = \"viewshed\"\nobservers = [[40.0, 30.0]]\ncrs = \"grid\"\ncodec = \"{codec}\"\n"
+        )
+    };
+    let (raw, packed) = (dir.path().join("raw.tbake"), dir.path().join("zstd.tbake"));
+    for (asset, codec) in [(&raw, "raw"), (&packed, "zstd")] {
+        let out = bake_recipe(&tif, asset, &recipe(codec));
+        assert!(out.status.success(), "{codec}: {}", stderr(&out));
+    }
+    ok(&["verify", s(&packed)]);
+    let (raw, packed) = (Asset::open(&raw).unwrap(), Asset::open(&packed).unwrap());
+    let mut compressed = std::collections::BTreeMap::new();
+    for entry in &raw.manifest().layers {
+        let (a, b) = (
+            raw.layer(&entry.name, entry.level).unwrap(),
+            packed.layer(&entry.name, entry.level).unwrap(),
+        );
+        let elem = entry.elem.size();
+        for chunk in 0..a.entry().chunks {
+            let want = a.stored_chunk(chunk).unwrap();
+            assert_eq!(want.codec, terrabake_format::Codec::Raw);
+            let got = b.stored_chunk(chunk).unwrap();
+            let mut decoded = vec![0u8; got.raw_len as usize];
+            assert_eq!(got.decode_into(elem, &mut decoded).unwrap(), decoded.len());
+            assert!(
+                decoded == want.bytes,
+                "{} chunk {chunk} differs",
+                entry.key()
+            );
+            *compressed.entry(format!("{:?}", got.codec)).or_insert(0) += 1;
+        }
+    }
+    // Plain zstd (angle codes, counts) and shuffled zstd (floats) both
+    // occur; the pyramid has no codec and stays raw.
+    assert!(
+        compressed.contains_key("Zstd") && compressed.contains_key("ShuffledZstd"),
+        "{compressed:?}"
+    );
+    for stage in [
+        "cones",
+        "horizons",
+        "sky",
+        "solar",
+        "total_viewshed",
+        "viewshed",
+    ] {
+        let record = packed
+            .manifest()
+            .provenance
+            .stages
+            .iter()
+            .find(|r| r.stage == stage)
+            .unwrap();
+        assert_eq!(record.params["codec"], "zstd", "{stage}");
+        let raw_record = raw
+            .manifest()
+            .provenance
+            .stages
+            .iter()
+            .find(|r| r.stage == stage)
+            .unwrap();
+        assert!(
+            raw_record.params.get("codec").is_none(),
+            "{stage}: raw is not recorded"
+        );
+    }
+    assert!(
+        packed
+            .manifest()
+            .layers
+            .iter()
+            .map(|l| l.stored_bytes)
+            .sum::<u64>()
+            < raw
+                .manifest()
+                .layers
+                .iter()
+                .map(|l| l.stored_bytes)
+                .sum::<u64>()
+                * 2
+                / 3
+    );
+}
+
 #[test]
 fn bake_is_resumable() {
     let dir = tempfile::tempdir().unwrap();

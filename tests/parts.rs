@@ -69,14 +69,17 @@ name = "pyramid"
 [[stage]]
 name = "cones"
 slices = "auto"
+codec = "zstd"
 [[stage]]
 name = "horizons"
 sectors = 8
 max_distance = 1500.0
 distance = true
+codec = "zstd"
 [[stage]]
 name = "sky"
 layers = ["svf", "svf_cosine", "openness"]
+codec = "zstd"
 "#,
     r#"[ingest]
 tile = 16

@@ -11,6 +11,7 @@ use common::*;
 use proptest::prelude::*;
 use terrabake::io::synth::SynthKind;
 use terrabake::plan::budget::{Budget, Need, Needs, Request};
+use terrabake::plan::calibration::CALIBRATION_VAR;
 use terrabake::plan::check::{check, CheckOptions, CheckReport};
 use terrabake::plan::{plan, Plan, TimeModels, SHARE_DIRECTIONS, TIME_MODELS_VAR};
 use terrabake::plumbing::progress::Progress;
@@ -509,6 +510,65 @@ fn fast_tracing_bakes_u16_cone_planes_of_64_slices_that_stay_exact() {
     );
 }
 
+/// The calibration (`terrabake calibrate`): measured once and cached per
+/// machine and binary under `XDG_CACHE_HOME`; a cache that is not one, or
+/// is another binary's, is measured again, never an error; `--fresh`
+/// measures again; a link at the cache's path is replaced, never written
+/// through.
+#[test]
+fn the_calibration_is_cached_per_machine_and_binary() {
+    let dir = tempfile::tempdir().unwrap();
+    let calibrate = |args: &[&str]| -> serde_json::Value {
+        let mut all = vec!["calibrate", "--json"];
+        all.extend_from_slice(args);
+        let out = terrabake_with(("XDG_CACHE_HOME", Some(dir.path().as_os_str())), &all);
+        assert!(out.status.success(), "{}", stderr(&out));
+        serde_json::from_slice(&out.stdout).unwrap()
+    };
+    let cache = dir.path().join("terrabake/calibration.json");
+    let first = calibrate(&[]);
+    let seconds = first["seconds"].as_f64().unwrap();
+    assert!(
+        seconds > 0.0 && seconds <= first["slowest"].as_f64().unwrap(),
+        "{first}"
+    );
+    assert_eq!(
+        first["scale"].as_f64().unwrap(),
+        seconds / TimeModels::default().calibration_seconds.unwrap()
+    );
+    assert!(cache.is_file());
+    // Read back, not measured again: the same numbers.
+    assert_eq!(calibrate(&[]), first);
+    // Another binary's record, and a file that is no record: measured again.
+    let mut other = first.clone();
+    other["binary"] = "terrabake 0.0.0 (1 bytes, modified 1)".into();
+    other["seconds"] = 1e-6.into();
+    other.as_object_mut().unwrap().remove("scale");
+    other.as_object_mut().unwrap().remove("reference_seconds");
+    std::fs::write(&cache, serde_json::json!([other]).to_string()).unwrap();
+    assert_ne!(calibrate(&[])["seconds"], 1e-6);
+    let records: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&cache).unwrap()).unwrap();
+    assert_eq!(
+        records.as_array().unwrap().len(),
+        2,
+        "the other binary's record is kept"
+    );
+    std::fs::write(&cache, "not json").unwrap();
+    assert!(calibrate(&[])["seconds"].as_f64().unwrap() > 0.0);
+    // A link planted at the cache's path: replaced, its target untouched.
+    let target = dir.path().join("precious.txt");
+    std::fs::write(&target, "keep").unwrap();
+    std::fs::remove_file(&cache).unwrap();
+    std::os::unix::fs::symlink(&target, &cache).unwrap();
+    calibrate(&["--fresh"]);
+    assert_eq!(std::fs::read_to_string(&target).unwrap(), "keep");
+    assert!(!std::fs::symlink_metadata(&cache)
+        .unwrap()
+        .file_type()
+        .is_symlink());
+}
+
 /// A machine's own time models (`TERRABAKE_TIME_MODELS`, the JSON that
 /// `fit_plan_models.sh` writes) change the predicted seconds and nothing
 /// else, so a time budget is judged by the machine that bakes; a file that
@@ -517,9 +577,14 @@ fn fast_tracing_bakes_u16_cone_planes_of_64_slices_that_stay_exact() {
 fn the_time_models_of_the_machine_that_bakes() {
     let dir = tempfile::tempdir().unwrap();
     let (tif, _) = source(dir.path(), SynthKind::Fractal);
+    // A cache of its own, so that the calibration is this test's alone.
+    let cache = dir.path().join("cache");
     let plan_with = |models: Option<&Path>, budget: &str| {
-        terrabake_with(
-            (TIME_MODELS_VAR, models.map(Path::as_os_str)),
+        terrabake_with_all(
+            &[
+                (TIME_MODELS_VAR, models.map(Path::as_os_str)),
+                ("XDG_CACHE_HOME", Some(cache.as_os_str())),
+            ],
             &["plan", &tif, "--budget", budget, "--json"],
         )
     };
@@ -532,6 +597,7 @@ fn the_time_models_of_the_machine_that_bakes() {
     // A machine ten times slower at every sweep and walk.
     let d = TimeModels::default();
     let slow = TimeModels {
+        fixed_seconds: d.fixed_seconds * 10.0,
         sweep_rate: d.sweep_rate / 10.0,
         bounded_per_line: d.bounded_per_line * 10.0,
         bounded_per_cell: d.bounded_per_cell * 10.0,
@@ -575,13 +641,39 @@ fn the_time_models_of_the_machine_that_bakes() {
     };
     std::fs::write(&file, serde_json::to_string(&fixed).unwrap()).unwrap();
     let with_fixed = parse(&plan_with(Some(&file), "horizon=2"));
+    // Every time is this machine's: the fit's scaled by the calibration,
+    // cached, so the same in every process here.
+    let scale = ours
+        .calibration
+        .expect("the default models calibrate")
+        .scale();
+    assert_eq!(with_fixed.calibration, ours.calibration);
+    let added = (100.0 - d.fixed_seconds) * scale;
     for (x, y) in ours.candidates.iter().zip(&with_fixed.candidates) {
-        assert!((y.seconds - x.seconds - 100.0).abs() < 1e-9, "{x:?} {y:?}");
+        assert!((y.seconds - x.seconds - added).abs() < 1e-9, "{x:?} {y:?}");
     }
-    assert!((with_fixed.seconds - ours.seconds - 100.0).abs() < 1e-9);
+    assert!((with_fixed.seconds - ours.seconds - added).abs() < 1e-9);
+    // Without the calibration, the models' own times; the range holds the
+    // prediction.
+    let unscaled: Plan = parse(&terrabake_with_all(
+        &[
+            (CALIBRATION_VAR, Some("off".as_ref())),
+            (TIME_MODELS_VAR, None),
+        ],
+        &["plan", &tif, "--budget", "horizon=2", "--json"],
+    ));
+    assert!(unscaled.calibration.is_none());
+    assert!((unscaled.seconds * scale / ours.seconds - 1.0).abs() < 1e-9);
+    let (low, high) = ours.seconds_range;
+    assert!(
+        0.0 < low && low < ours.seconds && ours.seconds <= high,
+        "{:?}",
+        ours.seconds_range
+    );
     std::fs::write(&file, serde_json::to_string(&slow).unwrap()).unwrap();
-    // A time limit the fit's machine meets and the slow one does not.
-    let limit = format!("horizon=2,time={}", (3.0 * ours.seconds).max(1e-3));
+    // A time limit the fit's machine meets (its range's top within it) and
+    // the slow one does not.
+    let limit = format!("horizon=2,time={}", (3.0 * high).max(1e-3));
     parse(&plan_with(None, &limit));
     let refused = plan_with(Some(&file), &limit);
     assert_eq!(refused.status.code(), Some(1), "{}", stderr(&refused));

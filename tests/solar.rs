@@ -542,6 +542,7 @@ fn a_region_of_a_crop_equals_the_whole() {
     // Without horizon_edge, which asks how far the DEM's edge is.
     let sky = SkyStage {
         layers: vec![terrabake::stages::sky::SkyLayer::SvfCosine],
+        ..Default::default()
     };
     let asset_of = |name: &str, (x0, y0, x1, y1): (usize, usize, usize, usize)| {
         let raw = dir.path().join(format!("{name}.f32"));

@@ -62,7 +62,7 @@ impl Stage for Offset {
             let mut band = vec![0f32; (w * rows) as usize];
             height.read_window(0, 0, y0, w, rows, &mut band)?;
             band.iter_mut().for_each(|z| *z += self.add);
-            push_tile_row(&mut writer, &band, w as usize, f32::NAN, Codec::Raw)?;
+            push_tile_row(&mut writer, &band, w as usize, f32::NAN)?;
         }
         Ok(vec![writer.finish()?])
     }
@@ -550,6 +550,7 @@ fn a_region_baked_with_its_declared_reach_equals_the_whole() {
     ];
     let sky = SkyStage {
         layers: vec![SkyLayer::Svf, SkyLayer::SvfCosine, SkyLayer::Openness],
+        ..Default::default()
     };
     for (i, (stage, layers)) in stages.iter().enumerate() {
         let Reach::Posts(r) = stage.reach(&m) else {

@@ -31,6 +31,8 @@ pub struct PlanRow {
     pub achieved_p99_deg: f64,
     pub achieved_svf_p99: f64,
     pub predicted_seconds: f64,
+    /// Where the plan said the bake's time would fall, seconds.
+    pub predicted_range_seconds: (f64, f64),
     /// Wall seconds of the horizons and sky stages.
     pub bake_seconds: f64,
     pub plan_seconds: f64,
@@ -55,6 +57,7 @@ impl PlanRow {
             achieved_p99_deg: f64::NAN,
             achieved_svf_p99: f64::NAN,
             predicted_seconds: f64::NAN,
+            predicted_range_seconds: (f64::NAN, f64::NAN),
             bake_seconds: f64::NAN,
             plan_seconds: f64::NAN,
             predicted_bytes: 0,
@@ -151,6 +154,7 @@ impl BenchPlanArgs {
                     achieved_p99_deg: achieved.horizon_p99_deg,
                     achieved_svf_p99: achieved.svf_p99.unwrap_or(f64::NAN),
                     predicted_seconds: plan.seconds,
+                    predicted_range_seconds: plan.seconds_range,
                     bake_seconds,
                     plan_seconds,
                     predicted_bytes: plan.bytes,
@@ -164,7 +168,7 @@ impl BenchPlanArgs {
             println!("{}", serde_json::to_string_pretty(&rows)?);
         } else {
             print!("{}", table(&rows));
-            println!("\n{}", over_time(&rows));
+            println!("\n{}\n{}", over_time(&rows), in_range(&rows));
         }
         if let Some(prefix) = &self.chart {
             charts(prefix, &rows)?;
@@ -250,6 +254,35 @@ fn over_time(rows: &[PlanRow]) -> String {
     format!(
         "bakes over their predicted time: {} of {}{worst}",
         over.len(),
+        baked.len()
+    )
+}
+
+/// Where the bakes fell against their predictions: the least, median and
+/// largest of bake / predicted seconds, and how many fell in the predicted
+/// range (what sets [`terrabake::plan::SECONDS_RANGE`]).
+fn in_range(rows: &[PlanRow]) -> String {
+    let baked: Vec<&PlanRow> = rows.iter().filter(|r| !r.refused).collect();
+    let mut ratios: Vec<f64> = baked
+        .iter()
+        .map(|r| r.bake_seconds / r.predicted_seconds)
+        .collect();
+    if ratios.is_empty() {
+        return "no bakes".into();
+    }
+    ratios.sort_by(f64::total_cmp);
+    let within = baked
+        .iter()
+        .filter(|r| {
+            let (low, high) = r.predicted_range_seconds;
+            low <= r.bake_seconds && r.bake_seconds <= high
+        })
+        .count();
+    format!(
+        "bake / predicted: {:.2} to {:.2}, median {:.2}; in the predicted range: {within} of {}",
+        ratios[0],
+        ratios[ratios.len() - 1],
+        ratios[ratios.len() / 2],
         baked.len()
     )
 }

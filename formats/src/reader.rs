@@ -359,21 +359,19 @@ impl<D: AsRef<[u8]>> Layer<D> {
                 len: raw_len,
             };
             let out = &mut buf.words.as_mut_bytes()[..raw_len];
-            if entry.codec == Codec::Raw as u8 {
-                out.copy_from_slice(stored);
-            } else {
-                let n = zstd::bulk::decompress_to_buffer(stored, out).map_err(|source| {
-                    Error::Decompress {
-                        at: self.tile_at(chunk),
-                        source,
-                    }
+            let codec = Codec::from_code(entry.codec)
+                .ok_or_else(|| Error::malformed(self.tile_at(chunk), "unknown codec"))?;
+            let n = codec
+                .decode_into(stored, self.entry.elem.size(), out)
+                .map_err(|source| Error::Decompress {
+                    at: self.tile_at(chunk),
+                    source,
                 })?;
-                if n != raw_len {
-                    return Err(Error::malformed(
-                        self.tile_at(chunk),
-                        format!("tile decompressed to {n} bytes, expected {raw_len}"),
-                    ));
-                }
+            if n != raw_len {
+                return Err(Error::malformed(
+                    self.tile_at(chunk),
+                    format!("tile decoded to {n} bytes, expected {raw_len}"),
+                ));
             }
             Ok(Arc::new(buf))
         })?;
@@ -515,23 +513,21 @@ impl<D: AsRef<[u8]>> Layer<D> {
         Ok(Some(sum as f32))
     }
 
-    /// Checksums every chunk and decompresses every zstd chunk.
+    /// Checksums every chunk and decodes every compressed chunk.
     pub fn verify(&self) -> Vec<Error> {
         let mut problems = Vec::new();
+        let mut out = Vec::new();
         for chunk in 0..self.index().len() as u64 {
-            let result = self.stored(chunk).and_then(|(stored, entry)| {
-                if entry.codec != Codec::Zstd as u8 {
+            let result = self.stored_chunk(chunk).and_then(|stored| {
+                if stored.codec == Codec::Raw {
                     return Ok(());
                 }
-                let raw_len = entry.raw_len.get() as usize;
-                match zstd::bulk::decompress(stored, raw_len) {
-                    Ok(raw) if raw.len() == raw_len => Ok(()),
-                    Ok(raw) => Err(Error::malformed(
+                out.resize(stored.raw_len as usize, 0);
+                match stored.decode_into(self.entry.elem.size(), &mut out) {
+                    Ok(n) if n == out.len() => Ok(()),
+                    Ok(n) => Err(Error::malformed(
                         self.tile_at(chunk),
-                        format!(
-                            "tile decompressed to {} bytes, expected {raw_len}",
-                            raw.len()
-                        ),
+                        format!("tile decoded to {n} bytes, expected {}", out.len()),
                     )),
                     Err(source) => Err(Error::Decompress {
                         at: self.tile_at(chunk),
@@ -554,6 +550,13 @@ pub struct StoredChunk<'a> {
     /// Checksum of `bytes`, already verified.
     pub xxh3: u64,
     pub bytes: &'a [u8],
+}
+
+impl StoredChunk<'_> {
+    /// Decodes the chunk into `out` ([`Codec::decode_into`]).
+    pub fn decode_into(&self, elem_size: usize, out: &mut [u8]) -> std::io::Result<usize> {
+        self.codec.decode_into(self.bytes, elem_size, out)
+    }
 }
 
 fn chunk_tile(chunk: u64, tiles_x: u32, tiles_y: u32) -> (u32, u32, u32) {

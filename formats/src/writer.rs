@@ -51,9 +51,9 @@ use zerocopy::IntoBytes;
 use crate::error::{Error, Location, Result};
 use crate::fsio::{crash_point, create_temp, start_writeback, sync_dir};
 use crate::layout::{
-    align_up, tiles_for, xxh3, ChunkEntry, Codec, ElemType, LayerFooter, LayerHeader,
-    ManifestHeader, FOOTER_MAGIC, FORMAT_VERSION, HEADER_LEN, LAYER_MAGIC, MANIFEST_FILE,
-    MANIFEST_MAGIC,
+    self as layout, align_up, tiles_for, xxh3, ChunkEntry, Codec, ElemType, LayerFooter,
+    LayerHeader, ManifestHeader, FOOTER_MAGIC, FORMAT_VERSION, HEADER_LEN, LAYER_MAGIC,
+    MANIFEST_FILE, MANIFEST_MAGIC,
 };
 use crate::manifest::{LayerEntry, Manifest, Retired};
 use crate::reader::StoredChunk;
@@ -136,17 +136,32 @@ pub struct EncodedTile {
 pub const ZSTD_LEVEL: i32 = 3;
 
 /// Encodes one tile's bytes (`tile_size²` elements of `elem_size` bytes).
-/// A zstd tile that would not be smaller than raw is stored raw.
+/// Asked for zstd, it keeps the smaller of plain and, for elements wider
+/// than a byte, shuffled zstd ([`Codec::ShuffledZstd`]: heights and sky
+/// layers compress further shuffled, cone slopes of few distinct values
+/// less), and stores the tile raw when neither is smaller.
 pub fn encode_tile(raw: &[u8], elem_size: usize, codec: Codec, zstd_level: i32) -> EncodedTile {
     let constant = constant_bits(raw, elem_size);
-    let bytes = match codec {
-        Codec::Raw => None,
-        Codec::Zstd => zstd::bulk::compress(raw, zstd_level)
+    let compress = |codec: Codec, bytes: &[u8]| {
+        zstd::bulk::compress(bytes, zstd_level)
             .ok()
-            .filter(|c| c.len() < raw.len()),
+            .map(|c| (codec, c))
     };
-    let (codec, bytes) = match bytes {
-        Some(c) => (Codec::Zstd, c),
+    let smallest = match codec {
+        Codec::Raw => None,
+        Codec::Zstd | Codec::ShuffledZstd => {
+            let plain = compress(Codec::Zstd, raw);
+            let shuffled = (elem_size > 1)
+                .then(|| compress(Codec::ShuffledZstd, &layout::shuffle(raw, elem_size)))
+                .flatten();
+            [plain, shuffled]
+                .into_iter()
+                .flatten()
+                .min_by_key(|(_, c)| c.len())
+        }
+    };
+    let (codec, bytes) = match smallest.filter(|(_, c)| c.len() < raw.len()) {
+        Some(chosen) => chosen,
         None => (Codec::Raw, raw.to_vec()),
     };
     EncodedTile {
@@ -280,19 +295,22 @@ impl LayerWriter {
     /// Writes chunk `chunk` as another file of the same layer stored it (a
     /// part of a partitioned bake), without decoding it: the bytes are
     /// copied once. A constant tile is still stored once per value: raw
-    /// tiles are scanned, and zstd frames short enough to be one (a
+    /// tiles are scanned, and compressed frames short enough to be one (a
     /// compressed tile of any size that repeats one value is a few dozen
     /// bytes) are decoded to check.
     pub fn adopt_at(&mut self, chunk: u64, stored: StoredChunk<'_>) -> Result<()> {
         let elem = self.spec.elem.size();
         let constant = match stored.codec {
             Codec::Raw => constant_bits(stored.bytes, elem),
-            Codec::Zstd if stored.bytes.len() <= 256 => {
-                zstd::bulk::decompress(stored.bytes, stored.raw_len as usize)
+            _ if stored.bytes.len() <= 256 => {
+                let mut raw = vec![0u8; stored.raw_len as usize];
+                stored
+                    .decode_into(elem, &mut raw)
                     .ok()
-                    .and_then(|raw| constant_bits(&raw, elem))
+                    .filter(|&n| n == raw.len())
+                    .and_then(|_| constant_bits(&raw, elem))
             }
-            Codec::Zstd => None,
+            _ => None,
         };
         self.write_chunk(chunk, stored, constant)
     }

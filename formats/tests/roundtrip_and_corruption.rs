@@ -159,6 +159,60 @@ fn raw_tiles_are_borrowed_in_place_and_zstd_tiles_cached() {
     assert!(err.to_string().contains("f32"), "{err}");
 }
 
+/// Asked for zstd, each tile keeps the smallest of raw, plain zstd and
+/// shuffled zstd, and every one of them reads back bit for bit.
+#[test]
+fn zstd_keeps_the_smallest_of_plain_and_shuffled_per_tile() {
+    let n = (TS * TS) as usize;
+    let smooth: Vec<f32> = (0..n)
+        .map(|i| 1000.0 + (i as f32 * 0.37).sin() * 40.0)
+        .collect();
+    // Few distinct values in a repeating run: plain zstd finds the period.
+    let steps: Vec<f32> = (0..n).map(|i| ((i / 3) % 4) as f32 * 1.5e-3).collect();
+    let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+    let noise: Vec<f32> = (0..n)
+        .map(|_| {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            f32::from_bits(seed as u32)
+        })
+        .collect();
+    for (tile, want) in [
+        (&smooth, Codec::ShuffledZstd),
+        (&steps, Codec::Zstd),
+        (&noise, Codec::Raw),
+    ] {
+        let raw = tile.as_bytes();
+        let encoded = encode_tile(raw, 4, Codec::Zstd, 3);
+        assert_eq!(encoded.codec, want);
+        let plain = zstd::bulk::compress(raw, 3).unwrap().len();
+        let shuffled = zstd::bulk::compress(&layout::shuffle(raw, 4), 3)
+            .unwrap()
+            .len();
+        assert_eq!(encoded.bytes.len(), plain.min(shuffled).min(raw.len()));
+        let mut back = vec![0u8; raw.len()];
+        let len = encoded
+            .codec
+            .decode_into(&encoded.bytes, 4, &mut back)
+            .unwrap();
+        assert_eq!((len, &back[..]), (raw.len(), raw));
+    }
+    // One-byte elements have nothing to shuffle.
+    let codes: Vec<u8> = (0..n).map(|i| (i / 7 % 200) as u8).collect();
+    assert_eq!(encode_tile(&codes, 1, Codec::Zstd, 3).codec, Codec::Zstd);
+    // The asset's zstd layer holds both kinds of chunk, and check_values
+    // (above) reads each back.
+    let (dir, _) = asset_files();
+    let asset = Asset::open(dir.path()).unwrap();
+    let packed = asset.layer("packed", 0).unwrap();
+    let codecs: std::collections::HashSet<Codec> = (0..24)
+        .map(|c| packed.stored_chunk(c).unwrap().codec)
+        .collect();
+    assert!(codecs.contains(&Codec::ShuffledZstd), "{codecs:?}");
+    assert!(packed.verify().is_empty());
+}
+
 #[test]
 fn constant_tiles_are_stored_once() {
     let (_dir, files) = asset_files();

@@ -132,6 +132,8 @@ terrabake export dem.tbake --layer horizon -o horizon.tif"
     Render(crate::present::render::RenderArgs),
     /// Plan the horizons a budget needs: directions, encoding, predicted error, time and bytes.
     Plan(crate::plan::PlanArgs),
+    /// Time this machine against the planner's time models (cached; --fresh measures again).
+    Calibrate(crate::plan::CalibrateArgs),
     /// Measure the horizon and sky-view factor errors a bake achieved against exact references,
     /// and check them against a budget.
     Check(crate::plan::check::CheckArgs),
@@ -248,6 +250,7 @@ impl Command {
             Command::Sky(a) => a,
             Command::Render(a) => a,
             Command::Plan(a) => a,
+            Command::Calibrate(a) => a,
             Command::Check(a) => a,
             Command::Page(a) => a,
             Command::Viewshed(a) => a,

@@ -394,14 +394,17 @@ pub fn stored_codes<'c>(
         layer.entry().key(),
         chunk.raw_len
     );
-    match chunk.codec {
-        Codec::Raw => Ok(Cow::Borrowed(chunk.bytes)),
-        Codec::Zstd => Ok(Cow::Owned(zstd::bulk::decompress(chunk.bytes, chunk_len)?)),
-        other => anyhow::bail!(
-            "layer {}: tiles in codec {other:?} cannot be exported as arrays",
-            layer.entry().key()
-        ),
+    if chunk.codec == Codec::Raw {
+        return Ok(Cow::Borrowed(chunk.bytes));
     }
+    let mut codes = vec![0u8; chunk_len];
+    let n = chunk.decode_into(storage.elem().size(), &mut codes)?;
+    anyhow::ensure!(
+        n == chunk_len,
+        "layer {}: a tile decoded to {n} bytes, not {chunk_len}",
+        layer.entry().key()
+    );
+    Ok(Cow::Owned(codes))
 }
 
 /// A tile decoded to `f32` (NaN past the edge), little-endian.

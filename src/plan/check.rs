@@ -137,9 +137,10 @@ pub struct CheckReport {
     /// What the recorded plan predicted for the horizons, if any.
     pub predicted: Option<Candidate>,
     /// What the recorded plan predicted the whole bake after ingest would
-    /// take, seconds (an upper bound on the machine the models were fitted
-    /// on), and its peak memory, MiB.
+    /// take, seconds (the calibrated models' upper bound), the range it
+    /// should fall in, and the plan's peak memory, MiB.
     pub planned_seconds: Option<f64>,
+    pub planned_seconds_range: Option<(f64, f64)>,
     pub planned_memory_mib: Option<f64>,
     /// What the planned bake measured of itself (time, peak memory).
     pub baked: Option<Baked>,
@@ -258,6 +259,7 @@ pub fn check(
             budget: budget.copied(),
             predicted: None,
             planned_seconds: None,
+            planned_seconds_range: None,
             planned_memory_mib: None,
             baked: None,
             verdicts: Vec::new(),
@@ -268,6 +270,9 @@ pub fn check(
         if let Some(plan) = plan {
             report.predicted = plan.chosen;
             report.planned_seconds = Some(plan.seconds);
+            // Plans recorded before the range was have none.
+            report.planned_seconds_range =
+                Some(plan.seconds_range).filter(|&(low, high)| 0.0 < low && low <= high);
             report.planned_memory_mib = Some(plan.memory_mib);
             report.baked = plan.baked;
         }
@@ -740,18 +745,23 @@ pub(crate) fn describe(report: &CheckReport) -> String {
             "baked in              {:.1} s, peak memory {:.0} MiB",
             b.seconds, b.peak_memory_mib
         );
-        // Where the bake fell against the plan's upper bounds.
+        // Where the bake fell against the plan's range and memory.
         if let (Some(t), Some(m)) = (report.planned_seconds, report.planned_memory_mib) {
             if t > 0.0 && m > 0.0 {
+                let (low, high) = report.planned_seconds_range.unwrap_or((t, t));
+                let time = if b.seconds > high {
+                    format!(
+                        "{:.0} % over the planned {low:.1}-{high:.1} s: a busy machine, or one the calibration misjudged (terrabake calibrate --fresh measures it again; pipelines/fit_plan_models.sh fits this machine's own models)",
+                        100.0 * (b.seconds / high - 1.0)
+                    )
+                } else if b.seconds < low {
+                    format!("under the planned {low:.1}-{high:.1} s")
+                } else {
+                    format!("within the planned {low:.1}-{high:.1} s")
+                };
                 out += &format!(
-                    " ({:.0} % of the planned {t:.1} s, {:.0} % of the planned {m:.0} MiB{})",
-                    100.0 * b.seconds / t,
+                    " ({time}; {:.0} % of the planned {m:.0} MiB)",
                     100.0 * b.peak_memory_mib / m,
-                    if b.seconds > t {
-                        "; slower than planned: a busy machine, or one the time models were not fitted on (fit its own with pipelines/fit_plan_models.sh and name it in TERRABAKE_TIME_MODELS)"
-                    } else {
-                        ""
-                    }
                 );
             }
         }

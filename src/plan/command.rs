@@ -4,7 +4,7 @@
 use std::process::ExitCode;
 
 use super::budget::{Budget, Needs, Request};
-use super::{plan, Plan, TimeModels, PILOT_DIRECTIONS, TIME_MODELS_VAR};
+use super::{calibration, plan, Plan, TimeModels, PILOT_DIRECTIONS, TIME_MODELS_VAR};
 use crate::stage::session::{Run, Session};
 
 /// The plan as a table for people.
@@ -78,10 +78,18 @@ pub(crate) fn describe(plan: &Plan) -> String {
             predicted.push(format!("shade {share:.4}"));
         }
     }
-    predicted.push(if plan.time_models == TimeModels::default() {
-        format!("time {:.1} s (2 cores)", plan.seconds)
+    let (low, high) = plan.seconds_range;
+    let models = if plan.time_models == TimeModels::default() {
+        "the default models".to_string()
     } else {
-        format!("time {:.1} s (by {TIME_MODELS_VAR}'s models)", plan.seconds)
+        format!("{TIME_MODELS_VAR}'s models")
+    };
+    predicted.push(match &plan.calibration {
+        Some(c) => format!(
+            "time {low:.1}-{high:.1} s ({models} x {:.2}, this machine's calibration)",
+            c.scale()
+        ),
+        None => format!("time {low:.1}-{high:.1} s ({models}, not calibrated)"),
     });
     predicted.push(format!("bytes {:.1} MiB", plan.bytes as f64 / 1048576.0));
     predicted.push(format!("memory {:.0} MiB", plan.memory_mib));
@@ -172,6 +180,62 @@ impl Run for PlanArgs {
         } else {
             print!("{}", describe(&plan));
         }
+        Ok(ExitCode::SUCCESS)
+    }
+}
+
+/// `terrabake calibrate`: its arguments.
+#[derive(clap::Args, Debug)]
+#[command(
+    after_help = "The planner predicts a bake's time from models fitted on one machine \
+(docs/PLANNING.md, \"Time on this machine\"). Before it plans it times a fixed workload (the line \
+sweep of 384 x 384 posts in 48 directions on every core) and scales the models by it; the \
+result is cached per machine and binary, so this costs 1.5 seconds once. This command shows \
+the calibration, or measures it again with --fresh. TERRABAKE_CALIBRATION=off plans with the \
+models unscaled."
+)]
+pub struct CalibrateArgs {
+    /// Measure again, and replace the cached calibration.
+    #[arg(long)]
+    pub fresh: bool,
+    /// Print the calibration as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+impl Run for CalibrateArgs {
+    fn run(&self, _: &Session) -> crate::Result<ExitCode> {
+        let models = TimeModels::from_env()?;
+        let c = calibration::measured(self.fresh);
+        let scale = models.calibration_seconds.map(|r| c.seconds / r);
+        if self.json {
+            let mut v = serde_json::to_value(c)?;
+            v["reference_seconds"] = serde_json::json!(models.calibration_seconds);
+            v["scale"] = serde_json::json!(scale);
+            println!("{}", serde_json::to_string_pretty(&v)?);
+            return Ok(ExitCode::SUCCESS);
+        }
+        println!(
+            "workload     line sweep of {0} x {0} posts in {1} directions, {2} runs: fastest {3:.3} s, slowest {4:.3} s",
+            calibration::SIZE,
+            calibration::DIRECTIONS,
+            calibration::RUNS,
+            c.seconds,
+            c.slowest
+        );
+        println!("machine      {}", c.machine);
+        match (models.calibration_seconds, scale) {
+            (Some(r), Some(k)) => println!(
+                "models       fitted where it took {r:.3} s: this machine's times are theirs x {k:.2}"
+            ),
+            _ => println!(
+                "models       {TIME_MODELS_VAR}'s carry no calibration time: taken as this machine's own (x 1)"
+            ),
+        }
+        println!(
+            "cache        {}",
+            calibration::cache_path().map_or("none (no HOME)".into(), |p| p.display().to_string())
+        );
         Ok(ExitCode::SUCCESS)
     }
 }

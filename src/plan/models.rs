@@ -21,8 +21,8 @@ pub const TIME_MODELS_VAR: &str = "TERRABAKE_TIME_MODELS";
 /// (bounded_per_line + bounded_per_cell * D / cell)`. Each is fitted by
 /// `pipelines/fit_plan_models.sh` and raised until no fit run took longer,
 /// so it is an upper bound on the machine it was fitted on, not on every
-/// machine: the defaults are the Zen 4 machine's (2 cores), whose fit had
-/// no fixed term.
+/// machine (the calibration scales it to another): the defaults are the
+/// Zen 4 machine's (2 cores, 2026-12-03).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TimeModels {
@@ -32,21 +32,42 @@ pub struct TimeModels {
     pub sweep_rate: f64,
     pub bounded_per_line: f64,
     pub bounded_per_cell: f64,
+    /// Seconds of the calibration workload ([`super::calibration`]) on the
+    /// machine of the fit: what scales these models to another machine.
+    /// `None` (files fitted before it was recorded): this machine's own.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration_seconds: Option<f64>,
 }
+
+/// The calibration workload on the machine of the default fit, measured
+/// by the fit (AMD EPYC, Zen 4, 2 cores, 2026-12-03).
+pub const DEFAULT_CALIBRATION_SECONDS: f64 = 0.2148;
 
 impl Default for TimeModels {
     fn default() -> Self {
         Self {
-            fixed_seconds: 0.0,
-            sweep_exponent: 1.66,
-            sweep_rate: 2.85e8,
-            bounded_per_line: 5.79e-9,
-            bounded_per_cell: 5.81e-9,
+            fixed_seconds: 0.01904,
+            sweep_exponent: 1.74189,
+            sweep_rate: 3.11169e8,
+            bounded_per_line: 3.20234e-8,
+            bounded_per_cell: 6.48818e-9,
+            calibration_seconds: Some(DEFAULT_CALIBRATION_SECONDS),
         }
     }
 }
 
 impl TimeModels {
+    /// The models with every time multiplied by `scale` (a calibration's).
+    pub fn scaled(self, scale: f64) -> Self {
+        Self {
+            fixed_seconds: self.fixed_seconds * scale,
+            sweep_rate: self.sweep_rate / scale,
+            bounded_per_line: self.bounded_per_line * scale,
+            bounded_per_cell: self.bounded_per_cell * scale,
+            ..self
+        }
+    }
+
     /// The models [`TIME_MODELS_VAR`] names, else the defaults; once read,
     /// kept for the process, so that the check before an ingest, the plans
     /// after it and `terrabake-bench plan`'s plans all use the same file's models. A
@@ -88,6 +109,11 @@ impl TimeModels {
             ("sweep_rate", m.sweep_rate, false),
             ("bounded_per_line", m.bounded_per_line, false),
             ("bounded_per_cell", m.bounded_per_cell, false),
+            (
+                "calibration_seconds",
+                m.calibration_seconds.unwrap_or(1.0),
+                false,
+            ),
         ] {
             if !(value.is_finite() && (value > 0.0 || may_be_zero && value == 0.0)) {
                 let least = if may_be_zero { "0 or more" } else { "positive" };

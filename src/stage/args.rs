@@ -165,6 +165,17 @@ pub(crate) fn parse_finite(s: &str) -> Result<f64, String> {
     }
 }
 
+/// The codec a stage's tiles are in unless told, for serde.
+pub(crate) fn raw() -> Codec {
+    Codec::Raw
+}
+
+/// Raw tiles are not recorded, so that records from before stages had a
+/// codec stay the same.
+pub(crate) fn is_raw(codec: &Codec) -> bool {
+    *codec == Codec::Raw
+}
+
 pub(crate) fn parse_codec(s: &str) -> Result<Codec, String> {
     match s {
         "raw" => Ok(Codec::Raw),

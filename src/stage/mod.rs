@@ -558,13 +558,14 @@ pub(crate) fn unix_now() -> u64 {
         .map_or(0, |d| d.as_secs())
 }
 
-/// A layer of the stage: one element per post, raw tiles like the heights.
+/// A layer of the stage: one element per post, tiles in the stage's codec.
 pub(crate) fn post_layer(
     (name, stage): (&str, &str),
     elem: terrabake_format::ElemType,
     bands: u32,
     (w, h, ts): (usize, usize, usize),
     description: String,
+    codec: terrabake_format::Codec,
 ) -> terrabake_format::LayerSpec {
     terrabake_format::LayerSpec {
         name: name.into(),
@@ -574,7 +575,7 @@ pub(crate) fn post_layer(
         width: w as u32,
         height: h as u32,
         tile_size: ts as u32,
-        codec: terrabake_format::Codec::Raw,
+        codec,
         // What the tiles are padded with: NaN for f32 values, code 0
         // (nodata, or a zero count) for integers.
         fill_bits: if elem == terrabake_format::ElemType::F32 {

@@ -97,6 +97,15 @@ pub struct HorizonsStage {
         skip_serializing
     )]
     pub max_memory: u64,
+    /// Tiles of the layers written: raw (read in place from the mapping, what a renderer
+    /// wants) or zstd (smaller: horizon angles about 3x, sky and solar layers 1.5-2x;
+    /// decoded into a cache on read).
+    #[arg(long, value_parser = crate::stage::args::parse_codec, default_value = "raw")]
+    #[serde(
+        default = "crate::stage::args::raw",
+        skip_serializing_if = "crate::stage::args::is_raw"
+    )]
+    pub codec: Codec,
 }
 
 impl HorizonsStage {
@@ -139,6 +148,7 @@ impl Default for HorizonsStage {
             direction_tolerance: None,
             distance: false,
             max_memory: crate::stage::mib::STAGE_DEFAULT_BYTES,
+            codec: Codec::Raw,
         }
     }
 }
@@ -412,8 +422,10 @@ impl Stage for HorizonsStage {
                     bands.len() as u32,
                     (w, h, ts),
                     description,
+                    self.codec,
                 );
                 Ok(BandWriter {
+                    codec: self.codec,
                     writer: Mutex::new(LayerWriter::create(dir, spec)?),
                     enc,
                     width: w,
@@ -855,6 +867,7 @@ impl RowBands for BoundedSector {
 struct BandWriter {
     writer: Mutex<LayerWriter>,
     enc: AngleEncoding,
+    codec: Codec,
     width: usize,
     tile_size: usize,
     tiles: (usize, usize),
@@ -891,17 +904,17 @@ impl BandWriter {
                 row.fill(f32::NAN);
             }
         }
-        let enc = self.enc;
+        let (enc, codec) = (self.enc, self.codec);
         match enc {
             AngleEncoding::U16 => {
                 let codes = quantise_row(enc, angles, |c| c as u16);
-                encode_tile_row(&codes.expect("u16 codes"), w, ts, 0u16, Codec::Raw)
+                encode_tile_row(&codes.expect("u16 codes"), w, ts, 0u16, codec)
             }
             AngleEncoding::U8 => {
                 let codes = quantise_row(enc, angles, |c| c as u8);
-                encode_tile_row(&codes.expect("u8 codes"), w, ts, 0u8, Codec::Raw)
+                encode_tile_row(&codes.expect("u8 codes"), w, ts, 0u8, codec)
             }
-            AngleEncoding::F32 => encode_tile_row(angles, w, ts, f32::NAN, Codec::Raw),
+            AngleEncoding::F32 => encode_tile_row(angles, w, ts, f32::NAN, codec),
         }
     }
 

@@ -379,7 +379,7 @@ fn write_heights(
             above.fill(f32::NAN);
             below.fill(f32::NAN);
             stats.add(band);
-            push_tile_row(&mut layer, band, width, f32::NAN, opts.codec)?;
+            push_tile_row(&mut layer, band, width, f32::NAN)?;
             bar.inc(rows as u64);
         }
         bar.finish_and_clear();

@@ -124,15 +124,8 @@ impl Builder {
                 &level.band_max,
                 level.width,
                 f32::NEG_INFINITY,
-                Codec::Raw,
             )?;
-            push_tile_row(
-                &mut level.min,
-                &level.band_min,
-                level.width,
-                f32::INFINITY,
-                Codec::Raw,
-            )?;
+            push_tile_row(&mut level.min, &level.band_min, level.width, f32::INFINITY)?;
             level.band_max.clear();
             level.band_min.clear();
         }

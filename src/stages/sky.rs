@@ -99,12 +99,22 @@ pub struct SkyStage {
         value_parser = SkyLayer::parser()
     )]
     pub layers: Vec<SkyLayer>,
+    /// Tiles of the layers written: raw (read in place from the mapping, what a renderer
+    /// wants) or zstd (smaller: horizon angles about 3x, sky and solar layers 1.5-2x;
+    /// decoded into a cache on read).
+    #[arg(long, value_parser = crate::stage::args::parse_codec, default_value = "raw")]
+    #[serde(
+        default = "crate::stage::args::raw",
+        skip_serializing_if = "crate::stage::args::is_raw"
+    )]
+    pub codec: Codec,
 }
 
 impl Default for SkyStage {
     fn default() -> Self {
         Self {
             layers: SkyLayer::ALL.to_vec(),
+            codec: Codec::Raw,
         }
     }
 }
@@ -195,6 +205,7 @@ impl Stage for SkyStage {
                     1,
                     (w, h, ts),
                     l.description().into(),
+                    self.codec,
                 );
                 Ok((l, LayerWriter::create(dir, spec)?))
             })
@@ -254,7 +265,7 @@ impl Stage for SkyStage {
                         .iter()
                         .flat_map(|p| p.edges.iter().copied())
                         .collect();
-                    push_tile_row(writer, &edges, w, 0u16, Codec::Raw)?;
+                    push_tile_row(writer, &edges, w, 0u16)?;
                     continue;
                 }
                 // Values inside the area of interest, row by row.
@@ -274,7 +285,7 @@ impl Stage for SkyStage {
                             }
                         }
                     });
-                push_tile_row(writer, &values, w, f32::NAN, Codec::Raw)?;
+                push_tile_row(writer, &values, w, f32::NAN)?;
             }
             bar.inc(1);
         }

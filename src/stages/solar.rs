@@ -276,6 +276,15 @@ pub struct SolarStage {
     /// 0.2 degrees over a leap cycle).
     #[arg(long = "calendar-year", value_name = "YEAR", default_value_t = crate::terrain::sun::PATH_YEAR)]
     pub calendar_year: i32,
+    /// Tiles of the layers written: raw (read in place from the mapping, what a renderer
+    /// wants) or zstd (smaller: horizon angles about 3x, sky and solar layers 1.5-2x;
+    /// decoded into a cache on read).
+    #[arg(long, value_parser = crate::stage::args::parse_codec, default_value = "raw")]
+    #[serde(
+        default = "crate::stage::args::raw",
+        skip_serializing_if = "crate::stage::args::is_raw"
+    )]
+    pub codec: Codec,
 }
 
 impl SolarStage {
@@ -362,6 +371,7 @@ impl Default for SolarStage {
             longitude: None,
             between: None,
             calendar_year: crate::terrain::sun::PATH_YEAR,
+            codec: Codec::Raw,
         }
     }
 }
@@ -536,6 +546,7 @@ impl Stage for SolarStage {
                     periods.len() as u32,
                     (w, h, ts),
                     self.description(l),
+                    self.codec,
                 );
                 Ok((l, LayerWriter::create(dir, spec)?))
             })
@@ -619,7 +630,7 @@ impl Stage for SolarStage {
                     for rv in &row_values {
                         values.extend_from_slice(&rv[li][p]);
                     }
-                    for (tx, tile) in encode_tile_row(values, w, ts, f32::NAN, Codec::Raw)
+                    for (tx, tile) in encode_tile_row(values, w, ts, f32::NAN, self.codec)
                         .into_iter()
                         .enumerate()
                     {

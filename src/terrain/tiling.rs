@@ -18,15 +18,15 @@ pub(crate) fn row_bands(height: usize, rows: usize) -> Vec<std::ops::Range<usize
 
 /// Appends one row of tiles taken from `band`, a row-major block of
 /// `width x rows` elements (`rows <= tile_size`; the last band of a grid may
-/// be short). Elements past the grid are `fill`.
+/// be short). Elements past the grid are `fill`; tiles are in the layer's
+/// codec.
 pub fn push_tile_row<T: Element>(
     writer: &mut LayerWriter,
     band: &[T],
     width: usize,
     fill: T,
-    codec: Codec,
 ) -> terrabake_format::Result<()> {
-    let ts = writer.spec().tile_size as usize;
+    let (ts, codec) = (writer.spec().tile_size as usize, writer.spec().codec);
     for tile in encode_tile_row(band, width, ts, fill, codec) {
         writer.push(tile)?;
     }

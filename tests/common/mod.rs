@@ -57,12 +57,19 @@ pub fn terrabake(args: &[&str]) -> Output {
 
 /// Runs the terrabake binary with the environment variable `var` set to
 /// `value`, or removed where `None`.
-pub fn terrabake_with((var, value): (&str, Option<&std::ffi::OsStr>), args: &[&str]) -> Output {
+pub fn terrabake_with(var: (&str, Option<&std::ffi::OsStr>), args: &[&str]) -> Output {
+    terrabake_with_all(&[var], args)
+}
+
+/// [`terrabake_with`] for several variables.
+pub fn terrabake_with_all(vars: &[(&str, Option<&std::ffi::OsStr>)], args: &[&str]) -> Output {
     let mut command = Command::new(env!("CARGO_BIN_EXE_terrabake"));
-    match value {
-        Some(value) => command.env(var, value),
-        None => command.env_remove(var),
-    };
+    for &(var, value) in vars {
+        match value {
+            Some(value) => command.env(var, value),
+            None => command.env_remove(var),
+        };
+    }
     command.args(args).output().expect("run terrabake")
 }
 

@@ -62,6 +62,15 @@ pub struct ViewshedStage {
     #[command(flatten)]
     #[serde(flatten)]
     pub sight: SightLines,
+    /// Tiles of the layers written: raw (read in place from the mapping, what a renderer
+    /// wants) or zstd (smaller: horizon angles about 3x, sky and solar layers 1.5-2x;
+    /// decoded into a cache on read).
+    #[arg(long, value_parser = crate::stage::args::parse_codec, default_value = "raw")]
+    #[serde(
+        default = "crate::stage::args::raw",
+        skip_serializing_if = "crate::stage::args::is_raw"
+    )]
+    pub codec: Codec,
 }
 
 fn default_eye() -> f64 {
@@ -122,6 +131,7 @@ impl Stage for ViewshedStage {
                 bands,
                 (w, h, ts),
                 format!("1 where the observer sees a target {} m above the post, 0 where not, 255 beyond the distance or on nodata; band per observer at posts {list}, eye {} m", self.target_height, self.observer_height),
+                self.codec,
             ),
         )?;
         let mut angle = LayerWriter::create(
@@ -132,6 +142,7 @@ impl Stage for ViewshedStage {
                 bands,
                 (w, h, ts),
                 format!("elevation angle of the post from the observer's eye, degrees; band per observer at posts {list}"),
+                self.codec,
             ),
         )?;
         let bar = progress.bar(posts.len() as u64, "viewsheds", "observers");
@@ -149,8 +160,8 @@ impl Stage for ViewshedStage {
             );
             for y0 in (0..h).step_by(ts) {
                 let rows = y0 * w..(y0 + ts).min(h) * w;
-                push_tile_row(&mut seen, &v.visible[rows.clone()], w, OUTSIDE, Codec::Raw)?;
-                push_tile_row(&mut angle, &v.angle[rows], w, f32::NAN, Codec::Raw)?;
+                push_tile_row(&mut seen, &v.visible[rows.clone()], w, OUTSIDE)?;
+                push_tile_row(&mut angle, &v.angle[rows], w, f32::NAN)?;
             }
             bar.inc(1);
         }
@@ -193,6 +204,15 @@ pub struct TotalViewshedStage {
         skip_serializing
     )]
     pub max_memory: u64,
+    /// Tiles of the layers written: raw (read in place from the mapping, what a renderer
+    /// wants) or zstd (smaller: horizon angles about 3x, sky and solar layers 1.5-2x;
+    /// decoded into a cache on read).
+    #[arg(long, value_parser = crate::stage::args::parse_codec, default_value = "raw")]
+    #[serde(
+        default = "crate::stage::args::raw",
+        skip_serializing_if = "crate::stage::args::is_raw"
+    )]
+    pub codec: Codec,
 }
 
 fn yes() -> bool {
@@ -213,6 +233,7 @@ impl Default for TotalViewshedStage {
             method: TotalMethod::Auto,
             safe_zone: true,
             max_memory: crate::stage::mib::STAGE_DEFAULT_BYTES,
+            codec: Codec::Raw,
         }
     }
 }
@@ -321,11 +342,12 @@ impl Stage for TotalViewshedStage {
                         Method::HullTree { .. } => "Timonen's sweeps with the convex hull tree",
                     }
                 ),
+                self.codec,
             ),
         )?;
         for y0 in (0..h).step_by(ts) {
             let rows = y0 * w..(y0 + ts).min(h) * w;
-            push_tile_row(&mut writer, &area[rows], w, f32::NAN, Codec::Raw)?;
+            push_tile_row(&mut writer, &area[rows], w, f32::NAN)?;
         }
         Ok(vec![writer.finish()?])
     }
