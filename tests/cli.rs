@@ -243,6 +243,15 @@ fn zstd_layers_hold_the_raw_bake_chunk_for_chunk() {
         compressed.contains_key("Zstd") && compressed.contains_key("ShuffledZstd"),
         "{compressed:?}"
     );
+    let record = |asset: &Asset<terrabake_format::Mmap>, stage: &str| {
+        let records = &asset.manifest().provenance.stages;
+        records
+            .iter()
+            .find(|r| r.stage == stage)
+            .unwrap()
+            .params
+            .clone()
+    };
     for stage in [
         "cones",
         "horizons",
@@ -251,23 +260,9 @@ fn zstd_layers_hold_the_raw_bake_chunk_for_chunk() {
         "total_viewshed",
         "viewshed",
     ] {
-        let record = packed
-            .manifest()
-            .provenance
-            .stages
-            .iter()
-            .find(|r| r.stage == stage)
-            .unwrap();
-        assert_eq!(record.params["codec"], "zstd", "{stage}");
-        let raw_record = raw
-            .manifest()
-            .provenance
-            .stages
-            .iter()
-            .find(|r| r.stage == stage)
-            .unwrap();
+        assert_eq!(record(&packed, stage)["codec"], "zstd", "{stage}");
         assert!(
-            raw_record.params.get("codec").is_none(),
+            record(&raw, stage).get("codec").is_none(),
             "{stage}: raw is not recorded"
         );
     }

@@ -689,6 +689,9 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
     if pyramid {
         choices.push(tracing_choice(cones, cones_bytes, posts));
     }
+    // Seconds per post of the stages timed on the bundled tile, scaled to
+    // this machine below as the line stages' models are.
+    let mut per_post = 0.0;
     let mut seconds = 0.0;
     // The asset on disk: the heights (as stored, when they are zstd) and
     // every planned layer.
@@ -703,24 +706,22 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
     }
     if needs.has(Need::Solar) {
         let days = crate::stages::solar::Days::YEAR;
-        seconds += scale
-            * posts as f64
-            * f64::from(days.last - days.first + 1)
-            * SOLAR_SECONDS_PER_POST_DAY;
+        per_post += f64::from(days.last - days.first + 1) * SOLAR_SECONDS_PER_POST_DAY;
         bytes += layer_bytes(w, h, tile, 4, crate::stages::solar::SolarLayer::ALL.len());
     }
     if pyramid {
-        seconds += scale * posts as f64 * PYRAMID_SECONDS_PER_POST;
+        per_post += PYRAMID_SECONDS_PER_POST;
         bytes += pyramid_bytes;
     }
     if cones {
         choices.push(cones_choice(planes(4) - cones_bytes));
-        seconds += scale * posts as f64 * CONES_SECONDS_PER_POST;
+        per_post += CONES_SECONDS_PER_POST;
         bytes += cones_bytes;
         let in_core = BASE_MIB + CONES_BYTES_PER_POST * posts as f64 / 1048576.0;
         // Cones bake in windows within a memory limit.
         memory_mib = memory_mib.max(budget.memory.map_or(in_core, |l| in_core.min(l as f64)));
     }
+    seconds += scale * per_post * posts as f64;
     choices.push(tiles_choice(&costs, chosen.as_ref(), ingested_tile));
     let (codec, bytes) = choose_codec(asset, budget, (w, h, tile), bytes, &mut choices)?;
     let spread = calibration.map_or(1.0, |c| c.spread());
