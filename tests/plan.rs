@@ -408,13 +408,23 @@ fn plan_measures_a_source_dem_and_leaves_nothing() {
 fn a_memory_limit_picks_smaller_tiles_unless_the_recipe_set_them() {
     let dir = tempfile::tempdir().unwrap();
     let (tif, out) = source(dir.path(), SynthKind::Bowl);
-    // 180 directions hold a 256-post tile row each: about 160 MiB predicted;
-    // 128-post tiles hold a quarter of that.
-    let bake = planned_bake(&tif, &out, &["horizon=0.5,memory=100"]);
+    // The directions hold a 256-post tile row each; 128-post tiles hold a
+    // quarter of that. Half the memory 256-post tiles need (which counts
+    // this machine's threads) is the limit.
+    let unlimited = terrabake(&["plan", &tif, "--budget", "horizon=0.5", "--json"]);
+    assert!(unlimited.status.success(), "{}", stderr(&unlimited));
+    let unlimited: serde_json::Value = serde_json::from_slice(&unlimited.stdout).unwrap();
+    assert_eq!(unlimited["tile"], 256, "{unlimited}");
+    let limit = (unlimited["memory_mib"].as_f64().unwrap() / 2.0).round() as u64;
+    let budget = format!("horizon=0.5,memory={limit}");
+    let bake = planned_bake(&tif, &out, &[&budget]);
     assert!(bake.status.success(), "{}", stderr(&bake));
     let asset = Asset::open(&out).unwrap();
     let plan = terrabake::plan::recorded(&asset).expect("recorded");
-    assert!(plan.tile < 256 && plan.memory_mib <= 100.0, "{plan:?}");
+    assert!(
+        plan.tile < 256 && plan.memory_mib <= limit as f64,
+        "{plan:?}"
+    );
     assert_eq!(asset.layer("horizon", 0).unwrap().tile_size(), plan.tile);
     let checked = terrabake(&["check", &out, "--samples", "40"]);
     assert_eq!(checked.status.code(), Some(0), "{}", stdout(&checked));
@@ -422,7 +432,9 @@ fn a_memory_limit_picks_smaller_tiles_unless_the_recipe_set_them() {
     let message = refused_recipe(
         dir.path(),
         &tif,
-        "[ingest]\ntile = 256\n\n[plan]\nbudget = { horizon = 0.5, memory = 100 }\n",
+        &format!(
+            "[ingest]\ntile = 256\n\n[plan]\nbudget = {{ horizon = 0.5, memory = {limit} }}\n"
+        ),
     );
     assert!(
         message.contains(&format!("set tile = {}", plan.tile)),

@@ -66,8 +66,8 @@ use choices::{
 };
 pub use command::{CalibrateArgs, PlanArgs, RequestArgs};
 use models::{
-    LineCosts, BASE_MIB, CONES_BYTES_PER_POST, CONES_SECONDS_PER_POST, CONE_SLICES,
-    PYRAMID_SECONDS_PER_POST, SOLAR_SECONDS_PER_POST_DAY,
+    LineCosts, CONES_BYTES_PER_POST, CONES_SECONDS_PER_POST, CONE_SLICES, PYRAMID_SECONDS_PER_POST,
+    SOLAR_SECONDS_PER_POST_DAY,
 };
 pub use models::{TimeModels, TIME_MODELS_VAR};
 
@@ -698,7 +698,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
     let mut bytes = heights
         .filter(|l| l.codec == Codec::Zstd && l.tile_size as usize == tile)
         .map_or(layer_bytes(w, h, tile, 4, 1), |l| l.file_len);
-    let mut memory_mib = BASE_MIB + pilot.as_ref().map_or(0.0, |p| p.memory_mib(posts));
+    let mut memory_mib = costs.base_mib() + pilot.as_ref().map_or(0.0, |p| p.memory_mib(posts));
     if let Some(c) = &chosen {
         seconds += c.seconds;
         bytes += c.bytes;
@@ -717,7 +717,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
         choices.push(cones_choice(planes(4) - cones_bytes));
         per_post += CONES_SECONDS_PER_POST;
         bytes += cones_bytes;
-        let in_core = BASE_MIB + CONES_BYTES_PER_POST * posts as f64 / 1048576.0;
+        let in_core = costs.base_mib() + CONES_BYTES_PER_POST * posts as f64 / 1048576.0;
         // Cones bake in windows within a memory limit.
         memory_mib = memory_mib.max(budget.memory.map_or(in_core, |l| in_core.min(l as f64)));
     }

@@ -136,12 +136,21 @@ pub(super) const SOLAR_SECONDS_PER_POST_DAY: f64 = 2.3e-8;
 /// The cone planes' slices: within 6 % of the exact cones' steps per ray on
 /// the bundled tile at 37 % of the bake time of 256 slices (1.3 %).
 pub(super) const CONE_SLICES: usize = 64;
-/// Peak memory, measured on the bundled tile: a base of 40 MiB, 10.7 bytes
-/// per post and band of a tile row of horizons in flight (97 MiB at 16
+/// Peak memory, measured on the bundled tile: a base of 30 MiB, per worker
+/// thread [`WORKER_MIB`] and [`WORKER_BYTES_PER_ROW_POST`], 10.7 bytes per
+/// post and band of a tile row of horizons in flight (97 MiB at 16
 /// directions, 463 MiB at 120), the DEM itself (4 bytes a post) for bounded
 /// lines, and 32 bytes a post for in-core cone planes; the pilot's own is
 /// counted exactly (`plan`).
-pub(super) const BASE_MIB: f64 = 40.0;
+pub(super) const BASE_MIB: f64 = 30.0;
+/// Each worker thread's allocator arena keeps its high water: about 5 MiB
+/// on a small DEM, and 16 bytes per post of a tile row (the sweep's window
+/// of heights and tile row of angles, f32), measured at 2, 8 and 16 threads
+/// on 64 x 48 to 2048 x 2048 fractals (2 to 13 MiB a thread). The plan
+/// counts the threads of the machine that plans, which is the one that
+/// bakes.
+pub(super) const WORKER_MIB: f64 = 5.0;
+pub(super) const WORKER_BYTES_PER_ROW_POST: f64 = 16.0;
 pub(super) const LINE_BYTES_PER_ROW_POST_BAND: f64 = 10.7;
 pub(super) const CONES_BYTES_PER_POST: f64 = 32.0;
 
@@ -184,7 +193,16 @@ impl LineCosts {
         } else {
             0.0
         };
-        BASE_MIB
+        self.base_mib()
             + (LINE_BYTES_PER_ROW_POST_BAND * self.row_posts() * sectors as f64 + held) / 1048576.0
+    }
+
+    /// What every bake holds, MiB, whatever it bakes: the base and the
+    /// worker threads' own.
+    pub(super) fn base_mib(&self) -> f64 {
+        let threads = rayon::current_num_threads() as f64;
+        let worker =
+            WORKER_MIB + WORKER_BYTES_PER_ROW_POST * (self.width * self.tile) as f64 / 1048576.0;
+        BASE_MIB + threads * worker
     }
 }
