@@ -177,7 +177,7 @@ fn baked_on_one_machine(r: usize) -> (tempfile::TempDir, PathBuf, PathBuf, PathB
 /// Every layer of `a` and `b` decodes to the same values, bit for bit.
 fn assert_same_asset(a: &Path, b: &Path, what: &str) {
     let (a, b) = (Asset::open(a).unwrap(), Asset::open(b).unwrap());
-    let differences = terrabake::bake::partition::differences(&a, &b).unwrap();
+    let differences = terrabake::stage::same::differences(&a, &b).unwrap();
     assert!(differences.is_empty(), "{what}: {differences:#?}");
     assert!(a.manifest().layers.len() >= 2, "{what}: nothing compared");
 }

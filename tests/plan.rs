@@ -90,7 +90,7 @@ proptest! {
         if shade.is_some() {
             needs.push(Need::Sun);
         }
-        let request = Request { budget, needs: Needs::new(needs), sun: sun.clone(), sun_day: None };
+        let request = Request { budget, needs: Needs::new(needs), sun: sun.clone(), sun_day: None, viewshed_distance: None };
         let plan = match plan(&Asset::open(&asset).unwrap(), &request, Progress::hidden()) {
             Ok(plan) => plan,
             // Refused: only when even the most directions leave too much.
@@ -395,9 +395,7 @@ fn plan_measures_a_source_dem_and_leaves_nothing() {
     let dir = tempfile::tempdir().unwrap();
     let (tif, _) = source(dir.path(), SynthKind::Fractal);
     let before: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
-    let out = terrabake(&["plan", &tif, "--budget", "horizon=1,svf=0.02", "--json"]);
-    assert!(out.status.success(), "{}", stderr(&out));
-    let plan: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let plan = planned_json(&tif, "horizon=1,svf=0.02");
     assert!(plan["chosen"]["sectors"].as_u64().unwrap() >= 4, "{plan}");
     assert_eq!(plan["needs"], serde_json::json!(["horizons", "svf"]));
     let after: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
@@ -411,9 +409,7 @@ fn a_memory_limit_picks_smaller_tiles_unless_the_recipe_set_them() {
     // The directions hold a 256-post tile row each; 128-post tiles hold a
     // quarter of that. Half the memory 256-post tiles need (which counts
     // this machine's threads) is the limit.
-    let unlimited = terrabake(&["plan", &tif, "--budget", "horizon=0.5", "--json"]);
-    assert!(unlimited.status.success(), "{}", stderr(&unlimited));
-    let unlimited: serde_json::Value = serde_json::from_slice(&unlimited.stdout).unwrap();
+    let unlimited = planned_json(&tif, "horizon=0.5");
     assert_eq!(unlimited["tile"], 256, "{unlimited}");
     let limit = (unlimited["memory_mib"].as_f64().unwrap() / 2.0).round() as u64;
     let budget = format!("horizon=0.5,memory={limit}");
@@ -440,6 +436,13 @@ fn a_memory_limit_picks_smaller_tiles_unless_the_recipe_set_them() {
         message.contains(&format!("set tile = {}", plan.tile)),
         "{message}"
     );
+}
+
+/// `terrabake plan TIF --budget BUDGET --json`, which must succeed: the plan.
+fn planned_json(tif: &str, budget: &str) -> serde_json::Value {
+    let out = terrabake(&["plan", tif, "--budget", budget, "--json"]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    serde_json::from_slice(&out.stdout).unwrap()
 }
 
 /// `terrabake bake TIF -o OUT --budget ARGS... -q`.
@@ -769,9 +772,7 @@ fn the_time_models_of_the_machine_that_bakes() {
 fn a_bytes_limit_picks_zstd_heights_unless_the_recipe_set_the_codec() {
     let dir = tempfile::tempdir().unwrap();
     let (tif, out) = source(dir.path(), SynthKind::Fractal);
-    let planned = terrabake(&["plan", &tif, "--budget", "horizon=2", "--json"]);
-    assert!(planned.status.success(), "{}", stderr(&planned));
-    let roomy: serde_json::Value = serde_json::from_slice(&planned.stdout).unwrap();
+    let roomy = planned_json(&tif, "horizon=2");
     assert_eq!(roomy["codec"], "raw");
     // Half the raw heights' tile (256 x 256 f32) less than the raw plan.
     let limit = roomy["bytes"].as_u64().unwrap() - 128 * 1024;
@@ -795,6 +796,42 @@ fn a_bytes_limit_picks_zstd_heights_unless_the_recipe_set_the_codec() {
         ),
     );
     assert!(message.contains("set codec = \"zstd\""), "{message}");
+}
+
+#[test]
+fn a_bytes_limit_the_heights_alone_cannot_meet_compresses_the_derived_layers() {
+    let dir = tempfile::tempdir().unwrap();
+    let (tif, out) = source(dir.path(), SynthKind::Fractal);
+    let roomy = planned_json(&tif, "horizon=2");
+    assert_eq!(roomy["derived_codec"], "raw");
+    // Zstd heights save at most their 256 KiB tile: 70 % of the raw plan
+    // needs the horizon and sky layers compressed.
+    let limit = roomy["bytes"].as_u64().unwrap() * 7 / 10;
+    assert!(roomy["bytes"].as_u64().unwrap() - limit > 256 * 1024);
+    let budget = format!("horizon=2,bytes={limit}");
+    let tight = planned_json(&tif, &budget);
+    assert_eq!(tight["derived_codec"], "zstd", "{tight}");
+    assert_eq!(tight["chosen"]["sectors"], roomy["chosen"]["sectors"]);
+    let bake = planned_bake(&tif, &out, &[&budget]);
+    assert!(bake.status.success(), "{}", stderr(&bake));
+    let checked = terrabake(&["check", &out, "--samples", "40", "--json"]);
+    assert_eq!(checked.status.code(), Some(0), "{}", stdout(&checked));
+    let report: serde_json::Value = serde_json::from_slice(&checked.stdout).unwrap();
+    let bytes = report["bytes"].as_u64().unwrap();
+    assert!(bytes <= limit, "{report}");
+    // The prediction, from the horizons of a sample tile, held.
+    let predicted = tight["bytes"].as_u64().unwrap();
+    assert!(
+        bytes <= predicted * 11 / 10,
+        "{bytes} on disk, {predicted} predicted"
+    );
+    // Too tight even compressed: refused, naming the bytes.
+    let message = refused_recipe(
+        dir.path(),
+        &tif,
+        "[plan]\nbudget = { horizon = 2.0, bytes = 4096 }\n",
+    );
+    assert!(message.contains("relax bytes"), "{message}");
 }
 
 /// The prediction is the error of the very bake at the pilot's posts only
@@ -1203,4 +1240,84 @@ fn a_largest_error_budget_sees_what_the_percentile_hides() {
         largest.2,
         bounded.chosen
     );
+}
+
+/// `--needs total_viewshed` with a `total_viewshed=PERCENT` budget: the
+/// direction count from the scene's own error against 720 directions at
+/// the pilot's posts, fewer for a looser budget; the bake meets the budget
+/// at posts of another seed, as `check` measures them; a budget no count
+/// meets is refused with the least it could meet; a budget without the
+/// need, and the need without its budget, are refused by name.
+#[test]
+fn the_total_viewshed_is_planned_from_the_scenes_own_error_curve() {
+    let dir = tempfile::tempdir().unwrap();
+    let (tif, out) = source(dir.path(), SynthKind::Fractal);
+    let plan_for = |percent: f64| -> Plan {
+        let budget = format!("horizon=1,total_viewshed={percent}");
+        let out = terrabake(&[
+            "plan",
+            &tif,
+            "--budget",
+            &budget,
+            "--needs",
+            "total_viewshed",
+            "--viewshed-distance",
+            "600",
+            "--json",
+        ]);
+        assert!(out.status.success(), "{}", stderr(&out));
+        serde_json::from_slice(&out.stdout).unwrap()
+    };
+    let tight = plan_for(1.0);
+    let loose = plan_for(10.0);
+    let (t, l) = (tight.total_viewshed.unwrap(), loose.total_viewshed.unwrap());
+    assert!(l.directions <= t.directions, "{l:?} {t:?}");
+    assert!(
+        t.predicted_p99_percent <= 1.0 && t.max_distance == Some(600.0),
+        "{t:?}"
+    );
+    // Each count the curve tried before the chosen one was over the budget.
+    for &(k, p99) in &t.curve[..t.curve.len() - 1] {
+        assert!(k < t.directions && p99 > 0.0, "{:?}", t.curve);
+    }
+    assert!(tight.chosen.is_none(), "no horizon need, no horizons");
+    let bake = planned_bake(
+        &tif,
+        &out,
+        &[
+            "horizon=1,total_viewshed=1",
+            "--needs",
+            "total_viewshed",
+            "--viewshed-distance",
+            "600",
+        ],
+    );
+    assert!(bake.status.success(), "{}", stderr(&bake));
+    let checked = terrabake(&["check", &out, "--samples", "150", "--seed", "7", "--json"]);
+    assert_eq!(checked.status.code(), Some(0), "{}", stdout(&checked));
+    let report: serde_json::Value = serde_json::from_slice(&checked.stdout).unwrap();
+    let measured = &report["total_viewshed"];
+    assert_eq!(measured["directions"], t.directions);
+    assert!(
+        measured["p99_percent"].as_f64().unwrap() <= 1.0,
+        "{measured}"
+    );
+    // Unmeetable, and inconsistent requests.
+    for (budget, needs, says) in [
+        (
+            "horizon=1,total_viewshed=0.0001",
+            "total_viewshed",
+            "relax total_viewshed to at least",
+        ),
+        (
+            "horizon=1,total_viewshed=2",
+            "horizons",
+            "add total_viewshed to --needs",
+        ),
+        ("horizon=1", "total_viewshed", "total_viewshed=PERCENT"),
+    ] {
+        let out = terrabake(&["plan", &tif, "--budget", budget, "--needs", needs]);
+        assert_ne!(out.status.code(), Some(0), "{budget}");
+        assert!(stderr(&out).contains(says), "{budget}: {}", stderr(&out));
+    }
 }

@@ -8,7 +8,9 @@ use proptest::prelude::*;
 use terrabake::algorithms::viewshed::observer::{
     line_of_sight, observer_viewshed, Observer, OUTSIDE,
 };
-use terrabake::algorithms::viewshed::total::{total_viewshed, Method, TotalOptions};
+use terrabake::algorithms::viewshed::total::{
+    total_viewshed, total_viewshed_at, Method, TotalOptions,
+};
 use terrabake::io::synth::{fill_rows, SynthKind};
 use terrabake::terrain::Terrain;
 
@@ -166,6 +168,29 @@ proptest! {
         if max_distance.is_none() {
             prop_assert_eq!(ns.visible_vertices, ts.visible_vertices);
         }
+    }
+
+    /// The areas at chosen posts alone (each post's lines walked from two
+    /// steps past its reach) are the whole sweep's there.
+    #[test]
+    fn total_viewshed_at_posts_equals_the_sweep(
+        (w, h, z) in (2usize..28, 2usize..28).prop_flat_map(|(w, h)| {
+            (Just(w), Just(h), prop::collection::vec(
+                prop_oneof![12 => -20f32..20.0, 1 => Just(f32::NAN)], w * h))
+        }),
+        height in prop_oneof![Just(0.0), 0.0f64..5.0],
+        max_distance in prop_oneof![Just(None), (1.0f64..30.0).prop_map(Some)],
+        directions in 3usize..24,
+        curved in any::<bool>(),
+    ) {
+        let t = Terrain::new(&z, w, h, 1.0, 1.3).with_curvature(if curved { 1e-3 } else { 0.0 });
+        let opts = TotalOptions { height, max_distance, directions, method: Method::Naive };
+        let (all, _) = total_viewshed(&t, &opts, &|| ());
+        let posts: Vec<(usize, usize)> = (0..w * h).step_by(3).map(|i| (i % w, i / w)).collect();
+        let at = total_viewshed_at(&t, &opts, &posts);
+        let want: Vec<f64> = posts.iter().map(|&(c, r)| all[r * w + c]).collect();
+        prop_assert!(relative_gap(&want, &at) < 1e-9, "{:?} vs {:?}", want, at);
+        prop_assert!(want.iter().zip(&at).all(|(a, b)| a.is_nan() == b.is_nan()));
     }
 }
 

@@ -1,7 +1,7 @@
 //! The user's error budget: how well a scene must be modelled, in the
 //! user's terms (docs/PLANNING.md defines each error: its reference and its
 //! statistic). On the command line
-//! `--budget horizon=DEG[,horizon_max=DEG][,svf=X][,svf_max=X][,shade=FRACTION][,time=SECONDS][,bytes=SIZE][,memory=MIB]`.
+//! `--budget horizon=DEG[,horizon_max=DEG][,svf=X][,svf_max=X][,shade=FRACTION][,solar=PERCENT][,total_viewshed=PERCENT][,time=SECONDS][,bytes=SIZE][,memory=MIB]`.
 //! It deserialises from a TOML table with the same keys (unknown keys
 //! refused), for recipes; recipes do not hold a budget yet.
 //!
@@ -16,6 +16,8 @@
 //! - `svf`: the 99th percentile over posts of the absolute sky-view factor
 //!   error; `svf_max` its largest.
 //! - `shade`: the share of posts whose sun/shade state may be wrong.
+//! - `total_viewshed`: per cent, the 99th percentile over posts of the
+//!   total viewshed's relative error against 720 directions.
 //! - `time`, `bytes`, `memory`: limits on the bake's wall seconds, the
 //!   asset's bytes on disk and the peak memory in MiB.
 
@@ -49,6 +51,10 @@ pub struct Budget {
     /// (and so an upper bound of the error in its global irradiation).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub solar: Option<f64>,
+    /// Per cent: the 99th percentile over posts of the total viewshed's
+    /// relative error, against 720 directions.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub total_viewshed: Option<f64>,
     /// Wall seconds of the bake.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub time: Option<f64>,
@@ -112,6 +118,9 @@ impl Budget {
         }
         if let Some(v) = self.solar {
             positive("solar", v)?;
+        }
+        if let Some(v) = self.total_viewshed {
+            positive("total_viewshed", v)?;
         }
         if let Some(v) = self.time {
             positive("time", v)?;
@@ -179,6 +188,7 @@ impl FromStr for Budget {
                 "svf_max" => budget.svf_max = Some(number()?),
                 "shade" => budget.shade = Some(number()?),
                 "solar" => budget.solar = Some(number()?),
+                "total_viewshed" => budget.total_viewshed = Some(number()?),
                 "time" => budget.time = Some(number()?),
                 "bytes" => budget.bytes = Some(parse_size(value)?),
                 "memory" => {
@@ -191,7 +201,7 @@ impl FromStr for Budget {
                 }
                 other => {
                     return Err(format!(
-                    "{other:?}: not a budget key (horizon, horizon_max, svf, svf_max, shade, solar, time, bytes, memory)"
+                    "{other:?}: not a budget key (horizon, horizon_max, svf, svf_max, shade, solar, total_viewshed, time, bytes, memory)"
                 ))
                 }
             }
@@ -219,6 +229,9 @@ impl fmt::Display for Budget {
         }
         if let Some(v) = self.solar {
             write!(f, ",solar={v}")?;
+        }
+        if let Some(v) = self.total_viewshed {
+            write!(f, ",total_viewshed={v}")?;
         }
         if let Some(v) = self.time {
             write!(f, ",time={v}")?;
@@ -254,10 +267,13 @@ pub enum Need {
     /// The year's irradiation and sun hours (the solar stage, from the
     /// horizons and `svf_cosine`; the `solar` budget measures them).
     Solar,
+    /// The area every post sees (the total viewshed stage; the
+    /// `total_viewshed` budget measures it).
+    TotalViewshed,
 }
 
 impl Need {
-    pub const ALL: [Need; 7] = [
+    pub const ALL: [Need; 8] = [
         Need::Horizons,
         Need::Svf,
         Need::Sky,
@@ -265,6 +281,7 @@ impl Need {
         Need::Tracing,
         Need::FastTracing,
         Need::Solar,
+        Need::TotalViewshed,
     ];
 
     pub fn name(self) -> &'static str {
@@ -276,6 +293,7 @@ impl Need {
             Need::Tracing => "tracing",
             Need::FastTracing => "fast_tracing",
             Need::Solar => "solar",
+            Need::TotalViewshed => "total_viewshed",
         }
     }
 }
@@ -405,7 +423,7 @@ fn parse_sun_positions(s: &str) -> Result<Vec<SunPosition>, String> {
 
 /// What to plan for: the budget, the needs, and for `sun` the sun positions
 /// (given, or a day's path at the scene's latitude). On the command line
-/// `--budget`, `--needs`, `--sun`, `--sun-day`; in a recipe a `[plan]`
+/// `--budget`, `--needs`, `--sun`, `--sun-day`, `--viewshed-distance`; in a recipe a `[plan]`
 /// table with the same keys (unknown ones refused).
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -420,6 +438,10 @@ pub struct Request {
     /// at the scene's central latitude.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sun_day: Option<u32>,
+    /// How far each eye of the total viewshed sees, metres (`None`: the
+    /// whole DEM).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub viewshed_distance: Option<f64>,
 }
 
 impl Request {
@@ -443,6 +465,27 @@ impl Request {
                 self.budget.solar.unwrap_or_default()
             ));
         }
+        match (self.budget.total_viewshed, self.needs.has(Need::TotalViewshed)) {
+            (Some(v), false) => {
+                return Err(format!(
+                    "budget total_viewshed={v}: add total_viewshed to --needs"
+                ))
+            }
+            (None, true) => {
+                return Err("--needs total_viewshed: give its budget, total_viewshed=PERCENT (the 99th percentile of the relative error)".into())
+            }
+            _ => {}
+        }
+        if let Some(d) = self.viewshed_distance {
+            if !(d.is_finite() && d > 0.0) {
+                return Err(format!("viewshed_distance={d}: give positive metres"));
+            }
+            if !self.needs.has(Need::TotalViewshed) {
+                return Err(format!(
+                    "viewshed_distance={d}: add total_viewshed to --needs"
+                ));
+            }
+        }
         for &position in &self.sun {
             check_sun_position(position)?;
         }
@@ -462,7 +505,7 @@ mod tests {
     #[test]
     fn the_documented_syntax_parses_and_prints_back() {
         let b: Budget =
-            "horizon=0.5,horizon_max=3,svf=0.01,svf_max=0.05,shade=0.001,solar=2,time=60,bytes=200M,memory=512"
+            "horizon=0.5,horizon_max=3,svf=0.01,svf_max=0.05,shade=0.001,solar=2,total_viewshed=3,time=60,bytes=200M,memory=512"
                 .parse()
                 .unwrap();
         assert_eq!(
@@ -474,6 +517,7 @@ mod tests {
                 svf_max: Some(0.05),
                 shade: Some(0.001),
                 solar: Some(2.0),
+                total_viewshed: Some(3.0),
                 time: Some(60.0),
                 bytes: Some(200 << 20),
                 memory: Some(512),

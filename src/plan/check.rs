@@ -126,6 +126,8 @@ pub struct TracingCheck {
 pub struct CheckReport {
     pub horizons: Option<HorizonCheck>,
     pub tracing: Option<TracingCheck>,
+    /// The total viewshed against 720 directions, where the asset has one.
+    pub total_viewshed: Option<crate::plan::total_viewshed::TotalViewshedCheck>,
     /// Bytes of the asset on disk: the manifest and the layer files it
     /// names.
     pub bytes: u64,
@@ -243,9 +245,23 @@ pub fn check(
             Err(_) => None,
         };
         let tracing = check_tracing(asset, &dem, opts)?;
-        if horizons.is_none() && tracing.is_none() {
+        let total_viewshed = crate::stage::recorded_params::<
+            crate::stages::viewshed::stage::TotalViewshedStage,
+        >(asset.manifest(), "total_viewshed")
+        .map(|stage| {
+            let walked = crate::plan::walked(&stage, asset.manifest());
+            crate::plan::total_viewshed::check(
+                asset,
+                &dem,
+                (&walked, stage.directions),
+                opts.samples,
+                opts.seed,
+            )
+        })
+        .transpose()?;
+        if horizons.is_none() && tracing.is_none() && total_viewshed.is_none() {
             bail!(
-                "{}: nothing to check: the asset has no horizon layer, pyramid or cone planes (terrabake horizons {})",
+                "{}: nothing to check: the asset has no horizon layer, pyramid, cone planes or total viewshed (terrabake horizons {})",
                 dir.display(),
                 dir.display()
             );
@@ -253,6 +269,7 @@ pub fn check(
         let mut report = CheckReport {
             horizons,
             tracing,
+            total_viewshed,
             bytes: asset_bytes(asset),
             seconds: start.elapsed().as_secs_f64(),
             seed: opts.seed,
@@ -609,8 +626,7 @@ fn verdicts(report: &CheckReport, b: &Budget) -> Vec<Verdict> {
             b.horizon,
         ));
     }
-    // The limits on what derives from the horizons: asked for and not
-    // there is not met.
+    // The other limits: asked for and not measured is not met.
     let required = [
         (
             "horizon max (deg)",
@@ -624,6 +640,11 @@ fn verdicts(report: &CheckReport, b: &Budget) -> Vec<Verdict> {
             "solar p99 (%)",
             b.solar,
             h.and_then(|h| h.solar_p99_percent),
+        ),
+        (
+            "total viewshed p99 (%)",
+            b.total_viewshed,
+            report.total_viewshed.as_ref().map(|t| t.p99_percent),
         ),
     ];
     for (what, limit, achieved) in required {
@@ -734,6 +755,16 @@ pub(crate) fn describe(report: &CheckReport) -> String {
                 t.rays
             );
         }
+    }
+    if let Some(t) = &report.total_viewshed {
+        out += &format!(
+            "total viewshed        {} directions: relative error p99 {:.3} %, max {:.3} % against {} directions at {} posts\n",
+            t.directions,
+            t.p99_percent,
+            t.max_percent,
+            crate::plan::total_viewshed::REFERENCE_DIRECTIONS,
+            t.posts
+        );
     }
     out += &format!(
         "bytes on disk         {}\nchecked in            {:.1} s\n",

@@ -78,6 +78,12 @@ pub(crate) fn describe(plan: &Plan) -> String {
             predicted.push(format!("shade {share:.4}"));
         }
     }
+    if let Some(t) = &plan.total_viewshed {
+        predicted.push(format!(
+            "total viewshed p99 {:.3} % (max {:.3})",
+            t.predicted_p99_percent, t.predicted_max_percent
+        ));
+    }
     let (low, high) = plan.seconds_range;
     let models = if plan.time_models == TimeModels::default() {
         "the default models".to_string()
@@ -100,11 +106,11 @@ pub(crate) fn describe(plan: &Plan) -> String {
 /// `--sun-day`.
 #[derive(clap::Args, Debug, Clone)]
 pub struct RequestArgs {
-    /// The budget: horizon=DEG[,horizon_max=DEG][,svf=X][,svf_max=X][,shade=FRACTION][,time=SECONDS][,bytes=SIZE][,memory=MIB].
+    /// The budget: horizon=DEG[,horizon_max=DEG][,svf=X][,svf_max=X][,shade=FRACTION][,solar=PERCENT][,total_viewshed=PERCENT][,time=SECONDS][,bytes=SIZE][,memory=MIB].
     #[arg(long)]
     pub budget: Option<Budget>,
-    /// What the scene needs, a comma list: horizons, svf, sky, sun, tracing, fast_tracing
-    /// (default: horizons,svf).
+    /// What the scene needs, a comma list: horizons, svf, sky, sun, tracing, fast_tracing,
+    /// solar, total_viewshed (default: horizons,svf).
     #[arg(long, requires = "budget")]
     pub needs: Option<Needs>,
     /// Sun positions for `sun` and the shade budget: AZ,EL;AZ,EL;... degrees (azimuth
@@ -115,6 +121,9 @@ pub struct RequestArgs {
     /// scene's central latitude.
     #[arg(long, requires = "budget", value_parser = clap::value_parser!(u32).range(1..=366))]
     pub sun_day: Option<u32>,
+    /// For total_viewshed: how far each eye sees, metres (default: the whole DEM).
+    #[arg(long, requires = "budget", value_name = "METRES")]
+    pub viewshed_distance: Option<f64>,
 }
 
 impl RequestArgs {
@@ -125,6 +134,7 @@ impl RequestArgs {
             needs: self.needs.clone().unwrap_or_default(),
             sun: self.sun.clone().map(|s| s.0).unwrap_or_default(),
             sun_day: self.sun_day,
+            viewshed_distance: self.viewshed_distance,
         })
     }
 }

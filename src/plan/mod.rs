@@ -56,9 +56,11 @@ pub mod budget;
 pub mod calibration;
 pub mod check;
 mod choices;
+mod codec;
 mod command;
 mod models;
 pub mod reference;
+pub mod total_viewshed;
 
 use choices::{
     cones_choice, distance_choice, encoding_choice, method_choice, route_choice, tiles_choice,
@@ -91,6 +93,7 @@ use crate::plumbing::progress::Progress;
 use crate::stage::Stage;
 use crate::stages::horizons::HorizonsStage;
 use crate::stages::sky::{SkyLayer, SkyStage};
+use crate::stages::viewshed::stage::TotalViewshedStage;
 use crate::terrain::sun::SunPosition;
 use crate::terrain::Terrain;
 
@@ -270,6 +273,13 @@ pub struct Plan {
     /// only that fits the bytes limit (the bake ingests again).
     #[serde(default = "raw_codec")]
     pub codec: Codec,
+    /// The horizon and sky layers' codec: raw, or zstd when only that
+    /// fits the bytes limit.
+    #[serde(default = "raw_codec")]
+    pub derived_codec: Codec,
+    /// The total viewshed, when the needs take it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub total_viewshed: Option<total_viewshed::TotalViewshedPlan>,
     #[serde(default)]
     pub pyramid: bool,
     #[serde(default)]
@@ -317,6 +327,7 @@ impl Plan {
         let chosen = self.chosen.as_ref()?;
         let mut stage = HorizonsStage {
             encoding: Some(chosen.encoding),
+            codec: self.derived_codec,
             ..line_stage(chosen.sectors, chosen.direction_tolerance)
         };
         stage.sight.max_distance = chosen.max_distance;
@@ -349,11 +360,18 @@ impl Plan {
         if !self.sky_layers.is_empty() {
             stages.push(Box::new(SkyStage {
                 layers: self.sky_layers.clone(),
-                ..Default::default()
+                codec: self.derived_codec,
             }));
         }
         if self.needs.has(Need::Solar) {
             stages.push(Box::new(crate::stages::solar::SolarStage::default()));
+        }
+        if let Some(t) = &self.total_viewshed {
+            let mut stage = total_viewshed_stage(t.directions, t.max_distance);
+            if let Some(bytes) = self.working_memory() {
+                stage.max_memory = bytes;
+            }
+            stages.push(Box::new(stage));
         }
         stages
     }
@@ -363,23 +381,24 @@ fn raw_codec() -> Codec {
     Codec::Raw
 }
 
-/// Bytes of the heights stored as zstd tiles of `tile` posts: up to eight
-/// tile rows spread over the DEM, encoded as ingest encodes them, scaled to
-/// every row.
-fn zstd_height_bytes(asset: &Asset<Mmap>, tile: usize) -> Result<u64> {
-    let height = asset.height()?;
-    let (w, h) = (height.width() as usize, height.height() as usize);
-    let bands = crate::terrain::tiling::row_bands(h, tile);
-    let stride = bands.len().div_ceil(8);
-    let (mut sampled, mut stored) = (0, 0);
-    for band in bands.iter().step_by(stride) {
-        let mut z = vec![0f32; w * band.len()];
-        height.read_rows_f32(0, band.start as u32, &mut z)?;
-        let tiles = crate::terrain::tiling::encode_tile_row(&z, w, tile, f32::NAN, Codec::Zstd);
-        sampled += 1;
-        stored += tiles.iter().map(|t| t.bytes.len() as u64).sum::<u64>();
+/// The total viewshed stage the need bakes, with `directions` and the
+/// reach; the eye is the stage's default.
+fn total_viewshed_stage(directions: usize, max_distance: Option<f64>) -> TotalViewshedStage {
+    let mut stage = TotalViewshedStage {
+        directions,
+        ..Default::default()
+    };
+    stage.sight.max_distance = max_distance;
+    stage
+}
+
+/// `stage` on `m`'s grid as the total viewshed's pilot and check walk it.
+fn walked(stage: &TotalViewshedStage, m: &terrabake_format::Manifest) -> total_viewshed::Walked {
+    total_viewshed::Walked {
+        options: stage.options(m.cell_size.dx.min(m.cell_size.dy)),
+        curvature: stage.sight.curvature_coefficient(m),
+        bytes_per_post: TotalViewshedStage::bytes_per_post(),
     }
-    Ok(stored * bands.len() as u64 / sampled.max(1))
 }
 
 /// The suns the pilot weighs: the shade's positions (each weighing 1),
@@ -596,8 +615,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
         .curvature_coefficient(asset.manifest());
     let (dx, dy) = (m.cell_size.dx, m.cell_size.dy);
     let start = Instant::now();
-    let dem = needs
-        .horizons()
+    let dem = (needs.horizons() || needs.has(Need::TotalViewshed))
         .then(|| crate::terrain::held::HeldDem::read(asset))
         .transpose()?;
     let sampling = Sampling {
@@ -608,6 +626,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
     };
     let mut pilot = dem
         .as_ref()
+        .filter(|_| needs.horizons())
         .map(|dem| Pilot::measure(asset, dem, curvature, [0, 0, w, h], &sampling, progress))
         .transpose()?;
     let mut scene = describe_scene(
@@ -722,8 +741,32 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
         memory_mib = memory_mib.max(budget.memory.map_or(in_core, |l| in_core.min(l as f64)));
     }
     seconds += scale * per_post * posts as f64;
+    let total_viewshed = match (&dem, budget.total_viewshed) {
+        (Some(dem), Some(percent)) if needs.has(Need::TotalViewshed) => {
+            let started = Instant::now();
+            let stage = walked(&total_viewshed_stage(0, request.viewshed_distance), m);
+            let t = total_viewshed::plan(asset, dem, percent, &stage, (PILOT_SEED, scale))?;
+            scene.pilot_seconds += started.elapsed().as_secs_f64();
+            choices.push(total_viewshed::choice(&t, percent));
+            seconds += t.seconds;
+            bytes += layer_bytes(w, h, tile, 4, 1);
+            memory_mib = memory_mib.max(costs.base_mib() + t.memory_mib);
+            Some(t)
+        }
+        _ => None,
+    };
     choices.push(tiles_choice(&costs, chosen.as_ref(), ingested_tile));
-    let (codec, bytes) = choose_codec(asset, budget, (w, h, tile), bytes, &mut choices)?;
+    let derived = match (&dem, &chosen) {
+        (Some(dem), Some(chosen)) => Some(codec::Derived {
+            dem,
+            curvature,
+            chosen,
+            sky_layers: sky_layers.len(),
+        }),
+        _ => None,
+    };
+    let (codecs, bytes) = codec::choose(asset, budget, (w, h, tile), bytes, derived, &mut choices)?;
+    memory_mib += codecs.cache_mib;
     let spread = calibration.map_or(1.0, |c| c.spread());
     let seconds_range = (
         seconds * SECONDS_RANGE.0,
@@ -739,7 +782,9 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
         safe_distance,
         sky_layers,
         tile: tile as u32,
-        codec,
+        codec: codecs.heights,
+        derived_codec: codecs.derived,
+        total_viewshed,
         pyramid,
         cones,
         seconds,
@@ -828,56 +873,6 @@ impl Pilot {
         let held = 4 * posts as usize + self.bounds_bytes() + self.posts.len() * per_post;
         held as f64 / 1048576.0
     }
-}
-
-/// The heights' codec: raw (read in place), or zstd when only that fits
-/// the bytes limit; with the plan's bytes so far, its bytes then.
-fn choose_codec(
-    asset: &Asset<Mmap>,
-    budget: &Budget,
-    (w, h, tile): (usize, usize, usize),
-    mut bytes: u64,
-    choices: &mut Vec<Choice>,
-) -> Result<(Codec, u64)> {
-    let heights = asset.manifest().layer(terrabake_format::HEIGHT_LAYER, 0);
-    let ingested_codec = heights.map_or(Codec::Raw, |l| l.codec);
-    let mut codec = ingested_codec;
-    if let Some(limit) = budget.bytes {
-        let raw_heights = layer_bytes(w, h, tile, 4, 1);
-        if codec == Codec::Raw && bytes > limit && bytes - raw_heights < limit {
-            let zstd = zstd_height_bytes(asset, tile)?;
-            if bytes - raw_heights + zstd <= limit {
-                choices.push(Choice {
-                    what: "codec".into(),
-                    chosen: "zstd heights (ingest again)".into(),
-                    why: format!(
-                        "raw heights ({:.1} MiB) would pass the bytes limit; zstd tiles take {:.1} MiB (encoded on a sample of tile rows)",
-                        raw_heights as f64 / 1048576.0,
-                        zstd as f64 / 1048576.0
-                    ),
-                    rejected: Some("raw: over the bytes limit".into()),
-                });
-                bytes = bytes - raw_heights + zstd;
-                codec = Codec::Zstd;
-            }
-        }
-    }
-    if codec == Codec::Zstd && ingested_codec == Codec::Zstd {
-        choices.push(Choice {
-            what: "codec".into(),
-            chosen: "zstd heights".into(),
-            why: "the ingest's".into(),
-            rejected: None,
-        });
-    } else if codec == Codec::Raw {
-        choices.push(Choice {
-            what: "codec".into(),
-            chosen: "raw".into(),
-            why: "tiles are read in place from the memory mapping, no decode per read (the plan keeps derived layers raw; a stage's own codec = \"zstd\" compresses its layers)".into(),
-            rejected: Some("zstd heights: fewer bytes, a decode on every tile read (chosen when only it fits the bytes limit)".into()),
-        });
-    }
-    Ok((codec, bytes))
 }
 
 /// Refuses a plan whose predicted bytes, time or memory pass the budget's

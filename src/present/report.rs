@@ -158,7 +158,7 @@ pub fn verify_asset(
     let report = opened.verify();
     let differences = match same_as {
         Some(other) => {
-            crate::bake::partition::differences(&opened, &crate::stage::asset::open(other)?)?
+            crate::stage::same::differences(&opened, &crate::stage::asset::open(other)?)?
         }
         None => Vec::new(),
     };

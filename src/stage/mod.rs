@@ -12,6 +12,7 @@
 
 pub mod args;
 pub mod asset;
+pub mod same;
 pub mod session;
 pub mod sight;
 

@@ -894,12 +894,14 @@ pub struct ProfileVertex {
 /// on the DEM beyond the far post, then post by post towards the near end,
 /// each post after the crossings of the step behind it. `lengths` are the
 /// direction's [`step_lengths`]. The same vertices and heights the sweep
-/// of [`line_horizons`] pushes.
+/// of [`line_horizons`] pushes. With `until`, the profile ends at that
+/// post (on the line, nearer than `far`).
 pub(crate) fn line_profile(
     terrain: &Terrain,
     stencil: &Stencil,
     lengths: &[f64],
     far: (i64, i64),
+    until: Option<(i64, i64)>,
     out: &mut Vec<ProfileVertex>,
 ) {
     out.clear();
@@ -942,7 +944,7 @@ pub(crate) fn line_profile(
             piece = true;
         }
         let next = (post.0 - a, post.1 - b);
-        if !terrain.contains(next.0, next.1) {
+        if until == Some(post) || !terrain.contains(next.0, next.1) {
             return;
         }
         t -= lengths[next.1 as usize];

@@ -119,6 +119,106 @@ pub fn directions(terrain: &Terrain, count: usize) -> Vec<(GridDirection, f64)> 
         .collect()
 }
 
+/// The total viewshed at `posts` alone (square metres; NaN at nodata), in
+/// `opts.directions` directions: each post's line walked outwards in each
+/// direction, the naive method's areas, which the sweep's equal to
+/// rounding. What the planner's pilot measures direction counts with, and
+/// the reference `check` holds a baked layer to.
+pub fn total_viewshed_at(
+    terrain: &Terrain,
+    opts: &TotalOptions,
+    posts: &[(usize, usize)],
+) -> Vec<f64> {
+    // Each direction's step, stencil, step lengths and share of the circle.
+    let lines: Vec<_> = directions(terrain, opts.directions)
+        .into_iter()
+        .map(|(dir, share)| {
+            let lengths = step_lengths(
+                dir.step,
+                terrain.height,
+                (terrain.dx, terrain.dy),
+                terrain.row_scale,
+            );
+            (dir.step, Stencil::new(dir.step), lengths, share)
+        })
+        .collect();
+    posts
+        .par_iter()
+        .map_init(Scratch::default, |scratch, &(col, row)| {
+            if terrain.at(col, row).is_nan() {
+                return f64::NAN;
+            }
+            let post = (col as i64, row as i64);
+            lines
+                .iter()
+                .map(|(step, stencil, lengths, share)| {
+                    let far = far_within(terrain, *step, lengths, post, opts.max_distance);
+                    line_profile(
+                        terrain,
+                        stencil,
+                        lengths,
+                        far,
+                        Some(post),
+                        &mut scratch.profile,
+                    );
+                    share
+                        * area_at_last(
+                            &scratch.profile,
+                            opts,
+                            terrain.curvature,
+                            &mut scratch.pushed,
+                        )
+                })
+                .sum()
+        })
+        .collect()
+}
+
+/// The post of `post`'s line to start its profile from: the line's far
+/// post, or, within `max` metres, the first post two steps past that
+/// reach (the vertices a receiver can see, and the one beyond its reach
+/// that clips it, are then the whole line's).
+fn far_within(
+    terrain: &Terrain,
+    (a, b): (i64, i64),
+    lengths: &[f64],
+    post: (i64, i64),
+    max: Option<f64>,
+) -> (i64, i64) {
+    let (mut far, mut reach, mut past) = (post, 0.0, 0);
+    while terrain.contains(far.0 + a, far.1 + b) && past < 2 {
+        reach += lengths[far.1 as usize];
+        far = (far.0 + a, far.1 + b);
+        if max.is_some_and(|m| reach > m) {
+            past += 1;
+        }
+    }
+    far
+}
+
+/// The area the eye above the last vertex of `profile` (a post) sees
+/// along it, as [`sweep_line`] gives it with the naive method.
+fn area_at_last(profile: &[ProfileVertex], opts: &TotalOptions, c: f64, p: &mut Pushed) -> f64 {
+    let Some((v, farther)) = profile.split_last() else {
+        return 0.0;
+    };
+    p.clear();
+    let w_of = |v: &ProfileVertex| v.z - c * v.d * v.d;
+    for u in farther.iter().filter(|u| u.surface) {
+        p.push(u.d, w_of(u), u.piece);
+    }
+    if p.d.is_empty() {
+        return 0.0;
+    }
+    let eye = Eye {
+        d: v.d,
+        w: w_of(v) + opts.height,
+        tail: v.surface && v.piece,
+        clip: v.d - opts.max_distance.unwrap_or(f64::INFINITY),
+    };
+    area_by_walking(p, &eye).0
+}
+
 /// The far posts of direction `step`'s lines: those whose `step` neighbour
 /// is off the DEM.
 fn line_starts<'a>(
@@ -351,7 +451,7 @@ fn sweep_line(
     out: &mut [f64],
 ) -> TotalStats {
     let mut stats = TotalStats::default();
-    line_profile(terrain, stencil, lengths, far, &mut scratch.profile);
+    line_profile(terrain, stencil, lengths, far, None, &mut scratch.profile);
     let c = terrain.curvature;
     let max = opts.max_distance.unwrap_or(f64::INFINITY);
     let mut tree = match opts.method {

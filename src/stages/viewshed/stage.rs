@@ -276,6 +276,13 @@ impl TotalViewshedStage {
             method,
         }
     }
+
+    /// Bytes the stage holds per post: the DEM and, for each worker thread
+    /// and the sum, an area.
+    pub(crate) fn bytes_per_post() -> u64 {
+        let workers = rayon::current_num_threads() as u64;
+        4 + TOTAL_BYTES_PER_POST_AND_WORKER * (workers + 1)
+    }
 }
 
 impl Stage for TotalViewshedStage {
@@ -308,12 +315,11 @@ impl Stage for TotalViewshedStage {
     ) -> crate::Result<Vec<LayerEntry>> {
         let m = asset.manifest();
         let (w, h, ts) = (m.width as usize, m.height as usize, m.tile_size as usize);
-        let workers = rayon::current_num_threads() as u64;
         check_memory(
             "total_viewshed",
             w,
             h,
-            4 + TOTAL_BYTES_PER_POST_AND_WORKER * (workers + 1),
+            Self::bytes_per_post(),
             self.max_memory,
         )?;
         let dem = HeldDem::read(asset)?;
