@@ -64,8 +64,16 @@ pub(super) fn choose(
     let mut cache_mib = 0.0;
     if let Some(limit) = budget.bytes {
         let raw_heights = super::layer_bytes(w, h, tile, 4, 1);
+        // The heights' zstd bytes, encoded once for both tries below.
+        let mut heights_zstd = None;
+        let mut zstd_heights = || -> Result<u64> {
+            match heights_zstd {
+                Some(z) => Ok(z),
+                None => Ok(*heights_zstd.insert(zstd_height_bytes(asset, tile)?)),
+            }
+        };
         if codec == Codec::Raw && bytes > limit && bytes - raw_heights < limit {
-            let zstd = zstd_height_bytes(asset, tile)?;
+            let zstd = zstd_heights()?;
             if bytes - raw_heights + zstd <= limit {
                 choices.push(Choice {
                     what: "codec".into(),
@@ -93,7 +101,7 @@ pub(super) fn choose(
             // not fit and the heights are not zstd yet.
             let mut heights_too = None;
             if !fits(predicted) && codec == Codec::Raw {
-                let z = zstd_height_bytes(asset, tile)?;
+                let z = zstd_heights()?;
                 heights_too = Some(z);
                 predicted = predicted - raw_heights + z;
             }
@@ -210,9 +218,9 @@ fn zstd_derived_ratios(d: &Derived<'_>, tile: usize) -> (f64, f64) {
         let degs: Vec<f32> = (ty..ty + th)
             .flat_map(|r| angles[r * cw + tx..r * cw + tx + tw].iter().copied())
             .collect();
-        let (r, s) = encoded(enc, &degs, tw, tile);
-        raw += r;
-        stored += s;
+        let tiles = crate::stages::horizons::encode_angles(enc, &degs, tw, tile, Codec::Zstd);
+        raw += tiles.iter().map(|t| u64::from(t.raw_len)).sum::<u64>();
+        stored += tiles.iter().map(|t| t.bytes.len() as u64).sum::<u64>();
         centre.push(degs);
     }
     let azimuths: Vec<f64> = bands.iter().map(|b| b.azimuth).collect();
@@ -225,28 +233,6 @@ fn zstd_derived_ratios(d: &Derived<'_>, tile: usize) -> (f64, f64) {
         stored as f64 / raw.max(1) as f64,
         sky_stored as f64 / sky_raw.max(1) as f64,
     )
-}
-
-/// Raw and stored bytes of `degs` (rows `width` wide) as the horizons stage
-/// stores them in `enc`.
-fn encoded(
-    enc: terrabake_format::horizons::AngleEncoding,
-    degs: &[f32],
-    width: usize,
-    tile: usize,
-) -> (u64, u64) {
-    use terrabake_format::horizons::AngleEncoding;
-    match enc {
-        AngleEncoding::U16 => {
-            let codes = enc.quantise_row(degs, |c| c as u16).expect("u16 codes");
-            tile_bytes(&codes, width, tile, 0)
-        }
-        AngleEncoding::U8 => {
-            let codes = enc.quantise_row(degs, |c| c as u8).expect("u8 codes");
-            tile_bytes(&codes, width, tile, 0)
-        }
-        AngleEncoding::F32 => tile_bytes(degs, width, tile, f32::NAN),
-    }
 }
 
 /// Raw and zstd-stored bytes of `values` (rows `width` wide) as tiles.

@@ -904,18 +904,7 @@ impl BandWriter {
                 row.fill(f32::NAN);
             }
         }
-        let (enc, codec) = (self.enc, self.codec);
-        match enc {
-            AngleEncoding::U16 => {
-                let codes = quantise_row(enc, angles, |c| c as u16);
-                encode_tile_row(&codes.expect("u16 codes"), w, ts, 0u16, codec)
-            }
-            AngleEncoding::U8 => {
-                let codes = quantise_row(enc, angles, |c| c as u8);
-                encode_tile_row(&codes.expect("u8 codes"), w, ts, 0u8, codec)
-            }
-            AngleEncoding::F32 => encode_tile_row(angles, w, ts, f32::NAN, codec),
-        }
+        encode_angles(self.enc, angles, w, ts, self.codec)
     }
 
     /// Appends the tiles of the tile row at `y0` of band `band` (`None`:
@@ -942,6 +931,29 @@ impl BandWriter {
             }
         }
         Ok(())
+    }
+}
+
+/// The tiles of a tile row of angles (degrees, rows `w` wide) in `enc`,
+/// as the horizon layer stores them; what the planner's zstd prediction
+/// encodes too.
+pub(crate) fn encode_angles(
+    enc: AngleEncoding,
+    angles: &[f32],
+    w: usize,
+    ts: usize,
+    codec: Codec,
+) -> Vec<terrabake_format::EncodedTile> {
+    match enc {
+        AngleEncoding::U16 => {
+            let codes = quantise_row(enc, angles, |c| c as u16);
+            encode_tile_row(&codes.expect("u16 codes"), w, ts, 0u16, codec)
+        }
+        AngleEncoding::U8 => {
+            let codes = quantise_row(enc, angles, |c| c as u8);
+            encode_tile_row(&codes.expect("u8 codes"), w, ts, 0u8, codec)
+        }
+        AngleEncoding::F32 => encode_tile_row(angles, w, ts, f32::NAN, codec),
     }
 }
 
