@@ -155,7 +155,7 @@ pub fn tradeoff_charts(prefix: &Path, rows: &[TradeoffRow]) -> Result<()> {
                 "exact" => format!("parametric, exact cones, {encoding}"),
                 _ => format!("parametric, K slices, {encoding}"),
             };
-            let points = rows
+            let mut of: Vec<&TradeoffRow> = rows
                 .iter()
                 .filter(|r| {
                     r.encoding == encoding
@@ -164,12 +164,16 @@ pub fn tradeoff_charts(prefix: &Path, rows: &[TradeoffRow]) -> Result<()> {
                             _ => r.planes.parse::<usize>().is_ok(),
                         }
                 })
-                .map(|r| (r.bake_seconds, value(r)))
-                .collect::<Vec<_>>();
+                .collect();
             // In order of cost: a line that reads left to right.
-            let mut points = points;
-            points.sort_by(|p, q| p.0.total_cmp(&q.0));
-            out.push(Series { name, points });
+            of.sort_by(|p, q| p.bake_seconds.total_cmp(&q.bake_seconds));
+            let points = of.iter().map(|r| (r.bake_seconds, value(r))).collect();
+            let series = Series::new(name, points);
+            out.push(if kind == "sliced" {
+                series.labelled(of.iter().map(|r| format!("K={}", r.planes)).collect())
+            } else {
+                series
+            });
         }
         out
     };

@@ -376,20 +376,32 @@ pub fn accuracy_charts(prefix: &Path, study: &AccuracyStudy) -> Result<()> {
                         ("sector", _) => format!("sector (Stewart's wedges), s = {counts}"),
                         _ => format!("sampled (centre line, nearest post), K = {counts}"),
                     },
-                    points: of.map(|r| (r.seconds, value(r))).collect(),
+                    points: of.clone().map(|r| (r.seconds, value(r))).collect(),
+                    labels: of.map(|r| r.bands.to_string()).collect(),
                 }
             })
             .collect()
     };
+    // A peer's outputs under one name make one curve, through its knob.
     let marks = |value: &dyn Fn(&PeerRow) -> Option<f64>, label: &dyn Fn(&PeerRow) -> String| {
-        study
-            .peers
-            .iter()
-            .filter_map(|p| {
-                Some(Series {
-                    name: label(p),
-                    points: vec![(p.seconds, value(p)?)],
-                })
+        let mut curves: Vec<(String, Vec<&PeerRow>)> = Vec::new();
+        for p in study.peers.iter().filter(|p| value(p).is_some()) {
+            match curves.iter_mut().find(|(name, _)| *name == label(p)) {
+                Some((_, of)) => of.push(p),
+                None => curves.push((label(p), vec![p])),
+            }
+        }
+        curves
+            .into_iter()
+            .map(|(name, mut of)| {
+                of.sort_by(|a, b| a.seconds.total_cmp(&b.seconds));
+                let points = of.iter().map(|p| (p.seconds, value(p).unwrap_or(f64::NAN)));
+                let series = Series::new(name, points.collect());
+                if of.iter().all(|p| p.knob.is_some()) {
+                    series.labelled(of.iter().filter_map(|p| p.knob.clone()).collect())
+                } else {
+                    series
+                }
             })
             .collect::<Vec<_>>()
     };
@@ -570,9 +582,11 @@ impl BenchHorizonsArgs {
             }
             if let Some(prefix) = &self.chart {
                 let path = std::path::PathBuf::from(format!("{}_fourier.svg", prefix.display()));
-                let series = |name: &str, f: &dyn Fn(&FourierRow) -> f64| Series {
-                    name: name.into(),
-                    points: rows.iter().map(|r| (r.coefficients as f64, f(r))).collect(),
+                let series = |name: &str, f: &dyn Fn(&FourierRow) -> f64| {
+                    Series::new(
+                        name,
+                        rows.iter().map(|r| (r.coefficients as f64, f(r))).collect(),
+                    )
                 };
                 log_log_svg(
                     &path,

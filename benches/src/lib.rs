@@ -1,5 +1,5 @@
 //! The benchmark harnesses behind `terrabake-bench` (`src/main.rs`): what
-//! `views`, `cones`, `horizons`, `plan`, `visibility` and `solar` measure and how they print and chart
+//! `views`, `cones`, `horizons`, `plan`, `visibility`, `solar` and `points` measure and how they print and chart
 //! it (docs/BENCHMARKS.md has the figures and the commands).
 //!
 //! - [`views`]: the tracers over the sixteen oblique views (Paglieroni and
@@ -14,6 +14,8 @@
 //!   budget.
 //! - [`solar`]: the solar panel, from the points `r.sun` beside us gives
 //!   (pipelines/solar/chart_rsun.sh).
+//! - [`points`]: a chart from points a script measured beside a peer (the
+//!   viewsheds beside `r.viewshed`).
 //! - [`markdown_table`] and [`chart`]: the one table writer and the one
 //!   chart writer they all use.
 
@@ -22,6 +24,7 @@ pub mod cones;
 pub mod horizons;
 pub mod peers;
 pub mod plan;
+pub mod points;
 pub mod solar;
 pub mod views;
 pub mod visibility;

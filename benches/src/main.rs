@@ -59,6 +59,11 @@ enum Command {
         after_help = "Example:\n  bash pipelines/solar/chart_rsun.sh target/solar-chart\n  terrabake-bench solar target/solar-chart/points.tsv --chart docs/charts/solar"
     )]
     Solar(terrabake_bench::solar::BenchSolarArgs),
+    /// Chart points a script measured (series, kind, label, x, y; tab-separated): one curve per
+    /// series, ours as lines, the peers' as dashed curves, each point labelled.
+    #[command(after_help = "Example:
+  bash pipelines/compare_grass_viewshed.sh 3   # draws docs/charts/viewshed_rviewshed.svg this way")]
+    Points(terrabake_bench::points::BenchPointsArgs),
 }
 
 fn main() -> ExitCode {
@@ -78,6 +83,7 @@ fn main() -> ExitCode {
             Command::Plan(args) => args.run(&say),
             Command::Visibility(args) => args.run(&say),
             Command::Solar(args) => args.run(&say),
+            Command::Points(args) => args.run(&say),
         }
     };
     match run() {

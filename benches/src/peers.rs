@@ -49,8 +49,14 @@ pub struct PeerManifest {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PeerOutput {
-    /// The peer and the function, e.g. "GRASS r.horizon".
+    /// The peer and the function, e.g. "GRASS r.horizon": the outputs of
+    /// one name are one curve on the charts.
     pub name: String,
+    /// The setting of the peer's accuracy knob this output ran with, as
+    /// the chart labels its point ("K=16", "256 cells"); the outputs of
+    /// one name differ in it.
+    #[serde(default)]
+    pub knob: Option<String>,
     #[serde(default)]
     pub version: Option<String>,
     /// Why the peer has no output: not installable here, failed, timed out.
@@ -119,6 +125,7 @@ pub struct LoadedPeer {
 #[derive(Debug, Clone, Serialize)]
 pub struct PeerRow {
     pub name: String,
+    pub knob: Option<String>,
     pub seconds: f64,
     pub horizon_rms_deg: Option<f64>,
     pub horizon_bias_deg: Option<f64>,
@@ -230,6 +237,7 @@ impl LoadedPeer {
         };
         PeerRow {
             name: p.name.clone(),
+            knob: p.knob.clone(),
             seconds: p.crop_seconds.unwrap_or(f64::NAN),
             horizon_rms_deg,
             horizon_bias_deg,
@@ -246,6 +254,7 @@ pub fn accuracy_table_markdown(rows: &[PeerRow]) -> String {
     markdown_table(
         &[
             "peer",
+            "setting",
             "time on the crop (s)",
             "horizon RMS error (deg)",
             "horizon bias (deg)",
@@ -256,6 +265,7 @@ pub fn accuracy_table_markdown(rows: &[PeerRow]) -> String {
         rows.iter().map(|r| {
             vec![
                 r.name.clone(),
+                r.knob.clone().unwrap_or_else(|| "-".into()),
                 format!("{:.3}", r.seconds),
                 opt(r.horizon_rms_deg, &|v| format!("{v:.3}")),
                 opt(r.horizon_bias_deg, &|v| format!("{v:+.3}")),
@@ -389,6 +399,7 @@ mod tests {
         std::fs::write(dir.join(name), bytes).unwrap();
         PeerOutput {
             name: name.into(),
+            knob: None,
             version: None,
             missing: None,
             azimuths_deg: azimuths,

@@ -292,22 +292,20 @@ fn charts(prefix: &std::path::Path, rows: &[PlanRow]) -> Result<()> {
     dems.dedup();
     let series = |y: &dyn Fn(&PlanRow) -> f64| -> Vec<Series> {
         dems.iter()
-            .map(|&dem| Series {
-                name: dem.to_string(),
-                points: rows
-                    .iter()
-                    .filter(|r| r.dem == dem && !r.refused)
-                    .map(|r| (r.budget_deg, y(r)))
-                    .collect(),
+            .map(|&dem| {
+                let of = rows.iter().filter(|r| r.dem == dem && !r.refused);
+                // Each point labelled with the directions the plan chose.
+                Series::new(dem, of.clone().map(|r| (r.budget_deg, y(r))).collect())
+                    .labelled(of.map(|r| r.sectors.to_string()).collect())
             })
             .collect()
     };
     let mut error = series(&|r| r.achieved_p99_deg);
     let budgets: Vec<f64> = rows.iter().map(|r| r.budget_deg).collect();
-    error.push(Series {
-        name: "the budget (achieved must lie below)".into(),
-        points: budgets.iter().map(|&b| (b, b)).collect(),
-    });
+    error.push(Series::new(
+        "the budget (achieved must lie below)",
+        budgets.iter().map(|&b| (b, b)).collect(),
+    ));
     let with = |suffix: &str| {
         let mut p = prefix.as_os_str().to_owned();
         p.push(suffix);

@@ -31,7 +31,8 @@ impl BenchSolarArgs {
         let text = std::fs::read_to_string(&self.points)
             .with_context(|| format!("{}: cannot read the points", self.points.display()))?;
         // Per DEM: each series' points, and the direction counts of each curve.
-        type Points = BTreeMap<String, Vec<(f64, f64)>>;
+        // Each point with its direction count, the label it carries.
+        type Points = BTreeMap<String, Vec<(f64, f64, String)>>;
         let mut dems: BTreeMap<String, (Points, Points, Vec<u32>)> = BTreeMap::new();
         let column = if self.error == "mean" { 5 } else { 6 };
         for (i, line) in text.lines().enumerate().skip(1) {
@@ -50,7 +51,7 @@ impl BenchSolarArgs {
                 })
             };
             let (dem, series, kind, directions) = (cells[0], cells[1], cells[2], cells[3]);
-            let point = (number(4)?, number(column)?);
+            let point = (number(4)?, number(column)?, directions.to_string());
             let (lines, marks, counts) = dems.entry(dem.to_string()).or_default();
             match kind {
                 "line" => {
@@ -61,7 +62,7 @@ impl BenchSolarArgs {
                     marks.entry(series.to_string()).or_default().push(point)
                 }
                 "mark" => marks
-                    .entry(format!("{series}, {directions} directions"))
+                    .entry(format!("{series}, by direction count"))
                     .or_default()
                     .push(point),
                 other => bail!(
@@ -81,9 +82,14 @@ impl BenchSolarArgs {
                 m.into_iter()
                     .map(|(name, mut points)| {
                         points.sort_by(|a, b| a.0.total_cmp(&b.0));
-                        Series {
-                            name: format!("{name}{suffix}"),
-                            points,
+                        let series = Series::new(
+                            format!("{name}{suffix}"),
+                            points.iter().map(|p| (p.0, p.1)).collect(),
+                        );
+                        if points.iter().all(|p| !p.2.is_empty()) {
+                            series.labelled(points.into_iter().map(|p| p.2).collect())
+                        } else {
+                            series
                         }
                     })
                     .collect()

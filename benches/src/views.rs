@@ -290,16 +290,13 @@ pub fn scaling_charts(
     let series = |value: &dyn Fn(&BenchRow) -> f64| -> Vec<Series> {
         methods
             .iter()
-            .map(|name| Series {
-                name: name.clone(),
-                points: results
-                    .iter()
-                    .filter_map(|(side, rows)| {
-                        rows.iter()
-                            .find(|r| &r.method == name)
-                            .map(|r| (*side, value(r)))
-                    })
-                    .collect(),
+            .map(|name| {
+                let points = results.iter().filter_map(|(side, rows)| {
+                    rows.iter()
+                        .find(|r| &r.method == name)
+                        .map(|r| (*side, value(r)))
+                });
+                Series::new(name.clone(), points.collect())
             })
             .collect()
     };

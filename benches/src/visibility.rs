@@ -420,21 +420,19 @@ impl BenchVisibilityArgs {
                 .iter()
                 .filter(|r| r.terrain == name)
                 .collect();
-            series.push(Series {
-                name: format!("{name}: hull tree"),
-                points: rows
-                    .iter()
+            series.push(Series::new(
+                format!("{name}: hull tree"),
+                rows.iter()
                     .map(|r| (r.n as f64, r.iterations_per_line))
                     .collect(),
-            });
-            series.push(Series {
-                name: format!("{name}: naive"),
-                points: rows
-                    .iter()
+            ));
+            series.push(Series::new(
+                format!("{name}: naive"),
+                rows.iter()
                     .filter(|r| r.naive_per_line > 0.0)
                     .map(|r| (r.n as f64, r.naive_per_line))
                     .collect(),
-            });
+            ));
         }
         if !report.scaling.is_empty() {
             let path = with("_scaling.svg");
@@ -451,14 +449,14 @@ impl BenchVisibilityArgs {
         names.dedup();
         let series: Vec<Series> = names
             .iter()
-            .map(|n| Series {
-                name: n.to_string(),
-                points: report
-                    .errors
-                    .iter()
-                    .filter(|r| r.terrain == *n)
-                    .map(|r| (r.directions as f64, r.mean_relative_error))
-                    .collect(),
+            .map(|n| {
+                let points = report.errors.iter().filter(|r| r.terrain == *n);
+                Series::new(
+                    *n,
+                    points
+                        .map(|r| (r.directions as f64, r.mean_relative_error))
+                        .collect(),
+                )
             })
             .collect();
         if !series.is_empty() {

@@ -2,8 +2,9 @@
 # Opens the demo page in a real headless browser (Debian's chromium) and
 # checks it as a person would see it: the page loads, every picture in it
 # decodes and shows (the page's own script marks each <img> loaded or
-# broken and counts them), and the console reports no error. Also writes a
-# screenshot beside the page. Installs chromium when it is missing (root).
+# broken and counts them), a chart opens full size as a click opens it,
+# and the console reports no error. Also writes screenshots beside the
+# page (the page, and one chart opened). Installs chromium when it is missing (root).
 #
 #   bash pipelines/page/check.sh out/index.html
 set -euo pipefail
@@ -38,6 +39,14 @@ echo "page: $page; $status; $loaded loaded, $broken broken, $want in the page"
 if [ "$want" -eq 0 ] || [ "$loaded" -ne "$want" ] || [ "$broken" -ne 0 ] ||
    [ "$status" != "$want of $want pictures loaded" ]; then
   echo "check.sh: not every picture shows" >&2; fail=1
+fi
+# A click opens a picture full size: the page's own `#view-N` opens the
+# last (a chart) as the click would, and the viewer must show it.
+timeout 120 "$browser" "${flags[@]}" --dump-dom "$url#view-$want" >"$work/viewer.html" 2>>"$work/log" || true
+timeout 120 "$browser" "${flags[@]}" --window-size=1280,800 \
+  --screenshot="${page%.html}_viewer.png" "$url#view-$want" >/dev/null 2>&1 || true
+if ! grep -q '<div id="viewer" data-shows="[^"]' "$work/viewer.html"; then
+  echo "check.sh: #view-$want opened no viewer (a click on a chart would not enlarge it)" >&2; fail=1
 fi
 # Console messages of the page (errors, uncaught exceptions, failed loads).
 if grep -E 'CONSOLE|Uncaught|net::ERR' "$work/log" >&2; then

@@ -1,13 +1,18 @@
 """`make bench-peers`: every peer beside terrabake, in one run.
 
     python3 bench_peers.py --bin target/release/terrabake --venv target/peers-venv \
-        --dem DEM.tif --work DIR [--directions 16] [--crop 256] [--limit 600] [--tolerance DEG]
+        --dem DEM.tif --work DIR [--directions 16] [--crop 256] [--limit 600] [--tolerance DEG] \
+        [--knobs 8,16,32,64] [--radii 16,64] [--hori-acc 1,4]
 
 bench_peers.sh installs the peers, then calls this. For each peer: its
 computation on the centred CROP x CROP crop of the DEM (outputs converted to
 our conventions by run_peer.py, or here for GRASS and SAGA, then scored by
 `terrabake-bench horizons --peers`), and its whole process on the whole DEM
 under /usr/bin/time (wall seconds, peak RSS), stopped at --limit seconds.
+On the crop each peer also runs at every direction count of --knobs, and
+GRASS and SAGA at the search radii of --radii, HORAYZON at the hori_acc
+of --hori-acc: each knob one curve per peer on the charts, every point
+labelled with its setting.
 Our own whole-DEM stage is timed the same way, before and after the peers.
 Writes DIR/peers.json (benches/src/peers.rs reads it). Standard library only:
 it runs under the system Python, the peers under the venv's.
@@ -98,13 +103,15 @@ fi
 
 
 def grass_output(directions, outdir):
-    """GRASS names each map by its angle counter-clockwise from east: to compass, ascending."""
-    step = 360.0 / directions
+    """GRASS names each map by its angle counter-clockwise from east, with
+    as many decimals as the step needs (hor_011_25): to compass, ascending."""
     bands = []
-    for i in range(directions):
-        ccw = i * step
-        name = f"hor_{int(ccw):03d}_{round((ccw - int(ccw)) * 10):d}"
-        bands.append(((90.0 - ccw) % 360.0, os.path.join(outdir, name + ".tif")))
+    for name in os.listdir(outdir):
+        if name.startswith("hor_") and name.endswith(".tif"):
+            whole, frac = name[4:-4].split("_")
+            ccw = int(whole) + int(frac) / 10 ** len(frac)
+            bands.append(((90.0 - ccw) % 360.0, os.path.join(outdir, name)))
+    assert len(bands) == directions, f"{outdir}: {len(bands)} maps, expected {directions}"
     return sorted(bands)
 
 
@@ -120,6 +127,12 @@ def main():
     ap.add_argument("--missing", action="append", default=[], help="PEER=REASON: a peer that could not be installed")
     ap.add_argument("--tolerance", type=float, default=None,
                     help="also time our horizons stage with its line directions this far (degrees) from nominal")
+    ap.add_argument("--knobs", default="8,16,32,64", type=lambda v: [int(k) for k in v.split(",") if k],
+                    help="direction counts every peer also runs on the crop (a curve each on the charts)")
+    ap.add_argument("--radii", default="16,64", type=lambda v: [int(k) for k in v.split(",") if k],
+                    help="search radii (cells) GRASS and SAGA also run on the crop at --directions")
+    ap.add_argument("--hori-acc", default="1,4", type=lambda v: [float(k) for k in v.split(",") if k],
+                    help="HORAYZON's hori_acc (degrees; its default 0.25) also run on the crop at --directions")
     ap.add_argument("--only", default="", help="comma-separated peers to run (horayzon, grass, saga, topocalc, ...; default: all)")
     a = ap.parse_args()
     work = os.path.abspath(a.work)
@@ -168,6 +181,13 @@ def main():
 
     ours()
 
+    # Each peer runs once more on the crop at every other setting of its
+    # accuracy knobs: the direction counts of --knobs for all, and for
+    # some a second knob at --directions (--radii, --hori-acc), each a
+    # curve of its own on the charts. The whole DEM runs at --directions only.
+    counts = [k for k in a.knobs if k != K]
+    by_radius = lambda peer: f"{peer}, by search radius ({K} directions)"
+
     # The Python peers.
     missing = dict(m.split("=", 1) for m in a.missing)
     only = {p for p in a.only.split(",") if p}
@@ -193,43 +213,78 @@ def main():
         hangs = module == "horayzon"
         tries = 6 if hangs else 1
         crop_limit = min(a.limit, 60) if hangs else a.limit
-        out, whole_out = os.path.join(work, module), os.path.join(work, module + "_whole")
         cmd = [py, os.path.join(HERE, "run_peer.py"), module]
-        log(f"{name}: the crop")
-        shutil.rmtree(out, ignore_errors=True)
-        run, err, crop_stops = timed(name, cmd + [crop_tif, crop_bin, str(side), str(side), str(dx), str(K), out],
-                                     work, crop_limit, tries)
-        if run is None or run.get("timed_out"):
-            peers.append({"name": name, "missing": "failed on the crop: " + (err or f"no end in {tries} runs of {crop_limit} s")})
+
+        def crop_run(k, settings, tag, tries=tries, crop_limit=crop_limit):
+            """The peer on the crop with k directions and `settings`: (its
+            result.json and its folder, relative to work; or None, why)."""
+            out = os.path.join(work, module + tag)
+            shutil.rmtree(out, ignore_errors=True)
+            log(f"{name}: the crop, {k} directions {json.dumps(settings) if settings else ''}")
+            run, err, stops = timed(name, cmd + [crop_tif, crop_bin, str(side), str(side), str(dx), str(k), out,
+                                                 json.dumps(settings)], work, crop_limit, tries)
+            if run is None or run.get("timed_out"):
+                return None, "failed on the crop: " + (err or f"no end in {tries} runs of {crop_limit} s")
+            with open(os.path.join(out, "result.json")) as f:
+                r = json.load(f)
+            r["stops"] = stops
+            return (r, module + tag), None
+
+        def outputs(series, knob, r, folder, extra):
+            """The peer's entries (horizons, its own svf) for one crop run."""
+            found = []
+            own = lambda: json.loads(json.dumps(extra))  # each entry its own notes
+            if "horizons" in r:
+                found.append({"name": series, "knob": knob, "version": r["version"], "crop_seconds": r["seconds"],
+                              "azimuths_deg": r["azimuths_deg"], "horizons": os.path.join(folder, r["horizons"]),
+                              **own()})
+            if "svf" in r:
+                svf_name = {"topocalc": "topocalc viewf", "rvt": name}[module]
+                definition = {"topocalc": "slope_aware", "rvt": "zaksek"}[module]
+                found.append({"name": svf_name + series[len(name):], "knob": knob, "version": r["version"],
+                              "crop_seconds": r.get("viewf_seconds", r["seconds"]),
+                              "svf": os.path.join(folder, r["svf"]), "svf_definition": definition, **own()})
+            return found
+
+        main, err = crop_run(K, {}, "")
+        if main is None:
+            peers.append({"name": name, "missing": err})
             continue
-        with open(os.path.join(out, "result.json")) as f:
-            r = json.load(f)
+        r, folder = main
         limit = a.limit
         if hangs:
             scaled = 5 * r["seconds"] * (rows * cols) / (side * side)
             limit = min(a.limit, max(60, math.ceil(scaled)))
         log(f"{name}: the whole DEM (limit {limit} s)")
+        whole_out = os.path.join(work, module + "_whole")
         w, err, whole_stops = timed(name, cmd + [a.dem, whole_bin, str(rows), str(cols), str(dx), str(K), whole_out],
                                     work, limit, tries)
         shutil.rmtree(whole_out, ignore_errors=True)
-        if crop_stops or whole_stops:
-            r["notes"].append(f"runs stopped and run again: {crop_stops} on the crop (at {crop_limit} s), "
-                              f"{whole_stops} on the whole DEM (at {limit} s)")
+        notes = list(r["notes"])
+        if r["stops"] or whole_stops:
+            notes.append(f"runs stopped and run again: {r['stops']} on the crop (at {crop_limit} s), "
+                         f"{whole_stops} on the whole DEM (at {limit} s)")
         # The whole-DEM run goes with the peer's first output.
         first, failed = whole_fields(w, err)
-        base = {"version": r["version"], "crop_seconds": r["seconds"], "notes": r["notes"] + failed}
-        if "horizons" in r:
-            peers.append({"name": name, **base, **first, "azimuths_deg": r["azimuths_deg"],
-                          "horizons": os.path.join(module, r["horizons"])})
-            first = {}
-        if "svf" in r:
-            svf_name = {"topocalc": "topocalc viewf", "rvt": name}[module]
-            definition = {"topocalc": "slope_aware", "rvt": "zaksek"}[module]
-            entry = {"name": svf_name, **base, **first, "svf": os.path.join(module, r["svf"]), "svf_definition": definition}
-            if module == "topocalc":
-                entry["crop_seconds"] = r["viewf_seconds"]
-                entry["notes"] = [f"viewf: Dozier and Frew's slope-aware svf, nangles = {K}; the whole-DEM row (topocalc horizon) is horizon and viewf together"]
-            peers.append(entry)
+        found = outputs(name, f"K={K}", r, folder, {"notes": notes + failed})
+        found[0].update(first)
+        if module == "topocalc" and len(found) > 1:
+            found[1]["notes"] = [f"viewf: Dozier and Frew's slope-aware svf, nangles = K; the whole-DEM row "
+                                 "(topocalc horizon) is horizon and viewf together"]
+        peers.extend(found)
+        knobs = [(name, f"K={k}", k, {}, f"_k{k}") for k in counts]
+        if module == "horayzon":
+            knobs += [(f"{name}, by hori_acc ({K} directions)", f"{acc:g} deg", K, {"hori_acc": acc}, f"_acc{acc:g}")
+                      for acc in a.hori_acc]
+        for series, knob, k, settings, tag in knobs:
+            # Fewer tries for a curve's other points (a hung HORAYZON run
+            # costs its whole limit).
+            run, err = crop_run(k, settings, tag, min(tries, 3), min(crop_limit, 30) if hangs else crop_limit)
+            if run is None:
+                log(f"{name}: {knob}: {err}")
+                found[0]["notes"].append(f"{series[len(name):].strip(', ') or 'curve'} point {knob} left out: {err}")
+                continue
+            peers.extend(outputs(series, knob, *run, {}))
 
     # GRASS r.horizon.
     if not wanted("grass"):
@@ -239,34 +294,43 @@ def main():
     else:
         version = subprocess.run(["grass", "--version"], capture_output=True, text=True)
         version = (version.stdout + version.stderr).split("GRASS GIS ")[1].split()[0]
-        out = fresh_dir(os.path.join(work, "grass"))
 
-        def grass(which, tif):
-            log(f"GRASS r.horizon: the {which}")
+        def grass(which, tif, k, radius_cells, tag=""):
+            """r.horizon on the crop (exported, and its timing read) or the whole DEM."""
+            out = fresh_dir(os.path.join(work, "grass" + tag))
+            log(f"GRASS r.horizon: the {which}, {k} directions, {radius_cells} cells")
             script = os.path.join(work, f"grass_{which}.sh")
             with open(script, "w") as f:
-                f.write(grass_script(K, radius[which] * dx, out))
+                f.write(grass_script(k, radius_cells * dx, out))
             env = dict(os.environ, DEM=tif, EXPORT="1" if which == "crop" else "")
-            return timed("GRASS r.horizon", ["grass", "--tmp-location", tif, "--exec", "bash", script],
-                         work, a.limit, env=env)[:2]
+            run, err = timed("GRASS r.horizon", ["grass", "--tmp-location", tif, "--exec", "bash", script],
+                             work, a.limit, env=env)[:2]
+            if which == "whole":
+                return run, err
+            assert run, err
+            with open(os.path.join(out, "seconds")) as f:
+                crop_seconds = float(f.read())
+            bands = grass_output(k, out)
+            with open(os.path.join(out, "horizons.f32"), "wb") as dst:
+                for _, path in bands:
+                    to_raw(path, path + ".bin")
+                    with open(path + ".bin", "rb") as src:
+                        dst.write(src.read())
+            return {"version": version, "crop_seconds": crop_seconds, "azimuths_deg": [az for az, _ in bands],
+                    "horizons": f"grass{tag}/horizons.f32"}
 
-        crop, err = grass("crop", crop_tif)
-        assert crop, err
-        with open(os.path.join(out, "seconds")) as f:
-            crop_seconds = float(f.read())
-        bands = grass_output(K, out)
-        with open(os.path.join(out, "horizons.f32"), "wb") as dst:
-            for _, path in bands:
-                to_raw(path, path + ".bin")
-                with open(path + ".bin", "rb") as src:
-                    dst.write(src.read())
-        whole, failed = whole_fields(*grass("whole", a.dem))
+        crop = grass("crop", crop_tif, K, radius["crop"])
+        whole, failed = whole_fields(*grass("whole", a.dem, K, radius["whole"], "_whole"))
         peers.append({
-            "name": "GRASS r.horizon", "version": version, "crop_seconds": crop_seconds, **whole,
-            "azimuths_deg": [az for az, _ in bands], "horizons": "grass/horizons.f32",
+            "name": "GRASS r.horizon", "knob": f"K={K}", **crop, **whole,
             "notes": ["-d (degrees); map angles counter-clockwise from east, compass = 90 - angle",
                       "the whole process includes GRASS's start, the import and the export"] + failed,
         })
+        for k in counts:
+            peers.append({"name": "GRASS r.horizon", "knob": f"K={k}", **grass("crop", crop_tif, k, radius["crop"], f"_k{k}")})
+        for r in a.radii:
+            peers.append({"name": by_radius("GRASS r.horizon"), "knob": f"{r} cells",
+                          **grass("crop", crop_tif, K, r, f"_r{r}")})
 
     # SAGA's Sky View Factor (ta_lighting 3): the slope-aware svf.
     if not wanted("saga"):
@@ -277,23 +341,31 @@ def main():
         version = subprocess.run(["saga_cmd", "--version"], capture_output=True, text=True).stdout.split("SAGA Version:")[1].split()[0]
         out = fresh_dir(os.path.join(work, "saga"))
 
-        def saga(which, tif):
-            log(f"SAGA Sky View Factor: the {which}")
-            cmd = ["saga_cmd", "ta_lighting", "3", "-DEM", tif, "-SVF", os.path.join(out, f"svf_{which}.sdat"),
-                   "-VISIBLE", os.path.join(out, f"visible_{which}.sdat"), "-RADIUS", str(radius[which] * dx),
-                   "-NDIRS", str(K), "-METHOD", "0"]
-            return timed("SAGA Sky View Factor", cmd, work, a.limit)[:2]
+        def saga(which, tif, k, radius_cells, tag=""):
+            log(f"SAGA Sky View Factor: the {which}, {k} sectors, {radius_cells} cells")
+            cmd = ["saga_cmd", "ta_lighting", "3", "-DEM", tif, "-SVF", os.path.join(out, f"svf_{which}{tag}.sdat"),
+                   "-VISIBLE", os.path.join(out, f"visible_{which}{tag}.sdat"), "-RADIUS", str(radius_cells * dx),
+                   "-NDIRS", str(k), "-METHOD", "0"]
+            run, err = timed("SAGA Sky View Factor", cmd, work, a.limit)[:2]
+            if which == "whole":
+                return run, err
+            assert run, err
+            to_raw(os.path.join(out, f"svf_crop{tag}.sdat"), os.path.join(out, f"svf{tag}.f32"))
+            return {"version": version, "crop_seconds": run["seconds"], "svf": f"saga/svf{tag}.f32",
+                    "svf_definition": "slope_aware"}
 
-        crop, err = saga("crop", crop_tif)
-        assert crop, err
-        to_raw(os.path.join(out, "svf_crop.sdat"), os.path.join(out, "svf.f32"))
-        whole, failed = whole_fields(*saga("whole", a.dem))
+        crop = saga("crop", crop_tif, K, radius["crop"])
+        whole, failed = whole_fields(*saga("whole", a.dem, K, radius["whole"]))
         peers.append({
-            "name": "SAGA Sky View Factor", "version": version, "crop_seconds": crop["seconds"], **whole,
-            "svf": "saga/svf.f32", "svf_definition": "slope_aware",
+            "name": "SAGA Sky View Factor", "knob": f"K={K}", **crop, **whole,
             "notes": ["-METHOD 0 ('cell size'); its crop time is the whole saga_cmd process (it reports no timing)",
                       "its svf is the slope-aware one; it floors horizons at 0"] + failed,
         })
+        for k in counts:
+            peers.append({"name": "SAGA Sky View Factor", "knob": f"K={k}", **saga("crop", crop_tif, k, radius["crop"], f"_k{k}")})
+        for r in a.radii:
+            peers.append({"name": by_radius("SAGA Sky View Factor"), "knob": f"{r} cells",
+                          **saga("crop", crop_tif, K, r, f"_r{r}")})
 
     ours()
     ours()

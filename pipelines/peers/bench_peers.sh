@@ -7,7 +7,9 @@
 #                                            # PEERS=horayzon,grass (default: every peer;
 #                                            # the charts are redrawn only then),
 #                                            # TOLERANCE=4.5 (also our stage with its line
-#                                            # directions that far from nominal, timed and scored)
+#                                            # directions that far from nominal, timed and scored),
+#                                            # KNOBS=8,16,32,64 (the direction counts every peer
+#                                            # also runs on the crop: its curve on the charts)
 #
 # Installs (as root; once): Debian's gdal-bin, grass-core and saga; a
 # virtual environment target/peers-venv from PyPI with whitebox-workflows,
@@ -84,6 +86,7 @@ args=()
 for m in "${missing[@]}"; do args+=(--missing "$m"); done
 "$py" pipelines/peers/bench_peers.py --bin "$BIN" --venv "$VENV" --dem "$DEM" --work "$WORK" \
   --directions "$DIRECTIONS" --crop "$CROP" --limit "$LIMIT" --only "$PEERS" "${args[@]}" \
+  ${KNOBS:+--knobs "$KNOBS"} \
   ${TOLERANCE:+--tolerance "$TOLERANCE"}
 # The charts show every peer: a run of some (PEERS=) prints their tables
 # and leaves the charts as the last full run drew them.

@@ -1,11 +1,13 @@
 """One Python peer on one DEM, for `make bench-peers` (bench_peers.sh).
 
-    run_peer.py PEER DEM_TIF DEM_BIN ROWS COLS CELL DIRECTIONS OUT_DIR
+    run_peer.py PEER DEM_TIF DEM_BIN ROWS COLS CELL DIRECTIONS OUT_DIR [SETTINGS]
 
 PEER is one of whitebox_workflows, topocalc, surtgis, rvt, horayzon. DEM_BIN is the
 same grid as DEM_TIF as raw little-endian float32, row-major, north up
 (for the peers that take numpy arrays). The search radius is the whole
-DEM (its diagonal) for every peer that has one.
+DEM (its diagonal) for every peer that has one, unless SETTINGS (a JSON
+object: `radius_cells`, and for HORAYZON `hori_acc`, degrees) sets it:
+the knobs bench_peers.py turns to draw each peer's curve.
 
 Writes to OUT_DIR, in our conventions so that `terrabake-bench horizons
 --peers` reads every peer alike:
@@ -29,11 +31,15 @@ import numpy as np
 
 
 def main():
-    peer, tif, raw, rows, cols, cell, directions, out = sys.argv[1:]
+    peer, tif, raw, rows, cols, cell, directions, out = sys.argv[1:9]
+    settings = json.loads(sys.argv[9]) if len(sys.argv) > 9 else {}
+    unknown = set(settings) - {"radius_cells", "hori_acc"}
+    if unknown:
+        sys.exit(f"run_peer.py: unknown settings {sorted(unknown)}")
     rows, cols, cell, directions = int(rows), int(cols), float(cell), int(directions)
     os.makedirs(out, exist_ok=True)
     dem = np.fromfile(raw, dtype="<f4").reshape(rows, cols)
-    radius_cells = math.ceil(math.hypot(rows, cols))
+    radius_cells = settings.get("radius_cells", math.ceil(math.hypot(rows, cols)))
     azimuths = [i * 360.0 / directions for i in range(directions)]
     horizons, svf = None, None
     result = {"notes": []}
@@ -67,9 +73,10 @@ def main():
             bands.append(np.degrees(np.arcsin(np.clip(hcos, -1.0, 1.0))).astype(np.float32))
         result["seconds"] = time.perf_counter() - t0
         horizons = np.stack(bands)
-        t0 = time.perf_counter()
-        svf = np.asarray(viewf(z, cell, nangles=directions)[0], dtype=np.float32)
-        result["viewf_seconds"] = time.perf_counter() - t0
+        if directions >= 16:  # viewf refuses fewer angles
+            t0 = time.perf_counter()
+            svf = np.asarray(viewf(z, cell, nangles=directions)[0], dtype=np.float32)
+            result["viewf_seconds"] = time.perf_counter() - t0
         result["notes"].append("horizon: azimuth = 180 - ours (0 south, east positive); elevation = asin(hcos)")
     elif peer == "surtgis":
         import surtgis
@@ -114,7 +121,7 @@ def main():
         hori, azim = horayzon.horizon.horizon_gridded(
             vert_grid, rows, cols, up, north, 1, 1,
             dist_search=radius_cells * cell / 1000.0, azim_num=directions,
-            elev_ang_low_lim=-90.0,
+            elev_ang_low_lim=-90.0, hori_acc=settings.get("hori_acc", 0.25),
         )
         result["seconds"] = time.perf_counter() - t0
         horizons = np.full((directions, rows, cols), np.nan, dtype=np.float32)

@@ -120,6 +120,11 @@ pre {{ background: #f4f4f4; padding: 1em; overflow-x: auto; font-size: 0.85em; }
 figure {{ margin: 0; }}
 .grid.first-wide figure:first-child {{ grid-column: 1 / -1; }}
 img {{ width: 100%; height: auto; border: 1px solid #ddd; background: #fff; }}
+figure img {{ cursor: zoom-in; }}
+#viewer {{ position: fixed; inset: 0; background: rgba(0, 0, 0, 0.8); display: flex; align-items: center; justify-content: center; cursor: zoom-out; z-index: 10; }}
+#viewer[hidden] {{ display: none; }}
+#viewer img {{ width: 96vw; height: 96vh; object-fit: contain; border: none; background: transparent; }}
+#viewer img[src^="data:image/svg"] {{ background: #fff; }}
 figcaption {{ font-size: 0.9em; margin-top: 0.3em; }}
 #status {{ color: #666; font-size: 0.8em; }}
 </style>
@@ -160,6 +165,27 @@ figcaption {{ font-size: 0.9em; margin-top: 0.3em; }}
     }
     html.push_str(
         r#"<script>
+// A click on a picture or a chart opens it over the page as large as the
+// window allows; a click or Escape closes it. `#view-N` in the address
+// opens the Nth at load (the headless check uses it).
+function view(img) {
+  let viewer = document.getElementById("viewer");
+  if (!viewer) {
+    viewer = document.createElement("div");
+    viewer.id = "viewer";
+    viewer.appendChild(document.createElement("img"));
+    viewer.addEventListener("click", () => { viewer.hidden = true; });
+    document.body.appendChild(viewer);
+  }
+  viewer.firstChild.src = img.src;
+  viewer.firstChild.alt = img.alt;
+  viewer.dataset.shows = img.alt;
+  viewer.hidden = false;
+}
+document.addEventListener("keydown", (e) => {
+  const viewer = document.getElementById("viewer");
+  if (e.key === "Escape" && viewer) viewer.hidden = true;
+});
 // Marks each picture loaded or broken, and counts them, for a person and
 // for the headless check (pipelines/page/check.sh).
 window.addEventListener("load", () => {
@@ -169,8 +195,11 @@ window.addEventListener("load", () => {
     const ok = img.complete && img.naturalWidth > 0;
     img.dataset.state = ok ? "loaded" : "broken";
     loaded += ok;
+    img.addEventListener("click", () => view(img));
   }
   document.getElementById("status").textContent = `${loaded} of ${images.length} pictures loaded`;
+  const asked = location.hash.match(/^#view-(\d+)$/);
+  if (asked && images[asked[1] - 1]) view(images[asked[1] - 1]);
 });
 </script>
 </body>
