@@ -26,6 +26,18 @@ impl Series {
         }
     }
 
+    /// A curve through `points` in the order of x, each labelled with its
+    /// string (no labels where every string is empty).
+    pub fn through(name: impl Into<String>, mut points: Vec<(f64, f64, String)>) -> Self {
+        points.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let series = Series::new(name, points.iter().map(|p| (p.0, p.1)).collect());
+        if points.iter().any(|p| !p.2.is_empty()) {
+            series.labelled(points.into_iter().map(|p| p.2).collect())
+        } else {
+            series
+        }
+    }
+
     /// `self` with each point labelled (as many labels as points).
     pub fn labelled(mut self, labels: Vec<String>) -> Self {
         assert_eq!(

@@ -60,16 +60,7 @@ impl BenchPointsArgs {
             curves
                 .iter()
                 .filter(|c| c.1 == ours)
-                .map(|(name, _, points)| {
-                    let mut points = points.clone();
-                    points.sort_by(|a, b| a.0.total_cmp(&b.0));
-                    let series = Series::new(name, points.iter().map(|p| (p.0, p.1)).collect());
-                    if points.iter().any(|p| !p.2.is_empty()) {
-                        series.labelled(points.into_iter().map(|p| p.2).collect())
-                    } else {
-                        series
-                    }
-                })
+                .map(|(name, _, points)| Series::through(name, points.clone()))
                 .collect()
         };
         log_log_svg_with_marks(

@@ -80,18 +80,7 @@ impl BenchSolarArgs {
             };
             let to_series = |m: Points, suffix: &str| -> Vec<Series> {
                 m.into_iter()
-                    .map(|(name, mut points)| {
-                        points.sort_by(|a, b| a.0.total_cmp(&b.0));
-                        let series = Series::new(
-                            format!("{name}{suffix}"),
-                            points.iter().map(|p| (p.0, p.1)).collect(),
-                        );
-                        if points.iter().all(|p| !p.2.is_empty()) {
-                            series.labelled(points.into_iter().map(|p| p.2).collect())
-                        } else {
-                            series
-                        }
-                    })
+                    .map(|(name, points)| Series::through(format!("{name}{suffix}"), points))
                     .collect()
             };
             let path = PathBuf::from(format!("{}_{dem}.svg", self.chart.display()));
