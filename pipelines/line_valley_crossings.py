@@ -12,7 +12,7 @@ the most of any lane's, per step of eight or sixteen lines.
 
     target/python-venv/bin/python pipelines/line_valley_crossings.py ASSET
 
-(`make test` makes the venv; docs/BENCHMARKS.md, "Valley crossings and a pyramid search".)
+(`make test` makes the venv; its figures, 2026-11-27, are in `git log -p docs/BENCHMARKS.md`, "Valley crossings and a pyramid search".)
 The profile's heights are the format's surface: linear along grid edges
 and along each cell's SW-NE diagonal. Curvature is left out; a margin of
 1 mm keeps a crossing counted only where it is clearly below the chord.
