@@ -1321,3 +1321,41 @@ fn the_total_viewshed_is_planned_from_the_scenes_own_error_curve() {
         assert!(stderr(&out).contains(says), "{budget}: {}", stderr(&out));
     }
 }
+
+/// A DEM over the memory allowed is spilled to an unlinked file and read
+/// as the same slice: the pilot measures the same exact horizons from it
+/// as from the heights in memory.
+#[test]
+fn a_dem_larger_than_the_allowance_is_spilled_and_measured_the_same() {
+    use terrabake::plan::reference::{Pilot, Sampling};
+    use terrabake::terrain::held::HeldDem;
+
+    let dir = tempfile::tempdir().unwrap();
+    let asset = terrain(dir.path(), SynthKind::Fractal, 3);
+    let opened = Asset::open(&asset).unwrap();
+    let m = opened.manifest();
+    let (w, h) = (m.width as usize, m.height as usize);
+    let held = HeldDem::read_within(&opened, None).unwrap();
+    let spilled = HeldDem::read_within(&opened, Some(1)).unwrap();
+    assert!(!held.spilled() && spilled.spilled());
+    assert_eq!(spilled.held_bytes(), 0);
+    let bits = |d: &HeldDem| d.z().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&held), bits(&spilled));
+    let sampling = Sampling {
+        samples: 30,
+        seed: 7,
+        directions: 72,
+        cuts: &[],
+    };
+    let measure = |d: &HeldDem| {
+        Pilot::measure(&opened, d, 0.0, [0, 0, w, h], &sampling, Progress::hidden()).unwrap()
+    };
+    let (a, b) = (measure(&held), measure(&spilled));
+    spilled.shed();
+    assert_eq!(a.posts, b.posts);
+    assert_eq!(a.exact, b.exact);
+    assert!(
+        spilled.z().iter().any(|v| v.is_finite()),
+        "readable after shedding"
+    );
+}

@@ -136,14 +136,7 @@ pub struct Report {
 fn synthetic(kind: SynthKind, side: usize) -> HeldDem {
     let mut z = vec![0f32; side * side];
     fill_rows(kind, 0, &mut z, side as u32, side as u32, 1);
-    HeldDem {
-        z,
-        width: side,
-        height: side,
-        dx: 10.0,
-        dy: 10.0,
-        row_scale: Vec::new(),
-    }
+    HeldDem::in_memory(z, (side, side), (10.0, 10.0), Vec::new())
 }
 
 /// The centred `side x side` crop of `dem`.
@@ -152,7 +145,7 @@ fn crop(dem: &HeldDem, side: usize) -> HeldDem {
     let (c0, r0) = ((dem.width - w) / 2, (dem.height - h) / 2);
     let z = (r0..r0 + h)
         .flat_map(|r| {
-            dem.z[r * dem.width + c0..r * dem.width + c0 + w]
+            dem.z()[r * dem.width + c0..r * dem.width + c0 + w]
                 .iter()
                 .copied()
         })
@@ -162,13 +155,7 @@ fn crop(dem: &HeldDem, side: usize) -> HeldDem {
     } else {
         dem.row_scale[2 * r0..2 * (r0 + h) - 1].to_vec()
     };
-    HeldDem {
-        z,
-        width: w,
-        height: h,
-        row_scale,
-        ..*dem
-    }
+    HeldDem::in_memory(z, (w, h), (dem.dx, dem.dy), row_scale)
 }
 
 fn timed(terrain: &Terrain, opts: &TotalOptions) -> (Vec<f64>, TotalStats, f64) {
@@ -344,7 +331,7 @@ impl BenchVisibilityArgs {
                 let (mut sum, mut n) = (0.0, 0.0);
                 for i in (0..small.width * small.height).step_by(331) {
                     let (col, row) = (i % small.width, i / small.width);
-                    if small.z[i].is_nan() {
+                    if small.z()[i].is_nan() {
                         continue;
                     }
                     let v = observer_viewshed(

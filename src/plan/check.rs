@@ -232,7 +232,10 @@ pub fn check(
             Vec::new()
         };
         // The heights, read once for both references.
-        let dem = HeldDem::read(asset)?;
+        let dem = HeldDem::read_within(
+            asset,
+            plan.as_ref().and_then(|p| p.budget.memory).map(|m| m << 20),
+        )?;
         let horizons = match HorizonMap::open(asset) {
             Ok(map) => Some(check_horizons(
                 asset,
@@ -484,7 +487,7 @@ fn check_tracing(
     let mut tall = vec![0f32; cw * ch];
     let mut low = vec![0f32; cw];
     for (r, max) in tall.chunks_exact_mut(cw).enumerate() {
-        let rows = &dem.z[r * w..(r + 2) * w];
+        let rows = &dem.z()[r * w..(r + 2) * w];
         crate::stages::pyramid::cell_bounds_row(&rows[..w], &rows[w..], max, &mut low);
     }
     let (mut cone_cells, mut cone_violations, mut tightness) = (0, 0, None);

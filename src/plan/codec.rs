@@ -192,7 +192,7 @@ fn zstd_derived_ratios(d: &Derived<'_>, tile: usize) -> (f64, f64) {
     let (x0, y0) = ((dem.width - cw) / 2, (dem.height - ch) / 2);
     let z: Vec<f32> = (y0..y0 + ch)
         .flat_map(|r| {
-            dem.z[r * dem.width + x0..r * dem.width + x0 + cw]
+            dem.z()[r * dem.width + x0..r * dem.width + x0 + cw]
                 .iter()
                 .copied()
         })

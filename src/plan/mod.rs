@@ -616,7 +616,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
     let (dx, dy) = (m.cell_size.dx, m.cell_size.dy);
     let start = Instant::now();
     let dem = (needs.horizons() || needs.has(Need::TotalViewshed))
-        .then(|| crate::terrain::held::HeldDem::read(asset))
+        .then(|| crate::terrain::held::HeldDem::read_within(asset, budget.memory.map(|m| m << 20)))
         .transpose()?;
     let sampling = Sampling {
         samples: 240,
@@ -717,7 +717,11 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
     let mut bytes = heights
         .filter(|l| l.codec == Codec::Zstd && l.tile_size as usize == tile)
         .map_or(layer_bytes(w, h, tile, 4, 1), |l| l.file_len);
-    let mut memory_mib = costs.base_mib() + pilot.as_ref().map_or(0.0, |p| p.memory_mib(posts));
+    let mut memory_mib = costs.base_mib()
+        + pilot
+            .as_ref()
+            .zip(dem.as_ref())
+            .map_or(0.0, |(p, d)| p.memory_mib(d.held_bytes()));
     if let Some(c) = &chosen {
         seconds += c.seconds;
         bytes += c.bytes;
@@ -865,12 +869,13 @@ fn sun_positions(
 }
 
 impl Pilot {
-    /// What the pilot holds, MiB: the DEM (4 bytes a post), its blocks'
-    /// highest posts and, per post and reference direction, the exact
-    /// horizon (8 bytes) and its cuts (4 bytes each).
-    fn memory_mib(&self, posts: u64) -> f64 {
+    /// What the pilot holds, MiB: the DEM (`dem_bytes`: 4 a post, or none
+    /// where it was spilled), its blocks' highest posts and, per post and
+    /// reference direction, the exact horizon (8 bytes) and its cuts (4
+    /// bytes each).
+    fn memory_mib(&self, dem_bytes: u64) -> f64 {
         let per_post = self.directions_measured() * (8 + 4 * DISTANCES.len());
-        let held = 4 * posts as usize + self.bounds_bytes() + self.posts.len() * per_post;
+        let held = dem_bytes as usize + self.bounds_bytes() + self.posts.len() * per_post;
         held as f64 / 1048576.0
     }
 }

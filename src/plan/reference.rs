@@ -286,7 +286,7 @@ impl Pilot {
             relief_posts,
             feature_posts,
             features,
-        } = sample_posts(&dem.z, dem.width, area, opts);
+        } = sample_posts(dem.z(), dem.width, area, opts);
         if posts.is_empty() {
             bail!(
                 "{}: the area holds no post with a height to measure",
@@ -334,7 +334,10 @@ impl Pilot {
             dx_range,
         };
         let bar = progress.bar(pilot.posts.len() as u64, "exact horizons", "posts");
-        pilot.measure_directions(&terrain, &reference, || bar.inc(1));
+        pilot.measure_directions(&terrain, &reference, || {
+            bar.inc(1);
+            dem.shed();
+        });
         bar.finish_and_clear();
         pilot.reference = reference;
         Ok(pilot)

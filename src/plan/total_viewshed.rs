@@ -126,7 +126,7 @@ fn sample(dem: &HeldDem, n: usize, seed: u64) -> Vec<(usize, usize)> {
     let mut seen = std::collections::HashSet::new();
     (0..n * 4)
         .map(|_| (rng.below(dem.width), rng.below(dem.height)))
-        .filter(|&(c, r)| !dem.z[r * dem.width + c].is_nan() && seen.insert((c, r)))
+        .filter(|&(c, r)| !dem.z()[r * dem.width + c].is_nan() && seen.insert((c, r)))
         .take(n)
         .collect()
 }
@@ -168,6 +168,7 @@ pub(super) fn plan(
         let started = std::time::Instant::now();
         let got = total_viewshed_at(&terrain, &stage.at(k), &posts);
         let walked = started.elapsed().as_secs_f64();
+        dem.shed();
         let mut e = errors(&got, &reference, cell_area);
         let p99 = quantile_unsorted(&mut e, 0.99);
         curve.push((k, p99));

@@ -148,7 +148,7 @@ pub fn profiles(
             let post = post_at(m, &dem, "--at", at, crs)?;
             Ok(PointProfile {
                 post,
-                height_m: dem.z[post.1 * dem.width + post.0],
+                height_m: dem.z()[post.1 * dem.width + post.0],
                 curvature,
                 points: profile(&dem, curvature, sight.max_distance, post, step)?,
             })

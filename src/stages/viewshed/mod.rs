@@ -113,7 +113,7 @@ pub(crate) fn post_at(
         );
     }
     let (c, r) = (c as usize, r as usize);
-    if dem.z[r * dem.width + c].is_nan() {
+    if dem.z()[r * dem.width + c].is_nan() {
         bail!("{said} stands on post ({c}, {r}), which has no height (nodata)");
     }
     Ok((c, r))
