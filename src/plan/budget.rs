@@ -67,6 +67,12 @@ pub struct Budget {
 }
 
 impl Budget {
+    /// The memory limit in bytes: what the stages may work in, and what
+    /// decides whether the planner's pilot holds the DEM or spills it.
+    pub fn memory_bytes(&self) -> Option<u64> {
+        self.memory.map(|mib| mib << 20)
+    }
+
     /// Every limit positive and finite, the share at most 1: the message
     /// names the key and the value.
     pub(crate) fn validate(&self) -> Result<(), String> {

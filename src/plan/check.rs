@@ -232,10 +232,7 @@ pub fn check(
             Vec::new()
         };
         // The heights, read once for both references.
-        let dem = HeldDem::read_within(
-            asset,
-            plan.as_ref().and_then(|p| p.budget.memory).map(|m| m << 20),
-        )?;
+        let dem = HeldDem::read_within(asset, plan.as_ref().and_then(|p| p.budget.memory_bytes()))?;
         let horizons = match HorizonMap::open(asset) {
             Ok(map) => Some(check_horizons(
                 asset,

@@ -317,11 +317,6 @@ pub struct Plan {
 }
 
 impl Plan {
-    /// The stages' working-memory limit, bytes: the budget's memory.
-    fn working_memory(&self) -> Option<u64> {
-        self.budget.memory.map(|mib| mib << 20)
-    }
-
     /// The horizons stage that bakes the plan, if the needs take one.
     pub fn horizons_stage(&self) -> Option<HorizonsStage> {
         let chosen = self.chosen.as_ref()?;
@@ -331,7 +326,7 @@ impl Plan {
             ..line_stage(chosen.sectors, chosen.direction_tolerance)
         };
         stage.sight.max_distance = chosen.max_distance;
-        if let Some(bytes) = self.working_memory() {
+        if let Some(bytes) = self.budget.memory_bytes() {
             stage.max_memory = bytes;
         }
         Some(stage)
@@ -349,7 +344,7 @@ impl Plan {
                 encoding: ConeEncoding::U16,
                 ..Default::default()
             };
-            if let Some(bytes) = self.working_memory() {
+            if let Some(bytes) = self.budget.memory_bytes() {
                 cones.max_memory = bytes;
             }
             stages.push(Box::new(cones));
@@ -368,7 +363,7 @@ impl Plan {
         }
         if let Some(t) = &self.total_viewshed {
             let mut stage = total_viewshed_stage(t.directions, t.max_distance);
-            if let Some(bytes) = self.working_memory() {
+            if let Some(bytes) = self.budget.memory_bytes() {
                 stage.max_memory = bytes;
             }
             stages.push(Box::new(stage));
@@ -616,7 +611,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
     let (dx, dy) = (m.cell_size.dx, m.cell_size.dy);
     let start = Instant::now();
     let dem = (needs.horizons() || needs.has(Need::TotalViewshed))
-        .then(|| crate::terrain::held::HeldDem::read_within(asset, budget.memory.map(|m| m << 20)))
+        .then(|| crate::terrain::held::HeldDem::read_within(asset, budget.memory_bytes()))
         .transpose()?;
     let sampling = Sampling {
         samples: 240,

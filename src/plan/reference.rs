@@ -334,10 +334,7 @@ impl Pilot {
             dx_range,
         };
         let bar = progress.bar(pilot.posts.len() as u64, "exact horizons", "posts");
-        pilot.measure_directions(&terrain, &reference, || {
-            bar.inc(1);
-            dem.shed();
-        });
+        pilot.measure_directions(&terrain, &reference, || bar.inc(1));
         bar.finish_and_clear();
         pilot.reference = reference;
         Ok(pilot)

@@ -168,7 +168,6 @@ pub(super) fn plan(
         let started = std::time::Instant::now();
         let got = total_viewshed_at(&terrain, &stage.at(k), &posts);
         let walked = started.elapsed().as_secs_f64();
-        dem.shed();
         let mut e = errors(&got, &reference, cell_area);
         let p99 = quantile_unsorted(&mut e, 0.99);
         curve.push((k, p99));

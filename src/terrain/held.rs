@@ -131,6 +131,7 @@ impl HeldDem {
         }
     }
 
+    /// The asset's grid, with its heights where `heights` says.
     fn new(asset: &Asset<Mmap>, heights: Heights) -> Self {
         let m = asset.manifest();
         Self {
@@ -163,28 +164,6 @@ impl HeldDem {
         match &self.heights {
             Heights::Memory(z) => 4 * z.len() as u64,
             Heights::Spilled(_) => 0,
-        }
-    }
-
-    /// Lets go of the spilled pages this process has mapped (they stay in
-    /// the page cache while the kernel can keep them), so that its resident
-    /// memory, which counts them, stays near what it works with; a no-op
-    /// for heights in memory. Safe at any time: a page touched again is
-    /// mapped again, with the same bytes.
-    pub fn shed(&self) {
-        if let Heights::Spilled(map) = &self.heights {
-            // SAFETY: a read-only shared file mapping: MADV_DONTNEED drops
-            // this process's mapping of its pages, never their contents.
-            #[cfg(target_os = "linux")]
-            unsafe {
-                libc::madvise(
-                    map.as_ptr() as *mut libc::c_void,
-                    map.len(),
-                    libc::MADV_DONTNEED,
-                );
-            }
-            #[cfg(not(target_os = "linux"))]
-            let _ = map;
         }
     }
 
