@@ -627,6 +627,56 @@ fn sector_within_a_distance_equals_brute_force_band_by_band() {
     }
 }
 
+/// One post's sector horizon from a reach grown by the relief bound (the
+/// planner's pilot) is the tree's over the whole DEM, on DEMs wider than
+/// its first reach: terrains that stop the growth early (a bowl's rim),
+/// late (a spike on a plain, seen from far), curved, with holes, and
+/// geographic.
+#[test]
+fn one_posts_sector_horizon_from_its_grown_reach_is_the_trees() {
+    use terrabake::algorithms::horizon::sector::sector_horizon_of_post;
+    let (w, h) = (170, 150);
+    let scale = geographic_scale(h, 62.0, 0.25);
+    let grids: Vec<(SynthKind, Vec<f32>)> = [
+        SynthKind::Fractal,
+        SynthKind::Spike,
+        SynthKind::Bowl,
+        SynthKind::Holes,
+    ]
+    .into_iter()
+    .map(|k| (k, synth_grid(k, w, h, 9)))
+    .collect();
+    for (i, (kind, z)) in grids.iter().enumerate() {
+        let mut t = Terrain::new(z, w, h, 30.0, if i % 2 == 0 { 30.0 } else { 24.0 });
+        if i == 1 {
+            t = t.with_curvature(curvature_coefficient(0.13) * 400.0);
+        }
+        if i == 3 {
+            t = t.with_row_scale(RowScale::new(&scale));
+        }
+        let top = z
+            .iter()
+            .filter(|v| !v.is_nan())
+            .fold(f64::NEG_INFINITY, |m, &v| m.max(f64::from(v)));
+        for count in [4, 16, 64] {
+            let narrow = count >= 64;
+            for index in (0..count).step_by(count / 4 + 1) {
+                let mut tree = vec![0f32; w * h];
+                sector_horizons(&t, index, count, narrow, &mut tree);
+                for post in (0..w * h).step_by(97) {
+                    let (col, row) = (post % w, post / w);
+                    let got = sector_horizon_of_post(&t, (col, row), (index, count), narrow, top);
+                    assert!(
+                        same(got, tree[post], 1e-4),
+                        "{kind:?}: sector {index}/{count} at ({col}, {row}): grown reach {got}, tree {}",
+                        tree[post]
+                    );
+                }
+            }
+        }
+    }
+}
+
 /// `sweep` over `whole` in bands of `rows` rows, each from its own window
 /// of the DEM's rows, as the stage runs it out of core.
 fn sweep_in_bands(sweep: &mut line::BandedSweep, whole: &Terrain, rows: usize) -> Vec<f32> {

@@ -13,6 +13,7 @@ use terrabake::io::synth::SynthKind;
 use terrabake::plan::budget::{Budget, Need, Needs, Request};
 use terrabake::plan::calibration::CALIBRATION_VAR;
 use terrabake::plan::check::{check, CheckOptions, CheckReport};
+use terrabake::plan::reference::{Pilot, Sampling};
 use terrabake::plan::{plan, Plan, TimeModels, SHARE_DIRECTIONS, TIME_MODELS_VAR};
 use terrabake::plumbing::progress::Progress;
 use terrabake::stage::run_stage;
@@ -840,7 +841,6 @@ fn a_bytes_limit_the_heights_alone_cannot_meet_compresses_the_derived_layers() {
 /// posts are the pilot's, to the sweep's rounding.
 #[test]
 fn the_pilot_measures_the_directions_the_planned_bake_stores() {
-    use terrabake::plan::reference::{Pilot, Sampling};
     use terrabake::stages::horizons::HorizonsStage;
     use terrabake::terrain::held::HeldDem;
     use terrabake_format::horizons::{AngleEncoding, HorizonMap};
@@ -867,22 +867,7 @@ fn the_pilot_measures_the_directions_the_planned_bake_stores() {
 
     let curvature = stage.sight.curvature_coefficient(opened.manifest());
     let dem = HeldDem::read(&opened).unwrap();
-    let (w, h) = (m.width as usize, m.height as usize);
-    let sampling = Sampling {
-        samples: 40,
-        seed: 5,
-        directions: 720,
-        cuts: &[],
-    };
-    let mut pilot = Pilot::measure(
-        &opened,
-        &dem,
-        curvature,
-        [0, 0, w, h],
-        &sampling,
-        Progress::hidden(),
-    )
-    .unwrap();
+    let mut pilot = whole_dem_pilot(&opened, &dem, curvature, (40, 5));
     let at = pilot.measure_directions(&dem.terrain(curvature), &bands, || ());
     assert!(
         at.iter().any(|&j| j >= 720),
@@ -901,6 +886,25 @@ fn the_pilot_measures_the_directions_the_planned_bake_stores() {
             }
         }
     }
+}
+
+/// A pilot of `samples` posts drawn with `seed` over the whole of
+/// `asset`'s heights `dem`, in 720 reference directions.
+fn whole_dem_pilot(
+    asset: &Asset<terrabake_format::Mmap>,
+    dem: &terrabake::terrain::held::HeldDem,
+    curvature: f64,
+    (samples, seed): (usize, u64),
+) -> Pilot {
+    let m = asset.manifest();
+    let sampling = Sampling {
+        samples,
+        seed,
+        directions: 720,
+        cuts: &[],
+    };
+    let area = [0, 0, m.width as usize, m.height as usize];
+    Pilot::measure(asset, dem, curvature, area, &sampling, Progress::hidden()).unwrap()
 }
 
 /// A plan widens its directions' tolerance (shorter grid steps: fewer
@@ -1327,7 +1331,6 @@ fn the_total_viewshed_is_planned_from_the_scenes_own_error_curve() {
 /// as from the heights in memory.
 #[test]
 fn a_dem_larger_than_the_allowance_is_spilled_and_measured_the_same() {
-    use terrabake::plan::reference::{Pilot, Sampling};
     use terrabake::terrain::held::HeldDem;
 
     let dir = tempfile::tempdir().unwrap();
@@ -1357,4 +1360,134 @@ fn a_dem_larger_than_the_allowance_is_spilled_and_measured_the_same() {
         spilled.z().iter().any(|v| v.is_finite()),
         "readable after shedding"
     );
+}
+
+/// What the planner predicts the sector and sampled methods from is what
+/// their stages bake: at every pilot post and band, the pilot's angle is
+/// the baked one (sector at 4, 16 and 64 sectors, the last with Stewart's
+/// narrow-sector check in play; sampled at 16), on a rough terrain and on
+/// a spike with holes around it.
+#[test]
+fn the_pilot_measures_the_other_methods_as_their_stages_bake_them() {
+    use terrabake::algorithms::horizon::Method;
+    use terrabake::stages::horizons::HorizonsStage;
+    use terrabake::terrain::held::HeldDem;
+    use terrabake_format::horizons::{AngleEncoding, HorizonMap};
+
+    for (kind, seed) in [(SynthKind::Fractal, 3), (SynthKind::Holes, 8)] {
+        let dir = tempfile::tempdir().unwrap();
+        let asset = terrain(dir.path(), kind, seed);
+        for (method, sectors) in [
+            (Method::Sector, 4),
+            (Method::Sector, 16),
+            (Method::Sector, 64),
+            (Method::Sampled, 16),
+        ] {
+            let stage = HorizonsStage {
+                method,
+                sectors,
+                encoding: Some(AngleEncoding::F32),
+                ..Default::default()
+            };
+            run_stage(&asset, &stage, true, Progress::hidden()).unwrap();
+            let opened = Asset::open(&asset).unwrap();
+            let m = opened.manifest();
+            let map = HorizonMap::open(&opened).unwrap();
+            let curvature = stage.sight.curvature_coefficient(m);
+            let dem = HeldDem::read(&opened).unwrap();
+            let pilot = whole_dem_pilot(&opened, &dem, curvature, (60, 11));
+            let measured = pilot.measure_method(&dem.terrain(curvature), method, sectors);
+            for (i, &(col, row)) in pilot.posts.iter().enumerate() {
+                for (b, &got) in measured[i].iter().enumerate() {
+                    let baked = map.angle(col as u32, row as u32, b as u32).unwrap();
+                    let baked = baked.map_or(f64::NAN, f64::from);
+                    assert!(
+                        (got - baked).abs() < 1e-3 || got.is_nan() && baked.is_nan(),
+                        "{kind:?} {} {sectors}: post {col},{row} band {b}: pilot {got}, baked {baked}",
+                        method.name()
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// The method is planned: every plan measures sector and sampled beside
+/// line and names them, the runner-up first, with their predicted time and
+/// errors. On this machine's models line wins; where line is predicted
+/// far slower (a machine's own models, `TERRABAKE_TIME_MODELS`), the plan
+/// bakes the other method that meets the budget fastest, and `check` finds
+/// the bake within the budget. On a plain, where every method is exact:
+/// on every other synthetic terrain neither sector nor sampled meets a
+/// budget of 4 or 8 degrees at any count (docs/PLANNING.md, "The method").
+#[test]
+fn the_method_is_the_fastest_to_meet_the_budget() {
+    use terrabake::algorithms::horizon::Method;
+    let dir = tempfile::tempdir().unwrap();
+    let (tif, out) = source(dir.path(), SynthKind::Flat);
+    let cache = dir.path().join("cache");
+    let plan_with = |models: Option<&Path>, budget: &str| -> Plan {
+        let out = terrabake_with_all(
+            &[
+                (TIME_MODELS_VAR, models.map(Path::as_os_str)),
+                ("XDG_CACHE_HOME", Some(cache.as_os_str())),
+            ],
+            &["plan", &tif, "--budget", budget, "--json"],
+        );
+        assert!(out.status.success(), "{}", stderr(&out));
+        serde_json::from_slice(&out.stdout).unwrap()
+    };
+    let budget = "horizon=4,svf=0.05";
+    let ours = plan_with(None, budget);
+    let chosen = ours.chosen.as_ref().unwrap();
+    assert_eq!(chosen.method, Method::Line);
+    let others: Vec<Method> = ours.methods.iter().map(|c| c.method).collect();
+    assert_eq!(others, [Method::Sector, Method::Sampled]);
+    let choice = ours.choices.iter().find(|c| c.what == "method").unwrap();
+    let rejected = choice.rejected.as_deref().unwrap();
+    assert!(
+        rejected.contains("sector: ") && rejected.contains("sampled: "),
+        "{rejected}"
+    );
+    // Line a hundred thousand times slower: another method is faster.
+    let d = TimeModels::default();
+    let slow_line = TimeModels {
+        sweep_rate: d.sweep_rate / 1e5,
+        bounded_per_line: d.bounded_per_line * 1e5,
+        bounded_per_cell: d.bounded_per_cell * 1e5,
+        ..d
+    };
+    let file = dir.path().join("models.json");
+    std::fs::write(&file, serde_json::to_string(&slow_line).unwrap()).unwrap();
+    let theirs = plan_with(Some(&file), budget);
+    let other = theirs.chosen.as_ref().unwrap();
+    assert_ne!(other.method, Method::Line, "{:?}", theirs.choices);
+    assert!(other.meets);
+    let choice = theirs.choices.iter().find(|c| c.what == "method").unwrap();
+    assert!(
+        choice.rejected.as_deref().unwrap().starts_with("line: ")
+            || choice.rejected.as_deref().unwrap().contains("line: "),
+        "{choice:?}"
+    );
+    // Baked with those models, the asset holds that method's bands and
+    // meets the budget where check measures it.
+    let baked = terrabake_with_all(
+        &[
+            (TIME_MODELS_VAR, Some(file.as_os_str())),
+            ("XDG_CACHE_HOME", Some(cache.as_os_str())),
+        ],
+        &["bake", &tif, "-o", &out, "--budget", budget, "-q"],
+    );
+    assert!(baked.status.success(), "{}", stderr(&baked));
+    let checked = terrabake(&["check", &out, "--budget", budget, "--json"]);
+    assert!(checked.status.success(), "{}", stderr(&checked));
+    let report: serde_json::Value = serde_json::from_slice(&checked.stdout).unwrap();
+    assert_eq!(
+        report["horizons"]["method"].as_str(),
+        Some(other.method.name()),
+        "{report}"
+    );
+    let verdicts = report["verdicts"].as_array().unwrap();
+    assert!(!verdicts.is_empty());
+    assert!(verdicts.iter().all(|v| v["met"] != false), "{report}");
 }

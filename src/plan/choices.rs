@@ -11,6 +11,7 @@ use super::{
     Candidate, Choice, Scene, DISTANCES, SHARE_DIRECTIONS, SHARE_DISTANCE, SHARE_QUANTISATION,
 };
 use crate::algorithms::horizon::line::default_tolerance;
+use crate::algorithms::horizon::Method;
 
 /// Why the plan traces with the pyramid alone, or with the cone planes too.
 pub(super) fn tracing_choice(cones: bool, cones_bytes: u64, posts: u64) -> Choice {
@@ -89,15 +90,59 @@ pub(super) fn tiles_choice(
     }
 }
 
-/// Why the plan's horizons are exact sight lines.
-pub(super) fn method_choice() -> Choice {
+/// Why the horizons are `chosen`'s method: of the line's candidate
+/// (`line`) and the other methods' (`others`: each one's fewest count
+/// predicted faster than the line that meets the budget, or its candidate
+/// at the line's count), the fastest to meet the budget. The rejected name
+/// the runner-up first.
+pub(super) fn method_choice(chosen: &Candidate, line: &Candidate, others: &[Candidate]) -> Choice {
+    let what = |c: &Candidate| match c.method {
+        Method::Line => format!("{} line directions", c.sectors),
+        Method::Sector => format!("{} sectors", c.sectors),
+        Method::Sampled => format!("{} sampled directions", c.sectors),
+    };
+    let mut rejected: Vec<&Candidate> = std::iter::once(line)
+        .chain(others)
+        .filter(|c| c.method != chosen.method)
+        .collect();
+    rejected.sort_by(|a, b| b.meets.cmp(&a.meets).then(a.seconds.total_cmp(&b.seconds)));
+    let rejected = rejected
+        .into_iter()
+        .map(|c| {
+            let ratio = c.seconds / chosen.seconds.max(1e-9);
+            if c.meets {
+                format!(
+                    "{}: {} meet the budget in {:.1} s predicted ({ratio:.1}x), {}",
+                    c.method.name(),
+                    what(c),
+                    c.seconds,
+                    c.errors_text()
+                )
+            } else {
+                format!(
+                    "{}: no count predicted faster meets the budget; {}{} leave {} in {:.1} s predicted ({ratio:.1}x)",
+                    c.method.name(),
+                    what(c),
+                    if c.sectors == line.sectors { " (the same bytes)" } else { "" },
+                    c.errors_text(),
+                    c.seconds,
+                )
+            }
+        })
+        .collect::<Vec<_>>();
     Choice {
         what: "method".into(),
-        chosen: "line (exact sight lines)".into(),
-        why: "exact at every stored direction; the only errors left are between directions, the distance cut and the encoding".into(),
-        rejected: Some(
-            "sector (Stewart's wedges: biased high by definition, its RMS error levels off at 0.67 deg however many sectors) and sampled (nearest-post rounding: levels off at 0.41 deg); 16 lines (0.12 deg) beat both in less time than either's fastest (docs/BENCHMARKS.md, horizon methods on the SRTM crop)".into(),
+        chosen: match chosen.method {
+            Method::Line => "line (exact sight lines)".into(),
+            Method::Sector => "sector (Stewart's wedges)".into(),
+            Method::Sampled => "sampled (centre-line samples)".into(),
+        },
+        why: format!(
+            "the fastest of the three methods to meet the budget, each measured at the pilot's posts against the exact references: {} in {:.1} s predicted",
+            what(chosen),
+            chosen.seconds
         ),
+        rejected: (!rejected.is_empty()).then(|| rejected.join("; ")),
     }
 }
 

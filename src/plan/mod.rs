@@ -46,6 +46,16 @@
 //! band. The bake takes the faster of the two line routes that fits the
 //! memory limit.
 //!
+//! **The method.** Line, sector or sampled: the one that meets the budget
+//! in the least predicted time. The pilot measures the other two at its
+//! posts as their stages bake them (sector from the whole DEM by a scan of
+//! each post's reach, grown until the DEM's highest post could not rise
+//! above the horizon found), served and judged as the line's candidates
+//! are, at those of [`OTHER_COUNTS`] predicted faster than the line, else
+//! once at the line's count to say what they would give. Their time
+//! models are the measured rates of [`models`]; line has won on every
+//! scene tried.
+//!
 //! **Limits beyond the errors.** A memory limit can shrink the tiles (the
 //! line sweeps hold a tile row of every direction), a bytes limit can make
 //! the heights zstd (a sample of tile rows encoded as ingest would); both
@@ -59,6 +69,7 @@ mod choices;
 mod codec;
 mod command;
 mod models;
+mod predict;
 pub mod reference;
 pub mod total_viewshed;
 
@@ -72,23 +83,21 @@ use models::{
     SOLAR_SECONDS_PER_POST_DAY,
 };
 pub use models::{TimeModels, TIME_MODELS_VAR};
+use predict::{errors, measure_other, other_method, predict, stored_as, Errors, PilotSuns};
 
 use std::time::Instant;
 
 use anyhow::Result;
 use serde::{Deserialize, Serialize};
 use terrabake_format::cones::ConeEncoding;
-use terrabake_format::horizons::{bands_around, between, AngleEncoding, NOTHING_AHEAD};
+use terrabake_format::horizons::AngleEncoding;
 use terrabake_format::{Asset, Codec, Mmap};
 
 use crate::algorithms::horizon::line::{default_tolerance, Stencil};
-use crate::algorithms::horizon::sky::{svf_of_horizons, BandIntegrals};
 use crate::algorithms::horizon::{Band, BandKind, Method};
 use crate::error::bail;
 use crate::plan::budget::{Budget, Need, Needs, Request};
-use crate::plan::reference::{
-    quantile_unsorted, shade_differs, solar_error, solar_year, Pilot, PilotSun, Sampling,
-};
+use crate::plan::reference::{quantile_unsorted, solar_year, Pilot, Sampling};
 use crate::plumbing::progress::Progress;
 use crate::stage::Stage;
 use crate::stages::horizons::HorizonsStage;
@@ -99,6 +108,11 @@ use crate::terrain::Terrain;
 
 /// Reference directions of the pilot; candidates divide it.
 const PILOT_DIRECTIONS: usize = 720;
+/// Counts at which the planner measures the methods other than line
+/// where they are predicted faster than the line's (each a scan of the
+/// pilot posts' reach): a coarser ladder, as neither has ever met a budget
+/// faster than line (docs/PLANNING.md, "The method").
+pub const OTHER_COUNTS: [usize; 5] = [4, 8, 16, 32, 64];
 /// Direction counts the planner considers (divisors of 720).
 const CANDIDATES: [usize; 20] = [
     4, 6, 8, 10, 12, 16, 18, 20, 24, 30, 36, 40, 48, 60, 72, 90, 120, 180, 240, 360,
@@ -134,6 +148,10 @@ pub const PILOT_SEED: u64 = 0x504c_414e;
 /// One count of directions, distance limit and encoding, predicted.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Candidate {
+    /// How the horizons are computed (line in plans recorded before the
+    /// method was planned).
+    #[serde(default = "line_method")]
+    pub method: Method,
     pub sectors: usize,
     pub encoding: AngleEncoding,
     /// The distance limit baked, metres (`None`: the whole DEM).
@@ -163,9 +181,43 @@ pub struct Candidate {
     /// (`None`: the stage's default, an eighth of the spacing).
     #[serde(default)]
     pub direction_tolerance: Option<f64>,
+    /// Whether its errors meet the budget (within the directions' share,
+    /// f32; of the chosen, the whole budget). False in plans recorded
+    /// before it was.
+    #[serde(default)]
+    pub meets: bool,
 }
 
 impl Candidate {
+    /// `sectors` bands of `method` stored as `encoding`, with the `errors`
+    /// the pilot measured of them and `costs`' bytes and seconds, from the
+    /// whole DEM at the stage's default tolerance; not yet judged
+    /// (`meets` false).
+    fn predicted(
+        (method, sectors, encoding): (Method, usize, AngleEncoding),
+        errors: &mut Errors,
+        costs: &LineCosts,
+    ) -> Self {
+        let (horizon_p99_deg, svf_p99, shade_share) = errors.at(0.99);
+        Self {
+            method,
+            sectors,
+            encoding,
+            max_distance: None,
+            horizon_p99_deg,
+            svf_p99,
+            horizon_max_deg: errors.horizon_max,
+            svf_max: errors.svf_max,
+            shade_share,
+            solar_p99_percent: errors.solar_at(0.99),
+            bytes: costs.layer_bytes(encoding.elem().size(), sectors)
+                + costs.layer_bytes(4, costs.sky_layers),
+            seconds: predict::seconds(costs, method, sectors),
+            direction_tolerance: None,
+            meets: false,
+        }
+    }
+
     /// Its predicted errors, for a reason: "horizon p99 .. deg, svf p99
     /// ..[, shade ..]".
     fn errors_text(&self) -> String {
@@ -308,6 +360,13 @@ pub struct Plan {
     /// (each at the default tolerance, then the chosen count's wider
     /// tolerances in the order tried; f32 and to the edge).
     pub candidates: Vec<Candidate>,
+    /// The other methods, measured like the line's candidates (f32, from
+    /// the whole DEM): each one's fewest count (of [`OTHER_COUNTS`])
+    /// predicted faster than the line's that meets the budget, or where
+    /// none does, its candidate at the line's count (at most the last of
+    /// [`OTHER_COUNTS`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub methods: Vec<Candidate>,
     /// Stages a recipe gave explicitly: they were baked instead of the
     /// plan's, and `check` measures what they achieved.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -323,6 +382,7 @@ impl Plan {
         let mut stage = HorizonsStage {
             encoding: Some(chosen.encoding),
             codec: self.derived_codec,
+            method: chosen.method,
             ..line_stage(chosen.sectors, chosen.direction_tolerance)
         };
         stage.sight.max_distance = chosen.max_distance;
@@ -376,6 +436,10 @@ fn raw_codec() -> Codec {
     Codec::Raw
 }
 
+fn line_method() -> Method {
+    Method::Line
+}
+
 /// The total viewshed stage the need bakes, with `directions` and the
 /// reach; the eye is the stage's default.
 fn total_viewshed_stage(directions: usize, max_distance: Option<f64>) -> TotalViewshedStage {
@@ -394,160 +458,6 @@ fn walked(stage: &TotalViewshedStage, m: &terrabake_format::Manifest) -> total_v
         curvature: stage.sight.curvature_coefficient(m),
         bytes_per_post: TotalViewshedStage::bytes_per_post(),
     }
-}
-
-/// The suns the pilot weighs: the shade's positions (each weighing 1),
-/// and the solar budget's year.
-struct PilotSuns {
-    shade: Vec<PilotSun>,
-    solar: Vec<PilotSun>,
-}
-
-/// The errors a bake would make at the pilot's posts: the horizon's
-/// (degrees) at every post and reference azimuth, the svf's at every post,
-/// and the sun/shade states it gets wrong.
-struct Errors {
-    horizon: Vec<f64>,
-    /// The largest horizon error away from the DEM's edge (neither the
-    /// reference nor a serving direction facing out over it).
-    horizon_max: f64,
-    svf: Vec<f64>,
-    svf_max: f64,
-    shade_wrong: usize,
-    shade_pairs: usize,
-    /// Per post, per cent ([`solar_error`]); empty without solar.
-    solar: Vec<f64>,
-}
-
-impl Errors {
-    /// The horizon's and the svf's errors at quantile `q`, and the share of
-    /// wrong sun/shade states (`None` without sun positions).
-    fn at(&mut self, q: f64) -> (f64, f64, Option<f64>) {
-        (
-            quantile_unsorted(&mut self.horizon, q),
-            quantile_unsorted(&mut self.svf, q),
-            (self.shade_pairs > 0).then(|| self.shade_wrong as f64 / self.shade_pairs as f64),
-        )
-    }
-
-    /// The solar error (per cent) at quantile `q`; `None` without solar.
-    fn solar_at(&mut self, q: f64) -> Option<f64> {
-        (!self.solar.is_empty()).then(|| quantile_unsorted(&mut self.solar, q))
-    }
-
-    /// Whether these errors, at the deciding quantile and at their largest,
-    /// stay within `share` of every limit the budget sets for them. The
-    /// shares add up to the whole budget for the largest error too: the
-    /// largest of a sum is at most the sum of the largest.
-    fn within(&mut self, budget: &Budget, share: f64) -> bool {
-        let (horizon, svf, shade) = self.at(DECISION_QUANTILE);
-        let solar = self.solar_at(DECISION_QUANTILE);
-        budget
-            .horizon_max
-            .is_none_or(|v| self.horizon_max <= share * v)
-            && budget.svf_max.is_none_or(|v| self.svf_max <= share * v)
-            && horizon <= share * budget.horizon
-            && budget.svf.is_none_or(|v| svf <= share * v)
-            && budget
-                .shade
-                .is_none_or(|v| shade.is_none_or(|s| s <= share * v))
-            && budget
-                .solar
-                .is_none_or(|v| solar.is_none_or(|s| s <= share * v))
-    }
-}
-
-/// The errors at the pilot's posts of storing, in the measured directions
-/// `stored` (ascending azimuths), `stored(post, direction)` degrees,
-/// served at every reference azimuth as the loader serves it (linear
-/// between the two nearest stored directions).
-fn errors(
-    pilot: &Pilot,
-    stored: &[usize],
-    suns: &PilotSuns,
-    value: impl Fn(usize, usize) -> f64,
-) -> Errors {
-    let azimuths: Vec<f64> = stored.iter().map(|&j| pilot.azimuth(j)).collect();
-    let integrals = BandIntegrals::of_azimuths(&azimuths);
-    let mut e = Errors {
-        horizon: Vec::new(),
-        horizon_max: 0.0,
-        svf: Vec::new(),
-        svf_max: 0.0,
-        shade_wrong: 0,
-        shade_pairs: 0,
-        solar: Vec::new(),
-    };
-    // Which stored directions serve each reference azimuth: the same at
-    // every post.
-    let around: Vec<(usize, usize, f64)> = pilot
-        .reference
-        .iter()
-        .map(|band| bands_around(&azimuths, band.azimuth))
-        .collect();
-    let mut served = vec![0.0; PILOT_DIRECTIONS];
-    // The posts around features count for the largest errors only: they
-    // are chosen where errors are large, and would bias the percentiles,
-    // which are over the scene's posts.
-    for (post, exact) in pilot.exact.iter().enumerate() {
-        let sampled = post < pilot.scene_posts();
-        let kept: Vec<f64> = stored.iter().map(|&j| value(post, j)).collect();
-        let facing_out = |i: usize| exact[stored[i]] == NOTHING_AHEAD;
-        for ((&(i, j, f), &truth), out) in around.iter().zip(exact).zip(&mut served) {
-            *out = between(kept[i], kept[j], f);
-            if out.is_finite() && truth.is_finite() {
-                let error = (*out - truth).abs();
-                if sampled {
-                    e.horizon.push(error);
-                }
-                let at_edge = truth == NOTHING_AHEAD || facing_out(i) || facing_out(j);
-                if !at_edge {
-                    e.horizon_max = e.horizon_max.max(error);
-                }
-            }
-        }
-        let s = svf_of_horizons(&integrals, kept.iter().copied());
-        let truth = pilot.svf(exact);
-        if s.is_finite() && truth.is_finite() {
-            e.svf_max = e.svf_max.max((s - truth).abs());
-            if sampled {
-                e.svf.push((s - truth).abs());
-            }
-        }
-        if !sampled {
-            continue;
-        }
-        e.shade_pairs += suns.shade.len();
-        e.shade_wrong += suns
-            .shade
-            .iter()
-            .filter(|sun| shade_differs(sun.elevation, served[sun.direction], exact[sun.direction]))
-            .count();
-        if !suns.solar.is_empty() {
-            e.solar.push(solar_error(&suns.solar, &served, exact));
-        }
-    }
-    e
-}
-
-/// `deg` stored as `encoding` and read back.
-fn stored_as(encoding: AngleEncoding, deg: f64) -> f64 {
-    encoding.decode(encoding.encode(deg)).unwrap_or(f64::NAN)
-}
-
-/// The errors of the measured directions `stored` cut at
-/// `DISTANCES[distance]`, stored as `encoding`.
-fn predict(
-    pilot: &Pilot,
-    suns: &PilotSuns,
-    stored: &[usize],
-    distance: Option<usize>,
-    encoding: AngleEncoding,
-) -> Errors {
-    errors(pilot, stored, suns, |i, j| {
-        let angle = distance.map_or(pilot.exact[i][j], |k| pilot.bounded(i, j, k));
-        stored_as(encoding, angle)
-    })
 }
 
 /// The horizons stage a plan of `sectors` line directions within
@@ -654,9 +564,10 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
         sky_layers: sky_layers.len(),
         cell: (dx + dy) / 2.0,
         models: time_models.scaled(scale),
+        scale,
     };
     let (mut chosen, mut safe_distance) = (None, None);
-    let (mut choices, mut candidates) = (Vec::new(), Vec::new());
+    let (mut choices, mut candidates, mut methods) = (Vec::new(), Vec::new(), Vec::new());
     if let (Some(pilot), Some(dem)) = (&mut pilot, &dem) {
         let suns = PilotSuns {
             shade: sun
@@ -674,6 +585,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
         scene.pilot_seconds += added.elapsed().as_secs_f64();
         scene.pilot_directions = pilot.directions_measured();
         candidates = plan.candidates;
+        methods = plan.methods;
         choices = plan.choices;
         chosen = Some(plan.chosen);
         safe_distance = plan.safe_distance;
@@ -682,8 +594,15 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
     // that the line sweeps hold would not fit the memory limit; then the
     // largest smaller power of two (down to 32) that fits, for a re-ingest.
     let ingested_tile = tile;
+    let held_mib = |costs: &LineCosts, c: &Candidate| match c.method {
+        Method::Line => costs.memory_mib(c.sectors, c.max_distance),
+        other => predict::memory_mib(costs, other, c.sectors),
+    };
     if let (Some(c), Some(limit)) = (chosen.as_mut(), budget.memory) {
-        while costs.memory_mib(c.sectors, c.max_distance) > limit as f64 && costs.tile > 32 {
+        while c.method == Method::Line
+            && costs.memory_mib(c.sectors, c.max_distance) > limit as f64
+            && costs.tile > 32
+        {
             costs.tile /= 2;
         }
         c.bytes = costs.layer_bytes(c.encoding.elem().size(), c.sectors)
@@ -720,7 +639,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
     if let Some(c) = &chosen {
         seconds += c.seconds;
         bytes += c.bytes;
-        memory_mib = memory_mib.max(costs.memory_mib(c.sectors, c.max_distance));
+        memory_mib = memory_mib.max(held_mib(&costs, c));
     }
     if needs.has(Need::Solar) {
         let days = crate::stages::solar::Days::YEAR;
@@ -794,6 +713,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
         memory_mib,
         choices,
         candidates,
+        methods,
         overridden: Vec::new(),
         baked: None,
     })
@@ -911,6 +831,7 @@ struct HorizonPlan {
     safe_distance: Option<f64>,
     choices: Vec<Choice>,
     candidates: Vec<Candidate>,
+    methods: Vec<Candidate>,
 }
 
 /// The encoding: the coarsest whose worst error is within its share of
@@ -964,25 +885,27 @@ fn plan_horizons(
     // The directions: the fewest whose error between directions alone
     // (exact to the edge, f32) is within their share.
     let mut candidates = Vec::new();
-    let candidate =
-        |(sectors, tolerance): (usize, Option<f64>), distance, encoding, errors: &mut Errors| {
-            let (horizon_p99_deg, svf_p99, shade_share) = errors.at(0.99);
-            Candidate {
-                sectors,
-                encoding,
-                max_distance: distance,
-                horizon_p99_deg,
-                svf_p99,
-                horizon_max_deg: errors.horizon_max,
-                svf_max: errors.svf_max,
-                shade_share,
-                solar_p99_percent: errors.solar_at(0.99),
-                bytes: costs.layer_bytes(encoding.elem().size(), sectors)
-                    + costs.layer_bytes(4, costs.sky_layers),
-                seconds: costs.seconds(sectors, distance),
-                direction_tolerance: tolerance,
-            }
+    let candidate = |(sectors, tolerance): (usize, Option<f64>),
+                     distance: Option<f64>,
+                     encoding,
+                     errors: &mut Errors| {
+        // The count's and tolerance's candidates measure the
+        // directions' share; the chosen one (encoded and cut) all of
+        // the budget but the unseen posts' tenth.
+        let share = if encoding == AngleEncoding::F32 && distance.is_none() {
+            SHARE_DIRECTIONS
+        } else {
+            SHARE_DIRECTIONS + SHARE_DISTANCE + SHARE_QUANTISATION
         };
+        let meets = errors.within(budget, share);
+        Candidate {
+            meets,
+            max_distance: distance,
+            seconds: costs.seconds(sectors, distance),
+            direction_tolerance: tolerance,
+            ..Candidate::predicted((Method::Line, sectors, encoding), errors, costs)
+        }
+    };
     let (dx, dy) = scene.cell_size;
     let mut sectors = None;
     let mut deciding = (0.0, 0.0);
@@ -1056,14 +979,66 @@ fn plan_horizons(
         costs.seconds(sectors, d) < costs.seconds(sectors, None) && fits(d)
     });
     let bounded = bounded_cut.map(|k| DISTANCES[k]);
-    let chosen = candidate(
+    let line = candidate(
         (sectors, Some(tolerance.0)),
         bounded,
         encoding,
         &mut predict(pilot, suns, &stored, bounded_cut, encoding),
     );
+    // The method: the line's, unless another meets the budget in less
+    // time (and fits the memory limit).
+    let methods: Vec<Candidate> = [Method::Sector, Method::Sampled]
+        .into_iter()
+        .map(|method| other_method(pilot, terrain, suns, budget, costs, (method, &line)))
+        .collect();
+    let faster = methods
+        .iter()
+        .filter(|c| c.meets && c.seconds < line.seconds)
+        .filter(|c| {
+            budget
+                .memory
+                .is_none_or(|l| predict::memory_mib(costs, c.method, c.sectors) <= l as f64)
+        })
+        .min_by(|a, b| a.seconds.total_cmp(&b.seconds));
+    if let Some(other) = faster {
+        let (c, mut e) = measure_other(
+            pilot,
+            terrain,
+            suns,
+            (costs, other.method, other.sectors),
+            encoding,
+        );
+        let chosen = Candidate {
+            meets: e.within(
+                budget,
+                SHARE_DIRECTIONS + SHARE_DISTANCE + SHARE_QUANTISATION,
+            ),
+            ..c
+        };
+        let choices = vec![
+            method_choice(&chosen, &line, &methods),
+            encoding_choice(encoding),
+            Choice {
+                what: "distance".into(),
+                chosen: "the whole DEM".into(),
+                why: format!(
+                    "{} is predicted from its route over the whole DEM",
+                    chosen.method.name()
+                ),
+                rejected: None,
+            },
+        ];
+        return Ok(HorizonPlan {
+            chosen,
+            safe_distance,
+            choices,
+            candidates,
+            methods,
+        });
+    }
+    let chosen = line;
     let choices = vec![
-        method_choice(),
+        method_choice(&chosen, &chosen, &methods),
         Choice {
             what: "directions".into(),
             chosen: sectors.to_string(),
@@ -1083,6 +1058,7 @@ fn plan_horizons(
         safe_distance,
         choices,
         candidates,
+        methods,
     })
 }
 

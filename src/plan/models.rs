@@ -154,6 +154,27 @@ pub(super) const WORKER_BYTES_PER_ROW_POST: f64 = 16.0;
 pub(super) const LINE_BYTES_PER_ROW_POST_BAND: f64 = 10.7;
 pub(super) const CONES_BYTES_PER_POST: f64 = 32.0;
 
+/// The other methods' time, fitted to the slowest of two runs each on
+/// the 1201 x 1201 tile (4, 16 and 64 sectors) and a 2048 x 2048 fractal
+/// (16), `horizons --encoding f32 --no-sky` (the horizons alone), on an
+/// Intel Xeon (2 cores, 2026-12-04) whose calibration is 1.062 of the
+/// default models' machine, divided by that to be its: Stewart's sector
+/// tree over the whole DEM takes `posts * S^SECTOR_EXPONENT * (posts /
+/// 1.44e6)^SECTOR_SIZE_EXPONENT * SECTOR_SECONDS` (its sorts and the
+/// tree's height grow with the DEM); centre-line sampling to the edge
+/// [`SAMPLED_SECONDS`] a sample, of a mean of a quarter of the DEM's width
+/// and height samples a post and direction (34 s for 4 directions on the
+/// tile). Scaled like the line's by the calibration (docs/PLANNING.md,
+/// "The method").
+pub(super) const SECTOR_SECONDS: f64 = 3.65e-7;
+pub(super) const SECTOR_EXPONENT: f64 = 0.85;
+pub(super) const SECTOR_SIZE_EXPONENT: f64 = 0.3;
+pub(super) const SAMPLED_SECONDS: f64 = 1.0e-8;
+/// Peak memory of the sector tree over the whole DEM, bytes a post
+/// (docs/BENCHMARKS.md, "Time and peak memory against DEM size": 152 to
+/// 162 at 1024^2 to 4096^2).
+pub(super) const SECTOR_BYTES_PER_POST: f64 = 165.0;
+
 /// Costs of the horizons and sky stages.
 #[derive(Clone, Copy)]
 pub(super) struct LineCosts {
@@ -166,6 +187,8 @@ pub(super) struct LineCosts {
     /// Mean post spacing, metres.
     pub(super) cell: f64,
     pub(super) models: TimeModels,
+    /// The calibration's scale of the fitted models to this machine.
+    pub(super) scale: f64,
 }
 
 impl LineCosts {
@@ -195,6 +218,36 @@ impl LineCosts {
         };
         self.base_mib()
             + (LINE_BYTES_PER_ROW_POST_BAND * self.row_posts() * sectors as f64 + held) / 1048576.0
+    }
+
+    /// Seconds of Stewart's sector tree of `sectors` over the whole DEM
+    /// ([`SECTOR_SECONDS`]).
+    pub(super) fn sector_seconds(&self, sectors: usize) -> f64 {
+        let work = self.posts
+            * (sectors as f64).powf(SECTOR_EXPONENT)
+            * (self.posts / 1.44e6).powf(SECTOR_SIZE_EXPONENT)
+            * SECTOR_SECONDS;
+        self.models.fixed_seconds + work * self.scale
+    }
+
+    /// Seconds of centre-line sampling in `sectors` directions to the
+    /// edge ([`SAMPLED_SECONDS`]).
+    pub(super) fn sampled_seconds(&self, sectors: usize) -> f64 {
+        let samples = (self.width + self.height) as f64 / 4.0;
+        let work = self.posts * sectors as f64 * samples * SAMPLED_SECONDS;
+        self.models.fixed_seconds + work * self.scale
+    }
+
+    /// Peak memory of the sector tree over the whole DEM, MiB.
+    pub(super) fn sector_memory_mib(&self) -> f64 {
+        self.base_mib() + SECTOR_BYTES_PER_POST * self.posts / 1048576.0
+    }
+
+    /// Peak memory of sampling `sectors` directions, MiB: the DEM and a
+    /// whole layer of every band in flight, one a thread.
+    pub(super) fn sampled_memory_mib(&self, sectors: usize) -> f64 {
+        let threads = rayon::current_num_threads().min(sectors) as f64;
+        self.base_mib() + 4.0 * self.posts * (1.0 + threads) / 1048576.0
     }
 
     /// What every bake holds, MiB, whatever it bakes: the base and the

@@ -409,6 +409,48 @@ impl Pilot {
             .collect()
     }
 
+    /// Per post, the horizons `method` (sector or sampled: not line, whose
+    /// directions [`Self::measure_directions`] measures) gives in its
+    /// `count` bands from the whole DEM, as the stage bakes them by
+    /// default (Stewart's narrow-sector check on), degrees: what the
+    /// planner predicts those methods' errors from, against the same exact
+    /// references. `terrain` is the one the pilot was measured on.
+    pub fn measure_method(&self, terrain: &Terrain, method: Method, count: usize) -> Vec<Vec<f64>> {
+        use crate::algorithms::horizon::sampled::SampledWalk;
+        use crate::algorithms::horizon::sector::sector_horizon_of_post;
+        assert!(self.heights.fits(terrain), "the pilot's own terrain");
+        let top = self.heights.top;
+        match method {
+            Method::Line => unreachable!("line directions are measured by measure_directions"),
+            Method::Sector => self
+                .posts
+                .par_iter()
+                .map(|&post| {
+                    (0..count)
+                        .map(|i| {
+                            f64::from(sector_horizon_of_post(terrain, post, (i, count), true, top))
+                        })
+                        .collect()
+                })
+                .collect(),
+            Method::Sampled => {
+                let walks: Vec<SampledWalk> = plan_bands(method, count, 1.0, 1.0, None)
+                    .iter()
+                    .map(|band| SampledWalk::new(terrain, band.azimuth))
+                    .collect();
+                self.posts
+                    .par_iter()
+                    .map(|&post| {
+                        walks
+                            .iter()
+                            .map(|walk| f64::from(walk.steepest::<()>(post, f64::INFINITY).0))
+                            .collect()
+                    })
+                    .collect()
+            }
+        }
+    }
+
     /// The azimuth of measured direction `j`, degrees.
     pub fn azimuth(&self, j: usize) -> f64 {
         self.azimuths[j]

@@ -69,7 +69,7 @@ mod bounded;
 mod hulls;
 mod narrow;
 
-pub use bounded::sector_horizons_within;
+pub use bounded::{sector_horizon_of_post, sector_horizons_within};
 
 use crate::terrain::steepest::{Steepest, Tag};
 use crate::terrain::Terrain;

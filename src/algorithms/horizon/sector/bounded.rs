@@ -167,3 +167,70 @@ fn scan<T: Tag<f64>>(
     }
     stats
 }
+
+/// The sector horizon of the one post `(col, row)` from the whole DEM
+/// (what the tree gives it), degrees, by [`sector_horizons_within`] over a
+/// reach that grows until no post beyond it could rise above the horizon
+/// found: from `top` (the DEM's highest post), a post at horizontal
+/// distance `d` in the wedge lies at `t >= d cos(180 / count)` along its
+/// centre line, so its slope is at most `(top - z) / t - c t`. The
+/// planner's pilot measures single posts with it, in the time of their
+/// own reach rather than the tree's whole DEM.
+pub fn sector_horizon_of_post(
+    terrain: &Terrain,
+    (col, row): (usize, usize),
+    sector: (usize, usize),
+    narrow: bool,
+    top: f64,
+) -> f32 {
+    let z = f64::from(terrain.at(col, row));
+    if z.is_nan() {
+        return f32::NAN;
+    }
+    // The farthest any post lies: beyond it the scan is the whole DEM.
+    let p = terrain.key_position(col, row);
+    let farthest = [(0, 0), (terrain.width - 1, 0), (0, terrain.height - 1)]
+        .into_iter()
+        .chain([(terrain.width - 1, terrain.height - 1)])
+        .map(|(c, r)| terrain.key_distance(p, terrain.key_position(c, r)))
+        .fold(0.0, f64::max)
+        + terrain.dx.max(terrain.dy);
+    let cos_half = (std::f64::consts::PI / sector.1 as f64).cos();
+    let c = terrain.curvature;
+    let mut out = vec![0f32; terrain.width];
+    let mut reach = (64.0 * terrain.dx.max(terrain.dy)).min(farthest);
+    loop {
+        sector_horizons_within(
+            terrain,
+            sector,
+            narrow,
+            reach,
+            [row..row + 1, col..col + 1],
+            &mut out,
+            None,
+        );
+        let angle = out[col];
+        if reach >= farthest {
+            return angle;
+        }
+        // The steepest slope any post beyond the reach could have; a
+        // relative margin over the f32 rounding of the angle found.
+        let t = reach * cos_half;
+        let beyond = (top - z) / t - c * t;
+        let found = f64::from(angle).to_radians().tan();
+        if angle > -90.0 && beyond < found - 1e-5 * (1.0 + found.abs()) {
+            return angle;
+        }
+        // Far enough for the horizon found to stand (where it is above
+        // the bound's floor), and at least twice as far.
+        let needed = if angle > -90.0 && c > 0.0 {
+            let s = found;
+            (-s + (s * s + 4.0 * c * (top - z).max(0.0)).sqrt()) / (2.0 * c) / cos_half
+        } else if angle > -90.0 && found > 0.0 {
+            (top - z) / found / cos_half
+        } else {
+            farthest
+        };
+        reach = needed.max(2.0 * reach).min(farthest);
+    }
+}

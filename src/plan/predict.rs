@@ -1,0 +1,263 @@
+//! Predictions at the pilot's posts (docs/PLANNING.md, "How the planner
+//! decides"): what a bake would get wrong, its stored angles served at
+//! every reference azimuth as the loader serves them (linear between the
+//! two nearest bands) against the exact references, for the horizon, the
+//! svf, the sun/shade states and the year's beam; and the methods other
+//! than line, measured as their stages bake them, with their predicted
+//! time and memory ("The method"). Every candidate the planner weighs,
+//! of every method, is judged here.
+
+use terrabake_format::horizons::{bands_around, between, AngleEncoding, NOTHING_AHEAD};
+
+use super::models::LineCosts;
+use super::{Candidate, DECISION_QUANTILE, OTHER_COUNTS, PILOT_DIRECTIONS, SHARE_DIRECTIONS};
+use crate::algorithms::horizon::sky::{svf_of_horizons, BandIntegrals};
+use crate::algorithms::horizon::Method;
+use crate::plan::budget::Budget;
+use crate::plan::reference::{quantile_unsorted, shade_differs, solar_error, Pilot, PilotSun};
+use crate::terrain::Terrain;
+
+/// The suns the pilot weighs: the shade's positions (each weighing 1),
+/// and the solar budget's year.
+pub(super) struct PilotSuns {
+    pub(super) shade: Vec<PilotSun>,
+    pub(super) solar: Vec<PilotSun>,
+}
+
+/// The errors a bake would make at the pilot's posts: the horizon's
+/// (degrees) at every post and reference azimuth, the svf's at every post,
+/// and the sun/shade states it gets wrong.
+pub(super) struct Errors {
+    pub(super) horizon: Vec<f64>,
+    /// The largest horizon error away from the DEM's edge (neither the
+    /// reference nor a serving direction facing out over it).
+    pub(super) horizon_max: f64,
+    pub(super) svf: Vec<f64>,
+    pub(super) svf_max: f64,
+    pub(super) shade_wrong: usize,
+    pub(super) shade_pairs: usize,
+    /// Per post, per cent ([`solar_error`]); empty without solar.
+    pub(super) solar: Vec<f64>,
+}
+
+impl Errors {
+    /// The horizon's and the svf's errors at quantile `q`, and the share of
+    /// wrong sun/shade states (`None` without sun positions).
+    pub(super) fn at(&mut self, q: f64) -> (f64, f64, Option<f64>) {
+        (
+            quantile_unsorted(&mut self.horizon, q),
+            quantile_unsorted(&mut self.svf, q),
+            (self.shade_pairs > 0).then(|| self.shade_wrong as f64 / self.shade_pairs as f64),
+        )
+    }
+
+    /// The solar error (per cent) at quantile `q`; `None` without solar.
+    pub(super) fn solar_at(&mut self, q: f64) -> Option<f64> {
+        (!self.solar.is_empty()).then(|| quantile_unsorted(&mut self.solar, q))
+    }
+
+    /// Whether these errors, at the deciding quantile and at their largest,
+    /// stay within `share` of every limit the budget sets for them. The
+    /// shares add up to the whole budget for the largest error too: the
+    /// largest of a sum is at most the sum of the largest.
+    pub(super) fn within(&mut self, budget: &Budget, share: f64) -> bool {
+        let (horizon, svf, shade) = self.at(DECISION_QUANTILE);
+        let solar = self.solar_at(DECISION_QUANTILE);
+        budget
+            .horizon_max
+            .is_none_or(|v| self.horizon_max <= share * v)
+            && budget.svf_max.is_none_or(|v| self.svf_max <= share * v)
+            && horizon <= share * budget.horizon
+            && budget.svf.is_none_or(|v| svf <= share * v)
+            && budget
+                .shade
+                .is_none_or(|v| shade.is_none_or(|s| s <= share * v))
+            && budget
+                .solar
+                .is_none_or(|v| solar.is_none_or(|s| s <= share * v))
+    }
+}
+
+/// The errors at the pilot's posts of storing, in the measured directions
+/// `stored` (ascending azimuths), `stored(post, direction)` degrees,
+/// served at every reference azimuth as the loader serves it (linear
+/// between the two nearest stored directions).
+pub(super) fn errors(
+    pilot: &Pilot,
+    stored: &[usize],
+    suns: &PilotSuns,
+    value: impl Fn(usize, usize) -> f64,
+) -> Errors {
+    let azimuths: Vec<f64> = stored.iter().map(|&j| pilot.azimuth(j)).collect();
+    errors_at(pilot, &azimuths, suns, |post, k| value(post, stored[k]))
+}
+
+/// [`errors`] of bands at `azimuths` (ascending) that need not be measured
+/// directions (another method's): `value(post, k)` is band `k`'s angle.
+pub(super) fn errors_at(
+    pilot: &Pilot,
+    azimuths: &[f64],
+    suns: &PilotSuns,
+    value: impl Fn(usize, usize) -> f64,
+) -> Errors {
+    let integrals = BandIntegrals::of_azimuths(azimuths);
+    let mut e = Errors {
+        horizon: Vec::new(),
+        horizon_max: 0.0,
+        svf: Vec::new(),
+        svf_max: 0.0,
+        shade_wrong: 0,
+        shade_pairs: 0,
+        solar: Vec::new(),
+    };
+    // Which stored directions serve each reference azimuth: the same at
+    // every post.
+    let around: Vec<(usize, usize, f64)> = pilot
+        .reference
+        .iter()
+        .map(|band| bands_around(azimuths, band.azimuth))
+        .collect();
+    let mut served = vec![0.0; PILOT_DIRECTIONS];
+    // The posts around features count for the largest errors only: they
+    // are chosen where errors are large, and would bias the percentiles,
+    // which are over the scene's posts.
+    for (post, exact) in pilot.exact.iter().enumerate() {
+        let sampled = post < pilot.scene_posts();
+        let kept: Vec<f64> = (0..azimuths.len()).map(|k| value(post, k)).collect();
+        // Where nothing lies ahead, of the reference or of a serving band,
+        // the DEM's edge cuts the horizon: `check` leaves those out (its
+        // "at the DEM's edge"), and so does the prediction.
+        let facing_out = |k: usize| kept[k] == NOTHING_AHEAD;
+        for ((&(i, j, f), &truth), out) in around.iter().zip(exact).zip(&mut served) {
+            *out = between(kept[i], kept[j], f);
+            let at_edge = truth == NOTHING_AHEAD || facing_out(i) || facing_out(j);
+            if out.is_finite() && truth.is_finite() && !at_edge {
+                let error = (*out - truth).abs();
+                if sampled {
+                    e.horizon.push(error);
+                }
+                e.horizon_max = e.horizon_max.max(error);
+            }
+        }
+        let s = svf_of_horizons(&integrals, kept.iter().copied());
+        let truth = pilot.svf(exact);
+        if s.is_finite() && truth.is_finite() {
+            e.svf_max = e.svf_max.max((s - truth).abs());
+            if sampled {
+                e.svf.push((s - truth).abs());
+            }
+        }
+        if !sampled {
+            continue;
+        }
+        e.shade_pairs += suns.shade.len();
+        e.shade_wrong += suns
+            .shade
+            .iter()
+            .filter(|sun| shade_differs(sun.elevation, served[sun.direction], exact[sun.direction]))
+            .count();
+        if !suns.solar.is_empty() {
+            e.solar.push(solar_error(&suns.solar, &served, exact));
+        }
+    }
+    e
+}
+
+/// `deg` stored as `encoding` and read back.
+pub(super) fn stored_as(encoding: AngleEncoding, deg: f64) -> f64 {
+    encoding.decode(encoding.encode(deg)).unwrap_or(f64::NAN)
+}
+
+/// The errors of the measured directions `stored` cut at
+/// `DISTANCES[distance]`, stored as `encoding`.
+pub(super) fn predict(
+    pilot: &Pilot,
+    suns: &PilotSuns,
+    stored: &[usize],
+    distance: Option<usize>,
+    encoding: AngleEncoding,
+) -> Errors {
+    errors(pilot, stored, suns, |i, j| {
+        let angle = distance.map_or(pilot.exact[i][j], |k| pilot.bounded(i, j, k));
+        stored_as(encoding, angle)
+    })
+}
+
+/// Seconds of the horizons (and the sky) of `sectors` bands by `method`
+/// over the whole DEM; for line, to the edge.
+pub(super) fn seconds(costs: &LineCosts, method: Method, sectors: usize) -> f64 {
+    match method {
+        Method::Line => costs.seconds(sectors, None),
+        Method::Sector => costs.sector_seconds(sectors),
+        Method::Sampled => costs.sampled_seconds(sectors),
+    }
+}
+
+/// Peak memory of `method`'s `sectors` bands over the whole DEM, MiB.
+pub(super) fn memory_mib(costs: &LineCosts, method: Method, sectors: usize) -> f64 {
+    match method {
+        Method::Line => costs.memory_mib(sectors, None),
+        Method::Sector => costs.sector_memory_mib(),
+        Method::Sampled => costs.sampled_memory_mib(sectors),
+    }
+}
+
+/// `method`'s (sector or sampled) candidate beside `line`'s: the fewest
+/// of [`OTHER_COUNTS`] predicted faster than the line whose error (f32,
+/// from the whole DEM) meets the budget within the directions' share, as
+/// the line's count is chosen; where none does, the method at the line's
+/// own count (the same bytes; at most the ladder's last), to say what it
+/// would give. Counts slower than the line are not measured: they cannot
+/// be chosen, and each costs the pilot a scan of its posts' reach.
+pub(super) fn other_method(
+    pilot: &Pilot,
+    terrain: &Terrain,
+    suns: &PilotSuns,
+    budget: &Budget,
+    costs: &LineCosts,
+    (method, line): (Method, &Candidate),
+) -> Candidate {
+    let faster = OTHER_COUNTS
+        .into_iter()
+        .take_while(|&count| seconds(costs, method, count) < line.seconds);
+    let judged = |count: usize| {
+        let (c, mut e) = measure_other(
+            pilot,
+            terrain,
+            suns,
+            (costs, method, count),
+            AngleEncoding::F32,
+        );
+        Candidate {
+            meets: e.within(budget, SHARE_DIRECTIONS),
+            ..c
+        }
+    };
+    for count in faster {
+        let c = judged(count);
+        if c.meets {
+            return c;
+        }
+    }
+    judged(line.sectors.min(OTHER_COUNTS[OTHER_COUNTS.len() - 1]))
+}
+
+/// `count` bands of `method` at the pilot's posts, stored as `encoding`:
+/// the candidate and its errors.
+pub(super) fn measure_other(
+    pilot: &Pilot,
+    terrain: &Terrain,
+    suns: &PilotSuns,
+    (costs, method, count): (&LineCosts, Method, usize),
+    encoding: AngleEncoding,
+) -> (Candidate, Errors) {
+    let values = pilot.measure_method(terrain, method, count);
+    let azimuths: Vec<f64> = (0..count)
+        .map(|i| i as f64 * 360.0 / count as f64)
+        .collect();
+    let mut e = errors_at(pilot, &azimuths, suns, |post, k| {
+        stored_as(encoding, values[post][k])
+    });
+    let candidate = Candidate::predicted((method, count, encoding), &mut e, costs);
+    (candidate, e)
+}
