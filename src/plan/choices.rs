@@ -8,7 +8,8 @@ use super::budget::Budget;
 use super::models::{LineCosts, CONES_SECONDS_PER_POST, CONE_SLICES};
 use super::round_up;
 use super::{
-    Candidate, Choice, Scene, DISTANCES, SHARE_DIRECTIONS, SHARE_DISTANCE, SHARE_QUANTISATION,
+    Candidate, Choice, Scene, DISTANCES, OTHERS_MEASURED_UP_TO_VISITS, SHARE_DIRECTIONS,
+    SHARE_DISTANCE, SHARE_QUANTISATION,
 };
 use crate::algorithms::horizon::line::default_tolerance;
 use crate::algorithms::horizon::Method;
@@ -91,44 +92,67 @@ pub(super) fn tiles_choice(
 }
 
 /// Why the horizons are `chosen`'s method: of the line's candidate
-/// (`line`) and the other methods' (`others`: each one's fewest count
+/// (`line`) and the other methods' (`measured`: each one's fewest count
 /// predicted faster than the line that meets the budget, or its candidate
-/// at the line's count), the fastest to meet the budget. The rejected name
-/// the runner-up first.
-pub(super) fn method_choice(chosen: &Candidate, line: &Candidate, others: &[Candidate]) -> Choice {
-    let what = |c: &Candidate| match c.method {
-        Method::Line => format!("{} line directions", c.sectors),
-        Method::Sector => format!("{} sectors", c.sectors),
-        Method::Sampled => format!("{} sampled directions", c.sectors),
+/// at the line's count; `unmeasured`: method, count and predicted seconds
+/// of those too slow to measure on this DEM), the fastest to meet the
+/// budget. The rejected name the runner-up first.
+pub(super) fn method_choice(
+    chosen: &Candidate,
+    line: &Candidate,
+    (measured, unmeasured): (&[Candidate], &[(Method, usize, f64)]),
+) -> Choice {
+    let what = |method: Method, sectors: usize| match method {
+        Method::Line => format!("{sectors} line directions"),
+        Method::Sector => format!("{sectors} sectors"),
+        Method::Sampled => format!("{sectors} sampled directions"),
+    };
+    let ratio = |seconds: f64| seconds / chosen.seconds.max(1e-9);
+    let same_bytes = |sectors: usize| {
+        if sectors == line.sectors {
+            " (the same bytes)"
+        } else {
+            ""
+        }
     };
     let mut rejected: Vec<&Candidate> = std::iter::once(line)
-        .chain(others)
+        .chain(measured)
         .filter(|c| c.method != chosen.method)
         .collect();
     rejected.sort_by(|a, b| b.meets.cmp(&a.meets).then(a.seconds.total_cmp(&b.seconds)));
     let rejected = rejected
         .into_iter()
         .map(|c| {
-            let ratio = c.seconds / chosen.seconds.max(1e-9);
             if c.meets {
                 format!(
-                    "{}: {} meet the budget in {:.1} s predicted ({ratio:.1}x), {}",
+                    "{}: {} meet the budget in {:.1} s predicted ({:.1}x), {}",
                     c.method.name(),
-                    what(c),
+                    what(c.method, c.sectors),
                     c.seconds,
+                    ratio(c.seconds),
                     c.errors_text()
                 )
             } else {
                 format!(
-                    "{}: no count predicted faster meets the budget; {}{} leave {} in {:.1} s predicted ({ratio:.1}x)",
+                    "{}: no count predicted faster meets the budget; {}{} leave {} in {:.1} s predicted ({:.1}x)",
                     c.method.name(),
-                    what(c),
-                    if c.sectors == line.sectors { " (the same bytes)" } else { "" },
+                    what(c.method, c.sectors),
+                    same_bytes(c.sectors),
                     c.errors_text(),
                     c.seconds,
+                    ratio(c.seconds),
                 )
             }
         })
+        .chain(unmeasured.iter().map(|&(method, sectors, seconds)| {
+            format!(
+                "{}: no count predicted faster; {}{} would take {seconds:.1} s predicted ({:.1}x), not measured (its scans at the pilot's posts would visit over {OTHERS_MEASURED_UP_TO_VISITS:.0e} posts)",
+                method.name(),
+                what(method, sectors),
+                same_bytes(sectors),
+                ratio(seconds),
+            )
+        }))
         .collect::<Vec<_>>();
     Choice {
         what: "method".into(),
@@ -139,7 +163,7 @@ pub(super) fn method_choice(chosen: &Candidate, line: &Candidate, others: &[Cand
         },
         why: format!(
             "the fastest of the three methods to meet the budget, each measured at the pilot's posts against the exact references: {} in {:.1} s predicted",
-            what(chosen),
+            what(chosen.method, chosen.sectors),
             chosen.seconds
         ),
         rejected: (!rejected.is_empty()).then(|| rejected.join("; ")),

@@ -83,7 +83,9 @@ use models::{
     SOLAR_SECONDS_PER_POST_DAY,
 };
 pub use models::{TimeModels, TIME_MODELS_VAR};
-use predict::{errors, measure_other, other_method, predict, stored_as, Errors, PilotSuns};
+use predict::{
+    errors, measure_other, other_count, other_method, predict, stored_as, Errors, PilotSuns,
+};
 
 use std::time::Instant;
 
@@ -113,6 +115,13 @@ const PILOT_DIRECTIONS: usize = 720;
 /// pilot posts' reach): a coarser ladder, as neither has ever met a budget
 /// faster than line (docs/PLANNING.md, "The method").
 pub const OTHER_COUNTS: [usize; 5] = [4, 8, 16, 32, 64];
+/// The most posts a method no count of which is predicted faster than the
+/// line may visit at the pilot's posts to be measured anyway, to say what
+/// it would give (`predict::pilot_visits`): the sector's scans reach across much
+/// of the DEM where horizons are low, 0.6-0.7 s on the 1201 x 1201 tiles
+/// (5.6e8 visits at most) but 33 s on an 8192 x 8192 fractal (2.6e10),
+/// whose whole pilot took 16 s before.
+pub const OTHERS_MEASURED_UP_TO_VISITS: f64 = 2e9;
 /// Direction counts the planner considers (divisors of 720).
 const CANDIDATES: [usize; 20] = [
     4, 6, 8, 10, 12, 16, 18, 20, 24, 30, 36, 40, 48, 60, 72, 90, 120, 180, 240, 360,
@@ -987,10 +996,16 @@ fn plan_horizons(
     );
     // The method: the line's, unless another meets the budget in less
     // time (and fits the memory limit).
-    let methods: Vec<Candidate> = [Method::Sector, Method::Sampled]
-        .into_iter()
-        .map(|method| other_method(pilot, terrain, suns, budget, costs, (method, &line)))
-        .collect();
+    let (mut methods, mut unmeasured) = (Vec::new(), Vec::new());
+    for method in [Method::Sector, Method::Sampled] {
+        match other_method(pilot, terrain, suns, budget, costs, (method, &line)) {
+            Some(c) => methods.push(c),
+            None => {
+                let count = other_count(&line);
+                unmeasured.push((method, count, predict::seconds(costs, method, count)));
+            }
+        }
+    }
     let faster = methods
         .iter()
         .filter(|c| c.meets && c.seconds < line.seconds)
@@ -1016,7 +1031,7 @@ fn plan_horizons(
             ..c
         };
         let choices = vec![
-            method_choice(&chosen, &line, &methods),
+            method_choice(&chosen, &line, (&methods, &unmeasured)),
             encoding_choice(encoding),
             Choice {
                 what: "distance".into(),
@@ -1038,7 +1053,7 @@ fn plan_horizons(
     }
     let chosen = line;
     let choices = vec![
-        method_choice(&chosen, &chosen, &methods),
+        method_choice(&chosen, &chosen, (&methods, &unmeasured)),
         Choice {
             what: "directions".into(),
             chosen: sectors.to_string(),

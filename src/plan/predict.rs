@@ -10,7 +10,10 @@
 use terrabake_format::horizons::{bands_around, between, AngleEncoding, NOTHING_AHEAD};
 
 use super::models::LineCosts;
-use super::{Candidate, DECISION_QUANTILE, OTHER_COUNTS, PILOT_DIRECTIONS, SHARE_DIRECTIONS};
+use super::{
+    Candidate, DECISION_QUANTILE, OTHERS_MEASURED_UP_TO_VISITS, OTHER_COUNTS, PILOT_DIRECTIONS,
+    SHARE_DIRECTIONS,
+};
 use crate::algorithms::horizon::sky::{svf_of_horizons, BandIntegrals};
 use crate::algorithms::horizon::Method;
 use crate::plan::budget::Budget;
@@ -202,12 +205,28 @@ pub(super) fn memory_mib(costs: &LineCosts, method: Method, sectors: usize) -> f
     }
 }
 
+/// The most posts `method` visits at `pilot_posts` posts in `count` bands:
+/// the whole DEM for the sector's scans, a walk to the far edge for each
+/// sampled direction.
+pub(super) fn pilot_visits(
+    costs: &LineCosts,
+    pilot_posts: usize,
+    (method, count): (Method, usize),
+) -> f64 {
+    let per_post = match method {
+        Method::Line | Method::Sector => costs.posts,
+        Method::Sampled => count as f64 * (costs.width + costs.height) as f64,
+    };
+    pilot_posts as f64 * per_post
+}
+
 /// `method`'s (sector or sampled) candidate beside `line`'s: the fewest
 /// of [`OTHER_COUNTS`] predicted faster than the line whose error (f32,
 /// from the whole DEM) meets the budget within the directions' share, as
 /// the line's count is chosen; where none does, the method at the line's
 /// own count (the same bytes; at most the ladder's last), to say what it
-/// would give. Counts slower than the line are not measured: they cannot
+/// would give, where that visits at most [`OTHERS_MEASURED_UP_TO_VISITS`]
+/// posts (`None` beyond). Counts slower than the line are not measured: they cannot
 /// be chosen, and each costs the pilot a scan of its posts' reach.
 pub(super) fn other_method(
     pilot: &Pilot,
@@ -216,7 +235,7 @@ pub(super) fn other_method(
     budget: &Budget,
     costs: &LineCosts,
     (method, line): (Method, &Candidate),
-) -> Candidate {
+) -> Option<Candidate> {
     let faster = OTHER_COUNTS
         .into_iter()
         .take_while(|&count| seconds(costs, method, count) < line.seconds);
@@ -236,10 +255,18 @@ pub(super) fn other_method(
     for count in faster {
         let c = judged(count);
         if c.meets {
-            return c;
+            return Some(c);
         }
     }
-    judged(line.sectors.min(OTHER_COUNTS[OTHER_COUNTS.len() - 1]))
+    let count = other_count(line);
+    (pilot_visits(costs, pilot.posts.len(), (method, count)) <= OTHERS_MEASURED_UP_TO_VISITS)
+        .then(|| judged(count))
+}
+
+/// The count another method is measured at, or predicted at, to say what
+/// it would give beside `line`: the line's, at most the ladder's last.
+pub(super) fn other_count(line: &Candidate) -> usize {
+    line.sectors.min(OTHER_COUNTS[OTHER_COUNTS.len() - 1])
 }
 
 /// `count` bands of `method` at the pilot's posts, stored as `encoding`:
