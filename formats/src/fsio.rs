@@ -165,6 +165,16 @@ pub fn create_temp(target: &Path) -> std::io::Result<(File, PathBuf)> {
             std::process::id()
         ));
         crash_point();
+        // Created and registered under the one lock: an interrupt between
+        // the two would leave a temporary it never knew of, and one after
+        // it has taken the list must find no new one made.
+        let mut registered = TEMPORARIES.lock().unwrap_or_else(|e| e.into_inner());
+        if INTERRUPTED.load(Ordering::SeqCst) {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::Interrupted,
+                "interrupted: no new temporary file",
+            ));
+        }
         match OpenOptions::new()
             .write(true)
             .create_new(true)
@@ -173,10 +183,7 @@ pub fn create_temp(target: &Path) -> std::io::Result<(File, PathBuf)> {
             .open(&path)
         {
             Ok(file) => {
-                TEMPORARIES
-                    .lock()
-                    .unwrap_or_else(|e| e.into_inner())
-                    .push(path.clone());
+                registered.push(path.clone());
                 return Ok((file, path));
             }
             // Someone (or something) holds that name: take another.
@@ -189,13 +196,20 @@ pub fn create_temp(target: &Path) -> std::io::Result<(File, PathBuf)> {
 /// Every temporary this process has created (a name is never used twice,
 /// so one renamed into place or removed since is simply gone).
 static TEMPORARIES: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+/// Set once [`remove_temporaries`] has run: the process is ending, and
+/// [`create_temp`] makes no more.
+static INTERRUPTED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
 
 /// Removes every temporary this process created that is still there, and
 /// returns how many: for a writer interrupted (Ctrl-C, a scheduler's
 /// SIGTERM) before it could clean up, so that it leaves nothing half
-/// written behind. Committed files are never touched.
+/// written behind. Committed files are never touched, and no temporary is
+/// created after it.
 pub fn remove_temporaries() -> usize {
-    let paths = std::mem::take(&mut *TEMPORARIES.lock().unwrap_or_else(|e| e.into_inner()));
+    let mut registered = TEMPORARIES.lock().unwrap_or_else(|e| e.into_inner());
+    INTERRUPTED.store(true, Ordering::SeqCst);
+    let paths = std::mem::take(&mut *registered);
+    drop(registered);
     paths
         .iter()
         .filter(|p| std::fs::remove_file(p).is_ok())
