@@ -603,10 +603,6 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
     // that the line sweeps hold would not fit the memory limit; then the
     // largest smaller power of two (down to 32) that fits, for a re-ingest.
     let ingested_tile = tile;
-    let held_mib = |costs: &LineCosts, c: &Candidate| match c.method {
-        Method::Line => costs.memory_mib(c.sectors, c.max_distance),
-        other => predict::memory_mib(costs, other, c.sectors),
-    };
     if let (Some(c), Some(limit)) = (chosen.as_mut(), budget.memory) {
         while c.method == Method::Line
             && costs.memory_mib(c.sectors, c.max_distance) > limit as f64
@@ -648,7 +644,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
     if let Some(c) = &chosen {
         seconds += c.seconds;
         bytes += c.bytes;
-        memory_mib = memory_mib.max(held_mib(&costs, c));
+        memory_mib = memory_mib.max(predict::memory_mib(&costs, c));
     }
     if needs.has(Need::Solar) {
         let days = crate::stages::solar::Days::YEAR;
@@ -927,8 +923,9 @@ fn plan_horizons(
         let mut e = predict(pilot, suns, &stored, None, AngleEncoding::F32);
         let (horizon, svf, _) = e.at(DECISION_QUANTILE);
         deciding = (horizon, svf);
-        let meets = e.within(budget, SHARE_DIRECTIONS);
-        candidates.push(candidate((s, None), None, AngleEncoding::F32, &mut e));
+        let c = candidate((s, None), None, AngleEncoding::F32, &mut e);
+        let meets = c.meets;
+        candidates.push(c);
         if meets {
             sectors = Some(s);
             break;
@@ -960,13 +957,9 @@ fn plan_horizons(
         }
         let measured = pilot.measure_directions(terrain, &bands, || ());
         let mut e = predict(pilot, suns, &measured, None, AngleEncoding::F32);
-        let meets = e.within(budget, SHARE_DIRECTIONS);
-        candidates.push(candidate(
-            (sectors, Some(tol)),
-            None,
-            AngleEncoding::F32,
-            &mut e,
-        ));
+        let c = candidate((sectors, Some(tol)), None, AngleEncoding::F32, &mut e);
+        let meets = c.meets;
+        candidates.push(c);
         if meets {
             (tolerance, stored) = ((tol, cost), measured);
         } else {
@@ -1012,7 +1005,7 @@ fn plan_horizons(
         .filter(|c| {
             budget
                 .memory
-                .is_none_or(|l| predict::memory_mib(costs, c.method, c.sectors) <= l as f64)
+                .is_none_or(|l| predict::memory_mib(costs, c) <= l as f64)
         })
         .min_by(|a, b| a.seconds.total_cmp(&b.seconds));
     if let Some(other) = faster {

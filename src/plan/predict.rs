@@ -196,12 +196,13 @@ pub(super) fn seconds(costs: &LineCosts, method: Method, sectors: usize) -> f64 
     }
 }
 
-/// Peak memory of `method`'s `sectors` bands over the whole DEM, MiB.
-pub(super) fn memory_mib(costs: &LineCosts, method: Method, sectors: usize) -> f64 {
-    match method {
-        Method::Line => costs.memory_mib(sectors, None),
+/// Peak memory of baking `c`, MiB: line's by its route (the DEM held
+/// where its reach is bounded), the others' over the whole DEM.
+pub(super) fn memory_mib(costs: &LineCosts, c: &Candidate) -> f64 {
+    match c.method {
+        Method::Line => costs.memory_mib(c.sectors, c.max_distance),
         Method::Sector => costs.sector_memory_mib(),
-        Method::Sampled => costs.sampled_memory_mib(sectors),
+        Method::Sampled => costs.sampled_memory_mib(c.sectors),
     }
 }
 
