@@ -1214,3 +1214,83 @@ fn trimmed_hulls_keep_the_bits_and_bound_a_curved_sea() {
     }
     assert!(trims > 20, "trims shortened only {trims} sweeps' hulls");
 }
+
+/// A horizon layer's features (`terrabake_format::features`) are exact: the
+/// horizon of a sight line is the larger of the features' horizon (the
+/// crossings with the six segments that meet at each feature post) and the
+/// horizon of the same terrain with each feature lowered to its highest
+/// neighbour. Checked against the brute-force reference on the spike plain
+/// and on a fractal with masts (one within 90 posts of another), with
+/// curvature, at every third post and 360 azimuths off the grid
+/// directions; the features set the horizon at some of them, by degrees.
+#[test]
+fn a_features_horizon_and_the_terrain_without_it_make_the_exact_horizon() {
+    use terrabake::algorithms::horizon::features::spikes_in_rows;
+    use terrabake_format::features::{HorizonFeatures, SightLine};
+
+    let (w, h, spacing) = (64, 48, 30.0);
+    let masts: &[(usize, usize, f32)] = &[(20, 30, 400.0), (50, 10, 150.0), (8, 5, 200.0)];
+    for (name, kind, raised) in [
+        ("spike", SynthKind::Spike, &[][..]),
+        ("fractal with masts", SynthKind::Fractal, masts),
+    ] {
+        let mut z = synth_grid(kind, w, h, 7);
+        for &(x, y, up) in raised {
+            z[y * w + x] += up;
+        }
+        let curvature = curvature_coefficient(0.13);
+        let t = Terrain::new(&z, w, h, spacing, spacing).with_curvature(curvature);
+        let mut spikes = Vec::new();
+        spikes_in_rows(&t, 0..h, 50.0, 16, &mut spikes);
+        assert_eq!(spikes.len(), 1.max(raised.len()), "{name}: {spikes:?}");
+        let features = HorizonFeatures {
+            curvature,
+            max_distance: None,
+            posts: spikes.iter().map(|s| s.post).collect(),
+        };
+        let mut lowered = z.clone();
+        for s in &spikes {
+            lowered[s.post.y as usize * w + s.post.x as usize] -= s.rise;
+        }
+        let tl = Terrain::new(&lowered, w, h, spacing, spacing).with_curvature(curvature);
+        let exact = |t: &Terrain, post, az| {
+            brute::ray_horizon_records(t, post, az)
+                .last()
+                .map_or(-90.0, |r| f64::from(r.angle))
+        };
+        let (mut compared, mut set_by_features) = (0, 0);
+        for y in (0..h).step_by(3) {
+            for x in (0..w).step_by(3) {
+                if spikes
+                    .iter()
+                    .any(|s| (s.post.x, s.post.y) == (x as u32, y as u32))
+                {
+                    continue; // Its own eye was lowered.
+                }
+                for k in 0..360 {
+                    let az = k as f64 + 0.37;
+                    let line = SightLine::new(
+                        (x as u32, y as u32),
+                        f64::from(z[y * w + x]),
+                        az,
+                        (spacing, spacing),
+                    );
+                    let feature = features.horizon(&line).unwrap_or(-90.0);
+                    let without = exact(&tl, (x, y), az);
+                    let truth = exact(&t, (x, y), az);
+                    assert!(
+                        (feature.max(without) - truth).abs() < 1e-4,
+                        "{name}: post ({x}, {y}), azimuth {az}: features {feature}, lowered {without}, exact {truth}"
+                    );
+                    compared += 1;
+                    set_by_features += usize::from(feature > without + 1.0);
+                }
+            }
+        }
+        assert!(
+            set_by_features > 100,
+            "{name}: {set_by_features} of {compared}"
+        );
+        eprintln!("{name}: the features set {set_by_features} of {compared} horizons by more than a degree");
+    }
+}

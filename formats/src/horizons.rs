@@ -32,6 +32,7 @@
 //! module.
 
 use crate::error::{Error, Result};
+use crate::features::{serve, HorizonFeatures, SightLine};
 use crate::manifest::Quantization;
 use crate::reader::{Asset, Layer};
 use crate::ElemType;
@@ -105,6 +106,13 @@ impl AngleEncoding {
     #[inline]
     pub fn step_deg(self) -> f64 {
         self.codes().map_or(0.0, |n| 180.0 / n)
+    }
+
+    /// How far below a band's angle the features' horizon at its azimuth
+    /// may be and still be what set it (`crate::features::serve`): the
+    /// encoding's error and the rounding of an `f32` angle.
+    pub fn feature_tolerance(self) -> f64 {
+        self.max_error_deg() + 1e-3
     }
 
     /// The worst error of a stored angle, in degrees: half a step, or f32
@@ -231,10 +239,13 @@ pub fn bands_around(azimuths: &[f64], azimuth: f64) -> (usize, usize, f64) {
 
 /// The horizon a fraction `f` of the way from band angle `h0` to `h1`
 /// (degrees): linear, except that [`NOTHING_AHEAD`] is a marker and not an
-/// angle, so between it and a real angle the real one is served.
+/// angle, so between it and a real angle the real one is served. On the
+/// band itself (`f` 0) the band is served, marker or not.
 #[inline]
 pub fn between(h0: f64, h1: f64, f: f64) -> f64 {
-    if h0 == NOTHING_AHEAD && h1 != NOTHING_AHEAD {
+    if f == 0.0 {
+        h0
+    } else if h0 == NOTHING_AHEAD && h1 != NOTHING_AHEAD {
         h1
     } else if h1 == NOTHING_AHEAD && h0 != NOTHING_AHEAD {
         h0
@@ -297,6 +308,9 @@ pub struct HorizonMap<'a, D> {
     layer: &'a Layer<D>,
     encoding: AngleEncoding,
     azimuths: Vec<f64>,
+    /// The layer's features and what serving them needs: the heights (the
+    /// eye of each sight line) and the post spacing, metres.
+    features: Option<(&'a HorizonFeatures, &'a Layer<D>, (f64, f64))>,
 }
 
 impl<D> std::fmt::Debug for HorizonMap<'_, D> {
@@ -323,15 +337,33 @@ impl<'a, D: AsRef<[u8]>> HorizonMap<'a, D> {
                 entry.band_azimuths.len()
             )));
         }
+        let features = match &entry.features {
+            Some(f) if !f.posts.is_empty() => {
+                let m = asset.manifest();
+                Some((f, asset.height()?, (m.cell_size.dx, m.cell_size.dy)))
+            }
+            _ => None,
+        };
         Ok(Self {
             layer,
             encoding,
             azimuths: entry.band_azimuths.clone(),
+            features,
         })
+    }
+
+    /// The posts served exactly between bands (`crate::features`), if any.
+    pub fn features(&self) -> Option<&HorizonFeatures> {
+        self.features.map(|(f, _, _)| f)
     }
 
     pub fn encoding(&self) -> AngleEncoding {
         self.encoding
+    }
+
+    /// The `horizon` layer itself.
+    pub fn layer(&self) -> &'a Layer<D> {
+        self.layer
     }
 
     /// Compass azimuth of each band, degrees.
@@ -358,16 +390,49 @@ impl<'a, D: AsRef<[u8]>> HorizonMap<'a, D> {
     }
 
     /// [`Self::horizon_at`], saying whether one band had nothing ahead.
+    /// With features, their exact horizon where it is higher, and the
+    /// terrain behind a band they set taken from the bands beside it
+    /// ([`crate::features::serve`]).
     pub fn served_at(&self, x: u32, y: u32, azimuth: f64) -> Result<Option<Served>> {
-        let (i, j, f) = bands_around(&self.azimuths, azimuth);
-        let (Some(h0), Some(h1)) = (self.angle(x, y, i as u32)?, self.angle(x, y, j as u32)?)
-        else {
+        let angle = |k: usize| self.angle(x, y, k as u32);
+        let Some((features, heights, spacing)) = self.features else {
+            return serve(&self.azimuths, azimuth, angle, (|_| None, None), 0.0);
+        };
+        let Some(eye) = heights.height_at(x, y)? else {
             return Ok(None);
         };
-        Ok(Some(Served {
-            angle: between(h0, h1, f),
-            at_edge: h0 == NOTHING_AHEAD || h1 == NOTHING_AHEAD,
-        }))
+        let feature = |az: f64| features.horizon(&SightLine::new((x, y), eye.into(), az, spacing));
+        serve(
+            &self.azimuths,
+            azimuth,
+            angle,
+            (|k: usize| feature(self.azimuths[k]), feature(azimuth)),
+            self.encoding.feature_tolerance(),
+        )
+    }
+
+    /// [`Self::horizon_at`] at every post of rows `y0..` (whole rows, as
+    /// many as `out` holds), degrees, NaN for nodata: a map of the horizon
+    /// in one direction (sun shadows, `r.horizon`'s files).
+    pub fn served_rows(&self, azimuth: f64, y0: u32, out: &mut [f32]) -> Result<()> {
+        if self.features.is_some() {
+            let w = self.layer.width() as usize;
+            for (k, a) in out.iter_mut().enumerate() {
+                let (x, y) = ((k % w) as u32, y0 + (k / w) as u32);
+                *a = self
+                    .horizon_at(x, y, azimuth)?
+                    .map_or(f32::NAN, |v| v as f32);
+            }
+            return Ok(());
+        }
+        let (i, j, f) = bands_around(&self.azimuths, azimuth);
+        let mut other = vec![0f32; out.len()];
+        self.layer.read_rows_f32(i as u32, y0, out)?;
+        self.layer.read_rows_f32(j as u32, y0, &mut other)?;
+        for (a, &b) in out.iter_mut().zip(&other) {
+            *a = between(f64::from(*a), f64::from(b), f) as f32;
+        }
+        Ok(())
     }
 
     /// Fraction of the sun's disc (centre at `sun_azimuth`, `sun_elevation`,
@@ -455,6 +520,9 @@ mod tests {
         assert_eq!(between(NOTHING_AHEAD, 20.0, 0.25), 20.0);
         assert_eq!(between(20.0, NOTHING_AHEAD, 0.75), 20.0);
         assert_eq!(between(NOTHING_AHEAD, NOTHING_AHEAD, 0.5), NOTHING_AHEAD);
+        // On a band, the band: facing out over the edge there is no angle.
+        assert_eq!(between(NOTHING_AHEAD, 20.0, 0.0), NOTHING_AHEAD);
+        assert_eq!(between(20.0, NOTHING_AHEAD, 0.0), 20.0);
         for enc in [AngleEncoding::U8, AngleEncoding::U16, AngleEncoding::F32] {
             assert_eq!(enc.decode(enc.encode(NOTHING_AHEAD)), Some(NOTHING_AHEAD));
         }

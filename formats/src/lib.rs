@@ -33,6 +33,7 @@
 pub mod cones;
 mod decode;
 pub mod error;
+pub mod features;
 pub mod fsio;
 pub mod horizons;
 pub mod layers;

@@ -182,6 +182,11 @@ pub struct LayerEntry {
     /// azimuth of each band, in degrees clockwise from north.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub band_azimuths: Vec<f64>,
+    /// For the `horizon` layer: the posts whose horizon the reader serves
+    /// exactly between bands ([`crate::features`]). A reader that does not
+    /// know them serves the bands alone, as before they were.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub features: Option<crate::features::HorizonFeatures>,
 }
 
 /// An affine map from stored to real values: `real = offset + scale * stored`
@@ -262,6 +267,12 @@ impl LayerEntry {
                 self.band_azimuths.len(),
                 self.bands
             ));
+        }
+        if let Some(features) = &self.features {
+            if self.band_azimuths.is_empty() {
+                return bad("features on a layer without band_azimuths".into());
+            }
+            features.validate((self.width, self.height)).or_else(bad)?;
         }
         Ok(())
     }

@@ -474,6 +474,7 @@ impl LayerWriter {
             description: self.spec.description.clone(),
             quantization: None,
             band_azimuths: Vec::new(),
+            features: None,
         })
     }
 }

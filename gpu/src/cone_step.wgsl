@@ -197,10 +197,12 @@ fn lit_at(x: u32, y: u32) -> f32 {
     if (h0 < -1000.0 || h1 < -1000.0) {
         return -1.0;
     }
-    // -90 is "nothing ahead", a marker: never blended with a real angle
-    // (terrabake_format::horizons::between).
+    // -90 is "nothing ahead", a marker: never blended with a real angle,
+    // and on a band the band itself (terrabake_format::horizons::between).
     var h = h0 + f * (h1 - h0);
-    if (h0 == -90.0 && h1 != -90.0) {
+    if (f == 0.0) {
+        h = h0;
+    } else if (h0 == -90.0 && h1 != -90.0) {
         h = h1;
     } else if (h1 == -90.0 && h0 != -90.0) {
         h = h0;

@@ -826,6 +826,7 @@ fn adopt(
     let mut entry = writer.finish()?;
     entry.quantization = e.quantization;
     entry.band_azimuths = e.band_azimuths.clone();
+    entry.features = e.features.clone();
     Ok(entry)
 }
 

@@ -8,15 +8,16 @@
 //! take the factor from a lookup by the sun's azimuth and elevation and
 //! multiply their flat-plane direct irradiance by it each time step; a
 //! band per position of such a table is this file. Where HORAYZON traces
-//! a ray per post and sun, a post here reads its horizon between the two
-//! bands around the sun's azimuth, the same shadow test as the solar
+//! a ray per post and sun, a post here reads its horizon as the loader serves it
+//! at the sun's azimuth (between the two bands around it, and any listed
+//! features), the same shadow test as the solar
 //! stage. Rows stream through the GeoTIFF writer a tile row at a time, so
 //! memory is bounded as every export's is.
 
 use std::path::Path;
 
 use anyhow::{Context, Result};
-use terrabake_format::horizons::{bands_around, between, HORIZON};
+use terrabake_format::horizons::{HorizonMap, HORIZON};
 use terrabake_format::{Asset, Layer, Mmap};
 
 use super::{cog_for_layer, TiffOptions};
@@ -31,8 +32,7 @@ use crate::terrain::{RowScale, Terrain};
 #[derive(Debug)]
 pub struct Correction<'a> {
     height: &'a Layer<Mmap>,
-    horizon: &'a Layer<Mmap>,
-    azimuths: Vec<f64>,
+    horizon: HorizonMap<'a, Mmap>,
     row_scale: Vec<f64>,
     cell: (f64, f64),
     /// Degrees from true north to grid north, clockwise.
@@ -45,16 +45,15 @@ pub struct Correction<'a> {
 impl<'a> Correction<'a> {
     pub fn new(asset: &'a Asset<Mmap>) -> crate::Result<Self> {
         let m = asset.manifest();
-        let horizon = asset
+        asset
             .layer(HORIZON, 0)
             .context("the asset has no horizon layer; run `terrabake horizons` first")?;
-        let azimuths = horizon.entry().band_azimuths.clone();
+        let horizon = HorizonMap::open(asset)?;
         let (w, h) = (m.width, m.height);
         let georef = m.georef.as_ref();
         Ok(Self {
             height: asset.height()?,
             horizon,
-            azimuths,
             row_scale: crate::terrain::geo::row_scale(georef, h),
             cell: (m.cell_size.dx, m.cell_size.dy),
             convergence: georef.map_or(0.0, |g| crate::terrain::geo::grid_convergence(g, w, h)),
@@ -72,7 +71,6 @@ impl<'a> Correction<'a> {
             ..sun
         };
         let s = grid.direction();
-        let (i, j, t) = bands_around(&self.azimuths, grid.azimuth.rem_euclid(360.0));
         // The normals need the rows either side.
         let (r0, r1) = (y0.saturating_sub(1), (y0 + rows + 1).min(h));
         let mut z = vec![0f32; (r1 - r0) * w];
@@ -80,12 +78,12 @@ impl<'a> Correction<'a> {
             .read_window(0, 0, r0 as u32, w as u32, (r1 - r0) as u32, &mut z)?;
         let terrain = Terrain::window(&z, (w, h), r0, self.cell)
             .with_row_scale(RowScale::new(&self.row_scale));
-        let (mut h0, mut h1) = (vec![0f32; out.len()], vec![0f32; out.len()]);
-        self.horizon.read_rows_f32(i as u32, y0 as u32, &mut h0)?;
-        self.horizon.read_rows_f32(j as u32, y0 as u32, &mut h1)?;
+        // The horizon towards the sun, as `lit_fraction` serves it.
+        let mut towards_sun = vec![0f32; out.len()];
+        (self.horizon).served_rows(grid.azimuth.rem_euclid(360.0), y0 as u32, &mut towards_sun)?;
         for (k, o) in out.iter_mut().enumerate() {
             let (x, row) = (k % w, y0 + k / w);
-            let horizon = between(f64::from(h0[k]), f64::from(h1[k]), t);
+            let horizon = f64::from(towards_sun[k]);
             *o = match terrain.normal(x, row) {
                 Some(n) if !horizon.is_nan() => {
                     let f = direct_correction(n, horizon, s);
@@ -115,7 +113,7 @@ pub fn write_direct_correction(
     correction.per_horizontal_area = per_horizontal_area;
     let bands = u16::try_from(suns.len()).context("more suns than a GeoTIFF has bands")?;
     // The horizon layer's frame: its georeferencing, and NaN for nodata.
-    let base = cog_for_layer(asset, correction.horizon, &TiffOptions::default())?;
+    let base = cog_for_layer(asset, correction.horizon.layer(), &TiffOptions::default())?;
     let per = if per_horizontal_area {
         "per unit of horizontal area"
     } else {

@@ -27,7 +27,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
-use terrabake_format::horizons::{bands_around, between, HORIZON};
+use terrabake_format::horizons::{bands_around, HorizonMap, HORIZON};
 use terrabake_format::{Asset, Mmap};
 
 use super::{cog_for_layer, TiffOptions};
@@ -111,6 +111,7 @@ pub(crate) fn export_horizons(
     std::fs::create_dir_all(dir)
         .with_context(|| format!("{}: cannot create the directory", dir.display()))?;
     let base = cog_for_layer(asset, layer, tiff)?;
+    let map = HorizonMap::open(asset)?;
     let h = layer.height();
     let bar = progress.bar(u64::from(h) * files.len() as u64, "export", "rows");
     for f in &files {
@@ -151,18 +152,10 @@ pub(crate) fn export_horizons(
             },
             ..base.clone()
         };
-        let mut other = vec![0f32; 0];
         cog.write(
             &f.file,
             |_, y0, rows| {
-                layer.read_rows_f32(i as u32, y0, rows)?;
-                if t > 0.0 {
-                    other.resize(rows.len(), 0.0);
-                    layer.read_rows_f32(j as u32, y0, &mut other)?;
-                    for (a, b) in rows.iter_mut().zip(&other) {
-                        *a = between(f64::from(*a), f64::from(*b), t) as f32;
-                    }
-                }
+                map.served_rows(f.azimuth, y0, rows)?;
                 // r.sun keeps each horizon as one unsigned byte of 1/150 rad
                 // (main.c, INPUT_part), so a negative angle wraps to about
                 // 95 degrees and shades that direction all day. It never

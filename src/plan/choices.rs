@@ -335,3 +335,27 @@ pub(super) fn unmet(budget: &Budget, closest: &Candidate, deciding: (f64, f64)) 
         )),
     )
 }
+
+/// Why the line's angles list the spikes they list (`horizon_max` plans
+/// only): `without` is the largest error the chosen bake would leave at
+/// the pilot's posts with the bands alone.
+pub(super) fn features_choice(chosen: &Candidate, without: f64) -> Choice {
+    let (n, rise) = (chosen.features, chosen.feature_rise_m);
+    Choice {
+        what: "features".into(),
+        chosen: match n {
+            0 => "none".into(),
+            1 => "1 spike".into(),
+            n => format!("{n} spikes"),
+        },
+        why: if n == 0 {
+            "no post rises far enough above its eight neighbours to move a neighbour's horizon by the directions' share of horizon_max (or the grid is latitude/longitude)".into()
+        } else {
+            format!(
+                "the posts rising at least {rise:.2} m above their eight neighbours (the least that can move a neighbour's horizon by {SHARE_DIRECTIONS} of horizon_max), the highest first: the loader serves their exact horizon between the {} directions (largest error {:.3} deg at the pilot's posts)",
+                chosen.sectors, chosen.horizon_max_deg
+            )
+        },
+        rejected: (n > 0).then(|| format!("the bands alone: largest error {without:.3} deg")),
+    }
+}

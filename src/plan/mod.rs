@@ -74,8 +74,8 @@ pub mod reference;
 pub mod total_viewshed;
 
 use choices::{
-    cones_choice, distance_choice, encoding_choice, method_choice, route_choice, tiles_choice,
-    tolerance_choice, tracing_choice, unmet,
+    cones_choice, distance_choice, encoding_choice, features_choice, method_choice, route_choice,
+    tiles_choice, tolerance_choice, tracing_choice, unmet,
 };
 pub use command::{CalibrateArgs, PlanArgs, RequestArgs};
 use models::{
@@ -84,7 +84,8 @@ use models::{
 };
 pub use models::{TimeModels, TIME_MODELS_VAR};
 use predict::{
-    errors, measure_other, other_count, other_method, predict, stored_as, Errors, PilotSuns,
+    choose_encoding, errors, measure_other, other_count, other_method, predict, Errors, Listed,
+    PilotSuns,
 };
 
 use std::time::Instant;
@@ -131,6 +132,9 @@ const DISTANCES: [f64; 18] = [
     250.0, 500.0, 1e3, 1.5e3, 2e3, 3e3, 5e3, 7.5e3, 1e4, 1.5e4, 2e4, 3e4, 5e4, 7.5e4, 1e5, 1.5e5,
     2e5, 3e5,
 ];
+/// The most spikes a plan lists with the line's angles: each query of the
+/// loader looks at those near its sight line, so the list stays short.
+const PLANNED_FEATURES: usize = 256;
 /// The shares of the budget: interpolation between directions, the
 /// distance limit, quantisation; the rest (0.1) covers the posts the pilot
 /// did not see.
@@ -195,6 +199,13 @@ pub struct Candidate {
     /// before it was.
     #[serde(default)]
     pub meets: bool,
+    /// The spikes listed with the line's angles, served exactly between
+    /// bands (`terrabake_format::features`), and the least rise above
+    /// their neighbours listed, metres; 0 for none.
+    #[serde(default, skip_serializing_if = "crate::stage::args::is_default")]
+    pub features: usize,
+    #[serde(default, skip_serializing_if = "crate::stage::args::is_default")]
+    pub feature_rise_m: f64,
 }
 
 impl Candidate {
@@ -224,6 +235,8 @@ impl Candidate {
             seconds: predict::seconds(costs, method, sectors),
             direction_tolerance: None,
             meets: false,
+            features: 0,
+            feature_rise_m: 0.0,
         }
     }
 
@@ -392,6 +405,8 @@ impl Plan {
             encoding: Some(chosen.encoding),
             codec: self.derived_codec,
             method: chosen.method,
+            features: chosen.features,
+            feature_rise: chosen.feature_rise_m,
             ..line_stage(chosen.sectors, chosen.direction_tolerance)
         };
         stage.sight.max_distance = chosen.max_distance;
@@ -788,18 +803,6 @@ fn sun_positions(
     Ok(sun)
 }
 
-impl Pilot {
-    /// What the pilot holds, MiB: the DEM (`dem_bytes`: 4 a post, or none
-    /// where it was spilled), its blocks' highest posts and, per post and
-    /// reference direction, the exact horizon (8 bytes) and its cuts (4
-    /// bytes each).
-    fn memory_mib(&self, dem_bytes: u64) -> f64 {
-        let per_post = self.directions_measured() * (8 + 4 * DISTANCES.len());
-        let held = dem_bytes as usize + self.bounds_bytes() + self.posts.len() * per_post;
-        held as f64 / 1048576.0
-    }
-}
-
 /// Refuses a plan whose predicted bytes, time or memory pass the budget's
 /// limits, naming what to relax.
 fn check_limits(
@@ -839,32 +842,6 @@ struct HorizonPlan {
     methods: Vec<Candidate>,
 }
 
-/// The encoding: the coarsest whose worst error is within its share of
-/// the budget, in degrees and (for the svf, which a change of h radians in
-/// every direction moves by at most h) in radians, and whose rounding alone
-/// flips few enough sun/shade states.
-fn choose_encoding(pilot: &Pilot, suns: &PilotSuns, budget: &Budget) -> AngleEncoding {
-    let share = SHARE_QUANTISATION;
-    let every_reference: Vec<usize> = (0..pilot.reference.len()).collect();
-    [AngleEncoding::U8, AngleEncoding::U16, AngleEncoding::F32]
-        .into_iter()
-        .find(|&e| {
-            let svf_limit = budget
-                .svf
-                .into_iter()
-                .chain(budget.svf_max)
-                .reduce(f64::min);
-            e.max_error_deg() <= share * budget.horizon
-                && svf_limit.is_none_or(|s| e.max_error_deg().to_radians() <= share * s)
-                && ((budget.shade.is_none() && budget.solar.is_none())
-                    || errors(pilot, &every_reference, suns, |i, j| {
-                        stored_as(e, pilot.exact[i][j])
-                    })
-                    .within(budget, share))
-        })
-        .unwrap_or(AngleEncoding::F32)
-}
-
 /// The horizons: encoding, distance limit, directions and route, each from
 /// its share of the budget (module docs).
 fn plan_horizons(
@@ -876,6 +853,9 @@ fn plan_horizons(
     scene: &Scene,
     curvature: f64,
 ) -> Result<HorizonPlan> {
+    let (features, feature_rise_m) = budget
+        .horizon_max
+        .map_or((0, 0.0), |max| pilot.list_features(terrain, max));
     let encoding = choose_encoding(pilot, suns, budget);
     let every_reference: Vec<usize> = (0..pilot.reference.len()).collect();
     // The distance: the shortest beyond which the terrain moves the
@@ -883,8 +863,11 @@ fn plan_horizons(
     let safe_cut = (0..DISTANCES.len())
         .take_while(|&k| DISTANCES[k] < scene.extent_m)
         .find(|&k| {
-            errors(pilot, &every_reference, suns, |i, j| pilot.bounded(i, j, k))
-                .within(budget, SHARE_DISTANCE)
+            let cut = Listed::Line(Some(DISTANCES[k]), AngleEncoding::F32);
+            errors(pilot, &every_reference, suns, cut, |i, j| {
+                pilot.bounded(i, j, k)
+            })
+            .within(budget, SHARE_DISTANCE)
         });
     let safe_distance = safe_cut.map(|k| DISTANCES[k]);
     // The directions: the fewest whose error between directions alone
@@ -905,6 +888,8 @@ fn plan_horizons(
         let meets = errors.within(budget, share);
         Candidate {
             meets,
+            features,
+            feature_rise_m,
             max_distance: distance,
             seconds: costs.seconds(sectors, distance),
             direction_tolerance: tolerance,
@@ -920,7 +905,7 @@ fn plan_horizons(
         // posts: at its default tolerance they are seldom reference
         // directions, and far cheaper to sweep than those would be.
         stored = pilot.measure_directions(terrain, &line_stage(s, None).bands(dx, dy), || ());
-        let mut e = predict(pilot, suns, &stored, None, AngleEncoding::F32);
+        let mut e = predict(pilot, suns, &stored, (None, AngleEncoding::F32), true);
         let (horizon, svf, _) = e.at(DECISION_QUANTILE);
         deciding = (horizon, svf);
         let c = candidate((s, None), None, AngleEncoding::F32, &mut e);
@@ -956,7 +941,7 @@ fn plan_horizons(
             continue;
         }
         let measured = pilot.measure_directions(terrain, &bands, || ());
-        let mut e = predict(pilot, suns, &measured, None, AngleEncoding::F32);
+        let mut e = predict(pilot, suns, &measured, (None, AngleEncoding::F32), true);
         let c = candidate((sectors, Some(tol)), None, AngleEncoding::F32, &mut e);
         let meets = c.meets;
         candidates.push(c);
@@ -985,7 +970,7 @@ fn plan_horizons(
         (sectors, Some(tolerance.0)),
         bounded,
         encoding,
-        &mut predict(pilot, suns, &stored, bounded_cut, encoding),
+        &mut predict(pilot, suns, &stored, (bounded_cut, encoding), true),
     );
     // The method: the line's, unless another meets the budget in less
     // time (and fits the memory limit).
@@ -1045,7 +1030,7 @@ fn plan_horizons(
         });
     }
     let chosen = line;
-    let choices = vec![
+    let mut choices = vec![
         method_choice(&chosen, &chosen, (&methods, &unmeasured)),
         Choice {
             what: "directions".into(),
@@ -1061,6 +1046,10 @@ fn plan_horizons(
         distance_choice(scene, curvature, safe_distance),
         route_choice(costs, sectors, safe_distance, bounded),
     ];
+    if budget.horizon_max.is_some() {
+        let without = predict(pilot, suns, &stored, (bounded_cut, encoding), false);
+        choices.push(features_choice(&chosen, without.horizon_max));
+    }
     Ok(HorizonPlan {
         chosen,
         safe_distance,

@@ -7,12 +7,13 @@
 //! time and memory ("The method"). Every candidate the planner weighs,
 //! of every method, is judged here.
 
-use terrabake_format::horizons::{bands_around, between, AngleEncoding, NOTHING_AHEAD};
+use terrabake_format::features::serve;
+use terrabake_format::horizons::{AngleEncoding, NOTHING_AHEAD};
 
 use super::models::LineCosts;
 use super::{
-    Candidate, DECISION_QUANTILE, OTHERS_MEASURED_UP_TO_VISITS, OTHER_COUNTS, PILOT_DIRECTIONS,
-    SHARE_DIRECTIONS,
+    Candidate, DECISION_QUANTILE, DISTANCES, OTHERS_MEASURED_UP_TO_VISITS, OTHER_COUNTS,
+    PILOT_DIRECTIONS, SHARE_DIRECTIONS, SHARE_QUANTISATION,
 };
 use crate::algorithms::horizon::sky::{svf_of_horizons, BandIntegrals};
 use crate::algorithms::horizon::Method;
@@ -81,26 +82,42 @@ impl Errors {
     }
 }
 
+/// Whether a candidate's bands are served with the pilot's listed features
+/// (`Pilot::list_features`), as the loader serves a line bake that lists
+/// them: cut at the bands' distance limit (metres), with the encoding's
+/// tolerance. Other methods list none.
+#[derive(Debug, Clone, Copy)]
+pub(super) enum Listed {
+    No,
+    Line(Option<f64>, AngleEncoding),
+}
+
 /// The errors at the pilot's posts of storing, in the measured directions
 /// `stored` (ascending azimuths), `stored(post, direction)` degrees,
 /// served at every reference azimuth as the loader serves it (linear
-/// between the two nearest stored directions).
+/// between the two nearest stored directions, and the `listed` features
+/// where they are higher).
 pub(super) fn errors(
     pilot: &Pilot,
     stored: &[usize],
     suns: &PilotSuns,
+    listed: Listed,
     value: impl Fn(usize, usize) -> f64,
 ) -> Errors {
     let azimuths: Vec<f64> = stored.iter().map(|&j| pilot.azimuth(j)).collect();
-    errors_at(pilot, &azimuths, suns, |post, k| value(post, stored[k]))
+    errors_at(pilot, (&azimuths, Some(stored)), suns, listed, |post, k| {
+        value(post, stored[k])
+    })
 }
 
 /// [`errors`] of bands at `azimuths` (ascending) that need not be measured
-/// directions (another method's): `value(post, k)` is band `k`'s angle.
+/// directions (another method's; else `measured`, their indices):
+/// `value(post, k)` is band `k`'s angle.
 pub(super) fn errors_at(
     pilot: &Pilot,
-    azimuths: &[f64],
+    (azimuths, measured): (&[f64], Option<&[usize]>),
     suns: &PilotSuns,
+    listed: Listed,
     value: impl Fn(usize, usize) -> f64,
 ) -> Errors {
     let integrals = BandIntegrals::of_azimuths(azimuths);
@@ -113,13 +130,12 @@ pub(super) fn errors_at(
         shade_pairs: 0,
         solar: Vec::new(),
     };
-    // Which stored directions serve each reference azimuth: the same at
-    // every post.
-    let around: Vec<(usize, usize, f64)> = pilot
-        .reference
-        .iter()
-        .map(|band| bands_around(azimuths, band.azimuth))
-        .collect();
+    let (cut, tolerance) = match listed {
+        Listed::Line(cut, encoding) if pilot.listed.is_some() => {
+            (Some(cut), encoding.feature_tolerance())
+        }
+        _ => (None, 0.0),
+    };
     let mut served = vec![0.0; PILOT_DIRECTIONS];
     // The posts around features count for the largest errors only: they
     // are chosen where errors are large, and would bias the percentiles,
@@ -127,14 +143,38 @@ pub(super) fn errors_at(
     for (post, exact) in pilot.exact.iter().enumerate() {
         let sampled = post < pilot.scene_posts();
         let kept: Vec<f64> = (0..azimuths.len()).map(|k| value(post, k)).collect();
-        // Where nothing lies ahead, of the reference or of a serving band,
-        // the DEM's edge cuts the horizon: `check` leaves those out (its
-        // "at the DEM's edge"), and so does the prediction.
-        let facing_out = |k: usize| kept[k] == NOTHING_AHEAD;
-        for ((&(i, j, f), &truth), out) in around.iter().zip(exact).zip(&mut served) {
-            *out = between(kept[i], kept[j], f);
-            let at_edge = truth == NOTHING_AHEAD || facing_out(i) || facing_out(j);
-            if out.is_finite() && truth.is_finite() && !at_edge {
+        let feature = |azimuth: f64| cut.and_then(|d| pilot.feature_horizon(post, azimuth, d));
+        // Reference directions' crossings are kept; the others' walked.
+        let at_band: Vec<Option<f64>> = (0..azimuths.len())
+            .map(|k| match measured.map(|m| m[k]) {
+                Some(j) if j < pilot.reference.len() => {
+                    cut.and_then(|d| pilot.feature_horizon_in_reference(post, j, d))
+                }
+                _ => feature(azimuths[k]),
+            })
+            .collect();
+        for (r, ((band, &truth), out)) in pilot
+            .reference
+            .iter()
+            .zip(exact)
+            .zip(&mut served)
+            .enumerate()
+        {
+            let here = cut.and_then(|d| pilot.feature_horizon_in_reference(post, r, d));
+            let s = serve::<std::convert::Infallible>(
+                azimuths,
+                band.azimuth,
+                |k| Ok(Some(kept[k])),
+                (|k| at_band[k], here),
+                tolerance,
+            )
+            .unwrap_or_else(|never| match never {})
+            .expect("every band has an angle");
+            *out = s.angle;
+            // Where nothing lies ahead, of the reference or of a serving
+            // band, the DEM's edge cuts the horizon: `check` leaves those
+            // out (its "at the DEM's edge"), and so does the prediction.
+            if out.is_finite() && truth.is_finite() && truth != NOTHING_AHEAD && !s.at_edge {
                 let error = (*out - truth).abs();
                 if sampled {
                     e.horizon.push(error);
@@ -166,21 +206,57 @@ pub(super) fn errors_at(
     e
 }
 
+/// The encoding: the coarsest whose worst error is within its share of
+/// the budget, in degrees and (for the svf, which a change of h radians in
+/// every direction moves by at most h) in radians, and whose rounding alone
+/// flips few enough sun/shade states.
+pub(super) fn choose_encoding(pilot: &Pilot, suns: &PilotSuns, budget: &Budget) -> AngleEncoding {
+    let share = SHARE_QUANTISATION;
+    let every_reference: Vec<usize> = (0..pilot.reference.len()).collect();
+    [AngleEncoding::U8, AngleEncoding::U16, AngleEncoding::F32]
+        .into_iter()
+        .find(|&e| {
+            let svf_limit = budget
+                .svf
+                .into_iter()
+                .chain(budget.svf_max)
+                .reduce(f64::min);
+            e.max_error_deg() <= share * budget.horizon
+                && svf_limit.is_none_or(|s| e.max_error_deg().to_radians() <= share * s)
+                && ((budget.shade.is_none() && budget.solar.is_none())
+                    || errors(
+                        pilot,
+                        &every_reference,
+                        suns,
+                        Listed::Line(None, e),
+                        |i, j| stored_as(e, pilot.exact[i][j]),
+                    )
+                    .within(budget, share))
+        })
+        .unwrap_or(AngleEncoding::F32)
+}
+
 /// `deg` stored as `encoding` and read back.
 pub(super) fn stored_as(encoding: AngleEncoding, deg: f64) -> f64 {
     encoding.decode(encoding.encode(deg)).unwrap_or(f64::NAN)
 }
 
 /// The errors of the measured directions `stored` cut at
-/// `DISTANCES[distance]`, stored as `encoding`.
+/// `DISTANCES[distance]`, stored as `encoding`, served with the pilot's
+/// listed features where `features` (the line bake that lists them) or
+/// without (the bands alone).
 pub(super) fn predict(
     pilot: &Pilot,
     suns: &PilotSuns,
     stored: &[usize],
-    distance: Option<usize>,
-    encoding: AngleEncoding,
+    (distance, encoding): (Option<usize>, AngleEncoding),
+    features: bool,
 ) -> Errors {
-    errors(pilot, stored, suns, |i, j| {
+    let listed = match features {
+        true => Listed::Line(distance.map(|k| DISTANCES[k]), encoding),
+        false => Listed::No,
+    };
+    errors(pilot, stored, suns, listed, |i, j| {
         let angle = distance.map_or(pilot.exact[i][j], |k| pilot.bounded(i, j, k));
         stored_as(encoding, angle)
     })
@@ -283,7 +359,7 @@ pub(super) fn measure_other(
     let azimuths: Vec<f64> = (0..count)
         .map(|i| i as f64 * 360.0 / count as f64)
         .collect();
-    let mut e = errors_at(pilot, &azimuths, suns, |post, k| {
+    let mut e = errors_at(pilot, (&azimuths, None), suns, Listed::No, |post, k| {
         stored_as(encoding, values[post][k])
     });
     let candidate = Candidate::predicted((method, count, encoding), &mut e, costs);

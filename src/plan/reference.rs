@@ -32,8 +32,13 @@ use rayon::prelude::*;
 use terrabake_format::{Asset, Mmap};
 
 use crate::algorithms::horizon::sky::{svf_of_horizons, BandIntegrals};
-use crate::algorithms::horizon::{brute, distinct_line_bands, plan_bands, Band, BandKind, Method};
+use terrabake_format::features::{HorizonFeatures, SightLine};
+
+use crate::algorithms::horizon::{
+    brute, distinct_line_bands, features, plan_bands, Band, BandKind, Method,
+};
 use crate::error::bail;
+use crate::plan::{PLANNED_FEATURES, SHARE_DIRECTIONS};
 use crate::plumbing::progress::Progress;
 use crate::terrain::held::HeldDem;
 use crate::terrain::random::SplitMix64;
@@ -257,6 +262,17 @@ pub struct Pilot {
     /// The east-west post spacing on the first and the last row, metres
     /// (they differ on geographic grids).
     pub dx_range: (f64, f64),
+    /// The spikes a line bake would list with its angles, served exactly
+    /// between bands at the pilot's posts as the loader serves them
+    /// ([`Pilot::list_features`]; `None`: none listed), the posts' heights
+    /// (each sight line's eye) and the post spacing, metres.
+    pub listed: Option<HorizonFeatures>,
+    eyes: Vec<f64>,
+    /// Per post and reference direction, the listed features' crossings
+    /// with its sight line, `(metres, degrees)`: what every candidate
+    /// serves there, at any distance limit.
+    listed_reference: Vec<Vec<Vec<(f64, f64)>>>,
+    spacing: (f64, f64),
 }
 
 /// Cells a side of the blocks whose highest posts bound the pilot's sight
@@ -332,12 +348,104 @@ impl Pilot {
             heights: brute::BlockMax::of(&terrain, &HEIGHT_BLOCKS),
             slope_deg,
             dx_range,
+            listed: None,
+            eyes: Vec::new(),
+            listed_reference: Vec::new(),
+            spacing: (m.cell_size.dx, m.cell_size.dy),
         };
         let bar = progress.bar(pilot.posts.len() as u64, "exact horizons", "posts");
         pilot.measure_directions(&terrain, &reference, || bar.inc(1));
         bar.finish_and_clear();
         pilot.reference = reference;
         Ok(pilot)
+    }
+
+    /// Lists the spikes a `horizon_max` plan lists with the line's angles,
+    /// served exactly between bands (`algorithms::horizon::features`): a
+    /// spike rising `e` metres above its eight neighbours moves the horizon
+    /// of a post `d` away by at most `atan(e / d)`, so those that could not
+    /// move a neighbour's (`d` one spacing) by the directions' share of
+    /// `horizon_max` are left out; of the rest, the [`PLANNED_FEATURES`]
+    /// that rise highest. Grids of uniform spacing only: elsewhere nothing
+    /// is listed. How many were listed and the least rise, metres.
+    pub(crate) fn list_features(&mut self, terrain: &Terrain, horizon_max: f64) -> (usize, f64) {
+        if !terrain.row_scale.is_uniform() {
+            return (0, 0.0);
+        }
+        let spacing = terrain.dx.min(terrain.dy);
+        let min_rise = (spacing * (SHARE_DIRECTIONS * horizon_max).to_radians().tan()) as f32;
+        let mut found = Vec::new();
+        features::spikes_in_rows(
+            terrain,
+            0..terrain.height,
+            min_rise,
+            PLANNED_FEATURES,
+            &mut found,
+        );
+        self.eyes = self
+            .posts
+            .iter()
+            .map(|&(c, r)| f64::from(terrain.at(c, r)))
+            .collect();
+        let listed = HorizonFeatures {
+            curvature: terrain.curvature,
+            max_distance: None,
+            posts: found.into_iter().map(|s| s.post).collect(),
+        };
+        self.listed_reference = (0..self.posts.len())
+            .into_par_iter()
+            .map(|post| {
+                (self.reference.iter())
+                    .map(|band| listed.crossings_deg(&self.sight_line(post, band.azimuth)))
+                    .collect()
+            })
+            .collect();
+        let n = listed.posts.len();
+        self.listed = Some(listed);
+        match n {
+            0 => (0, 0.0),
+            n => (n, f64::from(min_rise)),
+        }
+    }
+
+    /// [`Self::feature_horizon`] in reference direction `r`.
+    pub(crate) fn feature_horizon_in_reference(
+        &self,
+        post: usize,
+        r: usize,
+        max_distance: Option<f64>,
+    ) -> Option<f64> {
+        (self.listed_reference.get(post)?.get(r)?.iter())
+            .filter(|&&(d, _)| max_distance.is_none_or(|m| d <= m))
+            .map(|&(_, angle)| angle)
+            .reduce(f64::max)
+    }
+
+    fn sight_line(&self, post: usize, azimuth: f64) -> SightLine {
+        let (c, r) = self.posts[post];
+        SightLine::new((c as u32, r as u32), self.eyes[post], azimuth, self.spacing)
+    }
+
+    /// The listed features' exact horizon from post `post` (an index) at
+    /// compass `azimuth`, their sight lines cut at `max_distance` metres.
+    pub(crate) fn feature_horizon(
+        &self,
+        post: usize,
+        azimuth: f64,
+        max_distance: Option<f64>,
+    ) -> Option<f64> {
+        let listed = self.listed.as_ref()?;
+        listed.horizon_within(&self.sight_line(post, azimuth), max_distance)
+    }
+
+    /// What the pilot holds, MiB: the DEM (`dem_bytes`: 4 a post, or none
+    /// where it was spilled), its blocks' highest posts and, per post and
+    /// reference direction, the exact horizon (8 bytes) and its cuts (4
+    /// bytes each).
+    pub(crate) fn memory_mib(&self, dem_bytes: u64) -> f64 {
+        let per_post = self.directions_measured() * (8 + 4 * self.cuts.len());
+        let held = dem_bytes as usize + self.bounds_bytes() + self.posts.len() * per_post;
+        held as f64 / 1048576.0
     }
 
     /// The posts that sample the scene (random and relief), which come

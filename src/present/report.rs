@@ -101,6 +101,18 @@ pub(crate) fn describe(path: &Path, m: &terrabake_format::Manifest) -> String {
                 azimuths.join(" ")
             );
         }
+        if let Some(f) = l.features.as_ref().filter(|f| !f.posts.is_empty()) {
+            let _ = writeln!(
+                s,
+                "  {:<16} features: {} post{} served exactly between bands, the highest-rising at ({}, {}), {} m",
+                "",
+                f.posts.len(),
+                if f.posts.len() == 1 { "" } else { "s" },
+                f.posts[0].x,
+                f.posts[0].y,
+                f.posts[0].z[0]
+            );
+        }
     }
     let _ = writeln!(
         s,
@@ -216,6 +228,7 @@ pub fn horizons_json(
             "description": e.description,
             "encoding": e.elem.name(),
             "band_azimuths": e.band_azimuths,
+            "features": e.features.as_ref().map_or(0, |f| f.posts.len()),
         });
     }
     Ok(v)

@@ -14,7 +14,7 @@ use std::path::Path;
 
 use anyhow::Result;
 use rayon::prelude::*;
-use terrabake_format::horizons::{bands_around, between, disc_fraction_above};
+use terrabake_format::horizons::{disc_fraction_above, HorizonMap};
 use terrabake_format::{Asset, Mmap};
 
 use crate::algorithms::horizon::band_bounds;
@@ -85,12 +85,12 @@ pub(crate) fn shade_posts(asset: &Asset<Mmap>, shade: Shade) -> Result<(Vec<f32>
             sun_glow(sun.azimuth, sun.elevation, 20, 0.05),
         );
         let s = sun.direction();
-        // The sun's azimuth between two bands, as `lit_fraction` takes it.
-        let (a, b, f) = bands_around(&azimuths, sun.azimuth);
-        // The light on a surface with unit `normal`, horizon `horizon` and
-        // cosine sky-view factor `svf_cosine`.
-        let light = |normal: [f64; 3], horizon: &[f32], svf_cosine: f64| {
-            let hz = between(f64::from(horizon[a]), f64::from(horizon[b]), f);
+        // The horizon towards the sun, as `lit_fraction` serves it.
+        let mut towards_sun = vec![0f32; w * h];
+        HorizonMap::open(asset)?.served_rows(sun.azimuth, 0, &mut towards_sun)?;
+        // The light on a surface with unit `normal`, horizon `horizon`,
+        // `hz` towards the sun, and cosine sky-view factor `svf_cosine`.
+        let light = |normal: [f64; 3], horizon: &[f32], hz: f64, svf_cosine: f64| {
             let lit = disc_fraction_above(sun.elevation, hz, SUN_RADIUS);
             let direct = lit * (normal[0] * s[0] + normal[1] * s[1] + normal[2] * s[2]).max(0.0);
             radiosity(
@@ -99,7 +99,7 @@ pub(crate) fn shade_posts(asset: &Asset<Mmap>, shade: Shade) -> Result<(Vec<f32>
                 ALBEDO,
             )
         };
-        plain = light([0.0, 0.0, 1.0], &vec![0f32; bands.len()], 1.0);
+        plain = light([0.0, 0.0, 1.0], &vec![0f32; bands.len()], 0.0, 1.0);
         out.par_chunks_mut(w).enumerate().for_each(|(row, out)| {
             let mut horizon = vec![0f32; bands.len()];
             for (col, o) in out.iter_mut().enumerate() {
@@ -113,7 +113,8 @@ pub(crate) fn shade_posts(asset: &Asset<Mmap>, shade: Shade) -> Result<(Vec<f32>
                 if o.is_nan() || horizon.iter().any(|v| v.is_nan()) {
                     continue;
                 }
-                *o = light(normal, &horizon, f64::from(svf_cosine[i])) as f32;
+                let hz = f64::from(towards_sun[i]);
+                *o = light(normal, &horizon, hz, f64::from(svf_cosine[i])) as f32;
             }
         });
     }

@@ -83,6 +83,20 @@ pub fn parse_positive(s: &str) -> Result<f64, String> {
     }
 }
 
+/// Whether `v` is its type's default: a parameter serde leaves out of a
+/// stage's record, so that records from before it was added still match.
+pub(crate) fn is_default<T: Default + PartialEq>(v: &T) -> bool {
+    *v == T::default()
+}
+
+/// A finite number, 0 or more.
+pub(crate) fn parse_non_negative(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v >= 0.0 && v.is_finite() => Ok(v),
+        _ => Err(format!("expected a number, 0 or more, not {s:?}")),
+    }
+}
+
 /// A field of view in degrees, strictly between 0 and 180.
 pub(crate) fn parse_fov(s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {

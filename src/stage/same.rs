@@ -80,12 +80,14 @@ pub fn differences(a: &Asset<Mmap>, b: &Asset<Mmap>) -> crate::Result<Vec<String
 }
 
 /// What a layer's stored values mean: type, bands, grid, the bands'
-/// azimuths, quantisation (not how it is tiled or compressed).
+/// azimuths, quantisation, the horizon's features (not how it is tiled or
+/// compressed).
 pub(crate) type Meaning<'a> = (
     terrabake_format::ElemType,
     [u32; 3],
     &'a [f64],
     Option<terrabake_format::Quantization>,
+    Option<&'a terrabake_format::features::HorizonFeatures>,
 );
 
 pub(crate) fn meaning(e: &LayerEntry) -> Meaning<'_> {
@@ -94,5 +96,6 @@ pub(crate) fn meaning(e: &LayerEntry) -> Meaning<'_> {
         [e.bands, e.width, e.height],
         &e.band_azimuths,
         e.quantization,
+        e.features.as_ref(),
     )
 }

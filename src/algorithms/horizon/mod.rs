@@ -18,6 +18,7 @@
 //! [`sky`] integrates stored horizons into sky-view factors and sky light.
 
 pub mod brute;
+pub mod features;
 pub mod fourier;
 pub mod line;
 pub mod sampled;

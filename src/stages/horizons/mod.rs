@@ -19,15 +19,21 @@
 //! skips the bands and (where rows are independent) the rows it does not
 //! own, and bounded `line` holds only its rows and their reach.
 
+mod encode;
+
+pub(crate) use encode::encode_angles;
+
 use std::path::Path;
 use std::sync::Mutex;
 
 use anyhow::{Context, Result};
 use rayon::prelude::*;
+use terrabake_format::features::{HorizonFeatures, MAX_FEATURES};
 use terrabake_format::horizons::{AngleEncoding, HORIZON};
 use terrabake_format::layers::HORIZON_DISTANCE;
 use terrabake_format::{Asset, Codec, LayerEntry, LayerWriter, Mmap};
 
+use crate::algorithms::horizon::features::spikes_in_rows;
 use crate::algorithms::horizon::line;
 use crate::algorithms::horizon::{
     band_horizons_into, plan_bands, sector, Band, BandKind, BandOptions, Method,
@@ -39,7 +45,6 @@ use crate::stage::post_layer;
 use crate::stage::sight::SightLines;
 use crate::stage::{Share, Split, Stage};
 use crate::terrain::held::read_rows;
-use crate::terrain::tiling::encode_tile_row;
 use crate::terrain::{self, RowScale, Terrain};
 
 /// The `horizons` stage and its parameters: `terrabake horizons` flattens
@@ -106,6 +111,21 @@ pub struct HorizonsStage {
         skip_serializing_if = "crate::stage::args::is_raw"
     )]
     pub codec: Codec,
+    /// Also list the N posts that rise highest above their eight neighbours (lone spikes,
+    /// masts, single trees) with the angles (line method, projected grids): the loader serves
+    /// their exact horizon between bands, where bands alone lose them (docs/HORIZONS.md,
+    /// "Features"). 0: none.
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    #[serde(skip_serializing_if = "crate::stage::args::is_default")]
+    pub features: usize,
+    /// With --features: list only posts that rise at least this many metres above all eight
+    /// neighbours.
+    #[arg(long, value_name = "METRES", default_value_t = 0.0, requires = "features", value_parser = crate::stage::args::parse_non_negative)]
+    #[serde(
+        rename = "feature_rise_m",
+        skip_serializing_if = "crate::stage::args::is_default"
+    )]
+    pub feature_rise: f64,
 }
 
 impl HorizonsStage {
@@ -149,6 +169,8 @@ impl Default for HorizonsStage {
             distance: false,
             max_memory: crate::stage::mib::STAGE_DEFAULT_BYTES,
             codec: Codec::Raw,
+            features: 0,
+            feature_rise: 0.0,
         }
     }
 }
@@ -282,6 +304,26 @@ impl Stage for HorizonsStage {
             self.direction_tolerance,
         )?;
         check_positive(("max_error_deg", "max-error"), Some(self.max_error))?;
+        if self.features > 0 && self.method != Method::Line {
+            bail!(
+                "features = {} (--features {}) with method = {}: features are served between line directions only; use --method line",
+                self.features,
+                self.features,
+                self.method.name()
+            );
+        }
+        if self.features > MAX_FEATURES {
+            bail!(
+                "features = {0} (--features {0}): give at most {MAX_FEATURES}",
+                self.features
+            );
+        }
+        if !(self.feature_rise >= 0.0 && self.feature_rise.is_finite()) {
+            bail!(
+                "feature_rise_m = {0} (--feature-rise {0}): give a height in metres, 0 or more",
+                self.feature_rise
+            );
+        }
         let half = line::tolerance_limit(self.sectors);
         match self.direction_tolerance {
             Some(t) if self.method == Method::Line && t >= half => bail!(
@@ -479,6 +521,10 @@ impl Stage for HorizonsStage {
             opts,
             bar: &bar,
         };
+        // Before the sweeps: a grid that cannot serve them is refused first.
+        let features = (self.features > 0)
+            .then(|| self.find_features(&run, !row_scale.is_uniform()))
+            .transpose()?;
         if self.out_of_core() {
             self.sweep_out_of_core(&run, nodata, highest)?;
         } else {
@@ -486,7 +532,9 @@ impl Stage for HorizonsStage {
         }
         bar.finish_and_clear();
         let azimuths: Vec<f64> = bands.iter().map(|b| b.azimuth).collect();
-        let mut layers = vec![out.finish(&azimuths)?];
+        let mut horizon = out.finish(&azimuths)?;
+        horizon.features = features;
+        let mut layers = vec![horizon];
         if let Some(d) = distances {
             layers.push(d.finish(&azimuths)?);
         }
@@ -543,6 +591,41 @@ impl<'a> Run<'a> {
 }
 
 impl HorizonsStage {
+    /// The posts the loader serves exactly between bands: the whole DEM's
+    /// highest-rising spikes (every part of a partitioned bake lists the
+    /// same), read a few tile rows at a time.
+    fn find_features(&self, run: &Run, geographic: bool) -> Result<HorizonFeatures> {
+        if geographic {
+            return Err(crate::error::mark(
+                crate::ErrorKind::Parameters,
+                anyhow::anyhow!(
+                    "features = {0} (--features {0}): features are served on grids of uniform spacing only, and this DEM is latitude/longitude; reproject it (gdalwarp -t_srs EPSG:...) or leave --features out",
+                    self.features
+                ),
+            ));
+        }
+        let (_, h, ts) = run.dims;
+        let mut found = Vec::new();
+        for y0 in (0..h).step_by(4 * ts) {
+            let rows = y0..(y0 + 4 * ts).min(h);
+            let held = y0.saturating_sub(1)..(rows.end + 1).min(h);
+            let z = run.read_rows(held.clone())?;
+            let t = run.terrain(&z, held.start);
+            spikes_in_rows(
+                &t,
+                rows,
+                self.feature_rise as f32,
+                self.features,
+                &mut found,
+            );
+        }
+        Ok(HorizonFeatures {
+            curvature: run.curvature,
+            max_distance: self.sight.max_distance,
+            posts: found.into_iter().map(|s| s.post).collect(),
+        })
+    }
+
     /// Bands in batches of a fixed size, each batch's sweeps run tile row
     /// by tile row on every core and written in a fixed order
     /// (`crate::plumbing::ordered`): the layer's bytes are the same on
@@ -934,69 +1017,6 @@ impl BandWriter {
     }
 }
 
-/// The tiles of a tile row of angles (degrees, rows `w` wide) in `enc`,
-/// as the horizon layer stores them; what the planner's zstd prediction
-/// encodes too.
-pub(crate) fn encode_angles(
-    enc: AngleEncoding,
-    angles: &[f32],
-    w: usize,
-    ts: usize,
-    codec: Codec,
-) -> Vec<terrabake_format::EncodedTile> {
-    match enc {
-        AngleEncoding::U16 => {
-            let codes = quantise_row(enc, angles, |c| c as u16);
-            encode_tile_row(&codes.expect("u16 codes"), w, ts, 0u16, codec)
-        }
-        AngleEncoding::U8 => {
-            let codes = quantise_row(enc, angles, |c| c as u8);
-            encode_tile_row(&codes.expect("u8 codes"), w, ts, 0u8, codec)
-        }
-        AngleEncoding::F32 => encode_tile_row(angles, w, ts, f32::NAN, codec),
-    }
-}
-
-/// [`AngleEncoding::quantise_row`] in the CPU's vectors ([`crate::plumbing::simd`]):
-/// the format crate's loop, compiled here for AVX-512 or AVX2 (the same
-/// codes), where the baseline build converts two values at a time.
-fn quantise_row<T, F: Fn(u32) -> T>(enc: AngleEncoding, degs: &[f32], narrow: F) -> Option<Vec<T>> {
-    quantise_row_at(crate::plumbing::simd::level(), enc, degs, narrow)
-}
-
-/// [`quantise_row`] at `level` (one the CPU runs, [`crate::plumbing::simd::available`]).
-fn quantise_row_at<T, F: Fn(u32) -> T>(
-    level: crate::plumbing::simd::Level,
-    enc: AngleEncoding,
-    degs: &[f32],
-    narrow: F,
-) -> Option<Vec<T>> {
-    use crate::plumbing::simd::Level;
-    assert!(
-        level <= crate::plumbing::simd::level(),
-        "{level:?} is not run by this CPU"
-    );
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx512f,avx512vl,avx512bw,avx512dq")]
-    fn avx512<T, F: Fn(u32) -> T>(enc: AngleEncoding, degs: &[f32], narrow: F) -> Option<Vec<T>> {
-        enc.quantise_row(degs, narrow)
-    }
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn avx2<T, F: Fn(u32) -> T>(enc: AngleEncoding, degs: &[f32], narrow: F) -> Option<Vec<T>> {
-        enc.quantise_row(degs, narrow)
-    }
-    match level {
-        // SAFETY: the CPU runs `level`.
-        #[cfg(target_arch = "x86_64")]
-        Level::Avx512 => unsafe { avx512(enc, degs, narrow) },
-        // SAFETY: the CPU runs `level`.
-        #[cfg(target_arch = "x86_64")]
-        Level::Avx2 => unsafe { avx2(enc, degs, narrow) },
-        _ => enc.quantise_row(degs, narrow),
-    }
-}
-
 /// All bands of the `horizon` layer decoded to degrees, band-major.
 pub fn read_horizons(asset: &Asset<Mmap>) -> crate::Result<(Vec<Vec<f32>>, Vec<f64>)> {
     let map = terrabake_format::horizons::HorizonMap::open(asset)
@@ -1040,44 +1060,5 @@ mod tests {
             pairs(Method::Line, 8, 0..8),
             (0..8).map(|b| vec![b]).collect::<Vec<_>>()
         );
-    }
-
-    /// The vector builds of the angle codes give the format crate's codes:
-    /// every code's centre and half-steps a hair either side, the ends,
-    /// NaN and infinities, and a spread of angles.
-    #[test]
-    fn quantised_rows_are_the_format_crates_codes_at_every_level() {
-        for enc in [AngleEncoding::U8, AngleEncoding::U16] {
-            let step = enc.step_deg();
-            let mut degs = vec![
-                f32::NAN,
-                f32::INFINITY,
-                f32::NEG_INFINITY,
-                -1e9,
-                1e9,
-                -90.0,
-                90.0,
-            ];
-            let mut k = -90.0;
-            while k <= 90.0 {
-                for d in [0.0, 0.5 * step, -0.5 * step] {
-                    let x = (k + d) as f32;
-                    degs.extend([
-                        x,
-                        f32::from_bits(x.to_bits() + 1),
-                        f32::from_bits(x.to_bits().wrapping_sub(1)),
-                    ]);
-                }
-                k += step;
-            }
-            degs.extend((0..10_000).map(|i| -95.0 + 190.0 * (i as f32 / 10_000.0)));
-            for level in crate::plumbing::simd::available() {
-                assert_eq!(
-                    quantise_row_at(level, enc, &degs, |c| c),
-                    enc.quantise_row(&degs, |c| c),
-                    "{enc:?} at {level:?}"
-                );
-            }
-        }
     }
 }
