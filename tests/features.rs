@@ -10,14 +10,11 @@ mod common;
 use std::path::Path;
 
 use common::{fixture, stderr, stdout, terrabake};
-use terrabake::algorithms::horizon::{brute, plan_bands, BandKind, Method};
-use terrabake::stages::horizons::HorizonsStage;
-use terrabake::terrain::held::HeldDem;
-use terrabake_format::horizons::{HorizonMap, NOTHING_AHEAD};
+use terrabake_format::horizons::HorizonMap;
 use terrabake_format::Asset;
 
-/// The 64 x 48 spike plain (one 1000 m post), ingested at `dir/NAME`.
-fn spike_plain(dir: &Path, name: &str) -> String {
+/// The 64 x 48 spike plain (one 1000 m post) as a GeoTIFF in `dir`.
+fn spike_tif(dir: &Path) -> std::path::PathBuf {
     let tif = dir.join("spike.tif");
     if !tif.exists() {
         let o = terrabake(&[
@@ -31,6 +28,12 @@ fn spike_plain(dir: &Path, name: &str) -> String {
         ]);
         assert!(o.status.success(), "{}", stderr(&o));
     }
+    tif
+}
+
+/// [`spike_tif`] ingested at `dir/NAME`.
+fn spike_plain(dir: &Path, name: &str) -> String {
+    let tif = spike_tif(dir);
     let asset = dir.join(name);
     let o = terrabake(&[
         "ingest",
@@ -41,45 +44,6 @@ fn spike_plain(dir: &Path, name: &str) -> String {
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     asset.to_str().unwrap().to_owned()
-}
-
-/// The largest error of `asset`'s served horizon at every post, against
-/// exact line horizons in 1440 directions (grid steps within 0.05 degree
-/// of `i / 4` degrees: between the stored bands too), leaving out the
-/// samples at the DEM's edge as `check` does.
-fn largest_error(asset: &str) -> f64 {
-    let opened = Asset::open(asset).unwrap();
-    let map = HorizonMap::open(&opened).unwrap();
-    let stage = HorizonsStage::recorded(&opened).unwrap();
-    let dem = HeldDem::read(&opened).unwrap();
-    let t = dem.terrain(stage.sight.curvature_coefficient(opened.manifest()));
-    let m = opened.manifest();
-    let dense = plan_bands(
-        Method::Line,
-        1440,
-        m.cell_size.dx,
-        m.cell_size.dy,
-        Some(0.05),
-    );
-    let mut largest = 0.0f64;
-    for row in 0..t.height {
-        for col in 0..t.width {
-            for band in &dense {
-                let BandKind::Line(direction) = &band.kind else {
-                    unreachable!("line bands")
-                };
-                let truth = f64::from(brute::line_horizon(&t, (col, row), direction.step, None));
-                let served = map
-                    .served_at(col as u32, row as u32, band.azimuth)
-                    .unwrap()
-                    .unwrap();
-                if !served.at_edge && truth != NOTHING_AHEAD {
-                    largest = largest.max((served.angle - truth).abs());
-                }
-            }
-        }
-    }
-    largest
 }
 
 /// 32 directions lose the spike between bands by tens of degrees; with it
@@ -105,7 +69,8 @@ fn a_listed_spike_is_served_exactly_between_bands() {
         ]);
         assert!(o.status.success(), "{}", stderr(&o));
     }
-    let (without, with) = (largest_error(&bare), largest_error(&listed));
+    let largest = |asset: &str| common::largest_dense_error(Path::new(asset)).0;
+    let (without, with) = (largest(&bare), largest(&listed));
     eprintln!("spike plain, 32 directions: largest error {without:.3} deg bare, {with:.3} with the spike listed");
     assert!(without > 30.0, "the bands alone lose the spike: {without}");
     assert!(with < 3.0, "the listed spike is served: {with}");
@@ -240,17 +205,7 @@ fn grass_files_carry_the_listed_spikes() {
 #[test]
 fn a_partitioned_bake_keeps_the_features() {
     let dir = tempfile::tempdir().unwrap();
-    let tif = dir.path().join("spike.tif");
-    let o = terrabake(&[
-        "synth",
-        "spike",
-        "--size",
-        "64x48",
-        "-o",
-        tif.to_str().unwrap(),
-        "-q",
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    let tif = spike_tif(dir.path());
     let recipe = dir.path().join("r.toml");
     std::fs::write(
         &recipe,

@@ -1158,11 +1158,6 @@ fn a_solar_need_bakes_the_year_and_check_measures_it() {
 /// naming the largest error and the budget that would do.
 #[test]
 fn a_largest_error_budget_sees_what_the_percentile_hides() {
-    use terrabake::algorithms::horizon::{brute, plan_bands, BandKind, Method};
-    use terrabake::stages::horizons::HorizonsStage;
-    use terrabake::terrain::held::HeldDem;
-    use terrabake_format::horizons::{HorizonMap, NOTHING_AHEAD};
-
     let dir = tempfile::tempdir().unwrap();
     let asset = terrain(dir.path(), SynthKind::Spike, 0);
     let percentile_only = planned(&asset, &"horizon=4".parse().unwrap());
@@ -1217,41 +1212,7 @@ fn a_largest_error_budget_sees_what_the_percentile_hides() {
     );
 
     // The independent dense reference, at every post.
-    let opened = Asset::open(&asset).unwrap();
-    let map = HorizonMap::open(&opened).unwrap();
-    let stage = HorizonsStage::recorded(&opened).unwrap();
-    let dem = HeldDem::read(&opened).unwrap();
-    let t = dem.terrain(stage.sight.curvature_coefficient(opened.manifest()));
-    let m = opened.manifest();
-    let dense = plan_bands(
-        Method::Line,
-        1440,
-        m.cell_size.dx,
-        m.cell_size.dy,
-        Some(0.05),
-    );
-    let mut largest = (0.0f64, (0, 0), 0.0);
-    for row in 0..t.height {
-        for col in 0..t.width {
-            for band in &dense {
-                let BandKind::Line(direction) = &band.kind else {
-                    unreachable!("line bands")
-                };
-                let truth = f64::from(brute::line_horizon(&t, (col, row), direction.step, None));
-                let served = map
-                    .served_at(col as u32, row as u32, band.azimuth)
-                    .unwrap()
-                    .unwrap();
-                if served.at_edge || truth == NOTHING_AHEAD {
-                    continue;
-                }
-                let error = (served.angle - truth).abs();
-                if error > largest.0 {
-                    largest = (error, (col, row), band.azimuth);
-                }
-            }
-        }
-    }
+    let largest = common::largest_dense_error(&asset);
     assert!(
         largest.0 <= enough,
         "largest error {:.3} deg at post {:?}, azimuth {:.2}, over horizon_max={enough} (planned {:?})",

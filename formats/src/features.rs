@@ -20,11 +20,13 @@
 //! method's exact sight line at `band_azimuths[i]`) holds that larger one.
 //! Where the feature's horizon at the band's azimuth equals the band's
 //! angle (within the encoding's error) the feature sets the band, and the
-//! terrain behind it is unknown there; the reader then interpolates the
-//! terrain between the nearest bands on either side that the features do
-//! not set, and serves the larger of that and the features' exact horizon
-//! ([`serve`]). At a band's own azimuth the result is the band; between
-//! bands a spike is served at its true height and width.
+//! terrain behind it is unknown there, though no higher than the band; the
+//! reader then takes it as the nearest bands on either side that the
+//! features do not set, linear across it, capped at the band, and serves
+//! the larger of the bands so read and the features' exact horizon
+//! ([`serve`]). At a band's
+//! own azimuth the result is the band; between bands a spike is served at
+//! its true height and width.
 //!
 //! We depart from every paper here: Stewart (1998) and Timonen (2013) store
 //! a horizon per azimuth band only, and their error between bands is
@@ -103,6 +105,14 @@ impl SightLine {
             b,
             metres: (a * dx).hypot(b * dy),
         }
+    }
+}
+
+impl SightLine {
+    /// Posts east and south per unit of the line's parameter, the larger
+    /// of the two 1 in magnitude: the grid direction of its azimuth.
+    pub fn direction(&self) -> (f64, f64) {
+        (self.a, self.b)
     }
 }
 
@@ -215,11 +225,12 @@ impl HorizonFeatures {
 
 /// The horizon at `azimuth` from bands at `azimuths` (ascending compass
 /// degrees; `angle(k)` band `k`'s angle at the post, `None` for nodata)
-/// and the features (module docs): the bands linear between the two
-/// nearest that the features do not set (`at_band(k)`, the features'
-/// horizon at band `k`'s azimuth, is not below its angle by more than
-/// `tolerance` degrees, the encoding's error), and the features' horizon
-/// at the azimuth itself, `here`, where it is higher. Without features
+/// and the features (module docs): the two nearest bands linear, a band
+/// the features set (`at_band(k)`, their horizon at band `k`'s azimuth,
+/// is not below its angle by more than `tolerance` degrees, the
+/// encoding's error) standing for the smaller of itself and the nearest
+/// bands beyond that they do not set, linear across it; and the features'
+/// horizon at the azimuth itself, `here`, where it is higher. Without features
 /// (`at_band` and `here` always `None`) this is the plain linear reading
 /// of [`crate::horizons::HorizonMap`].
 pub fn serve<E>(
@@ -256,13 +267,25 @@ pub fn serve<E>(
         // Every band is the features': nothing says what lies behind them.
         NOTHING_AHEAD
     } else {
-        let span = (azimuths[k1] - azimuths[k0]).rem_euclid(360.0);
-        let g = if span == 0.0 {
-            0.0
-        } else {
-            (azimuth - azimuths[k0]).rem_euclid(360.0) / span
+        // The terrain behind a band the features set is at most the band:
+        // the bands beyond, linear across it, and no higher than it.
+        let across = |k: usize| {
+            let span = (azimuths[k1] - azimuths[k0]).rem_euclid(360.0);
+            let g = if span == 0.0 {
+                0.0
+            } else {
+                (azimuths[k] - azimuths[k0]).rem_euclid(360.0) / span
+            };
+            between(h0, h1, g)
         };
-        between(h0, h1, g)
+        let behind = |k: usize, h: f64| {
+            if set_by_feature(k, h) {
+                across(k).min(h)
+            } else {
+                h
+            }
+        };
+        between(behind(i, hi), behind(j, hj), f)
     };
     Ok(Some(Served {
         angle: here.map_or(terrain, |v| v.max(terrain)),

@@ -337,25 +337,42 @@ pub(super) fn unmet(budget: &Budget, closest: &Candidate, deciding: (f64, f64)) 
 }
 
 /// Why the line's angles list the spikes they list (`horizon_max` plans
-/// only): `without` is the largest error the chosen bake would leave at
-/// the pilot's posts with the bands alone.
-pub(super) fn features_choice(chosen: &Candidate, without: f64) -> Choice {
-    let (n, rise) = (chosen.features, chosen.feature_rise_m);
-    Choice {
-        what: "features".into(),
-        chosen: match n {
-            0 => "none".into(),
-            1 => "1 spike".into(),
-            n => format!("{n} spikes"),
+/// only): `(found, with)` how many the scene has and the largest error at
+/// the pilot's posts with them served, `without` with the bands alone.
+pub(super) fn features_choice(
+    chosen: &Candidate,
+    (found, with): (usize, f64),
+    without: f64,
+) -> Choice {
+    let spikes = |n: usize| match n {
+        1 => "1 spike".to_string(),
+        n => format!("{n} spikes"),
+    };
+    let rise = chosen.feature_rise_m;
+    match (found, chosen.features) {
+        (0, _) => Choice {
+            what: "features".into(),
+            chosen: "none".into(),
+            why: "no post rises far enough above its eight neighbours to move a neighbour's horizon by the directions' share of horizon_max (or the grid is latitude/longitude)".into(),
+            rejected: None,
         },
-        why: if n == 0 {
-            "no post rises far enough above its eight neighbours to move a neighbour's horizon by the directions' share of horizon_max (or the grid is latitude/longitude)".into()
-        } else {
-            format!(
-                "the posts rising at least {rise:.2} m above their eight neighbours (the least that can move a neighbour's horizon by {SHARE_DIRECTIONS} of horizon_max), the highest first: the loader serves their exact horizon between the {} directions (largest error {:.3} deg at the pilot's posts)",
-                chosen.sectors, chosen.horizon_max_deg
-            )
+        (found, 0) => Choice {
+            what: "features".into(),
+            chosen: "none".into(),
+            why: format!(
+                "the bands alone leave a largest error of {without:.3} deg at the pilot's posts, no more than with the scene's {} listed ({with:.3}): behind a band a spike sets, the terrain is estimated from the bands beyond",
+                spikes(found)
+            ),
+            rejected: Some(format!("{} listed: largest error {with:.3} deg", spikes(found))),
         },
-        rejected: (n > 0).then(|| format!("the bands alone: largest error {without:.3} deg")),
+        (_, n) => Choice {
+            what: "features".into(),
+            chosen: spikes(n),
+            why: format!(
+                "the posts rising at least {rise:.2} m above their eight neighbours (the least that can move a neighbour's horizon by {SHARE_DIRECTIONS} of horizon_max), the highest first: the loader serves their exact horizon between the {} directions (largest error {with:.3} deg at the pilot's posts)",
+                chosen.sectors
+            ),
+            rejected: Some(format!("the bands alone: largest error {without:.3} deg")),
+        },
     }
 }

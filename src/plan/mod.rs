@@ -240,6 +240,19 @@ impl Candidate {
         }
     }
 
+    /// Itself with the predicted errors of `other`.
+    fn with_errors_of(self, other: &Candidate) -> Self {
+        Self {
+            horizon_p99_deg: other.horizon_p99_deg,
+            svf_p99: other.svf_p99,
+            horizon_max_deg: other.horizon_max_deg,
+            svf_max: other.svf_max,
+            shade_share: other.shade_share,
+            solar_p99_percent: other.solar_p99_percent,
+            ..self
+        }
+    }
+
     /// Its predicted errors, for a reason: "horizon p99 .. deg, svf p99
     /// ..[, shade ..]".
     fn errors_text(&self) -> String {
@@ -1029,7 +1042,26 @@ fn plan_horizons(
             methods,
         });
     }
-    let chosen = line;
+    // The spikes stay listed where they lower the largest error: behind a
+    // band they set the terrain is estimated, which rough terrain can miss.
+    let mut chosen = line;
+    let listed = budget.horizon_max.map(|_| {
+        let mut without = predict(pilot, suns, &stored, (bounded_cut, encoding), false);
+        let with = (chosen.features, chosen.horizon_max_deg);
+        if chosen.features > 0 && without.horizon_max <= chosen.horizon_max_deg {
+            let bare = Candidate::predicted((Method::Line, sectors, encoding), &mut without, costs);
+            chosen = Candidate {
+                meets: without.within(
+                    budget,
+                    SHARE_DIRECTIONS + SHARE_DISTANCE + SHARE_QUANTISATION,
+                ),
+                features: 0,
+                feature_rise_m: 0.0,
+                ..chosen.clone().with_errors_of(&bare)
+            };
+        }
+        (with, without.horizon_max)
+    });
     let mut choices = vec![
         method_choice(&chosen, &chosen, (&methods, &unmeasured)),
         Choice {
@@ -1046,9 +1078,8 @@ fn plan_horizons(
         distance_choice(scene, curvature, safe_distance),
         route_choice(costs, sectors, safe_distance, bounded),
     ];
-    if budget.horizon_max.is_some() {
-        let without = predict(pilot, suns, &stored, (bounded_cut, encoding), false);
-        choices.push(features_choice(&chosen, without.horizon_max));
+    if let Some((with, without)) = listed {
+        choices.push(features_choice(&chosen, with, without));
     }
     Ok(HorizonPlan {
         chosen,

@@ -72,8 +72,10 @@ impl Default for Sampling {
 
 /// Prominent features the samples go around.
 pub const FEATURES: usize = 6;
-/// Distances (posts) from a feature at which posts are sampled.
-pub const FEATURE_DISTANCES: [usize; 6] = [3, 6, 12, 24, 48, 96];
+/// Distances (posts) from a feature at which posts are sampled: the
+/// feature itself (its horizon turns fastest with the azimuth) and its
+/// neighbours too.
+pub const FEATURE_DISTANCES: [usize; 8] = [0, 1, 3, 6, 12, 24, 48, 96];
 /// Posts a side of the blocks whose highest post is a feature candidate.
 const FEATURE_BLOCK: usize = 8;
 
@@ -268,10 +270,11 @@ pub struct Pilot {
     /// (each sight line's eye) and the post spacing, metres.
     pub listed: Option<HorizonFeatures>,
     eyes: Vec<f64>,
-    /// Per post and reference direction, the listed features' crossings
-    /// with its sight line, `(metres, degrees)`: what every candidate
-    /// serves there, at any distance limit.
-    listed_reference: Vec<Vec<Vec<(f64, f64)>>>,
+    /// Per post, the listed features' crossings with its sight lines in
+    /// the reference directions, `(direction, metres, degrees)` ordered by
+    /// direction: what every candidate serves there, at any distance limit
+    /// (most sight lines cross none, so only crossings are held).
+    listed_reference: Vec<Vec<(u32, f32, f32)>>,
     spacing: (f64, f64),
 }
 
@@ -395,9 +398,15 @@ impl Pilot {
         self.listed_reference = (0..self.posts.len())
             .into_par_iter()
             .map(|post| {
-                (self.reference.iter())
-                    .map(|band| listed.crossings_deg(&self.sight_line(post, band.azimuth)))
-                    .collect()
+                let mut crossings = Vec::new();
+                for (r, band) in self.reference.iter().enumerate() {
+                    let line = self.sight_line(post, band.azimuth);
+                    crossings.extend(
+                        (listed.crossings_deg(&line).into_iter())
+                            .map(|(d, angle)| (r as u32, d as f32, angle as f32)),
+                    );
+                }
+                crossings
             })
             .collect();
         let n = listed.posts.len();
@@ -415,9 +424,12 @@ impl Pilot {
         r: usize,
         max_distance: Option<f64>,
     ) -> Option<f64> {
-        (self.listed_reference.get(post)?.get(r)?.iter())
-            .filter(|&&(d, _)| max_distance.is_none_or(|m| d <= m))
-            .map(|&(_, angle)| angle)
+        let crossings = self.listed_reference.get(post)?;
+        let first = crossings.partition_point(|c| (c.0 as usize) < r);
+        (crossings[first..].iter())
+            .take_while(|c| c.0 as usize == r)
+            .filter(|c| max_distance.is_none_or(|m| f64::from(c.1) <= m))
+            .map(|c| f64::from(c.2))
             .reduce(f64::max)
     }
 

@@ -139,3 +139,52 @@ pub fn srtm_crop((x0, y0): (u32, u32), (w, h): (u32, u32)) -> (Vec<f32>, f64, f6
     let cs = &srtm.manifest().cell_size;
     (crop, cs.dx, cs.dy)
 }
+
+/// The largest error of an asset's served horizon (`HorizonMap::served_at`)
+/// at every post, against exact line horizons in 1440 directions (grid
+/// steps within 0.05 degree of `i / 4` degrees: between the stored bands
+/// too), leaving out the samples at the DEM's edge as `check` does; and the
+/// post and azimuth where it is.
+pub fn largest_dense_error(asset: &Path) -> (f64, (usize, usize), f64) {
+    use terrabake::algorithms::horizon::{brute, plan_bands, BandKind, Method};
+    use terrabake::stages::horizons::HorizonsStage;
+    use terrabake::terrain::held::HeldDem;
+    use terrabake_format::horizons::{HorizonMap, NOTHING_AHEAD};
+
+    let opened = Asset::open(asset).unwrap();
+    let map = HorizonMap::open(&opened).unwrap();
+    let stage = HorizonsStage::recorded(&opened).unwrap();
+    let dem = HeldDem::read(&opened).unwrap();
+    let t = dem.terrain(stage.sight.curvature_coefficient(opened.manifest()));
+    let m = opened.manifest();
+    let dense = plan_bands(
+        Method::Line,
+        1440,
+        m.cell_size.dx,
+        m.cell_size.dy,
+        Some(0.05),
+    );
+    let mut largest = (0.0f64, (0, 0), 0.0);
+    for row in 0..t.height {
+        for col in 0..t.width {
+            for band in &dense {
+                let BandKind::Line(direction) = &band.kind else {
+                    unreachable!("line bands")
+                };
+                let truth = f64::from(brute::line_horizon(&t, (col, row), direction.step, None));
+                let served = map
+                    .served_at(col as u32, row as u32, band.azimuth)
+                    .unwrap()
+                    .unwrap();
+                if served.at_edge || truth == NOTHING_AHEAD {
+                    continue;
+                }
+                let error = (served.angle - truth).abs();
+                if error > largest.0 {
+                    largest = (error, (col, row), band.azimuth);
+                }
+            }
+        }
+    }
+    largest
+}

@@ -5,6 +5,7 @@
 //! the grid, and the sector horizon from every post of the DEM, `O(n)` per
 //! post.
 
+use terrabake_format::features::SightLine;
 use terrabake_format::surface::Cell;
 
 use crate::algorithms::horizon::sector::{NarrowStencil, SectorFrame};
@@ -207,22 +208,10 @@ pub fn ray_horizon_records(
     (col, row): (usize, usize),
     azimuth: f64,
 ) -> Vec<HorizonRecord> {
-    let (sin, cos) = azimuth.to_radians().sin_cos();
-    let (a, b) = (
-        sin / (t.dx * t.row_scale.at_half(2 * row as i64)),
-        -cos / t.dy,
-    );
-    let major = a.abs().max(b.abs());
-    // Exact zeros, so that a line along a grid axis meets no diagonal
-    // crossing that rounding made.
-    let clean = |v: f64| {
-        if (v / major).abs() < 1e-12 {
-            0.0
-        } else {
-            v / major
-        }
-    };
-    sight_line_records(t, (col, row), (clean(a), clean(b)), None).0
+    // The ground direction at the post's row: its own east-west spacing.
+    let spacing = (t.dx * t.row_scale.at_half(2 * row as i64), t.dy);
+    let line = SightLine::new((col as u32, row as u32), 0.0, azimuth, spacing);
+    sight_line_records(t, (col, row), line.direction(), None).0
 }
 
 /// One family of a line's crossings with the grid (`col = i`, `row = j`

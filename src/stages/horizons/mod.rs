@@ -593,7 +593,7 @@ impl<'a> Run<'a> {
 impl HorizonsStage {
     /// The posts the loader serves exactly between bands: the whole DEM's
     /// highest-rising spikes (every part of a partitioned bake lists the
-    /// same), read a few tile rows at a time.
+    /// same), read a tile row at a time.
     fn find_features(&self, run: &Run, geographic: bool) -> Result<HorizonFeatures> {
         if geographic {
             return Err(crate::error::mark(
@@ -606,8 +606,8 @@ impl HorizonsStage {
         }
         let (_, h, ts) = run.dims;
         let mut found = Vec::new();
-        for y0 in (0..h).step_by(4 * ts) {
-            let rows = y0..(y0 + 4 * ts).min(h);
+        for y0 in (0..h).step_by(ts) {
+            let rows = y0..(y0 + ts).min(h);
             let held = y0.saturating_sub(1)..(rows.end + 1).min(h);
             let z = run.read_rows(held.clone())?;
             let t = run.terrain(&z, held.start);
