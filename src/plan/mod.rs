@@ -141,6 +141,9 @@ const PLANNED_FEATURES: usize = 256;
 pub const SHARE_DIRECTIONS: f64 = 0.6;
 const SHARE_DISTANCE: f64 = 0.05;
 const SHARE_QUANTISATION: f64 = 0.25;
+/// The shares a baked candidate (encoded, and cut where it is bounded) is
+/// judged against: all but the unseen posts' tenth.
+const SHARE_BAKED: f64 = SHARE_DIRECTIONS + SHARE_DISTANCE + SHARE_QUANTISATION;
 /// Tolerances the planner tries beyond the stage's default (an eighth of
 /// the spacing), as divisors of the spacing, narrowest first; up to a
 /// third, short of the half at which two directions could take one step.
@@ -218,18 +221,17 @@ impl Candidate {
         errors: &mut Errors,
         costs: &LineCosts,
     ) -> Self {
-        let (horizon_p99_deg, svf_p99, shade_share) = errors.at(0.99);
         Self {
             method,
             sectors,
             encoding,
             max_distance: None,
-            horizon_p99_deg,
-            svf_p99,
-            horizon_max_deg: errors.horizon_max,
-            svf_max: errors.svf_max,
-            shade_share,
-            solar_p99_percent: errors.solar_at(0.99),
+            horizon_p99_deg: 0.0,
+            svf_p99: 0.0,
+            horizon_max_deg: 0.0,
+            svf_max: 0.0,
+            shade_share: None,
+            solar_p99_percent: None,
             bytes: costs.layer_bytes(encoding.elem().size(), sectors)
                 + costs.layer_bytes(4, costs.sky_layers),
             seconds: predict::seconds(costs, method, sectors),
@@ -238,17 +240,19 @@ impl Candidate {
             features: 0,
             feature_rise_m: 0.0,
         }
+        .with_errors(errors)
     }
 
-    /// Itself with the predicted errors of `other`.
-    fn with_errors_of(self, other: &Candidate) -> Self {
+    /// Itself with the predicted `errors` (not judged: `meets` unchanged).
+    fn with_errors(self, errors: &mut Errors) -> Self {
+        let (horizon_p99_deg, svf_p99, shade_share) = errors.at(0.99);
         Self {
-            horizon_p99_deg: other.horizon_p99_deg,
-            svf_p99: other.svf_p99,
-            horizon_max_deg: other.horizon_max_deg,
-            svf_max: other.svf_max,
-            shade_share: other.shade_share,
-            solar_p99_percent: other.solar_p99_percent,
+            horizon_p99_deg,
+            svf_p99,
+            horizon_max_deg: errors.horizon_max,
+            svf_max: errors.svf_max,
+            shade_share,
+            solar_p99_percent: errors.solar_at(0.99),
             ..self
         }
     }
@@ -896,7 +900,7 @@ fn plan_horizons(
         let share = if encoding == AngleEncoding::F32 && distance.is_none() {
             SHARE_DIRECTIONS
         } else {
-            SHARE_DIRECTIONS + SHARE_DISTANCE + SHARE_QUANTISATION
+            SHARE_BAKED
         };
         let meets = errors.within(budget, share);
         Candidate {
@@ -1015,10 +1019,7 @@ fn plan_horizons(
             encoding,
         );
         let chosen = Candidate {
-            meets: e.within(
-                budget,
-                SHARE_DIRECTIONS + SHARE_DISTANCE + SHARE_QUANTISATION,
-            ),
+            meets: e.within(budget, SHARE_BAKED),
             ..c
         };
         let choices = vec![
@@ -1049,15 +1050,11 @@ fn plan_horizons(
         let mut without = predict(pilot, suns, &stored, (bounded_cut, encoding), false);
         let with = (chosen.features, chosen.horizon_max_deg);
         if chosen.features > 0 && without.horizon_max <= chosen.horizon_max_deg {
-            let bare = Candidate::predicted((Method::Line, sectors, encoding), &mut without, costs);
             chosen = Candidate {
-                meets: without.within(
-                    budget,
-                    SHARE_DIRECTIONS + SHARE_DISTANCE + SHARE_QUANTISATION,
-                ),
+                meets: without.within(budget, SHARE_BAKED),
                 features: 0,
                 feature_rise_m: 0.0,
-                ..chosen.clone().with_errors_of(&bare)
+                ..chosen.clone().with_errors(&mut without)
             };
         }
         (with, without.horizon_max)
