@@ -16,6 +16,8 @@
 //! - [`io`]: DEM readers row band by row band, the one GeoTIFF writer,
 //!   synthetic terrains.
 //! - [`algorithms`]: the papers' algorithms, pure functions over slices.
+//! - [`views`]: the built-in cameras over an asset and their primary rays,
+//!   the one tracing workload that renders, plans, checks and benchmarks time.
 //! - [`stage`]: the stage interface, the asset's writer lock and the flag
 //!   parsers every stage's parameters use.
 //! - [`stages`]: ingest, pyramid, cones, horizons, sky, viewsheds.
@@ -39,6 +41,7 @@ pub mod present;
 pub mod stage;
 pub mod stages;
 pub mod terrain;
+pub mod views;
 
 pub use error::{Error, ErrorKind, Result};
 

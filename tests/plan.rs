@@ -526,6 +526,86 @@ fn fast_tracing_bakes_u16_cone_planes_of_64_slices_that_stay_exact() {
     );
 }
 
+/// A tracing budget (`steps`): the pilot bakes the layers on the scene and
+/// takes the cheapest that meets it (the pyramid alone before any cone
+/// planes, fewer slices before more); `check` traces the same views
+/// through the bake and finds the very steps the pilot measured; a budget
+/// no layers meet is refused, naming the fewest steps found.
+#[test]
+fn a_tracing_budget_takes_the_cheapest_layers_that_meet_it() {
+    use terrabake::stages::cones::{ConesStage, SliceChoice};
+    let dir = tempfile::tempdir().unwrap();
+    let asset = terrain(dir.path(), SynthKind::Fractal, 6);
+    let tracing_plan = |needs: Need, steps: f64| {
+        let request = Request {
+            budget: Budget {
+                horizon: 1.0,
+                steps: Some(steps),
+                ..Default::default()
+            },
+            needs: Needs::new(vec![needs]),
+            ..Default::default()
+        };
+        plan(&Asset::open(&asset).unwrap(), &request, Progress::hidden())
+    };
+    // A loose budget: the pyramid alone, and nothing else measured.
+    let loose = tracing_plan(Need::Tracing, 1e6).unwrap();
+    let t = loose.tracing.as_ref().expect("a tracing plan");
+    assert!(
+        !loose.cones && t.slices.is_none() && t.candidates.len() == 1,
+        "{t:?}"
+    );
+    let pyramid_steps = t.candidates[0].speed.mean_steps;
+    // Fewer steps than the pyramid takes: the fewest slices that meet it.
+    let p = tracing_plan(Need::Tracing, 0.8 * pyramid_steps).unwrap();
+    let t = p.tracing.as_ref().expect("a tracing plan");
+    let k = t.slices.expect("cone planes");
+    let chosen = t.chosen();
+    assert!(
+        p.cones && p.cone_slices == k && chosen.slices == Some(k),
+        "{p:?}"
+    );
+    let (before, _) = t.candidates.split_at(t.candidates.len() - 1);
+    assert!(before.iter().all(|c| !c.meets) && chosen.meets, "{t:?}");
+    for stage in p.stages() {
+        run_stage(&asset, stage.as_ref(), true, Progress::hidden()).unwrap();
+    }
+    let opened = Asset::open(&asset).unwrap();
+    let cones: ConesStage = terrabake::stage::recorded_params(opened.manifest(), "cones").unwrap();
+    assert_eq!(cones.slices, SliceChoice::Count(k));
+    let report = check(
+        &opened,
+        &CheckOptions {
+            samples: 50,
+            seed: 11,
+            directions: 720,
+            cuts: &[],
+        },
+        Some(&p.budget),
+        &[],
+        Progress::hidden(),
+    )
+    .unwrap();
+    let traced = report.tracing.as_ref().expect("tracing checked");
+    // The pilot baked the whole DEM: the same planes, the same views.
+    assert_eq!(traced.method, "parametric");
+    assert!(
+        (traced.speed.mean_steps - chosen.speed.mean_steps).abs() < 1e-9,
+        "{traced:?} against {chosen:?}"
+    );
+    assert!(report.within_budget(), "{report:?}");
+    assert!(report
+        .verdicts
+        .iter()
+        .any(|v| v.what == "steps per ray" && v.met == Some(true)));
+    // Fast tracing bakes cone planes whatever the pyramid does.
+    let fast = tracing_plan(Need::FastTracing, 1e6).unwrap();
+    assert_eq!(fast.tracing.unwrap().slices, Some(4));
+    // No layers take under one step a ray.
+    let refused = tracing_plan(Need::Tracing, 0.5).unwrap_err().to_string();
+    assert!(refused.contains("relax steps to at least"), "{refused}");
+}
+
 /// The calibration (`terrabake calibrate`): measured once and cached per
 /// machine and binary under `XDG_CACHE_HOME`; a cache that is not one, or
 /// is another binary's, is measured again, never an error; `--fresh`

@@ -5,12 +5,13 @@ mod common;
 
 use terrabake::io::synth::SynthKind;
 use terrabake::plumbing::progress::Progress;
-use terrabake::present::render::{builtin_views, render, RenderOptions};
+use terrabake::present::render::{render, RenderOptions};
 use terrabake::stage::run_stage;
 use terrabake::stages::cones::ConesStage;
 use terrabake::stages::ingest::{ingest, IngestOptions};
 use terrabake::stages::pyramid::PyramidStage;
 use terrabake::terrain::sun::Sun;
+use terrabake::views::builtin_views;
 use terrabake_format::trace::{Method, Ray, Tracer};
 use terrabake_format::Asset;
 
@@ -243,7 +244,7 @@ fn horizon_shadows_agree_with_shadow_rays() {
     let asset = Asset::open(&out).unwrap();
     let tracer = Tracer::new(&asset).unwrap();
     let views = builtin_views(&tracer, &asset);
-    let picture = |view: &terrabake::present::render::Camera, shadows| {
+    let picture = |view: &terrabake::views::Camera, shadows| {
         let opts = RenderOptions {
             width: 160,
             height: 100,
@@ -293,7 +294,8 @@ fn horizon_shadows_agree_with_shadow_rays() {
 /// of 655,360 pixels when shadow rays used the true surface).
 #[test]
 fn shadows_fall_on_the_exaggerated_surface() {
-    use terrabake::present::render::{Camera, Shadows};
+    use terrabake::present::render::Shadows;
+    use terrabake::views::Camera;
     let dir = tempfile::tempdir().unwrap();
     let srtm = Asset::open(srtm_with_pyramid(dir.path())).unwrap();
     let tracer = Tracer::new(&srtm).unwrap();
@@ -334,7 +336,8 @@ fn shadows_fall_on_the_exaggerated_surface() {
 /// triangle's own normal, while every hit, and so the silhouette, stays.
 #[test]
 fn smooth_normals_show_no_facets() {
-    use terrabake::present::render::{Camera, Normals, Shadows};
+    use terrabake::present::render::{Normals, Shadows};
+    use terrabake::views::Camera;
     let dir = tempfile::tempdir().unwrap();
     let srtm = Asset::open(srtm_with_pyramid(dir.path())).unwrap();
     let tracer = Tracer::new(&srtm).unwrap();

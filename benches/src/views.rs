@@ -8,8 +8,7 @@ use terrabake_format::{Asset, Mmap};
 
 use super::chart::{log_log_svg, Series};
 use super::markdown_table;
-use terrabake::present::render::{builtin_views, render, RenderOptions, Shadows};
-use terrabake::terrain::sun::Sun;
+use terrabake::views::views_cost;
 
 /// One method's totals over the sixteen views.
 #[derive(Debug, Clone, Serialize)]
@@ -37,21 +36,6 @@ pub fn bench_views(
     repeat: u32,
 ) -> anyhow::Result<Vec<BenchRow>> {
     let tracer = Tracer::new(asset)?;
-    let views = builtin_views(&tracer, asset);
-    // Primary rays only (no shadows): the sun shades, and costs nothing.
-    let options = |method| RenderOptions {
-        width: size,
-        height: size,
-        method,
-        sun: Sun {
-            azimuth: 135.0,
-            elevation: 35.0,
-        },
-        every,
-        shadows: Shadows::Off,
-        exaggeration: 1.0,
-        normals: terrabake::present::render::Normals::Flat,
-    };
     // Warm the page cache, the process's page tables and the tiles'
     // first-read checksums along the very rays timed below, with every
     // method (each reads its own layers: heights, pyramid, cone planes), so
@@ -59,40 +43,28 @@ pub fn bench_views(
     // set of rays is not enough: a parametric leap lands on a page no
     // sparser ray touched, and each such page costs a minor fault (about a
     // microsecond) that the timed run then charged to the tracer.
-    for (cam, &method) in views
-        .iter()
-        .flat_map(|cam| methods.iter().map(move |m| (cam, m)))
-    {
-        render(asset, &tracer, cam, &options(method))?;
+    for &method in methods {
+        views_cost(asset, &tracer, method, (size, every))?;
     }
     median_passes(
         methods,
         repeat,
         |a: &BenchRow| a.seconds,
         |method| {
-            let (mut rays, mut hits, mut seconds, mut steps, mut cells, mut nodes) =
-                (0u64, 0u64, 0.0, 0.0, 0.0, 0.0);
-            for cam in &views {
-                let (_, st) = render(asset, &tracer, cam, &options(method))?;
-                rays += st.primary_rays;
-                hits += st.primary_hits;
-                seconds += st.seconds;
-                steps += st.mean_steps * st.primary_rays as f64;
-                cells += st.mean_cells * st.primary_rays as f64;
-                nodes += st.mean_nodes_pushed * st.primary_rays as f64;
-            }
+            let cost = views_cost(asset, &tracer, method, (size, every))?;
             let threads = rayon::current_num_threads();
-            let n = rays.max(1) as f64;
             Ok(BenchRow {
                 method: method.name().into(),
-                rays,
-                hits,
-                seconds,
+                rays: cost.rays,
+                hits: cost.hits,
+                seconds: cost.seconds,
                 threads,
-                mean_steps: steps / n,
-                mean_cells: cells / n,
-                mean_nodes_pushed: nodes / n,
-                rays_per_second_per_thread: rays as f64 / seconds.max(1e-9) / threads as f64,
+                mean_steps: cost.mean_steps,
+                mean_cells: cost.mean_cells,
+                mean_nodes_pushed: cost.mean_nodes_pushed,
+                rays_per_second_per_thread: cost.rays as f64
+                    / cost.seconds.max(1e-9)
+                    / threads as f64,
             })
         },
     )

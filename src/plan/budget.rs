@@ -1,7 +1,7 @@
 //! The user's error budget: how well a scene must be modelled, in the
 //! user's terms (docs/PLANNING.md defines each error: its reference and its
 //! statistic). On the command line
-//! `--budget horizon=DEG[,horizon_max=DEG][,svf=X][,svf_max=X][,shade=FRACTION][,solar=PERCENT][,total_viewshed=PERCENT][,time=SECONDS][,bytes=SIZE][,memory=MIB]`.
+//! `--budget horizon=DEG[,horizon_max=DEG][,svf=X][,svf_max=X][,shade=FRACTION][,solar=PERCENT][,total_viewshed=PERCENT][,steps=N][,rays=N][,time=SECONDS][,bytes=SIZE][,memory=MIB]`.
 //! It deserialises from a TOML table with the same keys (unknown keys
 //! refused), for recipes; recipes do not hold a budget yet.
 //!
@@ -18,6 +18,11 @@
 //! - `shade`: the share of posts whose sun/shade state may be wrong.
 //! - `total_viewshed`: per cent, the 99th percentile over posts of the
 //!   total viewshed's relative error against 720 directions.
+//! - `steps`: the mean steps a ray takes through the tracing layers, over
+//!   the primary rays of the sixteen built-in views (Paglieroni and
+//!   Petersen's Table 1); it counts the work, so it holds on any machine.
+//! - `rays`: rays per second per thread over the same views, on the machine
+//!   that plans and checks.
 //! - `time`, `bytes`, `memory`: limits on the bake's wall seconds, the
 //!   asset's bytes on disk and the peak memory in MiB.
 
@@ -55,6 +60,12 @@ pub struct Budget {
     /// relative error, against 720 directions.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub total_viewshed: Option<f64>,
+    /// The most mean steps per ray of the built-in views' primary rays.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub steps: Option<f64>,
+    /// The fewest rays per second per thread over the same rays.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rays: Option<f64>,
     /// Wall seconds of the bake.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub time: Option<f64>,
@@ -128,8 +139,14 @@ impl Budget {
         if let Some(v) = self.total_viewshed {
             positive("total_viewshed", v)?;
         }
-        if let Some(v) = self.time {
-            positive("time", v)?;
+        for (key, v) in [
+            ("steps", self.steps),
+            ("rays", self.rays),
+            ("time", self.time),
+        ] {
+            if let Some(v) = v {
+                positive(key, v)?;
+            }
         }
         for (key, v) in [("bytes", self.bytes), ("memory", self.memory)] {
             if v == Some(0) {
@@ -195,6 +212,8 @@ impl FromStr for Budget {
                 "shade" => budget.shade = Some(number()?),
                 "solar" => budget.solar = Some(number()?),
                 "total_viewshed" => budget.total_viewshed = Some(number()?),
+                "steps" => budget.steps = Some(number()?),
+                "rays" => budget.rays = Some(number()?),
                 "time" => budget.time = Some(number()?),
                 "bytes" => budget.bytes = Some(parse_size(value)?),
                 "memory" => {
@@ -207,7 +226,7 @@ impl FromStr for Budget {
                 }
                 other => {
                     return Err(format!(
-                    "{other:?}: not a budget key (horizon, horizon_max, svf, svf_max, shade, solar, total_viewshed, time, bytes, memory)"
+                    "{other:?}: not a budget key (horizon, horizon_max, svf, svf_max, shade, solar, total_viewshed, steps, rays, time, bytes, memory)"
                 ))
                 }
             }
@@ -238,6 +257,12 @@ impl fmt::Display for Budget {
         }
         if let Some(v) = self.total_viewshed {
             write!(f, ",total_viewshed={v}")?;
+        }
+        if let Some(v) = self.steps {
+            write!(f, ",steps={v}")?;
+        }
+        if let Some(v) = self.rays {
+            write!(f, ",rays={v}")?;
         }
         if let Some(v) = self.time {
             write!(f, ",time={v}")?;
@@ -482,6 +507,14 @@ impl Request {
             }
             _ => {}
         }
+        let tracing = self.needs.has(Need::Tracing) || self.needs.has(Need::FastTracing);
+        for (key, v) in [("steps", self.budget.steps), ("rays", self.budget.rays)] {
+            if let Some(v) = v.filter(|_| !tracing) {
+                return Err(format!(
+                    "budget {key}={v}: a tracing budget needs tracing or fast_tracing in --needs"
+                ));
+            }
+        }
         if let Some(d) = self.viewshed_distance {
             if !(d.is_finite() && d > 0.0) {
                 return Err(format!("viewshed_distance={d}: give positive metres"));
@@ -511,7 +544,7 @@ mod tests {
     #[test]
     fn the_documented_syntax_parses_and_prints_back() {
         let b: Budget =
-            "horizon=0.5,horizon_max=3,svf=0.01,svf_max=0.05,shade=0.001,solar=2,total_viewshed=3,time=60,bytes=200M,memory=512"
+            "horizon=0.5,horizon_max=3,svf=0.01,svf_max=0.05,shade=0.001,solar=2,total_viewshed=3,steps=4,rays=1e6,time=60,bytes=200M,memory=512"
                 .parse()
                 .unwrap();
         assert_eq!(
@@ -524,6 +557,8 @@ mod tests {
                 shade: Some(0.001),
                 solar: Some(2.0),
                 total_viewshed: Some(3.0),
+                steps: Some(4.0),
+                rays: Some(1e6),
                 time: Some(60.0),
                 bytes: Some(200 << 20),
                 memory: Some(512),
@@ -570,5 +605,26 @@ mod tests {
             .validate()
             .unwrap_err()
             .contains("elevation in 0..90"));
+    }
+
+    #[test]
+    fn a_tracing_budget_needs_tracing() {
+        let request = Request {
+            budget: "horizon=1,rays=2e6".parse().unwrap(),
+            ..Default::default()
+        };
+        assert!(request
+            .validate()
+            .unwrap_err()
+            .contains("tracing or fast_tracing"));
+        let request = Request {
+            needs: "fast_tracing".parse().unwrap(),
+            ..request
+        };
+        assert_eq!(request.validate(), Ok(()));
+        assert!("horizon=1,steps=0"
+            .parse::<Budget>()
+            .unwrap_err()
+            .contains("steps=0"));
     }
 }

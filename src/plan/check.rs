@@ -119,6 +119,11 @@ pub struct TracingCheck {
     /// Per method, the rays whose hit differs from the brute force's (must
     /// be 0).
     pub mismatches: Vec<(String, usize)>,
+    /// The fastest method the asset serves (parametric where it has cone
+    /// planes), over the built-in views on one thread: what the `steps`
+    /// and `rays` budgets are judged by.
+    pub method: String,
+    pub speed: crate::plan::tracing::TracingSpeed,
 }
 
 /// What a check measured.
@@ -155,6 +160,9 @@ pub struct Verdict {
     pub what: &'static str,
     pub achieved: Option<f64>,
     pub limit: f64,
+    /// The limit is a floor (rays per second), not a ceiling.
+    #[serde(default)]
+    pub at_least: bool,
     /// `None`: not measured.
     pub met: Option<bool>,
 }
@@ -571,6 +579,8 @@ fn check_tracing(
     if tracer.has_cones() {
         methods.push(TraceMethod::Parametric);
     }
+    let fastest = *methods.last().expect("a pyramid or cone planes");
+    let speed = crate::plan::tracing::speed(asset, fastest)?;
     let mut mismatches = Vec::new();
     let reference: Vec<_> = rays
         .par_iter()
@@ -606,6 +616,8 @@ fn check_tracing(
         cone_tightness: tightness,
         rays: rays.len(),
         mismatches,
+        method: fastest.name().into(),
+        speed,
     }))
 }
 
@@ -615,6 +627,7 @@ fn verdicts(report: &CheckReport, b: &Budget) -> Vec<Verdict> {
         what,
         achieved,
         limit,
+        at_least: false,
         met: achieved.map(|a| a <= limit),
     };
     let h = report.horizons.as_ref();
@@ -653,6 +666,22 @@ fn verdicts(report: &CheckReport, b: &Budget) -> Vec<Verdict> {
             verdict.met = Some(verdict.met == Some(true));
             v.push(verdict);
         }
+    }
+    let speed = report.tracing.as_ref().map(|t| t.speed);
+    if let Some(limit) = b.steps {
+        let mut verdict = measured("steps per ray", speed.map(|s| s.mean_steps), limit);
+        verdict.met = Some(verdict.met == Some(true));
+        v.push(verdict);
+    }
+    if let Some(limit) = b.rays {
+        let achieved = speed.map(|s| s.rays_per_second);
+        v.push(Verdict {
+            what: "rays/s per thread",
+            achieved,
+            limit,
+            at_least: true,
+            met: Some(achieved.is_some_and(|a| a >= limit)),
+        });
     }
     if let Some(limit) = b.bytes {
         v.push(measured("bytes", Some(report.bytes as f64), limit as f64));
@@ -755,6 +784,10 @@ pub(crate) fn describe(report: &CheckReport) -> String {
                 t.rays
             );
         }
+        out += &format!(
+            "tracing speed         {}: {:.2} steps a ray, {:.0} rays/s on one thread over the built-in views\n",
+            t.method, t.speed.mean_steps, t.speed.rays_per_second
+        );
     }
     if let Some(t) = &report.total_viewshed {
         out += &format!(
@@ -818,12 +851,16 @@ pub(crate) fn describe(report: &CheckReport) -> String {
             let achieved = v.achieved.map_or("-".into(), |a| format!("{a:.4}"));
             let verdict = match v.met {
                 Some(true) => "met",
+                Some(false) if v.at_least => "SHORT",
                 Some(false) => "EXCEEDED",
                 None => "not measured (time and memory are measured by a planned bake)",
             };
             out += &format!(
-                "  {:<20} {:>12} <= {:<10} {verdict}\n",
-                v.what, achieved, v.limit
+                "  {:<20} {:>12} {} {:<10} {verdict}\n",
+                v.what,
+                achieved,
+                if v.at_least { ">=" } else { "<=" },
+                v.limit
             );
         }
     }

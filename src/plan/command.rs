@@ -106,7 +106,7 @@ pub(crate) fn describe(plan: &Plan) -> String {
 /// `--sun-day`.
 #[derive(clap::Args, Debug, Clone)]
 pub struct RequestArgs {
-    /// The budget: horizon=DEG[,horizon_max=DEG][,svf=X][,svf_max=X][,shade=FRACTION][,solar=PERCENT][,total_viewshed=PERCENT][,time=SECONDS][,bytes=SIZE][,memory=MIB].
+    /// The budget: horizon=DEG[,horizon_max=DEG][,svf=X][,svf_max=X][,shade=FRACTION][,solar=PERCENT][,total_viewshed=PERCENT][,steps=N][,rays=N][,time=SECONDS][,bytes=SIZE][,memory=MIB].
     #[arg(long)]
     pub budget: Option<Budget>,
     /// What the scene needs, a comma list: horizons, svf, sky, sun, tracing, fast_tracing,

@@ -60,7 +60,9 @@
 //! line sweeps hold a tile row of every direction), a bytes limit can make
 //! the heights zstd (a sample of tile rows encoded as ingest would); both
 //! mean a second ingest, which `recipe::bake` runs. Fast tracing gets
-//! 64-slice u16 cone planes, chosen from the bundled tile's measurements.
+//! 64-slice u16 cone planes, chosen from the bundled tile's measurements,
+//! unless a tracing budget (`steps`, `rays`) is given: then [`tracing`]
+//! bakes the candidates on the scene and takes the cheapest that meets it.
 
 pub mod budget;
 pub mod calibration;
@@ -71,7 +73,9 @@ mod command;
 mod models;
 mod predict;
 pub mod reference;
+mod scene;
 pub mod total_viewshed;
+pub mod tracing;
 
 use choices::{
     cones_choice, distance_choice, encoding_choice, features_choice, method_choice, route_choice,
@@ -87,6 +91,8 @@ use predict::{
     choose_encoding, errors, measure_other, other_count, other_method, predict, Errors, Listed,
     PilotSuns,
 };
+pub use scene::Scene;
+use scene::{describe_scene, sun_positions};
 
 use std::time::Instant;
 
@@ -100,7 +106,7 @@ use crate::algorithms::horizon::line::{default_tolerance, Stencil};
 use crate::algorithms::horizon::{Band, BandKind, Method};
 use crate::error::bail;
 use crate::plan::budget::{Budget, Need, Needs, Request};
-use crate::plan::reference::{quantile_unsorted, solar_year, Pilot, Sampling};
+use crate::plan::reference::{solar_year, Pilot, Sampling};
 use crate::plumbing::progress::Progress;
 use crate::stage::Stage;
 use crate::stages::horizons::HorizonsStage;
@@ -127,6 +133,10 @@ pub const OTHERS_MEASURED_UP_TO_VISITS: f64 = 2e9;
 const CANDIDATES: [usize; 20] = [
     4, 6, 8, 10, 12, 16, 18, 20, 24, 30, 36, 40, 48, 60, 72, 90, 120, 180, 240, 360,
 ];
+/// Tolerances the planner tries beyond the stage's default (an eighth of
+/// the spacing), as divisors of the spacing, narrowest first; up to a
+/// third, short of the half at which two directions could take one step.
+const WIDER_TOLERANCES: [f64; 3] = [5.0, 4.0, 3.0];
 /// Distance limits the planner considers, metres.
 const DISTANCES: [f64; 18] = [
     250.0, 500.0, 1e3, 1.5e3, 2e3, 3e3, 5e3, 7.5e3, 1e4, 1.5e4, 2e4, 3e4, 5e4, 7.5e4, 1e5, 1.5e5,
@@ -144,23 +154,19 @@ const SHARE_QUANTISATION: f64 = 0.25;
 /// The shares a baked candidate (encoded, and cut where it is bounded) is
 /// judged against: all but the unseen posts' tenth.
 const SHARE_BAKED: f64 = SHARE_DIRECTIONS + SHARE_DISTANCE + SHARE_QUANTISATION;
-/// Tolerances the planner tries beyond the stage's default (an eighth of
-/// the spacing), as divisors of the spacing, narrowest first; up to a
-/// third, short of the half at which two directions could take one step.
-const WIDER_TOLERANCES: [f64; 3] = [5.0, 4.0, 3.0];
 /// The predicted range as factors of the calibrated prediction, whose top
 /// is then widened by the calibration's spread: over `bench_plan.sh`'s 38
 /// planned bakes the bake took 0.20x (a smooth bowl, which sweeps in a
 /// fifth of the fit tile's time) to 1.22x of it, the calibration's spread
 /// then 1.37x (docs/BENCHMARKS.md, "Planned bakes").
 pub const SECONDS_RANGE: (f64, f64) = (0.2, 1.0);
+/// The pilot's seed: apart from `check`'s default, so that a check of a
+/// planned bake measures posts the plan never saw.
+pub const PILOT_SEED: u64 = 0x504c_414e;
 /// The pilot's quantile that decides (the budget's is 0.99): where a lone
 /// spike is seen in about 1 % of the azimuths, the 99th sits on a knife's
 /// edge and a pilot can find it small where a check finds it large.
 const DECISION_QUANTILE: f64 = 0.995;
-/// The pilot's seed: apart from `check`'s default, so that a check of a
-/// planned bake measures posts the plan never saw.
-pub const PILOT_SEED: u64 = 0x504c_414e;
 /// One count of directions, distance limit and encoding, predicted.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Candidate {
@@ -274,51 +280,6 @@ impl Candidate {
     }
 }
 
-/// What the planner measured of the scene.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct Scene {
-    pub width: u32,
-    pub height: u32,
-    pub cell_size: (f64, f64),
-    pub relief_m: f64,
-    pub nodata_share: f64,
-    pub curvature: bool,
-    /// The farthest two posts lie apart, metres.
-    #[serde(default)]
-    pub extent_m: f64,
-    /// The scene's central latitude, degrees, when it is known.
-    #[serde(default)]
-    pub latitude_deg: Option<f64>,
-    /// The east-west post spacing on the first and the last row, metres
-    /// (they differ with latitude on geographic grids).
-    #[serde(default)]
-    pub dx_range_m: Option<(f64, f64)>,
-    /// The slope at the pilot's posts (random ones and those of the
-    /// highest relief): median and 90th percentile, degrees.
-    #[serde(default)]
-    pub slope_p50_deg: Option<f64>,
-    #[serde(default)]
-    pub slope_p90_deg: Option<f64>,
-    pub pilot_posts: usize,
-    /// Of those, the posts around the scene's most prominent features
-    /// (where the largest errors are), and the features' prominence
-    /// (metres above their surroundings), most prominent first.
-    #[serde(default)]
-    pub pilot_feature_posts: usize,
-    #[serde(default)]
-    pub feature_prominence_m: Vec<f32>,
-    /// Directions the pilot measured: the reference's and those the
-    /// candidate bakes would store.
-    #[serde(default)]
-    pub pilot_directions: usize,
-    /// The reference's distinct directions (fewer than the 720 asked for
-    /// where non-square cells put two on one grid step; 0 in plans
-    /// recorded before this was).
-    #[serde(default)]
-    pub pilot_reference_directions: usize,
-    pub pilot_seconds: f64,
-}
-
 /// One decision and its reason.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Choice {
@@ -375,6 +336,12 @@ pub struct Plan {
     pub pyramid: bool,
     #[serde(default)]
     pub cones: bool,
+    /// The cone planes' slices.
+    #[serde(default = "cone_slices")]
+    pub cone_slices: usize,
+    /// What a tracing budget (`steps`, `rays`) measured and chose.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tracing: Option<tracing::TracingPlan>,
     /// Predicted for the whole bake after ingest.
     #[serde(default)]
     pub seconds: f64,
@@ -441,7 +408,7 @@ impl Plan {
         }
         if self.cones {
             let mut cones = crate::stages::cones::ConesStage {
-                slices: crate::stages::cones::SliceChoice::Count(CONE_SLICES),
+                slices: crate::stages::cones::SliceChoice::Count(self.cone_slices),
                 encoding: ConeEncoding::U16,
                 ..Default::default()
             };
@@ -475,6 +442,10 @@ impl Plan {
 
 fn raw_codec() -> Codec {
     Codec::Raw
+}
+
+fn cone_slices() -> usize {
+    CONE_SLICES
 }
 
 fn line_method() -> Method {
@@ -529,7 +500,7 @@ fn crossings(bands: &[Band]) -> usize {
 
 /// `x` rounded up at `decimals` decimals: a limit to relax to that,
 /// printed, still suffices.
-fn round_up(x: f64, decimals: i32) -> f64 {
+pub(super) fn round_up(x: f64, decimals: i32) -> f64 {
     let scale = 10f64.powi(decimals);
     (x * scale).ceil() / scale
 }
@@ -647,7 +618,23 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
     }
     let tile = costs.tile;
     let pyramid = needs.has(Need::Tracing) || needs.has(Need::FastTracing);
-    let cones = needs.has(Need::FastTracing);
+    // A tracing budget measures the layers on the scene; without one, fast
+    // tracing takes the bundled tile's choice.
+    let tracing = if pyramid && (budget.steps.is_some() || budget.rays.is_some()) {
+        let started = Instant::now();
+        let t = tracing::plan(asset, budget, needs.has(Need::FastTracing), progress)?;
+        scene.pilot_seconds += started.elapsed().as_secs_f64();
+        Some(t)
+    } else {
+        None
+    };
+    let cones = tracing
+        .as_ref()
+        .map_or(needs.has(Need::FastTracing), |t| t.slices.is_some());
+    let cone_slices = tracing
+        .as_ref()
+        .and_then(|t| t.slices)
+        .unwrap_or(CONE_SLICES);
     // The pyramid: max and min planes of every stored level.
     let pyramid_bytes = crate::stages::pyramid::level_dims(w as u32, h as u32, tile as u32)
         .into_iter()
@@ -656,8 +643,10 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
     let cells = (w.saturating_sub(1), h.saturating_sub(1));
     let planes = |size: usize| 2 * layer_bytes(cells.0, cells.1, tile, size, 1);
     let cones_bytes = planes(2);
-    if pyramid {
-        choices.push(tracing_choice(cones, cones_bytes, posts));
+    match &tracing {
+        Some(t) => choices.push(tracing::choice(t, budget)),
+        None if pyramid => choices.push(tracing_choice(cones, cones_bytes, posts)),
+        None => {}
     }
     // Seconds per post of the stages timed on the bundled tile, scaled to
     // this machine below as the line stages' models are.
@@ -688,8 +677,14 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
         bytes += pyramid_bytes;
     }
     if cones {
-        choices.push(cones_choice(planes(4) - cones_bytes));
-        per_post += CONES_SECONDS_PER_POST;
+        match &tracing {
+            // Measured on this machine: not scaled again.
+            Some(t) => seconds += t.chosen().bake_seconds,
+            None => {
+                choices.push(cones_choice(planes(4) - cones_bytes));
+                per_post += CONES_SECONDS_PER_POST;
+            }
+        }
         bytes += cones_bytes;
         let in_core = costs.base_mib() + CONES_BYTES_PER_POST * posts as f64 / 1048576.0;
         // Cones bake in windows within a memory limit.
@@ -742,6 +737,8 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
         total_viewshed,
         pyramid,
         cones,
+        cone_slices,
+        tracing,
         seconds,
         seconds_range,
         time_models,
@@ -754,70 +751,6 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
         overridden: Vec::new(),
         baked: None,
     })
-}
-
-/// The scene as the plan reports it: the DEM's grid, relief and nodata,
-/// and what the pilot measured of its slopes.
-fn describe_scene(
-    asset: &Asset<Mmap>,
-    pilot: Option<&Pilot>,
-    curvature: f64,
-    pilot_seconds: f64,
-) -> Scene {
-    let m = asset.manifest();
-    let (w, h) = (m.width as usize, m.height as usize);
-    let (dx, dy) = (m.cell_size.dx, m.cell_size.dy);
-    let posts = (w * h) as u64;
-    let relief_m = m
-        .height_range
-        .map_or(0.0, |r| f64::from(r.max) - f64::from(r.min));
-    Scene {
-        width: m.width,
-        height: m.height,
-        cell_size: (dx, dy),
-        relief_m,
-        nodata_share: m.nodata.count as f64 / posts.max(1) as f64,
-        curvature: curvature > 0.0,
-        extent_m: ((w.saturating_sub(1)) as f64 * dx).hypot((h.saturating_sub(1)) as f64 * dy),
-        latitude_deg: m
-            .georef
-            .as_ref()
-            .and_then(|g| crate::terrain::geo::central_latitude(g, m.width, m.height)),
-        dx_range_m: pilot.map(|p| p.dx_range),
-        slope_p50_deg: pilot
-            .as_ref()
-            .map(|p| quantile_unsorted(&mut p.slope_deg.clone(), 0.5)),
-        slope_p90_deg: pilot
-            .as_ref()
-            .map(|p| quantile_unsorted(&mut p.slope_deg.clone(), 0.9)),
-        pilot_posts: pilot.map_or(0, |p| p.posts.len()),
-        pilot_feature_posts: pilot.map_or(0, |p| p.feature_posts),
-        feature_prominence_m: pilot
-            .map_or(Vec::new(), |p| p.features.iter().map(|f| f.1).collect()),
-        pilot_directions: pilot.map_or(0, Pilot::directions_measured),
-        pilot_reference_directions: pilot.map_or(0, |p| p.reference.len()),
-        pilot_seconds,
-    }
-}
-
-/// The sun positions a request names: its own, and those of its day's path
-/// at the scene's latitude.
-fn sun_positions(
-    asset: &Asset<Mmap>,
-    request: &Request,
-    scene: &Scene,
-) -> Result<Vec<SunPosition>> {
-    let mut sun = request.sun.clone();
-    if let Some(day) = request.sun_day {
-        let Some(latitude) = scene.latitude_deg else {
-            bail!(
-                "{}: --sun-day needs the scene's latitude, and this DEM is neither geographic nor WGS 84 UTM; give the sun positions with --sun AZ,EL;AZ,EL...",
-                asset.dir().display()
-            );
-        };
-        sun.extend(crate::terrain::sun::sun_path(latitude, day));
-    }
-    Ok(sun)
 }
 
 /// Refuses a plan whose predicted bytes, time or memory pass the budget's

@@ -1,4 +1,5 @@
-//! What people look at: perspective views ([`render`]), maps shaded from
+//! What people look at: perspective views ([`render`]) of the built-in
+//! cameras ([`crate::views`]), maps shaded from
 //! horizons ([`shade`]), colour ramps and legends ([`legend`]), the demo
 //! page ([`page`]), the text the command line prints ([`report`]) and one
 //! point's exact horizon ([`profile`]).
