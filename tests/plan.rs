@@ -489,9 +489,7 @@ fn fast_tracing_bakes_u16_cone_planes_of_64_slices_that_stay_exact() {
     };
     let p = plan(&Asset::open(&asset).unwrap(), &request, Progress::hidden()).unwrap();
     assert!(p.chosen.is_none() && p.pyramid && p.cones, "{p:?}");
-    for stage in p.stages() {
-        run_stage(&asset, stage.as_ref(), true, Progress::hidden()).unwrap();
-    }
+    let report = baked_and_checked(&asset, &p, &p.budget, &[], (50, 11));
     let opened = Asset::open(&asset).unwrap();
     let cones: ConesStage =
         terrabake::stage::recorded_params(opened.manifest(), "cones").expect("cones recorded");
@@ -499,19 +497,6 @@ fn fast_tracing_bakes_u16_cone_planes_of_64_slices_that_stay_exact() {
         (cones.slices, cones.encoding),
         (SliceChoice::Count(64), ConeEncoding::U16)
     );
-    let report = check(
-        &opened,
-        &CheckOptions {
-            samples: 50,
-            seed: 11,
-            directions: 720,
-            cuts: &[],
-        },
-        Some(&p.budget),
-        &[],
-        Progress::hidden(),
-    )
-    .unwrap();
     let t = report.tracing.as_ref().expect("tracing checked");
     assert!(
         report.within_budget() && t.cone_violations == 0,
@@ -567,25 +552,10 @@ fn a_tracing_budget_takes_the_cheapest_layers_that_meet_it() {
     );
     let (before, _) = t.candidates.split_at(t.candidates.len() - 1);
     assert!(before.iter().all(|c| !c.meets) && chosen.meets, "{t:?}");
-    for stage in p.stages() {
-        run_stage(&asset, stage.as_ref(), true, Progress::hidden()).unwrap();
-    }
+    let report = baked_and_checked(&asset, &p, &p.budget, &[], (50, 11));
     let opened = Asset::open(&asset).unwrap();
     let cones: ConesStage = terrabake::stage::recorded_params(opened.manifest(), "cones").unwrap();
     assert_eq!(cones.slices, SliceChoice::Count(k));
-    let report = check(
-        &opened,
-        &CheckOptions {
-            samples: 50,
-            seed: 11,
-            directions: 720,
-            cuts: &[],
-        },
-        Some(&p.budget),
-        &[],
-        Progress::hidden(),
-    )
-    .unwrap();
     let traced = report.tracing.as_ref().expect("tracing checked");
     // The pilot baked the whole DEM: the same planes, the same views.
     assert_eq!(traced.method, "parametric");
