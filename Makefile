@@ -51,6 +51,7 @@ demo: build
 	  --chart "docs/charts/horizons_svf.svg=Sky-view factor error against bake time (make bench-horizons)" \
 	  --chart "docs/charts/viewshed_rviewshed.svg=Observer viewsheds: time against reach beside GRASS r.viewshed, labelled with the agreement (pipelines/compare_grass_viewshed.sh)" \
 	  --chart "docs/charts/cones_speed.svg=Parametric tracing: rays per second against cone slices (make bench-cones)" \
+	  --chart "docs/charts/cones_bytes.svg=Tracing: rays per second against the bytes a post each tracer reads, every tracer (make bench-cones)" \
 	  --chart "docs/charts/trace_scaling_time.svg=Time per ray against DEM size, every tracer (make bench-trace)" \
 	  --chart "docs/charts/solar_jacksboro_utm80_f32.svg=Solar: day 172's irradiation error against time, our direction counts beside GRASS r.sun on Jacksboro (pipelines/solar/chart_rsun.sh)" \
 	  --chart "docs/charts/solar_vs_rsun_172.png=Our day 172 against r.sun's own shadowing, per cent, on two projected DEMs (pipelines/solar/compare_rsun.sh)" \

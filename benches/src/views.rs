@@ -11,7 +11,7 @@ use super::markdown_table;
 use terrabake::views::views_cost;
 
 /// One method's totals over the sixteen views.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Default, Serialize)]
 pub struct BenchRow {
     pub method: String,
     pub rays: u64,

@@ -134,7 +134,7 @@ pub(super) const CONES_SECONDS_PER_POST: f64 = 3.2e-7;
 /// docs/BENCHMARKS.md, solar).
 pub(super) const SOLAR_SECONDS_PER_POST_DAY: f64 = 2.3e-8;
 /// The cone planes' slices: within 6 % of the exact cones' steps per ray on
-/// the bundled tile at 37 % of the bake time of 256 slices (1.3 %).
+/// the bundled tile at 40 % of the bake time of 256 slices (1.3 %).
 pub(super) const CONE_SLICES: usize = 64;
 /// Peak memory, measured on the bundled tile: a base of 30 MiB, per worker
 /// thread [`WORKER_MIB`] and [`WORKER_BYTES_PER_ROW_POST`], 10.7 bytes per
