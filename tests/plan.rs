@@ -537,14 +537,14 @@ fn a_tracing_budget_takes_the_cheapest_layers_that_meet_it() {
     let loose = tracing_plan(Need::Tracing, 1e6).unwrap();
     let t = loose.tracing.as_ref().expect("a tracing plan");
     assert!(
-        !loose.cones && t.slices.is_none() && t.candidates.len() == 1,
+        !loose.cones && t.chosen().slices.is_none() && t.candidates.len() == 1,
         "{t:?}"
     );
     let pyramid_steps = t.candidates[0].speed.mean_steps;
     // Fewer steps than the pyramid takes: the fewest slices that meet it.
     let p = tracing_plan(Need::Tracing, 0.8 * pyramid_steps).unwrap();
     let t = p.tracing.as_ref().expect("a tracing plan");
-    let k = t.slices.expect("cone planes");
+    let k = t.chosen().slices.expect("cone planes");
     let chosen = t.chosen();
     assert!(
         p.cones && p.cone_slices == k && chosen.slices == Some(k),
@@ -570,7 +570,7 @@ fn a_tracing_budget_takes_the_cheapest_layers_that_meet_it() {
         .any(|v| v.what == "steps per ray" && v.met == Some(true)));
     // Fast tracing bakes cone planes whatever the pyramid does.
     let fast = tracing_plan(Need::FastTracing, 1e6).unwrap();
-    assert_eq!(fast.tracing.unwrap().slices, Some(4));
+    assert_eq!(fast.tracing.unwrap().chosen().slices, Some(4));
     // No layers take under one step a ray.
     let refused = tracing_plan(Need::Tracing, 0.5).unwrap_err().to_string();
     assert!(refused.contains("relax steps to at least"), "{refused}");

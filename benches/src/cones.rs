@@ -166,48 +166,44 @@ const HEIGHT_BYTES: f64 = 4.0;
 /// tracer reads (the heights and its layers), every tracer, where the
 /// slice counts stand in a column (their bytes are the same).
 pub fn tradeoff_charts(prefix: &Path, rows: &[TradeoffRow]) -> Result<()> {
+    // A line per kind of layers and encoding: the tracers over the heights
+    // alone by name, the pyramid, the exact cones, and the sliced planes
+    // (their points labelled with K).
+    let kind = |r: &TradeoffRow| match r.planes.as_str() {
+        "none" => r.method.clone(),
+        "pyramid" | "exact" => r.planes.clone(),
+        _ => "sliced".to_string(),
+    };
     let series = |x: &dyn Fn(&TradeoffRow) -> f64, y: &dyn Fn(&TradeoffRow) -> f64| {
-        let mut out = Vec::new();
         let mut keys: Vec<(String, String)> = Vec::new();
         for r in rows.iter().filter(|r| x(r) > 0.0) {
-            let kind = match r.planes.as_str() {
-                "none" => r.method.clone(),
-                "pyramid" | "exact" => r.planes.clone(),
-                _ => "sliced".into(),
-            };
-            if !keys.contains(&(kind.clone(), r.encoding.clone())) {
-                keys.push((kind, r.encoding.clone()));
+            let key = (kind(r), r.encoding.clone());
+            if !keys.contains(&key) {
+                keys.push(key);
             }
         }
-        for (kind, encoding) in keys {
-            let name = match kind.as_str() {
-                "pyramid" => "hierarchical (max pyramid)".to_string(),
-                "exact" => format!("parametric, exact cones, {encoding}"),
-                "sliced" => format!("parametric, K slices, {encoding}"),
-                method => format!("{method} (the heights alone)"),
-            };
-            let of: Vec<(f64, f64, String)> = rows
-                .iter()
-                .filter(|r| {
-                    r.encoding == encoding
-                        && match kind.as_str() {
-                            "pyramid" | "exact" => r.planes == kind,
-                            "sliced" => r.planes.parse::<usize>().is_ok(),
-                            method => r.planes == "none" && r.method == method,
-                        }
-                })
-                .map(|r| {
-                    let label = if kind == "sliced" {
-                        format!("K={}", r.planes)
-                    } else {
-                        String::new()
-                    };
-                    (x(r), y(r), label)
-                })
-                .collect();
-            out.push(Series::through(name, of));
-        }
-        out
+        keys.into_iter()
+            .map(|(of_kind, encoding)| {
+                let name = match of_kind.as_str() {
+                    "pyramid" => "hierarchical (max pyramid)".to_string(),
+                    "exact" => format!("parametric, exact cones, {encoding}"),
+                    "sliced" => format!("parametric, K slices, {encoding}"),
+                    method => format!("{method} (the heights alone)"),
+                };
+                let points = rows
+                    .iter()
+                    .filter(|r| r.encoding == encoding && kind(r) == of_kind)
+                    .map(|r| {
+                        let label = match of_kind.as_str() {
+                            "sliced" => format!("K={}", r.planes),
+                            _ => String::new(),
+                        };
+                        (x(r), y(r), label)
+                    })
+                    .collect();
+                Series::through(name, points)
+            })
+            .collect::<Vec<_>>()
     };
     let path =
         |suffix: &str| std::path::PathBuf::from(format!("{}_{suffix}.svg", prefix.display()));

@@ -133,10 +133,6 @@ pub const OTHERS_MEASURED_UP_TO_VISITS: f64 = 2e9;
 const CANDIDATES: [usize; 20] = [
     4, 6, 8, 10, 12, 16, 18, 20, 24, 30, 36, 40, 48, 60, 72, 90, 120, 180, 240, 360,
 ];
-/// Tolerances the planner tries beyond the stage's default (an eighth of
-/// the spacing), as divisors of the spacing, narrowest first; up to a
-/// third, short of the half at which two directions could take one step.
-const WIDER_TOLERANCES: [f64; 3] = [5.0, 4.0, 3.0];
 /// Distance limits the planner considers, metres.
 const DISTANCES: [f64; 18] = [
     250.0, 500.0, 1e3, 1.5e3, 2e3, 3e3, 5e3, 7.5e3, 1e4, 1.5e4, 2e4, 3e4, 5e4, 7.5e4, 1e5, 1.5e5,
@@ -154,19 +150,23 @@ const SHARE_QUANTISATION: f64 = 0.25;
 /// The shares a baked candidate (encoded, and cut where it is bounded) is
 /// judged against: all but the unseen posts' tenth.
 const SHARE_BAKED: f64 = SHARE_DIRECTIONS + SHARE_DISTANCE + SHARE_QUANTISATION;
+/// Tolerances the planner tries beyond the stage's default (an eighth of
+/// the spacing), as divisors of the spacing, narrowest first; up to a
+/// third, short of the half at which two directions could take one step.
+const WIDER_TOLERANCES: [f64; 3] = [5.0, 4.0, 3.0];
 /// The predicted range as factors of the calibrated prediction, whose top
 /// is then widened by the calibration's spread: over `bench_plan.sh`'s 38
 /// planned bakes the bake took 0.20x (a smooth bowl, which sweeps in a
 /// fifth of the fit tile's time) to 1.22x of it, the calibration's spread
 /// then 1.37x (docs/BENCHMARKS.md, "Planned bakes").
 pub const SECONDS_RANGE: (f64, f64) = (0.2, 1.0);
-/// The pilot's seed: apart from `check`'s default, so that a check of a
-/// planned bake measures posts the plan never saw.
-pub const PILOT_SEED: u64 = 0x504c_414e;
 /// The pilot's quantile that decides (the budget's is 0.99): where a lone
 /// spike is seen in about 1 % of the azimuths, the 99th sits on a knife's
 /// edge and a pilot can find it small where a check finds it large.
 const DECISION_QUANTILE: f64 = 0.995;
+/// The pilot's seed: apart from `check`'s default, so that a check of a
+/// planned bake measures posts the plan never saw.
+pub const PILOT_SEED: u64 = 0x504c_414e;
 /// One count of directions, distance limit and encoding, predicted.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Candidate {
@@ -628,13 +628,9 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
     } else {
         None
     };
-    let cones = tracing
-        .as_ref()
-        .map_or(needs.has(Need::FastTracing), |t| t.slices.is_some());
-    let cone_slices = tracing
-        .as_ref()
-        .and_then(|t| t.slices)
-        .unwrap_or(CONE_SLICES);
+    let chosen_slices = tracing.as_ref().map(|t| t.chosen().slices);
+    let cones = chosen_slices.map_or(needs.has(Need::FastTracing), |k| k.is_some());
+    let cone_slices = chosen_slices.flatten().unwrap_or(CONE_SLICES);
     // The pyramid: max and min planes of every stored level.
     let pyramid_bytes = crate::stages::pyramid::level_dims(w as u32, h as u32, tile as u32)
         .into_iter()

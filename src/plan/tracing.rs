@@ -101,9 +101,8 @@ pub struct TracingCandidate {
 /// What the tracing budget decided.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TracingPlan {
-    /// The cone planes' slices (`None`: no cone planes).
-    pub slices: Option<usize>,
-    /// Every candidate measured, in the order tried.
+    /// Every candidate measured, in the order tried; the first that meets
+    /// the budget is the chosen one.
     pub candidates: Vec<TracingCandidate>,
     /// The window the pilot baked, `[x, y, width, height]` posts.
     pub window: [u32; 4],
@@ -193,7 +192,7 @@ pub fn plan(
             meets: speed.meets(budget, RAYS_MARGIN),
         });
     }
-    let Some(chosen) = candidates.iter().find(|c| c.meets) else {
+    if !candidates.iter().any(|c| c.meets) {
         let fastest = candidates
             .iter()
             .max_by(|a, b| a.speed.rays_per_second.total_cmp(&b.speed.rays_per_second))
@@ -211,12 +210,8 @@ pub fn plan(
             budget.steps.map_or(String::new(), |_| format!(" steps to at least {}", round_up(fewest.speed.mean_steps, 2))),
             budget.rays.map_or(String::new(), |_| format!(" rays to at most {}", (fastest.speed.rays_per_second / RAYS_MARGIN).floor())),
         );
-    };
-    Ok(TracingPlan {
-        slices: chosen.slices,
-        candidates,
-        window,
-    })
+    }
+    Ok(TracingPlan { candidates, window })
 }
 
 /// The layers a candidate traces through, in words.
