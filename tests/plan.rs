@@ -403,6 +403,24 @@ fn plan_measures_a_source_dem_and_leaves_nothing() {
     assert_eq!(before.len(), after.len());
 }
 
+/// The peak memory a bake records (and `check` judges a memory budget by)
+/// is its own: spawned from a process far larger (this one, holding 400
+/// MiB), as Rust's `Command` and Python's `subprocess` spawn (`vfork` or
+/// `posix_spawn`), `getrusage` reports the parent's peak, and a 53 MiB bake
+/// of this DEM was recorded at 368 MiB and failed its memory budget.
+#[test]
+fn a_spawned_bake_records_its_own_peak_memory() {
+    let dir = tempfile::tempdir().unwrap();
+    let (tif, out) = source(dir.path(), SynthKind::Bowl);
+    let held = std::hint::black_box(vec![1u8; 400 << 20]);
+    let bake = planned_bake(&tif, &out, &["horizon=1"]);
+    assert!(bake.status.success(), "{}", stderr(&bake));
+    drop(held);
+    let plan = terrabake::plan::recorded(&Asset::open(&out).unwrap()).expect("recorded");
+    let peak = plan.baked.expect("baked").peak_memory_mib;
+    assert!(peak > 1.0 && peak < 300.0, "{peak} MiB");
+}
+
 #[test]
 fn a_memory_limit_picks_smaller_tiles_unless_the_recipe_set_them() {
     let dir = tempfile::tempdir().unwrap();
