@@ -1294,3 +1294,77 @@ fn a_features_horizon_and_the_terrain_without_it_make_the_exact_horizon() {
         eprintln!("{name}: the features set {set_by_features} of {compared} horizons by more than a degree");
     }
 }
+
+/// Over about 800 line bands the grid has no step between north and 0.9
+/// degrees either side of it (steps of up to `MAX_STEP` posts), so the last
+/// nominal azimuths fall back to the step at 0 and several bands share a
+/// step. The bands stay in compass order, and the loader serves every
+/// azimuth linearly between the nearest band at or before it and the next
+/// one after it (cyclically), found here by a scan rather than bisection:
+/// before, the bands ended with a band at 0 after 359.1, and the last 0.9
+/// degrees were served one band's angle flat, up to 19 degrees off on a
+/// lidar DSM. A manifest out of compass order is refused.
+#[test]
+fn many_line_bands_stay_in_compass_order_and_serve_across_north() {
+    let bands = plan_bands(Method::Line, 1440, 30.0, 30.0, None);
+    let azimuths: Vec<f64> = bands.iter().map(|b| b.azimuth).collect();
+    assert!(azimuths.windows(2).all(|p| p[0] <= p[1]), "{azimuths:?}");
+    assert!(azimuths.iter().filter(|&&a| a == 0.0).count() > 1);
+
+    let dir = tempfile::tempdir().unwrap();
+    let (tif, asset) = (dir.path().join("f.tif"), dir.path().join("f.tbake"));
+    let (tif, asset) = (tif.to_str().unwrap(), asset.to_str().unwrap());
+    for args in [
+        &["synth", "fractal", "--size", "40x32", "-o", tif, "-q"][..],
+        &["ingest", tif, "-o", asset, "-q"],
+        &["horizons", asset, "--sectors", "1440", "-q"],
+    ] {
+        let o = common::terrabake(args);
+        assert!(o.status.success(), "{args:?}: {}", common::stderr(&o));
+    }
+    let a = terrabake_format::Asset::open(asset).unwrap();
+    let map = terrabake_format::horizons::HorizonMap::open(&a).unwrap();
+    let az = map.azimuths().to_vec();
+    assert!(az.windows(2).all(|p| p[0] <= p[1]));
+    let last = *az.last().unwrap();
+    assert!(last < 359.5, "the last band at {last}");
+    for (x, y) in [(20, 16), (5, 27), (33, 3)] {
+        let angle = |k: usize| map.angle(x, y, k as u32).unwrap().unwrap();
+        for i in 0..5143 {
+            let q = i as f64 * 0.07;
+            // The band at or before q and the band after it, cyclically.
+            let before = (0..az.len())
+                .rev()
+                .find(|&k| az[k] <= q)
+                .unwrap_or(az.len() - 1);
+            let after = (0..az.len()).find(|&k| az[k] > q).unwrap_or(0);
+            let span = (az[after] - az[before]).rem_euclid(360.0);
+            let f = (q - az[before]).rem_euclid(360.0) / span;
+            let want = angle(before) + f * (angle(after) - angle(before));
+            let got = map.horizon_at(x, y, q).unwrap().unwrap();
+            assert!(
+                (got - want).abs() < 1e-9,
+                "post ({x}, {y}) at {q:.2}: served {got}, bands {} at {} and {} at {}",
+                angle(before),
+                az[before],
+                angle(after),
+                az[after]
+            );
+        }
+    }
+
+    let path = std::path::Path::new(asset).join("manifest.tba");
+    let bytes = std::fs::read(&path).unwrap();
+    let mut json: serde_json::Value = serde_json::from_slice(&bytes[32..]).unwrap();
+    for layer in json["layers"].as_array_mut().unwrap() {
+        if layer["name"] == "horizon" {
+            layer["band_azimuths"][1439] = 0.0.into();
+        }
+    }
+    let manifest: terrabake_format::Manifest = serde_json::from_value(json).unwrap();
+    let err = manifest.validate().unwrap_err();
+    assert!(
+        err.contains("out of compass order: band 1439 at 0"),
+        "{err}"
+    );
+}

@@ -268,6 +268,18 @@ impl LayerEntry {
                 self.bands
             ));
         }
+        // Every reader finds the bands around an azimuth by bisection
+        // (`horizons::bands_around`, the GPU shader), so out of order they
+        // would serve wrong angles without a word. Bakes of over about 800
+        // line bands before 2026-12-07 put the step at 0 last.
+        if let Some(k) = self.band_azimuths.windows(2).position(|p| p[1] < p[0]) {
+            return bad(format!(
+                "band_azimuths out of compass order: band {} at {} after band {k} at {}; bake the horizons again",
+                k + 1,
+                self.band_azimuths[k + 1],
+                self.band_azimuths[k]
+            ));
+        }
         if let Some(features) = &self.features {
             if self.band_azimuths.is_empty() {
                 return bad("features on a layer without band_azimuths".into());

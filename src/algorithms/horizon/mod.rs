@@ -120,10 +120,16 @@ pub fn plan_bands(
             .collect(),
         Method::Line => {
             let tol = tolerance.unwrap_or_else(|| line::default_tolerance(count));
-            line::grid_directions(count, dx, dy, tol)
+            let mut dirs: Vec<_> = line::grid_directions(count, dx, dy, tol)
                 .into_iter()
                 .map(|d| (d.azimuth, BandKind::Line(d)))
-                .collect()
+                .collect();
+            // Compass order by the step's own azimuth, which every reader
+            // of `band_azimuths` assumes: where the grid has no step near
+            // the last nominal azimuths (over about 800 bands) they fall
+            // back to the step at 0, which would otherwise sit last.
+            dirs.sort_by(|a, b| a.0.total_cmp(&b.0));
+            dirs
         }
     };
     let azimuths: Vec<f64> = kinds.iter().map(|k| k.0).collect();
