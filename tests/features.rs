@@ -47,9 +47,10 @@ fn spike_plain(dir: &Path, name: &str) -> String {
 }
 
 /// 32 directions lose the spike between bands by tens of degrees; with it
-/// listed, the largest error at every post is what the bands make of the
-/// plain (2.5 degrees, at the spike's own post, whose horizon is the
-/// plain's far edge), and the bands themselves keep their values.
+/// listed, the largest error at every post whose horizon the DEM's edge
+/// cannot cut is what the bands make of the plain (none: the spike's own
+/// post, whose horizon is the plain's far edge, is one the edge may cut),
+/// and the bands themselves keep their values.
 #[test]
 fn a_listed_spike_is_served_exactly_between_bands() {
     let dir = tempfile::tempdir().unwrap();
@@ -69,10 +70,10 @@ fn a_listed_spike_is_served_exactly_between_bands() {
         ]);
         assert!(o.status.success(), "{}", stderr(&o));
     }
-    let largest = |asset: &str| common::largest_dense_error(Path::new(asset)).0;
+    let largest = |asset: &str| common::largest_dense_error(Path::new(asset), 1440).0;
     let (without, with) = (largest(&bare), largest(&listed));
     eprintln!("spike plain, 32 directions: largest error {without:.3} deg bare, {with:.3} with the spike listed");
-    assert!(without > 30.0, "the bands alone lose the spike: {without}");
+    assert!(without > 20.0, "the bands alone lose the spike: {without}");
     assert!(with < 3.0, "the listed spike is served: {with}");
 
     // Only posts that rise above all eight neighbours are listed: the

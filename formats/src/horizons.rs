@@ -287,6 +287,19 @@ pub fn edge_distance_along(
     edge_reach(x, ve, width, dx).min(edge_reach(y, vs, height, dy))
 }
 
+/// Whether the DEM's edge may cut a horizon whose angle has sine and
+/// cosine `(sin, cos)`, the edge `distance` metres away along it: terrain
+/// beyond the edge, at most `rise` metres above the eye there (the DEM's
+/// highest post less the eye and the curvature drop at `distance`), could
+/// stand above it. Always at the edge itself. The `horizon_edge` layer
+/// counts the bands where this holds; `check` leaves such horizons out of
+/// the largest error.
+#[inline]
+pub fn edge_may_cut(rise: f64, distance: f64, (sin, cos): (f64, f64)) -> bool {
+    // The rise's slope rise / d against tan h, both sides times d cos h.
+    distance == 0.0 || rise * cos > sin * distance
+}
+
 /// One axis of [`edge_distance_along`]: metres from position `pos` (in
 /// posts) to the last or the first of `posts` posts `step` metres apart,
 /// going `v` metres along the axis per metre travelled (infinite when the

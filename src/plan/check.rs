@@ -17,7 +17,14 @@
 //! no band records; no stored sampling can know where. Those samples are
 //! counted and their largest error reported apart; the headline figures
 //! and the budget's verdicts are over the rest, what the asset claims to
-//! know.
+//! know. The largest error leaves out, besides, every sample whose exact
+//! horizon the edge *may* cut (terrain beyond it, as high as the DEM's
+//! highest post, could rise above it: the test the `horizon_edge` layer
+//! counts), or whose serving band it may cut before the distance where
+//! the exact horizon is set, and says how many (`Pilot::edge_may_cut`):
+//! there the DEM cannot say what the horizon is, and a post near the edge
+//! looking along it sees its sight lines leave the DEM at distances that
+//! differ between two nearby azimuths.
 //!
 //! **Sky-view factor reference.** Zakšek's factor from the reference
 //! horizons (each direction's band its share of the circle); the error is
@@ -30,7 +37,7 @@ use anyhow::Result;
 use rayon::prelude::*;
 use serde::Serialize;
 use terrabake_format::cones::ConePlanes;
-use terrabake_format::horizons::{HorizonMap, NOTHING_AHEAD};
+use terrabake_format::horizons::{bands_around, HorizonMap, NOTHING_AHEAD};
 use terrabake_format::layers::{HEIGHT, HORIZON, SVF};
 use terrabake_format::trace::{Method as TraceMethod, Ray, Tracer};
 use terrabake_format::{Asset, Mmap};
@@ -77,6 +84,9 @@ pub struct HorizonCheck {
     /// around the features, degrees.
     pub horizon_max_random_deg: f64,
     pub horizon_max_feature_deg: f64,
+    /// Samples left out of the largest error (only) because the DEM's
+    /// edge may cut their horizon (module docs).
+    pub horizon_max_edge_may_cut: usize,
     /// Mean signed error (stored minus reference), degrees.
     pub horizon_bias_deg: f64,
     /// (post, azimuth) samples in the figures above (but the largest,
@@ -356,27 +366,47 @@ fn check_horizons(
         usize,
         Option<f64>,
         (f64, f64),
+        usize,
     );
     let per_post: Vec<Result<PostErrors>> = pilot
         .posts
         .par_iter()
         .zip(&pilot.exact)
-        .map(|(&(c, r), exact)| {
+        .enumerate()
+        .map(|(i, (&(c, r), exact))| {
             let (mut errors, mut at_edge) = (Vec::with_capacity(exact.len()), Vec::new());
-            let mut largest = (0.0f64, 0.0);
+            let (mut largest, mut edge_may_cut) = ((0.0f64, 0.0), 0);
             let mut served = vec![None; exact.len()];
-            for ((band, &truth), out) in pilot.reference.iter().zip(exact).zip(&mut served) {
+            for (j, ((band, &truth), out)) in pilot
+                .reference
+                .iter()
+                .zip(exact)
+                .zip(&mut served)
+                .enumerate()
+            {
                 let Some(s) = map.served_at(c as u32, r as u32, band.azimuth)? else {
                     continue;
                 };
                 *out = Some(s.angle);
                 if s.at_edge || truth == NOTHING_AHEAD {
                     at_edge.push(s.angle - truth);
-                } else {
-                    errors.push(s.angle - truth);
-                    if (s.angle - truth).abs() > largest.0 {
-                        largest = ((s.angle - truth).abs(), band.azimuth);
-                    }
+                    continue;
+                }
+                errors.push(s.angle - truth);
+                // The largest error is bounded only where the DEM's edge
+                // cannot cut the horizon (the pilot's rule).
+                let (k, l, _) = bands_around(map.azimuths(), band.azimuth);
+                let angle = |k: usize| -> Result<f64> {
+                    Ok(map.angle(c as u32, r as u32, k as u32)?.unwrap_or(f64::NAN))
+                };
+                let bands = [
+                    (map.azimuths()[k], angle(k)?),
+                    (map.azimuths()[l], angle(l)?),
+                ];
+                if pilot.edge_may_cut((i, j), truth, bands) {
+                    edge_may_cut += 1;
+                } else if (s.angle - truth).abs() > largest.0 {
+                    largest = ((s.angle - truth).abs(), band.azimuth);
                 }
             }
             let wrong = suns
@@ -394,17 +424,27 @@ fn check_horizons(
                 let served: Vec<f64> = served.iter().map(|s| s.unwrap_or(f64::NAN)).collect();
                 solar_error(&solar, &served, exact)
             });
-            Ok((errors, at_edge, svf_error, wrong, solar_error, largest))
+            Ok((
+                errors,
+                at_edge,
+                svf_error,
+                wrong,
+                solar_error,
+                largest,
+                edge_may_cut,
+            ))
         })
         .collect();
     let (mut horizon, mut svf, mut wrong, mut solar_errors) =
         (Vec::new(), Vec::new(), 0, Vec::new());
     let (mut edge_samples, mut edge_posts, mut edge_max) = (0, 0, None::<f64>);
+    let mut edge_may_cut = 0;
     let scene_posts = pilot.scene_posts();
     let (mut max_at, mut max_random, mut max_feature) = (None, 0.0f64, 0.0f64);
     let mut svf_max = None::<f64>;
     for (i, post) in per_post.into_iter().enumerate() {
-        let (errors, at_edge, svf_error, w, solar_error, largest) = post?;
+        let (errors, at_edge, svf_error, w, solar_error, largest, may_cut) = post?;
+        edge_may_cut += may_cut;
         if largest.0 > max_at.map_or(0.0, |(e, _)| e) {
             max_at = Some((largest.0, (pilot.posts[i], largest.1)));
         }
@@ -452,6 +492,7 @@ fn check_horizons(
         horizon_max_at: max_at.map(|(_, at)| at),
         horizon_max_random_deg: max_random,
         horizon_max_feature_deg: max_feature,
+        horizon_max_edge_may_cut: edge_may_cut,
         horizon_bias_deg: bias,
         samples: horizon.len(),
         edge_samples,
@@ -739,8 +780,9 @@ pub(crate) fn describe(report: &CheckReport) -> String {
         );
         if let Some(((c, r), az)) = h.horizon_max_at {
             out += &format!(
-                "largest error         {:.3} at post ({c}, {r}), azimuth {az:.1}; {:.3} at random and relief posts, {:.3} around features\n",
-                h.horizon_max_deg, h.horizon_max_random_deg, h.horizon_max_feature_deg
+                "largest error         {:.3} at post ({c}, {r}), azimuth {az:.1}; {:.3} at random and relief posts, {:.3} around features; \
+                 {} samples the DEM's edge may cut left out\n",
+                h.horizon_max_deg, h.horizon_max_random_deg, h.horizon_max_feature_deg, h.horizon_max_edge_may_cut
             );
         }
         if let Some(max) = h.edge_max_deg {
@@ -884,9 +926,10 @@ pub struct CheckArgs {
     /// Seed of the posts drawn (the same seed draws the same posts).
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Reference directions (exact line horizons, within 0.1 degree of i * 360 / N).
-    #[arg(long, default_value_t = 720, value_parser = clap::value_parser!(u64).range(4..=8192))]
-    pub directions: u64,
+    /// Reference directions (exact line horizons, within 0.1 degree of i * 360 / N) [default:
+    /// 720, or twice the stored bands where more, so that it measures between them]
+    #[arg(long, value_parser = clap::value_parser!(u64).range(4..=8192))]
+    pub directions: Option<u64>,
     /// The budget to check: horizon=DEG[,svf=X][,shade=F][,time=S][,bytes=SIZE][,memory=MIB]
     /// (docs/PLANNING.md defines each).
     #[arg(long)]
@@ -910,7 +953,13 @@ impl Run for CheckArgs {
         let opts = CheckOptions {
             samples: self.samples as usize,
             seed: self.seed,
-            directions: self.directions as usize,
+            directions: self.directions.map_or_else(
+                || {
+                    let bands = asset.layer(HORIZON, 0).map_or(0, |l| l.bands() as usize);
+                    (2 * bands).clamp(Sampling::default().directions, 8192)
+                },
+                |d| d as usize,
+            ),
             cuts: &[],
         };
         let sun = self.sun.clone().map(|s| s.0).unwrap_or_default();

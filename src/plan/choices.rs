@@ -342,7 +342,7 @@ pub(super) fn unmet(budget: &Budget, closest: &Candidate, deciding: (f64, f64)) 
 pub(super) fn features_choice(
     chosen: &Candidate,
     (found, with): (usize, f64),
-    without: f64,
+    (without, without_meets): (f64, bool),
 ) -> Choice {
     let spikes = |n: usize| match n {
         1 => "1 spike".to_string(),
@@ -372,7 +372,14 @@ pub(super) fn features_choice(
                 "the posts rising at least {rise:.2} m above their eight neighbours (the least that can move a neighbour's horizon by {SHARE_DIRECTIONS} of horizon_max), the highest first: the loader serves their exact horizon between the {} directions (largest error {with:.3} deg at the pilot's posts)",
                 chosen.sectors
             ),
-            rejected: Some(format!("the bands alone: largest error {without:.3} deg")),
+            rejected: Some(format!(
+                "the bands alone: largest error {without:.3} deg{}",
+                if without_meets {
+                    ""
+                } else {
+                    ", and they miss the budget"
+                }
+            )),
         },
     }
 }

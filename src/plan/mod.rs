@@ -5,11 +5,14 @@
 //! (docs/PLANNING.md).
 //!
 //! **Error model: the scene measures itself.** A pilot ([`Pilot`]) computes
-//! exact line horizons in 720 directions at a few hundred posts (random,
+//! exact line horizons in 720 directions (2880 under a `horizon_max`
+//! budget) at a few hundred posts (random,
 //! and those of the highest relief), with a seed apart from `check`'s, and
 //! keeps each sight line's horizon cut at every candidate distance too
 //! (from the line's records: where its running maximum rose). For `S` line
-//! directions (a divisor of 720), a distance limit and an encoding, the
+//! directions (up to 360, a divisor of 720; under `horizon_max` up to
+//! 1440, at most half the reference's, so that it measures between every
+//! two bands), a distance limit and an encoding, the
 //! pilot measures the very directions the stage would store (its grid
 //! steps at the default tolerance, an eighth of the spacing: seldom
 //! reference directions), the planner makes the stored angles the stage
@@ -117,6 +120,21 @@ use crate::terrain::Terrain;
 
 /// Reference directions of the pilot; candidates divide it.
 const PILOT_DIRECTIONS: usize = 720;
+/// Reference directions of the pilot under a `horizon_max` budget: a wall
+/// of a lidar DSM turns the horizon of the posts near it by tens of
+/// degrees within one degree of azimuth, which takes 1440 bands to follow
+/// within a few degrees (docs/PLANNING.md), and the reference must lie
+/// between those bands to see what they miss.
+const PILOT_DIRECTIONS_LARGEST: usize = 2880;
+
+/// The pilot's reference directions for `budget`.
+fn pilot_directions(budget: &Budget) -> usize {
+    if budget.horizon_max.is_some() {
+        PILOT_DIRECTIONS_LARGEST
+    } else {
+        PILOT_DIRECTIONS
+    }
+}
 /// Counts at which the planner measures the methods other than line
 /// where they are predicted faster than the line's (each a scan of the
 /// pilot posts' reach): a coarser ladder, as neither has ever met a budget
@@ -129,9 +147,10 @@ pub const OTHER_COUNTS: [usize; 5] = [4, 8, 16, 32, 64];
 /// (5.6e8 visits at most) but 33 s on an 8192 x 8192 fractal (2.6e10),
 /// whose whole pilot took 16 s before.
 pub const OTHERS_MEASURED_UP_TO_VISITS: f64 = 2e9;
-/// Direction counts the planner considers (divisors of 720).
-const CANDIDATES: [usize; 20] = [
-    4, 6, 8, 10, 12, 16, 18, 20, 24, 30, 36, 40, 48, 60, 72, 90, 120, 180, 240, 360,
+/// Direction counts the planner considers (divisors of the pilot's
+/// reference, at most half of it: 360 at most, or 1440 under `horizon_max`).
+const CANDIDATES: [usize; 22] = [
+    4, 6, 8, 10, 12, 16, 18, 20, 24, 30, 36, 40, 48, 60, 72, 90, 120, 180, 240, 360, 720, 1440,
 ];
 /// Distance limits the planner considers, metres.
 const DISTANCES: [f64; 18] = [
@@ -538,7 +557,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
     let sampling = Sampling {
         samples: 240,
         seed: PILOT_SEED,
-        directions: PILOT_DIRECTIONS,
+        directions: pilot_directions(budget),
         cuts: &DISTANCES,
     };
     let mut pilot = dem
@@ -846,7 +865,8 @@ fn plan_horizons(
     let mut sectors = None;
     let mut deciding = (0.0, 0.0);
     let mut stored = Vec::new();
-    for &s in &CANDIDATES {
+    let finest = pilot_directions(budget) / 2;
+    for &s in CANDIDATES.iter().filter(|&&s| s <= finest) {
         // The directions the stage would store, measured at the pilot's
         // posts: at its default tolerance they are seldom reference
         // directions, and far cheaper to sweep than those would be.
@@ -972,21 +992,27 @@ fn plan_horizons(
             methods,
         });
     }
-    // The spikes stay listed where they lower the largest error: behind a
-    // band they set the terrain is estimated, which rough terrain can miss.
+    // The spikes stay listed where they lower the largest error, or where
+    // the plan meets its budget only with them (a percentile too): behind
+    // a band they set the terrain is estimated, which rough terrain can
+    // miss.
     let mut chosen = line;
     let listed = budget.horizon_max.map(|_| {
         let mut without = predict(pilot, suns, &stored, (bounded_cut, encoding), false);
         let with = (chosen.features, chosen.horizon_max_deg);
-        if chosen.features > 0 && without.horizon_max <= chosen.horizon_max_deg {
+        let meets = without.within(budget, SHARE_BAKED);
+        if chosen.features > 0
+            && without.horizon_max <= chosen.horizon_max_deg
+            && (meets || !chosen.meets)
+        {
             chosen = Candidate {
-                meets: without.within(budget, SHARE_BAKED),
+                meets,
                 features: 0,
                 feature_rise_m: 0.0,
                 ..chosen.clone().with_errors(&mut without)
             };
         }
-        (with, without.horizon_max)
+        (with, (without.horizon_max, meets))
     });
     let mut choices = vec![
         method_choice(&chosen, &chosen, (&methods, &unmeasured)),

@@ -8,12 +8,12 @@
 //! of every method, is judged here.
 
 use terrabake_format::features::serve;
-use terrabake_format::horizons::{AngleEncoding, NOTHING_AHEAD};
+use terrabake_format::horizons::{bands_around, AngleEncoding, NOTHING_AHEAD};
 
 use super::models::LineCosts;
 use super::{
     Candidate, DECISION_QUANTILE, DISTANCES, OTHERS_MEASURED_UP_TO_VISITS, OTHER_COUNTS,
-    PILOT_DIRECTIONS, SHARE_DIRECTIONS, SHARE_QUANTISATION,
+    SHARE_DIRECTIONS, SHARE_QUANTISATION,
 };
 use crate::algorithms::horizon::sky::{svf_of_horizons, BandIntegrals};
 use crate::algorithms::horizon::Method;
@@ -136,7 +136,7 @@ pub(super) fn errors_at(
         }
         _ => (None, 0.0),
     };
-    let mut served = vec![0.0; PILOT_DIRECTIONS];
+    let mut served = vec![0.0; pilot.reference.len()];
     // The posts around features count for the largest errors only: they
     // are chosen where errors are large, and would bias the percentiles,
     // which are over the scene's posts.
@@ -174,12 +174,18 @@ pub(super) fn errors_at(
             // Where nothing lies ahead, of the reference or of a serving
             // band, the DEM's edge cuts the horizon: `check` leaves those
             // out (its "at the DEM's edge"), and so does the prediction.
+            // The largest error leaves out, as well, the samples whose
+            // error the edge may have made (`Pilot::edge_may_cut`).
             if out.is_finite() && truth.is_finite() && truth != NOTHING_AHEAD && !s.at_edge {
                 let error = (*out - truth).abs();
                 if sampled {
                     e.horizon.push(error);
                 }
-                e.horizon_max = e.horizon_max.max(error);
+                let (i, j, _) = bands_around(azimuths, band.azimuth);
+                let bands = [(azimuths[i], kept[i]), (azimuths[j], kept[j])];
+                if error > e.horizon_max && !pilot.edge_may_cut((post, r), truth, bands) {
+                    e.horizon_max = error;
+                }
             }
         }
         let s = svf_of_horizons(&integrals, kept.iter().copied());

@@ -33,6 +33,7 @@ use terrabake_format::{Asset, Mmap};
 
 use crate::algorithms::horizon::sky::{svf_of_horizons, BandIntegrals};
 use terrabake_format::features::{HorizonFeatures, SightLine};
+use terrabake_format::horizons::{edge_distance_along, edge_may_cut, heading};
 
 use crate::algorithms::horizon::{
     brute, distinct_line_bands, features, plan_bands, Band, BandKind, Method,
@@ -276,6 +277,12 @@ pub struct Pilot {
     /// (most sight lines cross none, so only crossings are held).
     listed_reference: Vec<Vec<(u32, f32, f32)>>,
     spacing: (f64, f64),
+    /// What [`Self::edge_may_cut`] takes: the DEM's posts across and down,
+    /// each post's east-west spacing (its row's), and the curvature
+    /// coefficient.
+    size: (u32, u32),
+    post_dx: Vec<f64>,
+    curvature: f64,
 }
 
 /// Cells a side of the blocks whose highest posts bound the pilot's sight
@@ -334,6 +341,11 @@ impl Pilot {
             })
             .collect();
         let dx_range = (terrain.dx_at(0), terrain.dx_at(dem.height - 1));
+        let eyes = posts
+            .iter()
+            .map(|&(c, r)| f64::from(terrain.at(c, r)))
+            .collect();
+        let post_dx = posts.iter().map(|&(_, r)| terrain.dx_at(r)).collect();
         let mut pilot = Self {
             exact: vec![Vec::new(); posts.len()],
             cut: vec![Vec::new(); posts.len()],
@@ -352,9 +364,12 @@ impl Pilot {
             slope_deg,
             dx_range,
             listed: None,
-            eyes: Vec::new(),
+            eyes,
             listed_reference: Vec::new(),
             spacing: (m.cell_size.dx, m.cell_size.dy),
+            size: (dem.width as u32, dem.height as u32),
+            post_dx,
+            curvature,
         };
         let bar = progress.bar(pilot.posts.len() as u64, "exact horizons", "posts");
         pilot.measure_directions(&terrain, &reference, || bar.inc(1));
@@ -385,11 +400,6 @@ impl Pilot {
             PLANNED_FEATURES,
             &mut found,
         );
-        self.eyes = self
-            .posts
-            .iter()
-            .map(|&(c, r)| f64::from(terrain.at(c, r)))
-            .collect();
         let listed = HorizonFeatures {
             curvature: terrain.curvature,
             max_distance: None,
@@ -431,6 +441,48 @@ impl Pilot {
             .filter(|c| max_distance.is_none_or(|m| f64::from(c.1) <= m))
             .map(|c| f64::from(c.2))
             .reduce(f64::max)
+    }
+
+    /// Whether the DEM's edge may have made the error of a sample at
+    /// `post` in reference direction `r`: where it may cut the exact
+    /// horizon `truth` (degrees; `horizons::edge_may_cut`, against the
+    /// DEM's highest post, as the `horizon_edge` layer counts it), or where
+    /// it may cut one of the two `bands` (azimuth, angle) the sample is
+    /// served from before the distance within which what sets the exact
+    /// horizon lies (a band whose line leaves the DEM sooner cannot see
+    /// it). Elsewhere the DEM knows both, and a largest error is bounded.
+    /// A band that passes a spike the reference meets is not excused: its
+    /// line runs past the spike's distance.
+    pub(crate) fn edge_may_cut(
+        &self,
+        (post, r): (usize, usize),
+        truth: f64,
+        bands: [(f64, f64); 2],
+    ) -> bool {
+        let (c, row) = self.posts[post];
+        let room = self.heights.top - self.eyes[post];
+        let cut = |azimuth: f64, angle: f64| {
+            let d = edge_distance_along(
+                self.size,
+                (self.post_dx[post], self.spacing.1),
+                (c as f64, row as f64),
+                heading(azimuth),
+            );
+            let rise = room - self.curvature * d * d;
+            (edge_may_cut(rise, d, angle.to_radians().sin_cos()), d)
+        };
+        if cut(self.reference[r].azimuth, truth).0 {
+            return true;
+        }
+        let within = if truth > 0.0 {
+            room / truth.to_radians().tan()
+        } else {
+            f64::INFINITY
+        };
+        bands.into_iter().any(|(azimuth, angle)| {
+            let (may, d) = cut(azimuth, angle);
+            may && d < within
+        })
     }
 
     fn sight_line(&self, post: usize, azimuth: f64) -> SightLine {

@@ -16,7 +16,7 @@ use std::path::Path;
 use anyhow::{Context, Result};
 use rayon::prelude::*;
 use terrabake_format::horizons::{
-    edge_reach, heading, HORIZON, HORIZON_EDGE, OPENNESS, SVF, SVF_COSINE,
+    edge_may_cut, edge_reach, heading, HORIZON, HORIZON_EDGE, OPENNESS, SVF, SVF_COSINE,
 };
 use terrabake_format::{Asset, Codec, ElemType, LayerEntry, LayerWriter, Mmap, HEIGHT_LAYER};
 
@@ -406,10 +406,8 @@ impl PostRow {
             // `edge_distance_along`, its row's part taken once.
             let d =
                 edge_reach(col as f64, edge.towards.0, edge.size.0, edge.spacing.0).min(reach_down);
-            // The rise's slope (z_max - z - c d^2) / d against tan h, both
-            // sides times d cos h (d, cos h >= 0).
             let rise = edge.z_max - f64::from(z[col]) - edge.curvature * d * d;
-            edges[col] += u16::from(valid && (d == 0.0 || rise * ch > sh * d));
+            edges[col] += u16::from(valid && edge_may_cut(rise, d, (sh, ch)));
         }
     }
 }
@@ -496,7 +494,7 @@ mod tests {
                     let e = edge_of(b);
                     let d = edge_distance_along(e.size, e.spacing, (col as f64, e.row), e.towards);
                     let rise = e.z_max - f64::from(terrain.at(col, row)) - e.curvature * d * d;
-                    edges += u16::from(d == 0.0 || rise * ch > sh * d);
+                    edges += u16::from(edge_may_cut(rise, d, (sh, ch)));
                     tested += 1;
                 }
                 let got = post_row.sums(col);

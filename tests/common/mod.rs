@@ -141,15 +141,21 @@ pub fn srtm_crop((x0, y0): (u32, u32), (w, h): (u32, u32)) -> (Vec<f32>, f64, f6
 }
 
 /// The largest error of an asset's served horizon (`HorizonMap::served_at`)
-/// at every post, against exact line horizons in 1440 directions (grid
-/// steps within 0.05 degree of `i / 4` degrees: between the stored bands
-/// too), leaving out the samples at the DEM's edge as `check` does; and the
-/// post and azimuth where it is.
-pub fn largest_dense_error(asset: &Path) -> (f64, (usize, usize), f64) {
+/// at every post, against exact line horizons in `directions` directions
+/// (grid steps within a fifth of their spacing of `i * 360 / directions`:
+/// between the stored bands too, with at least twice as many), leaving out
+/// the samples at the DEM's edge as `check` does: where nothing lies ahead,
+/// where the edge may cut the exact horizon (terrain beyond the edge, as
+/// high as the DEM's highest post, could rise above it), and where it may
+/// cut a serving band before the distance within which the exact horizon
+/// is set; and the post and azimuth where it is.
+pub fn largest_dense_error(asset: &Path, directions: usize) -> (f64, (usize, usize), f64) {
     use terrabake::algorithms::horizon::{brute, plan_bands, BandKind, Method};
     use terrabake::stages::horizons::HorizonsStage;
     use terrabake::terrain::held::HeldDem;
-    use terrabake_format::horizons::{HorizonMap, NOTHING_AHEAD};
+    use terrabake_format::horizons::{
+        bands_around, edge_distance, edge_may_cut, HorizonMap, NOTHING_AHEAD,
+    };
 
     let opened = Asset::open(asset).unwrap();
     let map = HorizonMap::open(&opened).unwrap();
@@ -157,13 +163,34 @@ pub fn largest_dense_error(asset: &Path) -> (f64, (usize, usize), f64) {
     let dem = HeldDem::read(&opened).unwrap();
     let t = dem.terrain(stage.sight.curvature_coefficient(opened.manifest()));
     let m = opened.manifest();
+    assert!(
+        directions >= 2 * map.azimuths().len(),
+        "a reference between the bands"
+    );
     let dense = plan_bands(
         Method::Line,
-        1440,
+        directions,
         m.cell_size.dx,
         m.cell_size.dy,
-        Some(0.05),
+        Some(72.0 / directions as f64),
     );
+    let top =
+        t.z.iter()
+            .copied()
+            .filter(|z| !z.is_nan())
+            .fold(f32::MIN, f32::max);
+    // Whether the edge may cut a horizon of `angle` at `azimuth`, and how
+    // far the edge is.
+    let may_cut = |(col, row): (usize, usize), azimuth: f64, angle: f64| {
+        let d = edge_distance(
+            (m.width, m.height),
+            (m.cell_size.dx, m.cell_size.dy),
+            (col as f64, row as f64),
+            azimuth,
+        );
+        let rise = f64::from(top - t.at(col, row)) - t.curvature * d * d;
+        (edge_may_cut(rise, d, angle.to_radians().sin_cos()), d)
+    };
     let mut largest = (0.0f64, (0, 0), 0.0);
     for row in 0..t.height {
         for col in 0..t.width {
@@ -180,7 +207,26 @@ pub fn largest_dense_error(asset: &Path) -> (f64, (usize, usize), f64) {
                     continue;
                 }
                 let error = (served.angle - truth).abs();
-                if error > largest.0 {
+                if error <= largest.0 {
+                    continue;
+                }
+                // Within this distance lies what sets the exact horizon.
+                let room = f64::from(top - t.at(col, row));
+                let within = if truth > 0.0 {
+                    room / truth.to_radians().tan()
+                } else {
+                    f64::INFINITY
+                };
+                let (i, j, _) = bands_around(map.azimuths(), band.azimuth);
+                let band_cut = [i, j].into_iter().any(|k| {
+                    let angle = map
+                        .angle(col as u32, row as u32, k as u32)
+                        .unwrap()
+                        .unwrap();
+                    let (may, d) = may_cut((col, row), map.azimuths()[k], angle);
+                    may && d < within
+                });
+                if !may_cut((col, row), band.azimuth, truth).0 && !band_cut {
                     largest = (error, (col, row), band.azimuth);
                 }
             }
