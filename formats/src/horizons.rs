@@ -292,8 +292,7 @@ pub fn edge_distance_along(
 /// beyond the edge, at most `rise` metres above the eye there (the DEM's
 /// highest post less the eye and the curvature drop at `distance`), could
 /// stand above it. Always at the edge itself. The `horizon_edge` layer
-/// counts the bands where this holds; `check` leaves such horizons out of
-/// the largest error.
+/// counts the bands where this holds.
 #[inline]
 pub fn edge_may_cut(rise: f64, distance: f64, (sin, cos): (f64, f64)) -> bool {
     // The rise's slope rise / d against tan h, both sides times d cos h.
