@@ -12,7 +12,7 @@ use proptest::prelude::*;
 use terrabake::io::synth::SynthKind;
 use terrabake::plan::budget::{Budget, Need, Needs, Request};
 use terrabake::plan::calibration::CALIBRATION_VAR;
-use terrabake::plan::check::{check, CheckOptions, CheckReport};
+use terrabake::plan::check::{check, reference_directions, CheckOptions, CheckReport};
 use terrabake::plan::reference::{Pilot, Sampling};
 use terrabake::plan::{plan, Plan, TimeModels, SHARE_DIRECTIONS, TIME_MODELS_VAR};
 use terrabake::plumbing::progress::Progress;
@@ -58,8 +58,7 @@ fn baked_and_checked(
         &CheckOptions {
             samples,
             seed,
-            // Between the bands, as the command's default.
-            directions: plan.chosen.as_ref().map_or(0, |c| 2 * c.sectors).max(720),
+            directions: reference_directions(plan.chosen.as_ref().map_or(0, |c| c.sectors)),
             cuts: &[],
         },
         Some(budget),

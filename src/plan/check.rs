@@ -58,6 +58,12 @@ use crate::terrain::sun::SunPosition;
 /// relief, seed 1, 720 directions).
 pub type CheckOptions = Sampling;
 
+/// `check`'s reference directions for `bands` stored ones: the default
+/// 720, or twice the bands where more, so that it measures between them.
+pub fn reference_directions(bands: usize) -> usize {
+    (2 * bands).clamp(Sampling::default().directions, 8192)
+}
+
 /// What a check measured of the horizons and what derives from them.
 #[derive(Debug, Clone, Serialize)]
 pub struct HorizonCheck {
@@ -954,10 +960,7 @@ impl Run for CheckArgs {
             samples: self.samples as usize,
             seed: self.seed,
             directions: self.directions.map_or_else(
-                || {
-                    let bands = asset.layer(HORIZON, 0).map_or(0, |l| l.bands() as usize);
-                    (2 * bands).clamp(Sampling::default().directions, 8192)
-                },
+                || reference_directions(asset.layer(HORIZON, 0).map_or(0, |l| l.bands() as usize)),
                 |d| d as usize,
             ),
             cuts: &[],

@@ -285,6 +285,42 @@ pub struct Pilot {
     curvature: f64,
 }
 
+/// Whether the DEM's edge may have made the error of a sample: where it
+/// may cut the exact horizon `(azimuth, angle)` (degrees;
+/// `horizons::edge_may_cut`, terrain beyond the edge as high as the DEM's
+/// highest post, `room` metres above the eye, less the curvature drop
+/// `curvature * d^2`, as the `horizon_edge` layer counts it), or where it
+/// may cut one of the two `bands` (azimuth, angle) the sample is served
+/// from before the distance within which what sets the exact horizon lies
+/// (a band whose line leaves the DEM sooner cannot see it). `edge` gives
+/// the metres to the edge along an azimuth. Elsewhere the DEM knows both,
+/// and a largest error is bounded. A band that passes a spike the
+/// reference meets is not excused: its line runs past the spike's distance.
+pub fn edge_made_error(
+    (room, curvature): (f64, f64),
+    edge: impl Fn(f64) -> f64,
+    (azimuth, truth): (f64, f64),
+    bands: [(f64, f64); 2],
+) -> bool {
+    let cut = |azimuth: f64, angle: f64| {
+        let d = edge(azimuth);
+        let rise = room - curvature * d * d;
+        (edge_may_cut(rise, d, angle.to_radians().sin_cos()), d)
+    };
+    if cut(azimuth, truth).0 {
+        return true;
+    }
+    let within = if truth > 0.0 {
+        room / truth.to_radians().tan()
+    } else {
+        f64::INFINITY
+    };
+    bands.into_iter().any(|(azimuth, angle)| {
+        let (may, d) = cut(azimuth, angle);
+        may && d < within
+    })
+}
+
 /// Cells a side of the blocks whose highest posts bound the pilot's sight
 /// lines ([`brute::BlockMax`]), coarsest first.
 const HEIGHT_BLOCKS: [usize; 2] = [64, 16];
@@ -443,16 +479,8 @@ impl Pilot {
             .reduce(f64::max)
     }
 
-    /// Whether the DEM's edge may have made the error of a sample at
-    /// `post` in reference direction `r`: where it may cut the exact
-    /// horizon `truth` (degrees; `horizons::edge_may_cut`, against the
-    /// DEM's highest post, as the `horizon_edge` layer counts it), or where
-    /// it may cut one of the two `bands` (azimuth, angle) the sample is
-    /// served from before the distance within which what sets the exact
-    /// horizon lies (a band whose line leaves the DEM sooner cannot see
-    /// it). Elsewhere the DEM knows both, and a largest error is bounded.
-    /// A band that passes a spike the reference meets is not excused: its
-    /// line runs past the spike's distance.
+    /// [`edge_made_error`] of a sample at `post` in reference direction
+    /// `r`, against the DEM's highest post.
     pub(crate) fn edge_may_cut(
         &self,
         (post, r): (usize, usize),
@@ -460,29 +488,20 @@ impl Pilot {
         bands: [(f64, f64); 2],
     ) -> bool {
         let (c, row) = self.posts[post];
-        let room = self.heights.top - self.eyes[post];
-        let cut = |azimuth: f64, angle: f64| {
-            let d = edge_distance_along(
+        let edge = |azimuth: f64| {
+            edge_distance_along(
                 self.size,
                 (self.post_dx[post], self.spacing.1),
                 (c as f64, row as f64),
                 heading(azimuth),
-            );
-            let rise = room - self.curvature * d * d;
-            (edge_may_cut(rise, d, angle.to_radians().sin_cos()), d)
+            )
         };
-        if cut(self.reference[r].azimuth, truth).0 {
-            return true;
-        }
-        let within = if truth > 0.0 {
-            room / truth.to_radians().tan()
-        } else {
-            f64::INFINITY
-        };
-        bands.into_iter().any(|(azimuth, angle)| {
-            let (may, d) = cut(azimuth, angle);
-            may && d < within
-        })
+        edge_made_error(
+            (self.heights.top - self.eyes[post], self.curvature),
+            edge,
+            (self.reference[r].azimuth, truth),
+            bands,
+        )
     }
 
     fn sight_line(&self, post: usize, azimuth: f64) -> SightLine {

@@ -151,11 +151,10 @@ pub fn srtm_crop((x0, y0): (u32, u32), (w, h): (u32, u32)) -> (Vec<f32>, f64, f6
 /// is set; and the post and azimuth where it is.
 pub fn largest_dense_error(asset: &Path, directions: usize) -> (f64, (usize, usize), f64) {
     use terrabake::algorithms::horizon::{brute, plan_bands, BandKind, Method};
+    use terrabake::plan::reference::edge_made_error;
     use terrabake::stages::horizons::HorizonsStage;
     use terrabake::terrain::held::HeldDem;
-    use terrabake_format::horizons::{
-        bands_around, edge_distance, edge_may_cut, HorizonMap, NOTHING_AHEAD,
-    };
+    use terrabake_format::horizons::{bands_around, edge_distance, HorizonMap, NOTHING_AHEAD};
 
     let opened = Asset::open(asset).unwrap();
     let map = HorizonMap::open(&opened).unwrap();
@@ -179,18 +178,6 @@ pub fn largest_dense_error(asset: &Path, directions: usize) -> (f64, (usize, usi
             .copied()
             .filter(|z| !z.is_nan())
             .fold(f32::MIN, f32::max);
-    // Whether the edge may cut a horizon of `angle` at `azimuth`, and how
-    // far the edge is.
-    let may_cut = |(col, row): (usize, usize), azimuth: f64, angle: f64| {
-        let d = edge_distance(
-            (m.width, m.height),
-            (m.cell_size.dx, m.cell_size.dy),
-            (col as f64, row as f64),
-            azimuth,
-        );
-        let rise = f64::from(top - t.at(col, row)) - t.curvature * d * d;
-        (edge_may_cut(rise, d, angle.to_radians().sin_cos()), d)
-    };
     let mut largest = (0.0f64, (0, 0), 0.0);
     for row in 0..t.height {
         for col in 0..t.width {
@@ -210,23 +197,27 @@ pub fn largest_dense_error(asset: &Path, directions: usize) -> (f64, (usize, usi
                 if error <= largest.0 {
                     continue;
                 }
-                // Within this distance lies what sets the exact horizon.
-                let room = f64::from(top - t.at(col, row));
-                let within = if truth > 0.0 {
-                    room / truth.to_radians().tan()
-                } else {
-                    f64::INFINITY
-                };
                 let (i, j, _) = bands_around(map.azimuths(), band.azimuth);
-                let band_cut = [i, j].into_iter().any(|k| {
-                    let angle = map
-                        .angle(col as u32, row as u32, k as u32)
+                let angle = |k: usize| {
+                    map.angle(col as u32, row as u32, k as u32)
                         .unwrap()
-                        .unwrap();
-                    let (may, d) = may_cut((col, row), map.azimuths()[k], angle);
-                    may && d < within
-                });
-                if !may_cut((col, row), band.azimuth, truth).0 && !band_cut {
+                        .unwrap()
+                };
+                let edge = |azimuth: f64| {
+                    edge_distance(
+                        (m.width, m.height),
+                        (m.cell_size.dx, m.cell_size.dy),
+                        (col as f64, row as f64),
+                        azimuth,
+                    )
+                };
+                let cut = edge_made_error(
+                    (f64::from(top - t.at(col, row)), t.curvature),
+                    edge,
+                    (band.azimuth, truth),
+                    [(map.azimuths()[i], angle(i)), (map.azimuths()[j], angle(j))],
+                );
+                if !cut {
                     largest = (error, (col, row), band.azimuth);
                 }
             }
