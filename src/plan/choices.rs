@@ -6,10 +6,10 @@ use terrabake_format::horizons::AngleEncoding;
 
 use super::budget::Budget;
 use super::models::{LineCosts, CONES_SECONDS_PER_POST, CONE_SLICES};
-use super::round_up;
+use super::predict::Relax;
 use super::{
-    Candidate, Choice, Scene, DISTANCES, OTHERS_MEASURED_UP_TO_VISITS, SHARE_DIRECTIONS,
-    SHARE_DISTANCE, SHARE_QUANTISATION,
+    Candidate, Choice, Scene, DECISION_QUANTILE, DISTANCES, OTHERS_MEASURED_UP_TO_VISITS,
+    SHARE_DIRECTIONS, SHARE_DISTANCE, SHARE_QUANTISATION,
 };
 use crate::algorithms::horizon::line::default_tolerance;
 use crate::algorithms::horizon::Method;
@@ -299,28 +299,20 @@ pub(super) fn route_choice(
 }
 
 /// Why no count of directions meets the budget: what the most directions
-/// (`closest`) leave, and what to relax to, from what they leave at the
-/// quantile that decides (`deciding`: horizon, svf) over the share of the
-/// budget it gets.
-pub(super) fn unmet(budget: &Budget, closest: &Candidate, deciding: (f64, f64)) -> anyhow::Error {
+/// (`closest`) leave between them, and the limits they pass (`over`, at
+/// the directions' share of each), each with the least value that would
+/// do.
+pub(super) fn unmet(budget: &Budget, closest: &Candidate, over: &[Relax]) -> anyhow::Error {
     let largest = match (budget.horizon_max, budget.svf_max) {
         (None, None) => String::new(),
-        (h, s) => format!(
-            " (the largest: {:.3} degrees, {:.4} svf; relax{}{})",
-            closest.horizon_max_deg,
-            closest.svf_max,
-            h.map_or(String::new(), |_| format!(
-                " horizon_max to at least {:.3}",
-                round_up(closest.horizon_max_deg / SHARE_DIRECTIONS, 3)
-            )),
-            s.map_or(String::new(), |_| format!(
-                " svf_max to at least {:.4}",
-                round_up(closest.svf_max / SHARE_DIRECTIONS, 4)
-            )),
+        _ => format!(
+            " (the largest: {:.3} degrees, {:.4} svf)",
+            closest.horizon_max_deg, closest.svf_max
         ),
     };
+    let relax: Vec<String> = over.iter().map(Relax::to_string).collect();
     anyhow::anyhow!(
-        "budget {budget} cannot be met with up to {} line directions on this scene: {} directions leave a horizon p99 of {:.3} degrees and an svf p99 of {:.4} between them{largest}{}; relax horizon to at least {:.3}{}",
+        "budget {budget} cannot be met with up to {} line directions on this scene: {} directions leave a horizon p99 of {:.3} degrees and an svf p99 of {:.4} between them{largest}{}; relax {} (what the errors at the {}th percentile or at their largest need, {SHARE_DIRECTIONS} of each limit going to the directions)",
         closest.sectors,
         closest.sectors,
         closest.horizon_p99_deg,
@@ -328,11 +320,8 @@ pub(super) fn unmet(budget: &Budget, closest: &Candidate, deciding: (f64, f64)) 
         closest
             .shade_share
             .map_or(String::new(), |s| format!(", and {:.4} of the sun/shade states wrong", s)),
-        round_up(deciding.0 / SHARE_DIRECTIONS, 3),
-        budget.svf.map_or(String::new(), |_| format!(
-            " and svf to at least {:.4}",
-            round_up(deciding.1 / SHARE_DIRECTIONS, 4)
-        )),
+        relax.join(" and "),
+        DECISION_QUANTILE * 100.0,
     )
 }
 

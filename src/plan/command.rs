@@ -61,10 +61,19 @@ pub(crate) fn describe(plan: &Plan) -> String {
         }
     }
     out += "\n";
+    // Columns as wide as their longest entry, so that every reason and
+    // rejection starts in one column.
+    let what = plan.choices.iter().map(|c| c.what.len()).max().unwrap_or(0);
+    let chosen = plan
+        .choices
+        .iter()
+        .map(|c| c.chosen.len())
+        .max()
+        .unwrap_or(0);
     for c in &plan.choices {
-        out += &format!("{:<11} {:<34} {}\n", c.what, c.chosen, c.why);
+        out += &format!("{:<what$} {:<chosen$} {}\n", c.what, c.chosen, c.why);
         if let Some(r) = &c.rejected {
-            out += &format!("{:<11} {:<34} rejected: {r}\n", "", "");
+            out += &format!("{:<what$} {:<chosen$} rejected: {r}\n", "", "");
         }
     }
     let mut predicted = Vec::new();

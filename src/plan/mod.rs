@@ -863,7 +863,7 @@ fn plan_horizons(
     };
     let (dx, dy) = scene.cell_size;
     let mut sectors = None;
-    let mut deciding = (0.0, 0.0);
+    let mut over = Vec::new();
     let mut stored = Vec::new();
     let finest = pilot_directions(budget) / 2;
     for &s in CANDIDATES.iter().filter(|&&s| s <= finest) {
@@ -872,8 +872,7 @@ fn plan_horizons(
         // directions, and far cheaper to sweep than those would be.
         stored = pilot.measure_directions(terrain, &line_stage(s, None).bands(dx, dy), || ());
         let mut e = predict(pilot, suns, &stored, (None, AngleEncoding::F32), true);
-        let (horizon, svf, _) = e.at(DECISION_QUANTILE);
-        deciding = (horizon, svf);
+        over = e.over(budget, SHARE_DIRECTIONS);
         let c = candidate((s, None), None, AngleEncoding::F32, &mut e);
         let meets = c.meets;
         candidates.push(c);
@@ -884,7 +883,7 @@ fn plan_horizons(
     }
     let Some(sectors) = sectors else {
         let closest = candidates.last().expect("candidates");
-        return Err(unmet(budget, closest, deciding));
+        return Err(unmet(budget, closest, &over));
     };
     // The tolerance: of those directions' grid steps within ever wider
     // tolerances, the ones a post sweeps in the fewest crossings whose

@@ -65,20 +65,46 @@ impl Errors {
     /// shares add up to the whole budget for the largest error too: the
     /// largest of a sum is at most the sum of the largest.
     pub(super) fn within(&mut self, budget: &Budget, share: f64) -> bool {
+        self.over(budget, share).is_empty()
+    }
+
+    /// The limits of `budget` these errors pass at `share` of each, with
+    /// the least limit each would meet (rounded up at its decimals): what a
+    /// refusal names to relax, and nothing the errors already meet.
+    pub(super) fn over(&mut self, budget: &Budget, share: f64) -> Vec<Relax> {
         let (horizon, svf, shade) = self.at(DECISION_QUANTILE);
         let solar = self.solar_at(DECISION_QUANTILE);
-        budget
-            .horizon_max
-            .is_none_or(|v| self.horizon_max <= share * v)
-            && budget.svf_max.is_none_or(|v| self.svf_max <= share * v)
-            && horizon <= share * budget.horizon
-            && budget.svf.is_none_or(|v| svf <= share * v)
-            && budget
-                .shade
-                .is_none_or(|v| shade.is_none_or(|s| s <= share * v))
-            && budget
-                .solar
-                .is_none_or(|v| solar.is_none_or(|s| s <= share * v))
+        [
+            ("horizon", Some(budget.horizon), Some(horizon), 3),
+            ("horizon_max", budget.horizon_max, Some(self.horizon_max), 3),
+            ("svf", budget.svf, Some(svf), 4),
+            ("svf_max", budget.svf_max, Some(self.svf_max), 4),
+            ("shade", budget.shade, shade, 4),
+            ("solar", budget.solar, solar, 2),
+        ]
+        .into_iter()
+        .filter_map(|(limit, set, error, decimals)| match (set, error) {
+            (Some(set), Some(error)) if error > share * set => Some(Relax {
+                limit,
+                at_least: super::round_up(error / share, decimals),
+            }),
+            _ => None,
+        })
+        .collect()
+    }
+}
+
+/// A limit of the budget that a plan's errors pass: its name as the
+/// budget spells it, and the least value that they would meet.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct Relax {
+    pub(super) limit: &'static str,
+    pub(super) at_least: f64,
+}
+
+impl std::fmt::Display for Relax {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} to at least {}", self.limit, self.at_least)
     }
 }
 
