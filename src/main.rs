@@ -16,6 +16,7 @@ fn main() -> ExitCode {
     }
     let cli = Cli::parse_checked();
     terrabake::plumbing::interrupt::install();
+    terrabake::plumbing::resources::own_the_allocator();
     let run = || {
         terrabake::plumbing::simd::cap_from_env().map_err(anyhow::Error::msg)?;
         cli.command.run(&Session::new(cli.quiet, cli.no_wait))

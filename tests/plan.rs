@@ -454,6 +454,28 @@ fn a_spawned_bake_records_its_own_peak_memory() {
     assert!(peak > 1.0 && peak < 300.0, "{peak} MiB");
 }
 
+/// A planned bake's peak memory is the stages' that the plan predicted, not
+/// the pilot's residue on top of them: on the bundled tile under
+/// `horizon_max` (a 2880-direction pilot) glibc kept the pilot's freed
+/// heap and the stages' buffers landed beside it, and the bake peaked at
+/// 161 MiB against the 130 planned.
+#[test]
+fn a_planned_bake_stays_within_its_predicted_memory() {
+    let dir = tempfile::tempdir().unwrap();
+    let tif = common::repo_file("data/srtm3_n07w006_geographic_int16.tif");
+    let out = dir.path().join("tile.tbake");
+    let out = out.to_str().unwrap();
+    let bake = planned_bake(tif.to_str().unwrap(), out, &["horizon=1,horizon_max=4"]);
+    assert!(bake.status.success(), "{}", stderr(&bake));
+    let plan = terrabake::plan::recorded(&Asset::open(out).unwrap()).expect("recorded");
+    let peak = plan.baked.as_ref().expect("baked").peak_memory_mib;
+    assert!(
+        peak <= plan.memory_mib,
+        "{peak} MiB against {} planned",
+        plan.memory_mib
+    );
+}
+
 #[test]
 fn a_memory_limit_picks_smaller_tiles_unless_the_recipe_set_them() {
     let dir = tempfile::tempdir().unwrap();

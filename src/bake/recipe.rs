@@ -290,6 +290,11 @@ pub fn bake_with(
                 return Err(e);
             }
         };
+        if plan.is_some() {
+            // The bake's peak is then the stages', which the plan predicted,
+            // not the pilot's residue on top of them.
+            crate::plumbing::resources::release_freed_memory();
+        }
         // The planned stages, each replaced by an explicit one of its name,
         // then the explicit stages the plan does not name, in recipe order.
         let mut stages: Vec<Box<dyn Stage>> = Vec::new();
