@@ -537,6 +537,20 @@ impl Request {
     }
 }
 
+/// A limit of the budget that a plan's errors pass: its name as the
+/// budget spells it, and the least value that they would meet.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Relax {
+    pub(crate) limit: &'static str,
+    pub(crate) at_least: f64,
+}
+
+impl std::fmt::Display for Relax {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} to at least {}", self.limit, self.at_least)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -4,9 +4,8 @@
 
 use terrabake_format::horizons::AngleEncoding;
 
-use super::budget::Budget;
+use super::budget::{Budget, Relax};
 use super::models::{LineCosts, CONES_SECONDS_PER_POST, CONE_SLICES};
-use super::predict::Relax;
 use super::{
     Candidate, Choice, Scene, DECISION_QUANTILE, DISTANCES, OTHERS_MEASURED_UP_TO_VISITS,
     SHARE_DIRECTIONS, SHARE_DISTANCE, SHARE_QUANTISATION,

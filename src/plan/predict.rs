@@ -17,7 +17,7 @@ use super::{
 };
 use crate::algorithms::horizon::sky::{svf_of_horizons, BandIntegrals};
 use crate::algorithms::horizon::Method;
-use crate::plan::budget::Budget;
+use crate::plan::budget::{Budget, Relax};
 use crate::plan::reference::{quantile_unsorted, shade_differs, solar_error, Pilot, PilotSun};
 use crate::terrain::Terrain;
 
@@ -91,20 +91,6 @@ impl Errors {
             _ => None,
         })
         .collect()
-    }
-}
-
-/// A limit of the budget that a plan's errors pass: its name as the
-/// budget spells it, and the least value that they would meet.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(super) struct Relax {
-    pub(super) limit: &'static str,
-    pub(super) at_least: f64,
-}
-
-impl std::fmt::Display for Relax {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{} to at least {}", self.limit, self.at_least)
     }
 }
 
