@@ -25,7 +25,7 @@ use crate::plumbing::progress::Progress;
 use crate::stage::post_layer;
 use crate::stage::sight::SightLines;
 use crate::stage::{Share, Stage};
-use crate::terrain::tiling::{push_fill_row, push_tile_row};
+use crate::terrain::tiling::{push_fill_row, push_tile_row, release_tile_row};
 use crate::terrain::{RowScale, Terrain};
 
 /// One of the layers the stage can write.
@@ -287,6 +287,7 @@ impl Stage for SkyStage {
                     });
                 push_tile_row(writer, &values, w, f32::NAN)?;
             }
+            release_tile_row(horizon, (y0 / ts) as u32)?;
             bar.inc(1);
         }
         bar.finish_and_clear();

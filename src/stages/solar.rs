@@ -29,7 +29,7 @@ use crate::algorithms::solar::{
 use crate::plumbing::progress::Progress;
 use crate::stage::post_layer;
 use crate::stage::{Share, Stage};
-use crate::terrain::tiling::encode_tile_row;
+use crate::terrain::tiling::{encode_tile_row, release_tile_row};
 use crate::terrain::{RowScale, Terrain};
 
 /// The days a bake covers: `first..=last` of the calendar year.
@@ -624,6 +624,8 @@ impl Stage for SolarStage {
                 .into_iter()
                 .flatten()
                 .collect();
+            release_tile_row(horizon, ty as u32)?;
+            release_tile_row(svf_cosine, ty as u32)?;
             for (li, (_, writer)) in writers.iter_mut().enumerate() {
                 for (p, values) in values[li].iter_mut().enumerate() {
                     values.clear();

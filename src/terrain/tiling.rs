@@ -1,10 +1,12 @@
 //! Cutting row bands into tiles: every stage produces its output one tile
 //! row at a time (a band of `tile_size` rows across the whole grid) and hands
 //! it here, which pads, encodes (in parallel) and appends the tiles in order.
+//! A stage that reads a mapped layer a tile row at a time gives the row's
+//! pages back behind itself here too ([`release_tile_row`]).
 
 use rayon::prelude::*;
 use terrabake_format::writer::ZSTD_LEVEL;
-use terrabake_format::{encode_tile, Codec, Element, EncodedTile, LayerWriter};
+use terrabake_format::{encode_tile, Codec, Element, EncodedTile, Layer, LayerWriter, Mmap};
 use zerocopy::IntoBytes;
 
 /// Consecutive bands of at most `rows` rows covering `0..height`, north to
@@ -14,6 +16,36 @@ pub(crate) fn row_bands(height: usize, rows: usize) -> Vec<std::ops::Range<usize
         .step_by(rows)
         .map(|r0| r0..(r0 + rows).min(height))
         .collect()
+}
+
+/// Gives the kernel back the mapped pages of tile row `ty` of every band
+/// of `layer`, read and not needed again: a stage that reads a layer a
+/// tile row at a time otherwise keeps the whole layer resident, which a
+/// planned bake's peak memory counts (the sky stage grew to 195 MiB on a
+/// 2048² fractal at 16 u16 directions, against the 142 its bake planned;
+/// 83 with this). Each band's tile row is one run of chunks in the file
+/// (`(band * tiles_y + ty) * tiles_x + tx`); a layer written in another
+/// order keeps its pages.
+pub(crate) fn release_tile_row(layer: &Layer<Mmap>, ty: u32) -> terrabake_format::Result<()> {
+    for band in 0..layer.bands() {
+        let first = layer.stored_tile(band, 0, ty)?.bytes.as_ptr_range();
+        let last = layer
+            .stored_tile(band, layer.tiles_x() - 1, ty)?
+            .bytes
+            .as_ptr_range();
+        if last.end >= first.start {
+            // SAFETY: both ends lie in the layer's file, mapped read-only
+            // (`Mmap`), and so does every byte between them.
+            unsafe {
+                let span = std::slice::from_raw_parts(
+                    first.start,
+                    last.end.offset_from(first.start) as usize,
+                );
+                crate::plumbing::pages::release_file_pages(span);
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Appends one row of tiles taken from `band`, a row-major block of
