@@ -863,16 +863,18 @@ fn plan_horizons(
     };
     let (dx, dy) = scene.cell_size;
     let mut sectors = None;
-    let mut over = Vec::new();
+    // The errors of the last count that failed: what a refusal names.
+    let mut failed = None;
     let mut stored = Vec::new();
     let finest = pilot_directions(budget) / 2;
     for &s in CANDIDATES.iter().filter(|&&s| s <= finest) {
+        // Its buffers go before the next count's are made.
+        drop(failed.take());
         // The directions the stage would store, measured at the pilot's
         // posts: at its default tolerance they are seldom reference
         // directions, and far cheaper to sweep than those would be.
         stored = pilot.measure_directions(terrain, &line_stage(s, None).bands(dx, dy), || ());
         let mut e = predict(pilot, suns, &stored, (None, AngleEncoding::F32), true);
-        over = e.over(budget, SHARE_DIRECTIONS);
         let c = candidate((s, None), None, AngleEncoding::F32, &mut e);
         let meets = c.meets;
         candidates.push(c);
@@ -880,9 +882,11 @@ fn plan_horizons(
             sectors = Some(s);
             break;
         }
+        failed = Some(e);
     }
     let Some(sectors) = sectors else {
         let closest = candidates.last().expect("candidates");
+        let over = failed.map_or_else(Vec::new, |mut e: Errors| e.over(budget, SHARE_DIRECTIONS));
         return Err(unmet(budget, closest, &over));
     };
     // The tolerance: of those directions' grid steps within ever wider
