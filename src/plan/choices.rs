@@ -7,8 +7,8 @@ use terrabake_format::horizons::AngleEncoding;
 use super::budget::{Budget, Relax};
 use super::models::{LineCosts, CONES_SECONDS_PER_POST, CONE_SLICES};
 use super::{
-    Candidate, Choice, Scene, DECISION_QUANTILE, DISTANCES, OTHERS_MEASURED_UP_TO_VISITS,
-    SHARE_DIRECTIONS, SHARE_DISTANCE, SHARE_QUANTISATION,
+    Candidate, Choice, HorizonsStage, Scene, DECISION_QUANTILE, DISTANCES,
+    OTHERS_MEASURED_UP_TO_VISITS, SHARE_DIRECTIONS, SHARE_DISTANCE, SHARE_QUANTISATION,
 };
 use crate::algorithms::horizon::line::default_tolerance;
 use crate::algorithms::horizon::Method;
@@ -65,7 +65,7 @@ pub(super) fn tiles_choice(
     let tile = costs.tile;
     let line_row = |t: usize| {
         let at = LineCosts { tile: t, ..*costs };
-        chosen.map_or(0.0, |c| at.memory_mib(c.sectors, c.max_distance))
+        chosen.map_or(0.0, |c| at.memory_mib(&c.stage()))
     };
     if tile == ingested_tile {
         Choice {
@@ -259,18 +259,24 @@ pub(super) fn distance_choice(scene: &Scene, curvature: f64, safe_distance: Opti
 /// Why the sweeps run bounded in core, or to the edge out of core.
 pub(super) fn route_choice(
     costs: &LineCosts,
-    sectors: usize,
+    line: &HorizonsStage,
     safe_distance: Option<f64>,
     bounded: Option<f64>,
 ) -> Choice {
+    let sectors = line.sectors;
+    let memory_mib = |distance: Option<f64>| {
+        let mut at = line.clone();
+        at.sight.max_distance = distance;
+        costs.memory_mib(&at)
+    };
     let route_rejected = match (safe_distance, bounded) {
         (Some(d), None) => Some(format!(
             "bounded to {:.1} km: {:.1} s and {:.0} MiB (the DEM held) against {:.1} s and {:.0} MiB to the edge",
             d / 1000.0,
             costs.seconds(sectors, Some(d)),
-            costs.memory_mib(sectors, Some(d)),
+            memory_mib(Some(d)),
             costs.seconds(sectors, None),
-            costs.memory_mib(sectors, None),
+            memory_mib(None),
         )),
         (_, Some(d)) => Some(format!(
             "sweeps to the edge: {:.1} s against {:.1} s bounded to {:.1} km",

@@ -45,7 +45,8 @@
 //! so scaled to the machine at hand by a timed workload
 //! ([`calibration`]; `TERRABAKE_TIME_MODELS` names another machine's fit,
 //! [`TimeModels`]), and given as a range ([`SECONDS_RANGE`]); bytes from
-//! the layers' tiles; memory from the tile row the line stage holds per
+//! the layers' tiles; memory from what the horizons stage states it holds
+//! (`HorizonsStage::memory_bytes`) and the sky stage's tile row of every
 //! band. The bake takes the faster of the two line routes that fits the
 //! memory limit.
 //!
@@ -237,6 +238,21 @@ pub struct Candidate {
 }
 
 impl Candidate {
+    /// The horizons stage that bakes this candidate (raw tiles, the
+    /// stage's memory limit).
+    pub(crate) fn stage(&self) -> HorizonsStage {
+        HorizonsStage {
+            method: self.method,
+            features: self.features,
+            feature_rise: self.feature_rise_m,
+            ..line_bake(
+                (self.sectors, self.direction_tolerance),
+                self.max_distance,
+                self.encoding,
+            )
+        }
+    }
+
     /// `sectors` bands of `method` stored as `encoding`, with the `errors`
     /// the pilot measured of them and `costs`' bytes and seconds, from the
     /// whole DEM at the stage's default tolerance; not yet judged
@@ -403,16 +419,10 @@ pub struct Plan {
 impl Plan {
     /// The horizons stage that bakes the plan, if the needs take one.
     pub fn horizons_stage(&self) -> Option<HorizonsStage> {
-        let chosen = self.chosen.as_ref()?;
         let mut stage = HorizonsStage {
-            encoding: Some(chosen.encoding),
             codec: self.derived_codec,
-            method: chosen.method,
-            features: chosen.features,
-            feature_rise: chosen.feature_rise_m,
-            ..line_stage(chosen.sectors, chosen.direction_tolerance)
+            ..self.chosen.as_ref()?.stage()
         };
-        stage.sight.max_distance = chosen.max_distance;
         if let Some(bytes) = self.budget.memory_bytes() {
             stage.max_memory = bytes;
         }
@@ -502,6 +512,21 @@ fn line_stage(sectors: usize, tolerance: Option<f64>) -> HorizonsStage {
         direction_tolerance: tolerance,
         ..Default::default()
     }
+}
+
+/// The horizons stage of `sectors` line directions at `tolerance`, to
+/// `distance` (the whole DEM: `None`), stored as `encoding`.
+fn line_bake(
+    (sectors, tolerance): (usize, Option<f64>),
+    distance: Option<f64>,
+    encoding: AngleEncoding,
+) -> HorizonsStage {
+    let mut stage = HorizonsStage {
+        encoding: Some(encoding),
+        ..line_stage(sectors, tolerance)
+    };
+    stage.sight.max_distance = distance;
+    stage
 }
 
 /// Profile vertices a post costs in the line sweeps of `bands` (the
@@ -594,6 +619,11 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
         tile,
         sky_layers: sky_layers.len(),
         cell: (dx + dy) / 2.0,
+        spacing: (dx, dy),
+        nodata: m.nodata.count > 0,
+        max_memory: budget
+            .memory_bytes()
+            .unwrap_or(HorizonsStage::default().max_memory),
         models: time_models.scaled(scale),
         scale,
     };
@@ -627,7 +657,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
     let ingested_tile = tile;
     if let (Some(c), Some(limit)) = (chosen.as_mut(), budget.memory) {
         while c.method == Method::Line
-            && costs.memory_mib(c.sectors, c.max_distance) > limit as f64
+            && costs.memory_mib(&c.stage()) > limit as f64
             && costs.tile > 32
         {
             costs.tile /= 2;
@@ -926,9 +956,9 @@ fn plan_horizons(
     // when that is faster and fits the memory limit, else the sweeps to
     // the edge (out of core).
     let fits = |d: Option<f64>| {
-        budget
-            .memory
-            .is_none_or(|l| costs.memory_mib(sectors, d) <= l as f64)
+        budget.memory.is_none_or(|l| {
+            costs.memory_mib(&line_bake((sectors, Some(tolerance.0)), d, encoding)) <= l as f64
+        })
     };
     let bounded_cut = safe_cut.filter(|&k| {
         let d = Some(DISTANCES[k]);
@@ -1031,7 +1061,7 @@ fn plan_horizons(
         tolerance_choice(sectors, tolerance, at_default, too_wide),
         encoding_choice(encoding),
         distance_choice(scene, curvature, safe_distance),
-        route_choice(costs, sectors, safe_distance, bounded),
+        route_choice(costs, &chosen.stage(), safe_distance, bounded),
     ];
     if let Some((with, without)) = listed {
         choices.push(features_choice(&chosen, with, without));

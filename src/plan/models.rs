@@ -6,7 +6,7 @@
 use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
 
-use super::layer_bytes;
+use super::{layer_bytes, HorizonsStage};
 
 use crate::error::bail;
 
@@ -137,11 +137,12 @@ pub(super) const SOLAR_SECONDS_PER_POST_DAY: f64 = 2.3e-8;
 /// the bundled tile at 40 % of the bake time of 256 slices (1.3 %).
 pub(super) const CONE_SLICES: usize = 64;
 /// Peak memory, measured on the bundled tile: a base of 30 MiB, per worker
-/// thread [`WORKER_MIB`] and [`WORKER_BYTES_PER_ROW_POST`], 10.7 bytes per
-/// post and band of a tile row of horizons in flight (97 MiB at 16
-/// directions, 463 MiB at 120), the DEM itself (4 bytes a post) for bounded
-/// lines, and 32 bytes a post for in-core cone planes; the pilot's own is
-/// counted exactly (`plan`).
+/// thread [`WORKER_MIB`] and [`WORKER_BYTES_PER_ROW_POST`]; beyond it, what
+/// the horizons stage says it holds (its steps in flight, the state its
+/// line sweeps carry from band to band: `HorizonsStage::memory_bytes`) or,
+/// where sky layers are baked, the sky stage's tile row of every band
+/// mapped and of every sky layer, whichever is more; 32 bytes a post for
+/// in-core cone planes; the pilot's own is counted exactly (`plan`).
 pub(super) const BASE_MIB: f64 = 30.0;
 /// Each worker thread's allocator arena keeps its high water: about 5 MiB
 /// on a small DEM, and 16 bytes per post of a tile row (the sweep's window
@@ -151,7 +152,6 @@ pub(super) const BASE_MIB: f64 = 30.0;
 /// bakes.
 pub(super) const WORKER_MIB: f64 = 5.0;
 pub(super) const WORKER_BYTES_PER_ROW_POST: f64 = 16.0;
-pub(super) const LINE_BYTES_PER_ROW_POST_BAND: f64 = 10.7;
 pub(super) const CONES_BYTES_PER_POST: f64 = 32.0;
 
 /// The other methods' time, fitted to the slowest of two runs each on
@@ -186,6 +186,13 @@ pub(super) struct LineCosts {
     pub(super) sky_layers: usize,
     /// Mean post spacing, metres.
     pub(super) cell: f64,
+    /// Post spacing east-west and north-south, metres, as the stages take it.
+    pub(super) spacing: (f64, f64),
+    /// Whether the DEM has nodata posts (the sweeps then carry more).
+    pub(super) nodata: bool,
+    /// The horizons stage's `--max-memory`: the budget's limit, or its
+    /// default.
+    pub(super) max_memory: u64,
     pub(super) models: TimeModels,
     /// The calibration's scale of the fitted models to this machine.
     pub(super) scale: f64,
@@ -210,14 +217,27 @@ impl LineCosts {
         m.fixed_seconds + work
     }
 
-    pub(super) fn memory_mib(&self, sectors: usize, distance: Option<f64>) -> f64 {
-        let held = if distance.is_some() {
-            4.0 * self.posts
-        } else {
-            0.0
+    /// Peak memory of line horizons baked as `stage` (its directions,
+    /// tolerance, reach and encoding; the memory limit as this plan's) and
+    /// of the sky layers from them, MiB ([`BASE_MIB`]).
+    pub(super) fn memory_mib(&self, stage: &HorizonsStage) -> f64 {
+        let stage = HorizonsStage {
+            max_memory: self.max_memory,
+            ..stage.clone()
         };
-        self.base_mib()
-            + (LINE_BYTES_PER_ROW_POST_BAND * self.row_posts() * sectors as f64 + held) / 1048576.0
+        let horizons = stage.memory_bytes(
+            (self.width, self.height, self.tile),
+            self.spacing,
+            self.nodata,
+        ) as f64;
+        let sky = if self.sky_layers == 0 {
+            0.0
+        } else {
+            let per_post =
+                stage.sectors * stage.angle_encoding().elem().size() + 4 * self.sky_layers;
+            self.row_posts() * per_post as f64
+        };
+        self.base_mib() + horizons.max(sky) / 1048576.0
     }
 
     /// Seconds of Stewart's sector tree of `sectors` over the whole DEM

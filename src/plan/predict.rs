@@ -294,7 +294,7 @@ pub(super) fn seconds(costs: &LineCosts, method: Method, sectors: usize) -> f64 
 /// where its reach is bounded), the others' over the whole DEM.
 pub(super) fn memory_mib(costs: &LineCosts, c: &Candidate) -> f64 {
     match c.method {
-        Method::Line => costs.memory_mib(c.sectors, c.max_distance),
+        Method::Line => costs.memory_mib(&c.stage()),
         Method::Sector => costs.sector_memory_mib(),
         Method::Sampled => costs.sampled_memory_mib(c.sectors),
     }

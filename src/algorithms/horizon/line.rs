@@ -772,6 +772,32 @@ impl BandedSweep {
         Self { simd, ..self }
     }
 
+    /// The most bytes a sweep of `dir` over a DEM `width` posts wide
+    /// carries from band to band, its lanes held to `lane_bytes` as
+    /// [`Self::with_lane_memory`] holds them (`nodata`: as
+    /// [`Self::new`]'s), worked out without making it: its lanes' arrays
+    /// at their full depth, or where it has none, each line's scalar state
+    /// with a hull of twice [`TRIM_FROM`] vertices, what it holds before
+    /// its first trim. What a planner adds up for the sweeps in flight.
+    pub fn most_carried_bytes(
+        dir: &GridDirection,
+        width: usize,
+        nodata: bool,
+        lane_bytes: usize,
+    ) -> usize {
+        let stencil = Stencil::new(dir.step);
+        let level = crate::plumbing::simd::level();
+        let lanes = (!nodata)
+            .then(|| lanes::Lanes::most_bytes(&stencil, width, lane_bytes, level))
+            .flatten();
+        lanes.unwrap_or_else(|| {
+            // A line goes on into the next band unless it runs east-west.
+            let (a, b) = dir.step;
+            let lines = b.unsigned_abs() as usize * (width + a.unsigned_abs() as usize);
+            lines * (std::mem::size_of::<Lane>() + 2 * TRIM_FROM * std::mem::size_of::<[f64; 2]>())
+        })
+    }
+
     /// Whether the lines go in SIMD lanes ([`lanes`]).
     pub fn in_lanes(&self) -> bool {
         self.simd.is_some()

@@ -20,6 +20,7 @@
 //! own, and bounded `line` holds only its rows and their reach.
 
 mod encode;
+mod memory;
 
 pub(crate) use encode::encode_angles;
 
@@ -94,7 +95,7 @@ pub struct HorizonsStage {
     /// Working memory in MiB for the methods that hold the DEM in memory (sector
     /// without --max-distance, sampled, line with --max-distance); a DEM that needs more
     /// is refused with the out-of-core routes named. Out of core, line's SIMD lanes take
-    /// at most a sixteenth of it. Results do not depend on it, so it is not recorded.
+    /// at most a quarter of it. Results do not depend on it, so it is not recorded.
     #[arg(long = "max-memory", value_name = "MIB", default_value = crate::stage::mib::STAGE_DEFAULT, value_parser = crate::stage::mib::parse)]
     #[serde(
         rename = "max_memory_mib",
@@ -203,23 +204,6 @@ impl HorizonsStage {
         Ok(())
     }
 
-    /// Bytes held in memory for `posts` posts with `threads` bands in
-    /// flight, or `None` where the method runs out of core: the DEM (4
-    /// bytes per post) and per band Stewart's tree ([`SECTOR_BYTES_PER_POST`])
-    /// or one band of angles; with distances, a band of them and the
-    /// tree's tags (the post of every hull point and bucket entry: 12
-    /// bytes per post measured, 30-46 MiB more at 1.44 M posts and two
-    /// sectors in flight).
-    pub(crate) fn in_core_bytes(&self, posts: u64, threads: u64) -> Option<u64> {
-        let per_band = match (self.method, self.distance) {
-            (Method::Sector, false) => SECTOR_BYTES_PER_POST,
-            (Method::Sector, true) => SECTOR_BYTES_PER_POST + 16,
-            (Method::Line | Method::Sampled, false) => 4,
-            (Method::Line | Method::Sampled, true) => 8,
-        };
-        (!self.out_of_core()).then_some(posts * (4 + per_band * threads))
-    }
-
     /// Whether the bands run out of core: `line` without a maximum
     /// distance, `sector` with one (see `row_bands`).
     pub(crate) fn out_of_core(&self) -> bool {
@@ -243,11 +227,9 @@ impl HorizonsStage {
         height_bound: f64,
     ) -> Box<dyn RowBands + Send> {
         match (&band.kind, self.sight.max_distance) {
-            // The lanes' hulls of the sweeps in flight take at most a
-            // sixteenth of the working memory.
             (BandKind::Line(dir), None) => Box::new(
                 line::BandedSweep::new(dir, dims, spacing, row_scale, nodata)
-                    .with_lane_memory(self.max_memory as usize / 16 / OUT_OF_CORE_BATCH)
+                    .with_lane_memory(self.lane_bytes())
                     .with_height_bound(height_bound),
             ),
             (&BandKind::Sector { index, count }, Some(max_distance)) => Box::new(BoundedSector {
@@ -342,39 +324,27 @@ impl Stage for HorizonsStage {
         outputs
     }
 
-    /// Within `max_distance`, every post reads the terrain up to that far
-    /// (the shortest post spacing, row by row on geographic grids, sets how
-    /// many posts that is, plus one for the cell a sight line ends in);
-    /// without it, the whole DEM.
-    /// Out of core, the steps in flight (one per thread), each holding
-    /// its window of heights (a tile row, with the rows within the
-    /// maximum distance for bounded sectors) and a tile row of angles (and
-    /// of distances), plus the lanes' hulls (a sixteenth of the budget).
-    /// In core, [`HorizonsStage::in_core_bytes`], checked with the DEM's
-    /// own routes out in `check_dem`.
+    /// Out of core, [`HorizonsStage::memory_bytes`]. In core,
+    /// [`HorizonsStage::in_core_bytes`], checked with the DEM's own routes
+    /// out in `check_dem`.
     fn memory(&self, m: &terrabake_format::Manifest) -> Option<u64> {
-        if !self.out_of_core() {
-            return None;
-        }
-        let (w, h, ts) = (
-            u64::from(m.width),
-            u64::from(m.height),
-            u64::from(m.tile_size),
-        );
-        let halo = self
-            .sight
-            .max_distance
-            .map_or(0, |d| terrain::posts_within(d, m.cell_size.dy) as u64);
-        let window = (ts + 2 * halo).min(h);
-        let threads = rayon::current_num_threads() as u64;
-        let outputs = if self.distance { 2 } else { 1 };
-        Some(threads * 4 * w * (window + outputs * ts) + self.max_memory / 16)
+        self.out_of_core().then(|| {
+            self.memory_bytes(
+                (m.width as usize, m.height as usize, m.tile_size as usize),
+                (m.cell_size.dx, m.cell_size.dy),
+                m.nodata.count > 0,
+            )
+        })
     }
 
     fn max_memory(&self) -> Option<u64> {
         Some(self.max_memory)
     }
 
+    /// Within `max_distance`, every post reads the terrain up to that far
+    /// (the shortest post spacing, row by row on geographic grids, sets how
+    /// many posts that is, plus one for the cell a sight line ends in);
+    /// without it, the whole DEM.
     fn reach(&self, m: &terrabake_format::Manifest) -> crate::stage::Reach {
         let Some(d) = self.sight.max_distance else {
             return crate::stage::Reach::Whole;

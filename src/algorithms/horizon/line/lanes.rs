@@ -157,14 +157,8 @@ impl Lines {
     /// `bytes` allows, less [`HEADROOM`].
     fn new(stencil: &Stencil, width: usize, bytes: usize, level: Level) -> Option<Self> {
         let step = stencil.step;
-        let q = step.1.unsigned_abs() as usize;
-        let s = step.0 * step.1.signum();
-        let modulus = width + s.unsigned_abs() as usize;
-        let count = q * modulus;
-        let depth = (bytes.min(MAX_BYTES) / (2 * 8 * count)).min(MAX_DEPTH);
-        if depth < MIN_DEPTH || stencil.len() + HEADROOM > depth {
-            return None;
-        }
+        let (q, s, modulus, count) = Self::lines_of(step, width);
+        let depth = Self::depth(stencil, count, bytes)?;
         let heads = held(level);
         Some(Self {
             step,
@@ -189,6 +183,30 @@ impl Lines {
     /// Memory that gives these lanes their depth ([`Self::new`]).
     fn bytes(&self) -> usize {
         self.depth * 2 * 8 * self.count
+    }
+
+    /// `(|b|, a sign(b), modulus, count)` of `step = (a, b)`'s lines over
+    /// a DEM `width` posts wide, as the fields say.
+    fn lines_of(step: (i64, i64), width: usize) -> (usize, i64, usize, usize) {
+        let q = step.1.unsigned_abs() as usize;
+        let s = step.0 * step.1.signum();
+        let modulus = width + s.unsigned_abs() as usize;
+        (q, s, modulus, q * modulus)
+    }
+
+    /// Hull vertices a lane of `count` lines keeps within `bytes`, or
+    /// `None` where that is too few for `stencil`'s steps.
+    fn depth(stencil: &Stencil, count: usize, bytes: usize) -> Option<usize> {
+        let depth = (bytes.min(MAX_BYTES) / (2 * 8 * count)).min(MAX_DEPTH);
+        (depth >= MIN_DEPTH && stencil.len() + HEADROOM <= depth).then_some(depth)
+    }
+
+    /// The most bytes [`Self::new`]'s arrays take: each line's `t`, `top`
+    /// and held vertices, and the hulls below them at their full depth.
+    fn most_bytes(stencil: &Stencil, width: usize, bytes: usize, level: Level) -> Option<usize> {
+        let count = Self::lines_of(stencil.step, width).3;
+        let depth = Self::depth(stencil, count, bytes)?;
+        Some(count * 8 * (2 + 2 * held(level) + 2 * depth))
     }
 
     /// The `top` of line `i` with a hull of `len` vertices.
@@ -378,6 +396,35 @@ impl Lanes {
         }
     }
 
+    /// The most bytes [`Self::new`] with the same arguments holds, or
+    /// `None` where it makes no lanes; computed without making them.
+    pub(super) fn most_bytes(
+        stencil: &Stencil,
+        width: usize,
+        bytes: usize,
+        level: Level,
+    ) -> Option<usize> {
+        if level == Level::Scalar || level > crate::plumbing::simd::level() {
+            None
+        } else if stencil.step.1 == 0 {
+            Rows::vertices(width, bytes).map(|v| 2 * 8 * v)
+        } else {
+            Lines::most_bytes(stencil, width, bytes, level)
+        }
+    }
+
+    /// Bytes these lanes' arrays take: what [`Self::most_bytes`] states.
+    #[cfg(test)]
+    pub(super) fn held_bytes(&self) -> usize {
+        match self {
+            Self::Lines(l) => {
+                let f64s = [&l.t, &l.head_t, &l.head_w, &l.hull_t, &l.hull_w];
+                8 * (l.top.len() + f64s.iter().map(|v| v.len()).sum::<usize>())
+            }
+            Self::Rows(r) => 8 * (r.hull_t.len() + r.hull_w.len()),
+        }
+    }
+
     /// What sweeps these lanes.
     pub(super) fn level(&self) -> Level {
         match self {
@@ -428,12 +475,18 @@ impl Rows {
     /// Rows `width` posts wide in vector code of `level`, or `None` where
     /// a row's hulls would take more than `bytes`.
     fn new(width: usize, bytes: usize, level: Level) -> Option<Self> {
-        let vertices = GROUPS * 8 * width;
-        (2 * 8 * vertices <= bytes.min(MAX_BYTES)).then(|| Self {
+        Self::vertices(width, bytes).map(|vertices| Self {
             level,
             hull_t: vec![0.0; vertices],
             hull_w: vec![0.0; vertices],
         })
+    }
+
+    /// Hull vertices the rows' lanes store, or `None` where they would
+    /// take more than `bytes`.
+    fn vertices(width: usize, bytes: usize) -> Option<usize> {
+        let vertices = GROUPS * 8 * width;
+        (2 * 8 * vertices <= bytes.min(MAX_BYTES)).then_some(vertices)
     }
 
     fn sweep(

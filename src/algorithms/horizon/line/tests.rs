@@ -93,3 +93,57 @@ fn the_step_table_picks_what_a_scan_of_every_step_picks() {
         }
     }
 }
+
+/// What a planner adds up for the sweeps in flight is what a sweep
+/// allocates: the same lanes or none, their arrays to the byte, for steps
+/// short and long, narrow and wide DEMs, and budgets that make the lanes
+/// shallower or leave them out.
+#[test]
+fn most_carried_bytes_are_what_the_lanes_allocate() {
+    let steps = [
+        (1, 0),
+        (-1, 0),
+        (0, 1),
+        (1, -1),
+        (3, 2),
+        (-7, 5),
+        (1, 17),
+        (40, -33),
+    ];
+    for &step in &steps {
+        for width in [7, 300, 5000] {
+            for bytes in [0, 64 << 10, 1 << 20, 4 << 20, 1 << 30] {
+                let dir = GridDirection {
+                    step,
+                    azimuth: 0.0,
+                    nominal: 0.0,
+                };
+                let sweep =
+                    BandedSweep::new(&dir, (width, 64), (30.0, 30.0), RowScale::default(), false)
+                        .with_lane_memory(bytes);
+                let stated = BandedSweep::most_carried_bytes(&dir, width, false, bytes);
+                match &sweep.simd {
+                    Some(lanes) => {
+                        assert_eq!(stated, lanes.held_bytes(), "{step:?} {width} {bytes}")
+                    }
+                    None => {
+                        // The scalar sweep's lines, carried unless east-west.
+                        let lines = step.1.unsigned_abs() as usize
+                            * (width + step.0.unsigned_abs() as usize);
+                        assert_eq!(stated == 0, lines == 0, "{step:?} {width} {bytes}");
+                    }
+                }
+            }
+        }
+    }
+    // A DEM with nodata posts takes the scalar sweep: its lines' state.
+    let dir = GridDirection {
+        step: (3, 2),
+        azimuth: 0.0,
+        nominal: 0.0,
+    };
+    assert_eq!(
+        BandedSweep::most_carried_bytes(&dir, 100, true, 1 << 30),
+        2 * 103 * (std::mem::size_of::<Lane>() + 2 * TRIM_FROM * 16)
+    );
+}
