@@ -35,9 +35,7 @@ use crate::algorithms::horizon::sky::{svf_of_horizons, BandIntegrals};
 use terrabake_format::features::{HorizonFeatures, SightLine};
 use terrabake_format::horizons::{edge_distance_along, edge_may_cut, heading};
 
-use crate::algorithms::horizon::{
-    brute, distinct_line_bands, features, plan_bands, Band, BandKind, Method,
-};
+use crate::algorithms::horizon::{brute, features, plan_bands, Band, BandKind, Method};
 use crate::error::bail;
 use crate::plan::{PLANNED_FEATURES, SHARE_DIRECTIONS};
 use crate::plumbing::progress::Progress;
@@ -355,15 +353,15 @@ impl Pilot {
                 dir.display()
             );
         }
-        // Each grid step once: on non-square cells some asked azimuths
-        // share one, and every index into the reference is one direction.
-        let reference = distinct_line_bands(plan_bands(
+        // Each grid step once (`plan_bands`): every index into the
+        // reference is one direction.
+        let reference = plan_bands(
             Method::Line,
             opts.directions,
             m.cell_size.dx,
             m.cell_size.dy,
             Some(0.1),
-        ));
+        );
         let integrals = reference
             .iter()
             .map(|b| BandIntegrals::new(b.lo, b.hi))

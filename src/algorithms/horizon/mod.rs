@@ -129,6 +129,18 @@ pub fn plan_bands(
             // the last nominal azimuths (over about 800 bands) they fall
             // back to the step at 0, which would otherwise sit last.
             dirs.sort_by(|a, b| a.0.total_cmp(&b.0));
+            // Each grid step once. Where the grid cannot give every asked
+            // azimuth a step of its own within the tolerance (near the
+            // axes past about 800 directions, whose steps are at most
+            // [`line::MAX_STEP`] long; sooner on cells of 50 x 93 m at 57
+            // N), neighbouring azimuths fall back to one step: a band
+            // twice over is the same angles in twice the time and bytes,
+            // and an azimuth coordinate that repeats (the xarray backend's).
+            // Sorted, the repeats are neighbours.
+            dirs.dedup_by(|a, b| match (&a.1, &b.1) {
+                (BandKind::Line(x), BandKind::Line(y)) => x.step == y.step,
+                _ => false,
+            });
             dirs
         }
     };
@@ -143,29 +155,6 @@ pub fn plan_bands(
             kind,
         })
         .collect()
-}
-
-/// `bands` (line bands, in azimuth order) with each grid step once: where
-/// the grid cannot give every asked azimuth a step of its own within the
-/// tolerance (cells of 50 x 93 m at 57 N, near the axes), neighbouring
-/// azimuths fall back to one step, and a band per step, bounded half way
-/// to its distinct neighbours, is what a reference over them can index.
-pub(crate) fn distinct_line_bands(bands: Vec<Band>) -> Vec<Band> {
-    let step = |b: &Band| match &b.kind {
-        BandKind::Line(d) => Some(d.step),
-        _ => None,
-    };
-    let mut kept: Vec<Band> = Vec::with_capacity(bands.len());
-    for band in bands {
-        if !kept.iter().any(|k| step(k) == step(&band)) {
-            kept.push(band);
-        }
-    }
-    let azimuths: Vec<f64> = kept.iter().map(|b| b.azimuth).collect();
-    for (band, (lo, hi)) in kept.iter_mut().zip(band_bounds(&azimuths)) {
-        (band.lo, band.hi) = (lo, hi);
-    }
-    kept
 }
 
 /// Options that change every band's values; the default is exact: the

@@ -54,7 +54,9 @@ use crate::terrain::{self, RowScale, Terrain};
 #[derive(Debug, Clone, PartialEq, clap::Args, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct HorizonsStage {
-    /// Number of azimuths (bands), 3..=4096; band i is centred on i * 360 / S degrees.
+    /// Number of azimuths (bands), 3..=4096; band i is centred on i * 360 / S degrees (line:
+    /// on the grid step nearest it, each step baked once, so a few fewer bands where
+    /// neighbouring azimuths share one).
     #[arg(long, visible_alias = "directions", default_value_t = Self::DEFAULT_SECTORS, value_parser = crate::stage::args::parse_sectors)]
     pub sectors: usize,
     /// line (exact sight lines), sector (Stewart's wedges) or sampled (baseline).
