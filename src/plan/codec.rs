@@ -91,7 +91,8 @@ pub(super) fn choose(
         }
         if let Some(d) = derived.filter(|_| bytes > limit) {
             let enc = d.chosen.encoding;
-            let raw_horizons = super::layer_bytes(w, h, tile, enc.elem().size(), d.chosen.sectors);
+            let bands = d.chosen.stage().bands(d.dem.dx, d.dem.dy).len();
+            let raw_horizons = super::layer_bytes(w, h, tile, enc.elem().size(), bands);
             let raw_sky = super::layer_bytes(w, h, tile, 4, d.sky_layers);
             let (horizon_ratio, sky_ratio) = zstd_derived_ratios(&d, tile);
             let zstd = (raw_horizons as f64 * horizon_ratio + raw_sky as f64 * sky_ratio) as u64;

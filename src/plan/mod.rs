@@ -273,8 +273,10 @@ impl Candidate {
             svf_max: 0.0,
             shade_share: None,
             solar_p99_percent: None,
-            bytes: costs.layer_bytes(encoding.elem().size(), sectors)
-                + costs.layer_bytes(4, costs.sky_layers),
+            bytes: costs.horizon_bytes(&HorizonsStage {
+                method,
+                ..line_bake((sectors, None), None, encoding)
+            }),
             seconds: predict::seconds(costs, method, sectors),
             direction_tolerance: None,
             meets: false,
@@ -662,8 +664,7 @@ pub fn plan(asset: &Asset<Mmap>, request: &Request, progress: Progress) -> crate
         {
             costs.tile /= 2;
         }
-        c.bytes = costs.layer_bytes(c.encoding.elem().size(), c.sectors)
-            + costs.layer_bytes(4, costs.sky_layers);
+        c.bytes = costs.horizon_bytes(&c.stage());
     }
     let tile = costs.tile;
     let pyramid = needs.has(Need::Tracing) || needs.has(Need::FastTracing);
@@ -886,6 +887,7 @@ fn plan_horizons(
             features,
             feature_rise_m,
             max_distance: distance,
+            bytes: costs.horizon_bytes(&line_bake((sectors, tolerance), distance, encoding)),
             seconds: costs.seconds(sectors, distance),
             direction_tolerance: tolerance,
             ..Candidate::predicted((Method::Line, sectors, encoding), errors, costs)

@@ -208,6 +208,14 @@ impl LineCosts {
         layer_bytes(self.width, self.height, self.tile, size, bands)
     }
 
+    /// Bytes of the horizon layer `stage` bakes (its bands, each grid step
+    /// once) and of the sky layers from it.
+    pub(super) fn horizon_bytes(&self, stage: &HorizonsStage) -> u64 {
+        let bands = stage.bands(self.spacing.0, self.spacing.1).len();
+        self.layer_bytes(stage.angle_encoding().elem().size(), bands)
+            + self.layer_bytes(4, self.sky_layers)
+    }
+
     pub(super) fn seconds(&self, sectors: usize, distance: Option<f64>) -> f64 {
         let (s, m) = (sectors as f64, &self.models);
         let work = match distance {
