@@ -211,9 +211,14 @@ impl LineCosts {
     /// Bytes of the horizon layer `stage` bakes (its bands, each grid step
     /// once) and of the sky layers from it.
     pub(super) fn horizon_bytes(&self, stage: &HorizonsStage) -> u64 {
-        let bands = stage.bands(self.spacing.0, self.spacing.1).len();
-        self.layer_bytes(stage.angle_encoding().elem().size(), bands)
+        self.layer_bytes(stage.angle_encoding().elem().size(), self.bands(stage))
             + self.layer_bytes(4, self.sky_layers)
+    }
+
+    /// The bands `stage` bakes on this DEM (each grid step once: fewer
+    /// than its directions where neighbouring ones share a step).
+    fn bands(&self, stage: &HorizonsStage) -> usize {
+        stage.bands(self.spacing.0, self.spacing.1).len()
     }
 
     pub(super) fn seconds(&self, sectors: usize, distance: Option<f64>) -> f64 {
@@ -242,7 +247,7 @@ impl LineCosts {
             0.0
         } else {
             let per_post =
-                stage.sectors * stage.angle_encoding().elem().size() + 4 * self.sky_layers;
+                self.bands(&stage) * stage.angle_encoding().elem().size() + 4 * self.sky_layers;
             self.row_posts() * per_post as f64
         };
         self.base_mib() + horizons.max(sky) / 1048576.0
